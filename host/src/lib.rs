@@ -1,0 +1,1 @@
+//! rotacal host library.

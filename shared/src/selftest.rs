@@ -1,0 +1,448 @@
+//! Test cases that run both as host unit tests and on the emulated Cortex-M4F
+//! (tests/qemu), so that the device's own f32 arithmetic is what gets tested.
+//!
+//! Each case returns `Err(what failed)`. Runners: `shared/tests/selftest.rs` on the host,
+//! `tests/qemu/src/bin/selftest.rs` under QEMU; both print one line per case.
+
+use crate::dword::{two_prod, two_sum, DoubleWord};
+use crate::fit::{FitConfig, FitError, Model, Param, SineFit};
+use crate::phase::{Phase, PhaseStep};
+use crate::real::Real;
+use crate::synth::{Checksum, Synth, SynthSpec};
+use crate::time::{TickExtender, TickRate, Ticks};
+
+/// One named test case.
+pub struct Case {
+    /// Name printed by the runners.
+    pub name: &'static str,
+    /// The test; `Err` says which check failed.
+    pub run: fn() -> Result<(), &'static str>,
+}
+
+/// Every case, in a fixed order.
+pub const CASES: &[Case] = &[
+    Case {
+        name: "dword_error_free_transforms",
+        run: dword_error_free_transforms,
+    },
+    Case {
+        name: "tick_extender_wraps",
+        run: tick_extender_wraps,
+    },
+    Case {
+        name: "phase_step_is_exact",
+        run: phase_step_is_exact,
+    },
+    Case {
+        name: "phase_quadrants_f32",
+        run: phase_quadrants::<f32>,
+    },
+    Case {
+        name: "phase_quadrants_f64",
+        run: phase_quadrants::<f64>,
+    },
+    Case {
+        name: "phase_kernel_accuracy_f32",
+        run: phase_kernel_accuracy::<f32>,
+    },
+    Case {
+        name: "phase_kernel_accuracy_f64",
+        run: phase_kernel_accuracy::<f64>,
+    },
+    Case {
+        name: "fit_noise_free_f32",
+        run: fit_noise_free::<f32>,
+    },
+    Case {
+        name: "fit_noise_free_f64",
+        run: fit_noise_free::<f64>,
+    },
+    Case {
+        name: "fit_drift_and_rate_terms_f32",
+        run: fit_drift_and_rate_terms::<f32>,
+    },
+    Case {
+        name: "fit_drift_and_rate_terms_f64",
+        run: fit_drift_and_rate_terms::<f64>,
+    },
+    Case {
+        name: "fit_refuses_bad_input_f32",
+        run: fit_refuses_bad_input::<f32>,
+    },
+    Case {
+        name: "fit_refuses_bad_input_f64",
+        run: fit_refuses_bad_input::<f64>,
+    },
+    Case {
+        name: "fit_noisy_record_f32",
+        run: fit_noisy_record::<f32>,
+    },
+    Case {
+        name: "fit_noisy_record_f64",
+        run: fit_noisy_record::<f64>,
+    },
+    Case {
+        name: "fit_estimates_rate_error_f32",
+        run: fit_estimates_rate_error::<f32>,
+    },
+    Case {
+        name: "synth_is_reproducible",
+        run: synth_is_reproducible,
+    },
+];
+
+fn check(ok: bool, what: &'static str) -> Result<(), &'static str> {
+    if ok {
+        Ok(())
+    } else {
+        Err(what)
+    }
+}
+
+fn close(a: f64, b: f64, tol: f64) -> bool {
+    libm::fabs(a - b) <= tol
+}
+
+fn dword_error_free_transforms() -> Result<(), &'static str> {
+    // 4097² = 2²⁴ + 8193: f32 rounds it to 2²⁴ + 8192, TwoProd recovers the 1.
+    let (p, e) = two_prod(4097.0f32, 4097.0);
+    check(p == 16_785_408.0 && e == 1.0, "two_prod f32 not exact")?;
+    let (s, e) = two_sum(1.0f32, 1e-10);
+    check(s == 1.0 && e == 1e-10, "two_sum f32 not exact")?;
+    let (s, e) = two_sum(1e16f64, 1.0);
+    check(s == 1e16 && e == 1.0, "two_sum f64 not exact")?;
+    // (1 + 2⁻³⁰)² in double-word f32 keeps the 2⁻³⁰ term that plain f32 loses.
+    let x = DoubleWord::normalised(1.0f32, 9.313_226e-10);
+    let sq = (x * x).to_f64();
+    check(
+        close(sq, 1.0 + 2.0 * 9.313_226e-10, 1e-15),
+        "double-word product",
+    )
+}
+
+fn tick_extender_wraps() -> Result<(), &'static str> {
+    let mut ext = TickExtender::new(24);
+    check(ext.extend(0xFF_FFF0) == Ticks(0xFF_FFF0), "before wrap")?;
+    check(ext.extend(0x00_0010) == Ticks(0x100_0010), "first wrap")?;
+    check(ext.extend(0x00_0010) == Ticks(0x100_0010), "same reading")?;
+    check(
+        ext.extend(0xFF_FFFF) == Ticks(0x1FF_FFFF),
+        "within second lap",
+    )?;
+    check(ext.extend(0x00_0000) == Ticks(0x200_0000), "second wrap")?;
+    let mut ext = TickExtender::new(32);
+    ext.extend(0xFFFF_FFFF);
+    check(ext.extend(5) == Ticks(0x1_0000_0005), "32-bit wrap")
+}
+
+fn phase_step_is_exact() -> Result<(), &'static str> {
+    // 10 mHz at 1 MHz: 2⁶⁴·10⁻⁸ = 184 467 440 737.095… → 184 467 440 737.
+    let step = PhaseStep::from_micro_hz(10_000, TickRate::MHZ_1);
+    check(step == Some(PhaseStep(184_467_440_737)), "10 mHz step")?;
+    // A quarter-turn-per-tick step at 4 Hz on a 16 Hz clock is exactly 2⁶².
+    let clock = TickRate::new(16).ok_or("tick rate")?;
+    check(
+        PhaseStep::from_micro_hz(4_000_000, clock) == Some(PhaseStep(1 << 62)),
+        "quarter-turn step",
+    )?;
+    check(
+        PhaseStep::from_micro_hz(16_000_000, clock).is_none(),
+        "rate at the tick rate must be refused",
+    )?;
+    let back = PhaseStep(184_467_440_737).to_hz(TickRate::MHZ_1);
+    check(close(back, 0.01, 1e-14), "to_hz")
+}
+
+fn phase_quadrants<T: Real>() -> Result<(), &'static str> {
+    let z = T::ZERO;
+    let one = T::ONE;
+    check(Phase(0).sin_cos::<T>() == (z, one), "0 turn")?;
+    check(Phase(1 << 62).sin_cos::<T>() == (one, z), "1/4 turn")?;
+    check(Phase(2 << 62).sin_cos::<T>() == (z, -one), "1/2 turn")?;
+    check(Phase(3 << 62).sin_cos::<T>() == (-one, z), "3/4 turn")?;
+    let (s, c) = Phase(1 << 61).sin_cos::<T>();
+    let h = core::f64::consts::FRAC_1_SQRT_2;
+    let tol = 4.0 * T::EPSILON.to_f64();
+    check(
+        close(s.to_f64(), h, tol) && close(c.to_f64(), h, tol),
+        "1/8 turn",
+    )
+}
+
+fn phase_kernel_accuracy<T: Real>() -> Result<(), &'static str> {
+    // 4u of T, plus the f64 reference's own error (2π·2⁻⁵³ from `radians`).
+    let tol = 4.0 * T::EPSILON.to_f64() + 1e-15;
+    let mut x = 0x0123_4567_89AB_CDEFu64;
+    for _ in 0..4096 {
+        x = x
+            .wrapping_mul(6_364_136_223_846_793_005)
+            .wrapping_add(1_442_695_040_888_963_407);
+        let ph = Phase(x);
+        let (s, c) = ph.sin_cos::<T>();
+        let a = ph.radians();
+        check(
+            close(s.to_f64(), libm::sin(a), tol),
+            "sin off by more than 4u",
+        )?;
+        check(
+            close(c.to_f64(), libm::cos(a), tol),
+            "cos off by more than 4u",
+        )?;
+    }
+    Ok(())
+}
+
+fn noise_free_fit<T: Real>(model: Model, d: f64, rate_ppm: f64) -> Result<(), &'static str> {
+    // 3 periods of 0.1 Hz at 16 Hz, channel values computed in f64 and rounded to T.
+    let clock = TickRate::MHZ_1;
+    let step = PhaseStep::from_micro_hz(100_000, clock).ok_or("step")?;
+    let truth = [
+        [12_000.0, -9_000.0, 250.0],
+        [-30.5, 16_390.0, -41.0],
+        [700.0, 55.0, 16_000.0],
+    ];
+    let mut fit = SineFit::<T>::new(FitConfig {
+        model,
+        ..FitConfig::sine(step, clock)
+    });
+    let w = core::f64::consts::TAU * 0.1 * (1.0 + rate_ppm * 1e-6);
+    for i in 0..480u64 {
+        let t = Ticks(1_000_000 + i * 62_500);
+        let secs = t.0 as f64 * 1e-6;
+        let tau = (t.0 - 1_000_000) as f64 * 1e-6;
+        let (s, c) = (libm::sin(w * secs), libm::cos(w * secs));
+        let y = truth.map(|[a, b, o]| T::from_f64(a * s + b * c + o + d * tau));
+        fit.update(t, y).map_err(|_| "update refused")?;
+    }
+    let r = fit.solve().map_err(|_| "solve failed")?;
+    let rel = if T::EPSILON.to_f64() < 1e-10 {
+        1e-11
+    } else {
+        2e-6
+    };
+    for (ch, [a, b, o]) in truth.iter().enumerate() {
+        let got = |p| r.coef(ch, p).map(|v| v.to_f64()).unwrap_or(f64::NAN);
+        let scale = 16_400.0;
+        if rate_ppm == 0.0 {
+            check(close(got(Param::A), *a, rel * scale), "A")?;
+            check(close(got(Param::B), *b, rel * scale), "B")?;
+        }
+        let centre = r
+            .t_ref
+            .map(|t| (t.0 - 1_000_000) as f64 * 1e-6)
+            .unwrap_or(0.0);
+        check(close(got(Param::C), *o + d * centre, rel * scale), "C")?;
+        if model.offset_drift {
+            check(close(got(Param::D), d, rel * scale / 30.0), "drift D")?;
+        }
+    }
+    Ok(())
+}
+
+fn fit_noise_free<T: Real>() -> Result<(), &'static str> {
+    noise_free_fit::<T>(Model::SINE, 0.0, 0.0)
+}
+
+fn fit_drift_and_rate_terms<T: Real>() -> Result<(), &'static str> {
+    let drift = Model {
+        offset_drift: true,
+        rate_error: false,
+    };
+    noise_free_fit::<T>(drift, 2.5, 0.0)?;
+    let both = Model {
+        offset_drift: true,
+        rate_error: true,
+    };
+    noise_free_fit::<T>(both, -1.5, 0.0)
+}
+
+fn fit_refuses_bad_input<T: Real>() -> Result<(), &'static str> {
+    let clock = TickRate::MHZ_1;
+    let step = PhaseStep::from_micro_hz(1_000_000, clock).ok_or("step")?;
+    let mut fit = SineFit::<T>::new(FitConfig::sine(step, clock));
+    let one = T::ONE;
+    fit.update(Ticks(10), [one, one, one])
+        .map_err(|_| "first sample")?;
+    let nan = T::ZERO / T::ZERO;
+    check(
+        fit.update(Ticks(20), [one, nan, one]) == Err(FitError::NonFiniteSample { channel: 1 }),
+        "NaN accepted",
+    )?;
+    let inf = T::ONE / T::ZERO;
+    check(
+        fit.update(Ticks(20), [one, one, inf]) == Err(FitError::NonFiniteSample { channel: 2 }),
+        "infinity accepted",
+    )?;
+    check(
+        fit.update(Ticks(5), [one, one, one])
+            == Err(FitError::TimeWentBackwards {
+                previous: Ticks(10),
+                got: Ticks(5),
+            }),
+        "time going backwards accepted",
+    )?;
+    check(fit.len() == 1, "a refused sample changed the fit")?;
+    check(
+        fit.solve().err() == Some(FitError::TooFewSamples { n: 1, needed: 4 }),
+        "too few samples",
+    )?;
+    // Ten samples over a tenth of a period.
+    for i in 1..10u64 {
+        fit.update(Ticks(10 + i * 10_000), [one, one, one])
+            .map_err(|_| "span samples")?;
+    }
+    check(
+        matches!(
+            fit.solve(),
+            Err(FitError::TooFewPeriods {
+                milli_periods: 90,
+                needed: 1500
+            })
+        ),
+        "too few periods",
+    )?;
+    // All samples at one tick: every regressor row equal.
+    let mut same = SineFit::<T>::new(FitConfig {
+        min_milli_periods: 0,
+        ..FitConfig::sine(step, clock)
+    });
+    for _ in 0..10 {
+        same.update(Ticks(123), [one, one, one])
+            .map_err(|_| "same-time samples")?;
+    }
+    check(
+        same.solve().err() == Some(FitError::Singular),
+        "singular system",
+    )
+}
+
+/// A paper-like record: 10 mHz, 16 Hz, 4200 samples, σ = 4.2 counts.
+fn paper_spec(seed: u64) -> Option<SynthSpec> {
+    let clock = TickRate::MHZ_1;
+    Some(SynthSpec {
+        coef: [
+            [16_380.0, 420.0, 35.0],
+            [-210.0, 16_395.0, -20.0],
+            [60.0, -95.0, 140.0],
+        ],
+        noise_sigma: 4.2,
+        step: PhaseStep::from_micro_hz(10_000, clock)?,
+        clock,
+        sample_rate_mhz: 16_000,
+        n_samples: 4200,
+        drop_per_million: 0,
+        seed,
+    })
+}
+
+fn fit_noisy_record<T: Real>() -> Result<(), &'static str> {
+    let spec = paper_spec(7).ok_or("spec")?;
+    let mut fit = SineFit::<T>::new(FitConfig::sine(spec.step, spec.clock));
+    for s in Synth::new(spec) {
+        fit.update(s.t, s.counts.map(|c| T::from_f64(f64::from(c))))
+            .map_err(|_| "update refused")?;
+    }
+    let r = fit.solve().map_err(|_| "solve failed")?;
+    let n = 4200.0;
+    // Quantisation adds 1/12 count² to the noise.
+    let sigma = libm::sqrt(4.2 * 4.2 + 1.0 / 12.0);
+    let crlb_ab = sigma * libm::sqrt(2.0 / n);
+    for (ch, [a, b, c]) in spec.coef.iter().enumerate() {
+        let got = |p| r.coef(ch, p).map(|v| v.to_f64()).unwrap_or(f64::NAN);
+        let se = |p| r.se(ch, p).map(|v| v.to_f64()).unwrap_or(f64::NAN);
+        check(
+            close(got(Param::A), *a, 5.0 * se(Param::A)),
+            "A beyond 5 se",
+        )?;
+        check(
+            close(got(Param::B), *b, 5.0 * se(Param::B)),
+            "B beyond 5 se",
+        )?;
+        check(
+            close(got(Param::C), *c, 5.0 * se(Param::C)),
+            "C beyond 5 se",
+        )?;
+        check(
+            close(se(Param::A), crlb_ab, 0.1 * crlb_ab),
+            "se(A) not near the CRLB",
+        )?;
+        let s = r
+            .channels
+            .get(ch)
+            .map(|c| c.sigma.to_f64())
+            .unwrap_or(f64::NAN);
+        check(
+            close(s, sigma, 0.05 * sigma),
+            "sigma-hat not near the noise",
+        )?;
+    }
+    Ok(())
+}
+
+fn fit_estimates_rate_error<T: Real>() -> Result<(), &'static str> {
+    // The table turns 400 ppm fast: over 40 periods the phase ramps by 0.1 rad.
+    let clock = TickRate::MHZ_1;
+    let nominal = PhaseStep::from_micro_hz(100_000, clock).ok_or("step")?;
+    let true_step = PhaseStep::from_micro_hz(100_040, clock).ok_or("step")?;
+    let spec = SynthSpec {
+        step: true_step,
+        n_samples: 6400,
+        noise_sigma: 2.0,
+        ..paper_spec(3).ok_or("spec")?
+    };
+    let model = Model {
+        offset_drift: false,
+        rate_error: true,
+    };
+    let mut fit = SineFit::<T>::new(FitConfig {
+        model,
+        ..FitConfig::sine(nominal, clock)
+    });
+    for s in Synth::new(spec) {
+        fit.update(s.t, s.counts.map(|c| T::from_f64(f64::from(c))))
+            .map_err(|_| "update refused")?;
+    }
+    let r = fit.solve().map_err(|_| "solve failed")?;
+    let get = |p| r.coef(0, p).map(|v| v.to_f64()).unwrap_or(f64::NAN);
+    let (a, b, e, f) = (get(Param::A), get(Param::B), get(Param::E), get(Param::F));
+    // y ≈ A sin α + B cos α + τ·δω·(A cos α − B sin α): F = δω·A, E = −δω·B.
+    let dw = (f * a - e * b) / (a * a + b * b);
+    let truth = core::f64::consts::TAU * 0.1 * 400e-6;
+    check(
+        close(dw, truth, 0.02 * truth),
+        "rate offset not recovered to 2 %",
+    )?;
+    // The linear terms capture the phase ramp but not its second order: the amplitude
+    // keeps the bias −A·(δω·T)²/24 (docs/fit.md), here 4.2e-4 relative.
+    let amp = libm::sqrt(a * a + b * b);
+    let span = 6399.0 / 16.0;
+    let expected = libm::sqrt(16_380.0f64 * 16_380.0 + 420.0 * 420.0)
+        * (1.0 - (truth * span) * (truth * span) / 24.0);
+    check(
+        close(amp, expected, 0.5),
+        "amplitude not as the linearised model predicts",
+    )
+}
+
+/// FNV-1a of the first 2000 samples of `paper_spec(1)` with 1 % drops, as computed on
+/// x86-64; the Cortex-M4F must produce the same.
+pub const SYNTH_GOLDEN: u64 = 0x7e03_612f_e856_ab5d;
+
+fn synth_is_reproducible() -> Result<(), &'static str> {
+    let spec = SynthSpec {
+        n_samples: 2000,
+        drop_per_million: 10_000,
+        ..paper_spec(1).ok_or("spec")?
+    };
+    let mut sum = Checksum::default();
+    let mut kept = 0u32;
+    for s in Synth::new(spec) {
+        sum.add(&s);
+        kept += 1;
+    }
+    check(kept > 1940 && kept < 2000, "drop rate")?;
+    check(
+        sum.0 == SYNTH_GOLDEN,
+        "synthetic samples differ from the golden checksum",
+    )
+}
