@@ -1,1 +1,11 @@
-//! rotacal host library.
+//! The rotacal host library. The `rotacal` binary is a thin command-line layer over it.
+//!
+//! - [`batch`]: f64 reference fits over a whole record (nalgebra QR), including the
+//!   iterated four-parameter fit of IEEE 1057 that estimates the rotation rate.
+//! - [`fitcheck`]: checks the device's f32 streaming fit (run on the emulated Cortex-M4F)
+//!   against the f64 batch fit of the same samples.
+//! - [`demo`]: the main job without hardware.
+pub mod batch;
+pub mod demo;
+pub mod fitcheck;
+pub mod output;

@@ -19,7 +19,7 @@ pub mod synth;
 pub mod time;
 
 pub use dword::DoubleWord;
-pub use fit::{ChannelFit, FitConfig, FitError, FitResult, Model, SineFit, MAX_PARAMS};
+pub use fit::{ChannelFit, FitConfig, FitError, FitResult, Model, Param, SineFit, MAX_PARAMS};
 pub use phase::{Phase, PhaseStep};
 pub use real::Real;
 pub use time::{TickExtender, TickRate, Ticks};

@@ -5,6 +5,7 @@
 //! multiplication, exact, identical on host and device. Only the reduced angle within an
 //! octant (≤ π/4) is ever converted to floating point.
 
+use crate::dword::DoubleWord;
 use crate::real::Real;
 use crate::time::{TickRate, Ticks};
 
@@ -62,17 +63,16 @@ impl Phase {
     /// `(sin α, cos α)` of this angle.
     ///
     /// Reduced to an octant by integer operations (quadrant from the top two bits, then a
-    /// reflection so the angle is ≤ π/4), so the only rounding is that of the small angle
-    /// and of [`Real::sin_cos_octant`].
-    pub fn sin_cos<T: Real>(self) -> (T, T) {
+    /// reflection so the angle is ≤ π/4), so the only rounding is in
+    /// [`Real::sin_cos_octant`]. Double word: see there why.
+    pub fn sin_cos<T: Real>(self) -> (DoubleWord<T>, DoubleWord<T>) {
         const EIGHTH: u64 = 1 << 61; // one octant in 2⁻⁶⁴ turns
         let quadrant = self.0 >> 62;
         let r = self.0 & (2 * EIGHTH - 1);
-        let scale = T::FRAC_PI_4 / T::from_u64(EIGHTH);
         let (s, c) = if r <= EIGHTH {
-            T::sin_cos_octant(T::from_u64(r) * scale)
+            T::sin_cos_octant(r)
         } else {
-            let (s, c) = T::sin_cos_octant(T::from_u64(2 * EIGHTH - r) * scale);
+            let (s, c) = T::sin_cos_octant(2 * EIGHTH - r);
             (c, s)
         };
         match quadrant {

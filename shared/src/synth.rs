@@ -150,6 +150,24 @@ impl Checksum {
     }
 }
 
+/// The A, B, C of each channel (rows of `s`, output units per m/s²) for rotation about
+/// platter axis `axis` (0 = x, 1 = y, 2 = z) in gravity `g`, by method.md §1: about x,
+/// A = g·S_jy and B = g·S_jz; about y, A = g·S_jx, B = g·S_jz; about z, A = g·S_jx,
+/// B = g·S_jy. C is the offset.
+pub fn coefficients(s: &[[f64; 3]; 3], offsets: &[f64; 3], g: f64, axis: usize) -> [[f64; 3]; 3] {
+    let (ia, ib) = match axis {
+        0 => (1, 2),
+        1 => (0, 2),
+        _ => (0, 1),
+    };
+    let mut out = [[0.0; 3]; 3];
+    for ((o, row), off) in out.iter_mut().zip(s).zip(offsets) {
+        let pick = |i: usize| row.get(i).copied().unwrap_or(0.0);
+        *o = [g * pick(ia), g * pick(ib), *off];
+    }
+    out
+}
+
 /// The records of the f32-versus-f64 cross-check (issue 2, docs/fit.md): a device with a
 /// realistic sensitivity matrix, turned about x, y and z, with LSM6DS33 noise.
 pub mod crosscheck {
@@ -218,21 +236,9 @@ pub mod crosscheck {
         NOISE_DENSITY_G * libm::sqrt(f64::from(sample_rate_mhz) / 2000.0) / 0.061e-3
     }
 
-    /// The A, B, C of each channel for rotation about platter axis `axis` (0 = x, 1 = y,
-    /// 2 = z), by method.md §1: about x, A = g·S_jy and B = g·S_jz; about y, A = g·S_jx,
-    /// B = g·S_jz; about z, A = g·S_jx, B = g·S_jy.
+    /// The A, B, C of each channel for rotation about platter axis `axis`.
     pub fn coefficients(axis: usize) -> [[f64; 3]; 3] {
-        let (ia, ib) = match axis {
-            0 => (1, 2),
-            1 => (0, 2),
-            _ => (0, 1),
-        };
-        let mut out = [[0.0; 3]; 3];
-        for ((o, row), off) in out.iter_mut().zip(sensitivity()).zip(OFFSETS) {
-            let pick = |i: usize| row.get(i).copied().unwrap_or(0.0);
-            *o = [G * pick(ia), G * pick(ib), off];
-        }
-        out
+        super::coefficients(&sensitivity(), &OFFSETS, G, axis)
     }
 
     /// The spec of `record` for condition `axis`, with a seed of its own.

@@ -96,20 +96,6 @@ impl<T: Real> Cholesky<T> {
         }
         Ok(z)
     }
-
-    /// `M⁻¹` (leading `p×p` block; the rest zero).
-    pub(crate) fn inverse(&self) -> Result<Mat<T>, FitError> {
-        let mut inv = [[T::ZERO; MAX_PARAMS]; MAX_PARAMS];
-        for j in 0..self.p {
-            let mut e = [T::ZERO; MAX_PARAMS];
-            *el_mut(&mut e, j)? = T::ONE;
-            let col = self.solve(&e)?;
-            for i in 0..self.p {
-                *at_mut(&mut inv, i, j)? = el(&col, i)?;
-            }
-        }
-        Ok(inv)
-    }
 }
 
 /// Solve `M·x = b` to double-word accuracy by iterative refinement: each correction is
@@ -139,4 +125,22 @@ pub(crate) fn refine<T: Real>(
         }
     }
     Ok(x)
+}
+
+/// `M⁻¹` (leading `p×p` block; the rest zero), each column refined like [`refine`], so
+/// the standard errors are as accurate as the parameters.
+pub(crate) fn refined_inverse<T: Real>(
+    m: &Mat<DoubleWord<T>>,
+    chol: &Cholesky<T>,
+) -> Result<Mat<T>, FitError> {
+    let mut inv = [[T::ZERO; MAX_PARAMS]; MAX_PARAMS];
+    for j in 0..chol.p {
+        let mut e = [DoubleWord::<T>::ZERO; MAX_PARAMS];
+        *el_mut(&mut e, j)? = DoubleWord::from_t(T::ONE);
+        let col = refine(m, &e, chol)?;
+        for i in 0..chol.p {
+            *at_mut(&mut inv, i, j)? = el(&col, i)?.to_t();
+        }
+    }
+    Ok(inv)
 }

@@ -3,10 +3,12 @@
 //!
 //! # Form
 //! The fit accumulates the normal equations: the information matrix `HᵀH` once for all
-//! channels (they share regressors), and `Hᵀy` and `Σy²` per channel. Every sum is kept
-//! in double-word form ([`Accumulator`]) and `y²` is formed exactly, so neither the
-//! length of the record nor the cancellation in the residual sum of squares costs
-//! accuracy. The system is solved only when a result is read out, by an equilibrated
+//! channels (they share regressors), and `Hᵀy` and `Σy²` per channel. Every product is
+//! formed exactly (Dekker's TwoProd) and every sum kept in double-word form
+//! ([`Accumulator`]). Exactness matters twice: the residual sum of squares
+//! `Σy² − xᵀHᵀy` cancels from ~N·A² down to ~N·σ², which amplifies any rounding in the
+//! sums by (A/σ)²/√N (in f32 at the LSM6DS33's SNR that would put σ̂ off by ~1 %); and
+//! an hour of sums would otherwise drift. The system is solved only when a result is read out, by an equilibrated
 //! Cholesky factorisation refined in double-word arithmetic. method.md §6 explains why
 //! not covariance-form RLS (erratic in f32) or Givens QR-RLS (loses accuracy over an
 //! hour); docs/fit.md shows the measured accuracy.
@@ -20,7 +22,7 @@
 
 mod linalg;
 
-use crate::dword::{two_prod, Accumulator, DoubleWord};
+use crate::dword::{Accumulator, DoubleWord, Split};
 use crate::phase::PhaseStep;
 use crate::real::Real;
 use crate::time::{TickRate, Ticks};
@@ -29,6 +31,8 @@ use linalg::{at, at_mut, el, el_mut, Cholesky, Mat, Vector};
 /// Most parameters any [`Model`] has.
 pub const MAX_PARAMS: usize = 6;
 const PACKED: usize = MAX_PARAMS * (MAX_PARAMS + 1) / 2;
+/// Samples between renormalisations of the running sums (see `Accumulator::renormalise`).
+const RENORMALISE_EVERY: u32 = 64;
 
 /// Which terms the fit has beyond `A sin α + B cos α + C`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
@@ -90,25 +94,36 @@ impl Model {
         }
     }
 
-    /// The regressor row for one sample.
+    /// The regressor row for one sample, in double word for the sine and cosine (whose
+    /// rounding would repeat from period to period); τ never repeats, so its products
+    /// need no more than `T`.
     #[inline(always)]
-    fn regressors<T: Real>(self, s: T, c: T, tau: T) -> Vector<T> {
-        let mut h = [T::ZERO; MAX_PARAMS];
+    fn regressors<T: Real>(
+        self,
+        s: DoubleWord<T>,
+        c: DoubleWord<T>,
+        tau: T,
+    ) -> Vector<DoubleWord<T>> {
+        let mut h = [DoubleWord::ZERO; MAX_PARAMS];
         let [h0, h1, h2, h3, h4, h5] = &mut h;
+        let times = |x: DoubleWord<T>| DoubleWord {
+            hi: tau * x.hi,
+            lo: tau * x.lo,
+        };
         *h0 = s;
         *h1 = c;
-        *h2 = T::ONE;
+        *h2 = DoubleWord::from_t(T::ONE);
         match (self.offset_drift, self.rate_error) {
             (false, false) => {}
-            (true, false) => *h3 = tau,
+            (true, false) => *h3 = DoubleWord::from_t(tau),
             (false, true) => {
-                *h3 = tau * s;
-                *h4 = tau * c;
+                *h3 = times(s);
+                *h4 = times(c);
             }
             (true, true) => {
-                *h3 = tau;
-                *h4 = tau * s;
-                *h5 = tau * c;
+                *h3 = DoubleWord::from_t(tau);
+                *h4 = times(s);
+                *h5 = times(c);
             }
         }
         h
@@ -215,6 +230,8 @@ impl core::fmt::Display for FitError {
         }
     }
 }
+
+impl core::error::Error for FitError {}
 
 /// The fit of one channel.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -358,26 +375,38 @@ impl<T: Real, const CH: usize> SineFit<T, CH> {
             T::ZERO
         };
         let (s, c) = self.cfg.step.phase_at(t).sin_cos::<T>();
-        let h = model.regressors(s, c, tau);
         let p = model.n_params();
+        // (leading part split for exact products, trailing part)
+        let h = model
+            .regressors(s, c, tau)
+            .map(|r| (Split::new(r.hi), r.lo));
 
         let mut info = self.info.iter_mut();
-        for (i, hi) in h.iter().take(p).enumerate() {
-            for hj in h.iter().take(p).skip(i) {
+        for (i, (hi, li)) in h.iter().take(p).enumerate() {
+            for (hj, lj) in h.iter().take(p).skip(i) {
                 if let Some(acc) = info.next() {
-                    acc.add(*hi * *hj);
+                    let (prod, err) = hi.two_prod(*hj);
+                    acc.add_dw(prod, err + (hi.value() * *lj + *li * hj.value()));
                 }
             }
         }
         for ((rhs, yy), yv) in self.rhs.iter_mut().zip(self.yy.iter_mut()).zip(y) {
-            for (acc, hv) in rhs.iter_mut().zip(h).take(p) {
-                acc.add(hv * yv);
+            let ys = Split::new(yv);
+            for (acc, (hv, lv)) in rhs.iter_mut().zip(h).take(p) {
+                let (prod, err) = hv.two_prod(ys);
+                acc.add_dw(prod, err + lv * yv);
             }
-            let (sq, err) = two_prod(yv, yv);
+            let (sq, err) = ys.two_prod(ys);
             yy.add_dw(sq, err);
         }
         self.n += 1;
         self.t_last = t;
+        if self.n % RENORMALISE_EVERY == 0 {
+            let sums = self.info.iter_mut().chain(self.yy.iter_mut());
+            for acc in sums.chain(self.rhs.iter_mut().flatten()) {
+                acc.renormalise();
+            }
+        }
         Ok(())
     }
 
@@ -416,7 +445,7 @@ impl<T: Real, const CH: usize> SineFit<T, CH> {
             }
         }
         let chol = Cholesky::new(&m_t, p)?;
-        let mut cov = chol.inverse()?;
+        let mut cov = linalg::refined_inverse(&m, &chol)?;
 
         let (t_ref, tau_ref) = if model.has_time_terms() {
             // Σ1·τ sits at (C, first τ term) = (2, 3) when there is a drift term; with

@@ -33,16 +33,6 @@ fn main() -> ! {
         *slot = (s.t, s.counts.map(f32::from));
     }
 
-    // Loop overhead alone (load a sample, keep it live), to subtract.
-    let t0 = counter.now();
-    let mut sink = 0f32;
-    for (t, y) in samples.iter() {
-        sink += y[0] + (t.0 as f32);
-        core::hint::black_box(sink);
-    }
-    let overhead = counter.instructions(counter.now() - t0);
-    hprintln!("bench loop_overhead_total {}", overhead);
-
     let mut ok = true;
     for (name, model) in [
         ("sine", Model::SINE),

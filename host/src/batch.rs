@@ -1,0 +1,208 @@
+//! Batch least squares in f64 over a whole record, by Householder QR (nalgebra): the
+//! reference the streaming fit is checked against, and the host's own fits.
+//!
+//! Uses the same regressors as the streaming fit (`rotacal_shared`): the exact integer
+//! phase at each tick, and τ in seconds. Time-dependent terms are written directly about
+//! a given reference tick, so A, B, C mean the same as the streaming fit's re-referenced
+//! values without going through its transformation.
+
+use nalgebra::{DMatrix, DVector};
+use rotacal_shared::{Model, PhaseStep, TickRate, Ticks};
+use std::f64::consts::TAU;
+
+/// One fitted channel.
+#[derive(Clone, Debug, PartialEq)]
+pub struct BatchChannel {
+    /// Parameters in `rotacal_shared::Model` order.
+    pub coef: Vec<f64>,
+    /// Standard errors √(σ̂²·[(HᵀH)⁻¹]ᵢᵢ).
+    pub se: Vec<f64>,
+    /// Residual sum of squares, summed from the residuals.
+    pub rss: f64,
+    /// σ̂ = √(RSS/(n − p)).
+    pub sigma: f64,
+}
+
+/// A batch fit of every channel.
+#[derive(Clone, Debug, PartialEq)]
+pub struct BatchFit {
+    /// Samples fitted.
+    pub n: usize,
+    /// (HᵀH)⁻¹.
+    pub unscaled_cov: DMatrix<f64>,
+    /// Per channel.
+    pub channels: Vec<BatchChannel>,
+}
+
+/// Why a batch fit failed.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum BatchError {
+    /// Fewer samples than parameters + 1.
+    #[error("too few samples: {n}, need at least {needed}")]
+    TooFewSamples {
+        /// Samples given.
+        n: usize,
+        /// Samples needed.
+        needed: usize,
+    },
+    /// The regressors are linearly dependent.
+    #[error("singular fit: the samples do not determine every parameter")]
+    Singular,
+    /// The iterated fit did not converge.
+    #[error("four-parameter fit did not converge in {0} iterations")]
+    NoConvergence(usize),
+}
+
+fn regressor_row(model: Model, s: f64, c: f64, tau: f64) -> Vec<f64> {
+    let mut h = vec![s, c, 1.0];
+    if model.offset_drift {
+        h.push(tau);
+    }
+    if model.rate_error {
+        h.push(tau * s);
+        h.push(tau * c);
+    }
+    h
+}
+
+/// Seconds from `t_ref` to `t` (negative before it).
+pub fn seconds_between(t: Ticks, t_ref: Ticks, clock: TickRate) -> f64 {
+    (t.0 as i128 - t_ref.0 as i128) as f64 / f64::from(clock.hz())
+}
+
+/// Least squares of each column of `y` on `h` by QR.
+fn solve_qr(h: DMatrix<f64>, ys: &[DVector<f64>]) -> Result<BatchFit, BatchError> {
+    let (n, p) = h.shape();
+    if n <= p {
+        return Err(BatchError::TooFewSamples { n, needed: p + 1 });
+    }
+    let qr = h.clone().qr();
+    let r = qr.r();
+    let rmax = r.diagonal().amax();
+    if r.diagonal().iter().any(|d| d.abs() <= 1e-13 * rmax) {
+        return Err(BatchError::Singular);
+    }
+    let r_inv = r.clone().try_inverse().ok_or(BatchError::Singular)?;
+    let unscaled_cov = &r_inv * r_inv.transpose();
+    let q = qr.q();
+    let mut channels = Vec::with_capacity(ys.len());
+    for y in ys {
+        let qty = q.transpose() * y;
+        let coef = r.solve_upper_triangular(&qty).ok_or(BatchError::Singular)?;
+        let resid = y - &h * &coef;
+        let rss = resid.norm_squared();
+        let var = rss / (n - p) as f64;
+        let se = (0..p)
+            .map(|i| (var * unscaled_cov[(i, i)]).sqrt())
+            .collect();
+        channels.push(BatchChannel {
+            coef: coef.iter().copied().collect(),
+            se,
+            rss,
+            sigma: var.sqrt(),
+        });
+    }
+    Ok(BatchFit {
+        n,
+        unscaled_cov,
+        channels,
+    })
+}
+
+/// Fit `model` to samples `(t, [u, v, w])` with rotation `step` per tick; τ terms are
+/// taken about `t_ref`.
+pub fn fit(
+    samples: &[(Ticks, [f64; 3])],
+    step: PhaseStep,
+    clock: TickRate,
+    model: Model,
+    t_ref: Ticks,
+) -> Result<BatchFit, BatchError> {
+    let p = model.n_params();
+    let mut h = DMatrix::zeros(samples.len(), p);
+    let mut ys = vec![DVector::zeros(samples.len()); 3];
+    for (i, (t, y)) in samples.iter().enumerate() {
+        let (s, c) = step.phase_at(*t).sin_cos::<f64>();
+        let (s, c) = (s.hi, c.hi);
+        let tau = seconds_between(*t, t_ref, clock);
+        for (j, v) in regressor_row(model, s, c, tau).into_iter().enumerate() {
+            h[(i, j)] = v;
+        }
+        for (ch, v) in y.iter().enumerate() {
+            ys[ch][i] = *v;
+        }
+    }
+    solve_qr(h, &ys)
+}
+
+/// Result of the four-parameter fit.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FourParamFit {
+    /// Estimated rotation rate, Hz (one rate shared by the three channels).
+    pub rate_hz: f64,
+    /// Its standard error, Hz.
+    pub se_rate_hz: f64,
+    /// A, B, C per channel at the estimated rate (phase from tick 0, as always).
+    pub fit: BatchFit,
+    /// Iterations used.
+    pub iterations: usize,
+}
+
+/// The iterated four-parameter sine fit of IEEE Std 1057 (§4.1.3.3), with one frequency
+/// shared by the three channels, since they see the same rotation.
+///
+/// Each iteration linearises about the current rate: besides sin, cos and 1 per channel,
+/// a shared column per channel ∂y/∂ω = τ·(A cos α − B sin α) with τ measured from the
+/// record's middle. The joint system is solved by QR and ω updated until the step is
+/// below 1e-3 of its standard error, or below the resolution of a [`PhaseStep`]. The starting rate (nominal) must be within about
+/// 1/(4·span) Hz of the truth, as for any IEEE 1057 fit.
+pub fn fit_four_param(
+    samples: &[(Ticks, [f64; 3])],
+    nominal: PhaseStep,
+    clock: TickRate,
+) -> Result<FourParamFit, BatchError> {
+    const MAX_ITER: usize = 50;
+    let n = samples.len();
+    if n < 8 {
+        return Err(BatchError::TooFewSamples { n, needed: 8 });
+    }
+    let t_mid = Ticks((samples[0].0 .0 + samples[n - 1].0 .0) / 2);
+    let mut rate = nominal.to_hz(clock);
+    let mut last = fit(samples, nominal, clock, Model::SINE, t_mid)?;
+    for iter in 1..=MAX_ITER {
+        let step = PhaseStep::from_hz(rate, clock).ok_or(BatchError::Singular)?;
+        // Joint unknowns: (A, B, C) × 3 channels, then δω.
+        let mut h = DMatrix::zeros(3 * n, 10);
+        let mut y = DVector::zeros(3 * n);
+        for (i, (t, v)) in samples.iter().enumerate() {
+            let (s, c) = step.phase_at(*t).sin_cos::<f64>();
+            let (s, c) = (s.hi, c.hi);
+            let tau = seconds_between(*t, t_mid, clock);
+            for ch in 0..3 {
+                let row = 3 * i + ch;
+                let a = last.channels[ch].coef[0];
+                let b = last.channels[ch].coef[1];
+                h[(row, 3 * ch)] = s;
+                h[(row, 3 * ch + 1)] = c;
+                h[(row, 3 * ch + 2)] = 1.0;
+                h[(row, 9)] = tau * (a * c - b * s);
+                y[row] = v[ch];
+            }
+        }
+        let joint = solve_qr(h, &[y])?;
+        let dw = joint.channels[0].coef[9];
+        let se_dw = joint.channels[0].se[9];
+        rate += dw / TAU;
+        let next = PhaseStep::from_hz(rate, clock).ok_or(BatchError::Singular)?;
+        last = fit(samples, next, clock, Model::SINE, t_mid)?;
+        if dw.abs() <= 1e-3 * se_dw || next == step {
+            return Ok(FourParamFit {
+                rate_hz: rate,
+                se_rate_hz: se_dw / TAU,
+                fit: last,
+                iterations: iter,
+            });
+        }
+    }
+    Err(BatchError::NoConvergence(MAX_ITER))
+}

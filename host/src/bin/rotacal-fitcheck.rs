@@ -1,0 +1,160 @@
+//! Developer check behind the test and benchmark scripts: compares the emulated device's
+//! f32 fits (tests/qemu `crosscheck` output) with f64 batch fits of the same samples,
+//! optionally merges the QEMU instruction-count benchmark and host throughput, and
+//! writes JSON. Exits 1 if the ratio exceeds the threshold or the runs disagree.
+use anyhow::{Context, Result};
+use clap::Parser;
+use rotacal::fitcheck;
+use std::collections::BTreeMap;
+use std::fmt::Write as _;
+use std::path::PathBuf;
+
+#[derive(Parser)]
+#[command(about = "Check the device's f32 fits against host f64 fits (issue 2's cross-check)")]
+struct Args {
+    /// Output of the QEMU `crosscheck` binary.
+    #[arg(long)]
+    crosscheck: PathBuf,
+    /// Output of the QEMU `bench` binary (run with -icount shift=0), to include.
+    #[arg(long)]
+    bench: Option<PathBuf>,
+    /// Also measure host fit throughput.
+    #[arg(long)]
+    throughput: bool,
+    /// Fail above this max |f32 − f64| / σ_CRLB.
+    #[arg(long, default_value_t = 0.01)]
+    threshold: f64,
+    /// Print every compared value, not only the summary.
+    #[arg(long)]
+    table: bool,
+    /// Write the results here as JSON.
+    #[arg(long)]
+    json: Option<PathBuf>,
+}
+
+fn main() -> std::process::ExitCode {
+    match run(Args::parse()) {
+        Ok(true) => std::process::ExitCode::SUCCESS,
+        Ok(false) => {
+            eprintln!("cross-check FAILED");
+            std::process::ExitCode::FAILURE
+        }
+        Err(e) => {
+            eprintln!("rotacal-fitcheck: {e:#}");
+            std::process::ExitCode::FAILURE
+        }
+    }
+}
+
+fn run(args: Args) -> Result<bool> {
+    let text = std::fs::read_to_string(&args.crosscheck)
+        .with_context(|| format!("reading {}", args.crosscheck.display()))?;
+    let log =
+        fitcheck::parse_log(&text).with_context(|| format!("{}", args.crosscheck.display()))?;
+    let rep = fitcheck::check(&log)?;
+    let mut o = String::new();
+    // Output is collected and written once, through a writer that survives a closed pipe.
+    macro_rules! out {
+        ($($a:tt)*) => { let _ = writeln!(o, $($a)*); };
+    }
+
+    if args.table {
+        out!(
+            "{:<12} {:<4} {:<10} {:>3} {:>16} {:>16} {:>10} {:>10}",
+            "record",
+            "cond",
+            "model",
+            "ch·p",
+            "device f32",
+            "host f64",
+            "Δ/σ_CRLB",
+            "Δ/se"
+        );
+    }
+    for v in rep.values.iter().filter(|_| args.table) {
+        out!(
+            "{:<12} {:<4} {:<10} {}·{} {:>16.6} {:>16.6} {:>10.2e} {:>10.2e}",
+            v.record,
+            v.condition,
+            v.model,
+            v.channel,
+            v.param,
+            v.device,
+            v.host_f64,
+            v.ratio_crlb,
+            v.ratio_se
+        );
+    }
+    out!("samples per condition: {:?}", rep.records);
+    for rec in rep.records.keys() {
+        let worst = rep
+            .values
+            .iter()
+            .filter(|v| &v.record == rec && v.model == "sine")
+            .map(|v| v.ratio_crlb)
+            .fold(0.0, f64::max);
+        out!("  {rec}: max |f32 − f64| / σ_CRLB = {worst:.2e}");
+    }
+    out!("checksums match: {}", rep.checksums_match);
+    out!(
+        "host f32 bit-identical to the emulated Cortex-M4F: {}",
+        rep.host_f32_bit_identical
+    );
+    out!(
+        "max |f32 − f64| / σ_CRLB (3-parameter fit): {:.2e}  (threshold {:.0e})",
+        rep.max_ratio_crlb_sine,
+        args.threshold
+    );
+    out!(
+        "max |f32 − f64| / se (drift+rate fit): {:.2e}",
+        rep.max_ratio_se_drift_rate
+    );
+
+    let mut out = serde_json::Map::new();
+    out.insert("crosscheck".into(), serde_json::to_value(&rep)?);
+    if let Some(path) = &args.bench {
+        let text =
+            std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+        let mut bench = BTreeMap::new();
+        for (i, line) in text.lines().enumerate() {
+            if let Some(rest) = line.strip_prefix("bench ") {
+                let (k, v) = rest.split_once(' ').with_context(|| {
+                    format!("{}:{}: expected 'bench KEY VALUE'", path.display(), i + 1)
+                })?;
+                let v: u64 = v
+                    .trim()
+                    .parse()
+                    .with_context(|| format!("{}:{}: not an integer", path.display(), i + 1))?;
+                bench.insert(k.to_string(), v);
+            }
+        }
+        for (k, v) in &bench {
+            out!("cortex-m4f {k}: {v}");
+        }
+        out.insert("cortex_m4f".into(), serde_json::to_value(&bench)?);
+    }
+    if args.throughput {
+        let t = fitcheck::measure_throughput().context("no throughput record")?;
+        out!(
+            "host throughput: f64 streaming {:.3e} samples/s, f32 streaming {:.3e}, f64 batch QR {:.3e}",
+            t.f64_samples_per_s, t.f32_samples_per_s, t.f64_batch_samples_per_s
+        );
+        out.insert("host_throughput".into(), serde_json::to_value(&t)?);
+    }
+    if let Some(path) = &args.json {
+        if let Some(dir) = path.parent() {
+            std::fs::create_dir_all(dir)?;
+        }
+        std::fs::write(path, serde_json::to_string_pretty(&out)? + "\n")
+            .with_context(|| format!("writing {}", path.display()))?;
+        out!("wrote {}", path.display());
+    }
+    rotacal::output::emit(&o)?;
+    let ok = rep.checksums_match
+        && rep.host_f32_bit_identical
+        && rep.max_ratio_crlb_sine <= args.threshold;
+    if ok {
+        rotacal::output::emit("cross-check passed\n")?;
+    }
+    Ok(ok)
+}
