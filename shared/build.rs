@@ -6,7 +6,7 @@ use std::{env, fs, path::PathBuf};
 
 const STEPS: u32 = 256;
 
-fn main() {
+fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut src = String::from(
         "/// sin, cos at i·(π/4)/256, i = 0..=256, as (sin.hi, sin.lo, cos.hi, cos.lo) bits.\n\
          pub(crate) const OCTANT_TABLE_F32: [[u32; 4]; 257] = [\n",
@@ -23,7 +23,8 @@ fn main() {
         let _ = writeln!(src, "    [{sh:#010x}, {sl:#010x}, {ch:#010x}, {cl:#010x}],");
     }
     src.push_str("];\n");
-    let out = PathBuf::from(env::var_os("OUT_DIR").expect("cargo sets OUT_DIR"));
-    fs::write(out.join("octant_table.rs"), src).expect("write octant table");
+    let out = PathBuf::from(env::var_os("OUT_DIR").ok_or("cargo did not set OUT_DIR")?);
+    fs::write(out.join("octant_table.rs"), src)?;
     println!("cargo:rerun-if-changed=build.rs");
+    Ok(())
 }

@@ -225,8 +225,8 @@ pub fn check(log: &DeviceLog) -> Result<Report, CheckError> {
         values: Vec::new(),
     };
     for rec in crosscheck::RECORDS.iter() {
-        for axis in 0..3 {
-            let what = format!("{} about {}", rec.name, AXES[axis]);
+        for (axis, cond) in AXES.into_iter().enumerate() {
+            let what = format!("{} about {cond}", rec.name);
             let spec =
                 crosscheck::spec(rec, axis).ok_or_else(|| CheckError::Missing(what.clone()))?;
             let (samples, sum) = samples_of(spec);
@@ -271,7 +271,7 @@ pub fn check(log: &DeviceLog) -> Result<Report, CheckError> {
                 let t_ref = h32.t_ref.unwrap_or(Ticks(0));
                 let b64 = batch::fit(&samples_f64, spec.step, spec.clock, model, t_ref)
                     .map_err(|e| CheckError::Fit(what.clone(), e.to_string()))?;
-                for ch in 0..3 {
+                for (ch, channel) in CHANNELS.into_iter().enumerate() {
                     let dev = log
                         .fits
                         .get(&(rec.name.to_string(), axis, model_name.to_string(), ch))
@@ -291,9 +291,9 @@ pub fn check(log: &DeviceLog) -> Result<Report, CheckError> {
                         let diff = (d - bc.coef[i]).abs();
                         let c = Compared {
                             record: rec.name.to_string(),
-                            condition: AXES[axis],
+                            condition: cond,
                             model: model_name.to_string(),
-                            channel: CHANNELS[ch],
+                            channel,
                             param,
                             device: d,
                             host_f64: bc.coef[i],

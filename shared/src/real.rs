@@ -28,6 +28,9 @@ pub trait Real:
     const FRAC_PI_4: Self;
     /// Unit roundoff u = 2^-p (half an ulp of 1)
     const EPSILON: Self;
+    /// Largest sample magnitude a fit accepts: far beyond any sensor's range, and small
+    /// enough that Dekker splits, squares and 2³² of them summed cannot overflow.
+    const MAX_SAMPLE: Self;
     /// Dekker's splitting constant 2^⌈p/2⌉ + 1, for exact products without FMA.
     const SPLITTER: Self;
 
@@ -61,6 +64,7 @@ impl Real for f32 {
     const ONE: Self = 1.0;
     const FRAC_PI_4: Self = core::f32::consts::FRAC_PI_4;
     const EPSILON: Self = f32::EPSILON / 2.0;
+    const MAX_SAMPLE: Self = 1e12;
     const SPLITTER: Self = 4097.0; // 2^12 + 1
     fn from_f64(x: f64) -> Self {
         x as f32
@@ -114,6 +118,7 @@ impl Real for f64 {
     const ONE: Self = 1.0;
     const FRAC_PI_4: Self = core::f64::consts::FRAC_PI_4;
     const EPSILON: Self = f64::EPSILON / 2.0;
+    const MAX_SAMPLE: Self = 1e100;
     const SPLITTER: Self = 134_217_729.0; // 2^27 + 1
     fn from_f64(x: f64) -> Self {
         x

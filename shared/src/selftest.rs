@@ -279,6 +279,11 @@ fn fit_refuses_bad_input<T: Real>() -> Result<(), &'static str> {
         fit.update(Ticks(20), [one, one, inf]) == Err(FitError::NonFiniteSample { channel: 2 }),
         "infinity accepted",
     )?;
+    let huge = T::MAX_SAMPLE * T::from_f64(2.0);
+    check(
+        fit.update(Ticks(20), [huge, one, one]) == Err(FitError::SampleOutOfRange { channel: 0 }),
+        "huge sample accepted",
+    )?;
     check(
         fit.update(Ticks(5), [one, one, one])
             == Err(FitError::TimeWentBackwards {

@@ -167,6 +167,11 @@ pub enum FitError {
         /// 0-based channel index.
         channel: u8,
     },
+    /// A sample value's magnitude exceeded [`Real::MAX_SAMPLE`] (channel index).
+    SampleOutOfRange {
+        /// 0-based channel index.
+        channel: u8,
+    },
     /// A timestamp was earlier than the one before it.
     TimeWentBackwards {
         /// Timestamp of the previous accepted sample.
@@ -201,6 +206,9 @@ impl core::fmt::Display for FitError {
         match *self {
             FitError::NonFiniteSample { channel } => {
                 write!(f, "sample of channel {channel} is not a finite number")
+            }
+            FitError::SampleOutOfRange { channel } => {
+                write!(f, "sample of channel {channel} is implausibly large")
             }
             FitError::TimeWentBackwards { previous, got } => write!(
                 f,
@@ -356,6 +364,11 @@ impl<T: Real, const CH: usize> SineFit<T, CH> {
                 channel: u8::try_from(channel).unwrap_or(u8::MAX),
             });
         }
+        if let Some(channel) = y.iter().position(|v| v.abs() > T::MAX_SAMPLE) {
+            return Err(FitError::SampleOutOfRange {
+                channel: u8::try_from(channel).unwrap_or(u8::MAX),
+            });
+        }
         if self.n > 0 && t < self.t_last {
             return Err(FitError::TimeWentBackwards {
                 previous: self.t_last,
@@ -499,6 +512,17 @@ impl<T: Real, const CH: usize> SineFit<T, CH> {
             out.rss = rss;
             out.sigma = var.sqrt();
             out.rms_residual = (rss / n_t).sqrt();
+            // Inputs are bounded, so this should not happen; if it does, say so rather
+            // than hand out NaN.
+            let finite = out
+                .coef
+                .iter()
+                .all(|c| c.hi.is_finite() && c.lo.is_finite())
+                && out.se.iter().all(|s| s.is_finite())
+                && out.sigma.is_finite();
+            if !finite {
+                return Err(FitError::Singular);
+            }
         }
         Ok(FitResult {
             model,
