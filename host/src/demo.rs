@@ -97,13 +97,8 @@ pub fn run(seed: u64) -> anyhow::Result<Demo> {
             .map(|(t, c)| (*t, c.map(f64::from)))
             .collect();
         let reference = batch::fit(&s64, step, clock, rotacal_shared::Model::SINE, Ticks(0))?;
-        let sig = (sigma * sigma + 1.0 / 12.0).sqrt();
+        let crlb = crate::fitcheck::sigma_crlb(sigma, n);
         let nn = n as f64;
-        let crlb = [
-            (2.0 / nn).sqrt() * sig,
-            (2.0 / nn).sqrt() * sig,
-            sig / nn.sqrt(),
-        ];
         for (ch, channel) in ['u', 'v', 'w'].into_iter().enumerate() {
             let b = &reference.channels[ch];
             let f32_fit = [Param::A, Param::B, Param::C]

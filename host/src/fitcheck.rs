@@ -201,6 +201,15 @@ pub enum CheckError {
     Fit(String, String),
 }
 
+/// σ_CRLB of A, B and C for `n` samples of white noise `noise_sigma` quantised to whole
+/// counts (adding 1/12 count²): √(2σ²/N), √(2σ²/N), √(σ²/N) (method.md §5).
+pub fn sigma_crlb(noise_sigma: f64, n: usize) -> [f64; 3] {
+    let var = noise_sigma * noise_sigma + 1.0 / 12.0;
+    let n = n as f64;
+    let ab = (2.0 * var / n).sqrt();
+    [ab, ab, (var / n).sqrt()]
+}
+
 fn samples_of(spec: SynthSpec) -> (Vec<(Ticks, [i16; 3])>, Checksum) {
     let mut sum = Checksum::default();
     let v = Synth::new(spec)
@@ -236,14 +245,7 @@ pub fn check(log: &DeviceLog) -> Result<Report, CheckError> {
                 .collect();
             rep.records
                 .insert(rec.name.to_string(), samples.len() as u32);
-            // Sensor noise plus the quantisation to counts.
-            let sigma = (spec.noise_sigma.powi(2) + 1.0 / 12.0).sqrt();
-            let n = samples.len() as f64;
-            let crlb = [
-                (2.0 * sigma * sigma / n).sqrt(),
-                (2.0 * sigma * sigma / n).sqrt(),
-                sigma / n.sqrt(),
-            ];
+            let crlb = sigma_crlb(spec.noise_sigma, samples.len());
             for model_name in ["sine", "drift+rate"] {
                 let model = model_named(model_name)
                     .ok_or_else(|| CheckError::Missing(model_name.into()))?;
