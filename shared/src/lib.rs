@@ -9,6 +9,7 @@
 //! Everything here is generic over [`Real`] (`f32` on the device, `f64` on the host).
 #![no_std]
 
+pub mod condition;
 pub mod dword;
 pub mod fit;
 pub mod phase;
@@ -18,6 +19,7 @@ pub mod selftest;
 pub mod synth;
 pub mod time;
 
+pub use condition::Condition;
 pub use dword::DoubleWord;
 pub use fit::{ChannelFit, FitConfig, FitError, FitResult, Model, Param, SineFit, MAX_PARAMS};
 pub use phase::{Phase, PhaseStep};

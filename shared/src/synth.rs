@@ -155,11 +155,12 @@ impl Checksum {
 /// A = g·S_jy and B = g·S_jz; about y, A = g·S_jx, B = g·S_jz; about z, A = g·S_jx,
 /// B = g·S_jy. C is the offset.
 pub fn coefficients(s: &[[f64; 3]; 3], offsets: &[f64; 3], g: f64, axis: usize) -> [[f64; 3]; 3] {
-    let (ia, ib) = match axis {
-        0 => (1, 2),
-        1 => (0, 2),
-        _ => (0, 1),
+    let cond = match axis {
+        0 => crate::Condition::X,
+        1 => crate::Condition::Y,
+        _ => crate::Condition::Z,
     };
+    let (ia, ib) = cond.sin_cos_axes();
     let mut out = [[0.0; 3]; 3];
     for ((o, row), off) in out.iter_mut().zip(s).zip(offsets) {
         let pick = |i: usize| row.get(i).copied().unwrap_or(0.0);

@@ -1,0 +1,57 @@
+//! The rotation conditions: which platter axis the device turns about (method.md §1).
+
+/// A condition, named by the platter axis of rotation. Gravity in the platter frame is
+/// ĝ(α) = (0, sin α, cos α) about x, (sin α, 0, cos α) about y, (sin α, cos α, 0) about z.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Condition {
+    /// Rotation about the platter's x axis.
+    X,
+    /// Rotation about the platter's y axis.
+    Y,
+    /// Rotation about the platter's z axis.
+    Z,
+}
+
+impl Condition {
+    /// All three, in order.
+    pub const ALL: [Condition; 3] = [Condition::X, Condition::Y, Condition::Z];
+
+    /// 0, 1, 2 for x, y, z.
+    pub const fn index(self) -> usize {
+        match self {
+            Condition::X => 0,
+            Condition::Y => 1,
+            Condition::Z => 2,
+        }
+    }
+
+    /// The platter axes whose sensitivity components A (with sin α) and B (with cos α)
+    /// measure: about x, A ↔ S_jy and B ↔ S_jz; about y, x and z; about z, x and y.
+    pub const fn sin_cos_axes(self) -> (usize, usize) {
+        match self {
+            Condition::X => (1, 2),
+            Condition::Y => (0, 2),
+            Condition::Z => (0, 1),
+        }
+    }
+
+    /// The letter used in files: `x`, `y` or `z`.
+    pub const fn letter(self) -> char {
+        match self {
+            Condition::X => 'x',
+            Condition::Y => 'y',
+            Condition::Z => 'z',
+        }
+    }
+
+    /// From the letter used in files (lower or upper case).
+    pub const fn from_letter(c: char) -> Option<Condition> {
+        match c {
+            'x' | 'X' => Some(Condition::X),
+            'y' | 'Y' => Some(Condition::Y),
+            'z' | 'Z' => Some(Condition::Z),
+            _ => None,
+        }
+    }
+}
