@@ -6,6 +6,7 @@
 //!   against the f64 batch fit of the same samples.
 //! - [`demo`]: the main job without hardware.
 pub mod batch;
+pub mod calibrate;
 pub mod demo;
 pub mod fitcheck;
 pub mod output;

@@ -12,6 +12,7 @@
 pub mod condition;
 pub mod dword;
 pub mod fit;
+pub mod intrinsic;
 pub mod phase;
 pub mod real;
 #[cfg(feature = "selftest")]
