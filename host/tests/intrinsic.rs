@@ -1,6 +1,8 @@
 //! The Gram intrinsic computation (rotacal_shared::intrinsic): exact at any mounting,
 //! the phase-difference method's bias as method.md §2 tabulates it, and the analytic
 //! uncertainty propagation against numerical differentiation.
+// Matrix arithmetic on small fixed arrays reads more plainly with indices.
+#![allow(clippy::needless_range_loop)]
 
 use rotacal::demo::{sensitivity_from_intrinsic, PAPER_DC_ANGLES_DEG, PAPER_DC_SENSITIVITY};
 use rotacal_shared::intrinsic::{from_gram, from_phase_differences, ConditionFit};

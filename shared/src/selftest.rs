@@ -89,6 +89,10 @@ pub const CASES: &[Case] = &[
         name: "synth_is_reproducible",
         run: synth_is_reproducible,
     },
+    Case {
+        name: "intrinsic_gram_exact_when_tilted",
+        run: intrinsic_gram_exact_when_tilted,
+    },
 ];
 
 fn check(ok: bool, what: &'static str) -> Result<(), &'static str> {
@@ -456,4 +460,48 @@ fn synth_is_reproducible() -> Result<(), &'static str> {
         sum.0 == SYNTH_GOLDEN,
         "synthetic samples differ from the golden checksum",
     )
+}
+
+/// Noise-free fits of a device tilted 7° on the platter: the Gram form returns its
+/// intrinsic properties exactly (f64, as the device's quick-look computes them).
+fn intrinsic_gram_exact_when_tilted() -> Result<(), &'static str> {
+    use crate::intrinsic::{from_gram, ConditionFit};
+    let s_true = [1669.32, 1669.10, 1676.46];
+    let (uv, vw, wu) = (
+        90.077f64.to_radians(),
+        90.095f64.to_radians(),
+        89.910f64.to_radians(),
+    );
+    let wx = libm::cos(wu);
+    let wy = (libm::cos(vw) - libm::cos(uv) * libm::cos(wu)) / libm::sin(uv);
+    let w = [wx, wy, libm::sqrt(1.0 - wx * wx - wy * wy)];
+    let dev = [
+        [s_true[0], 0.0, 0.0],
+        [s_true[1] * libm::cos(uv), s_true[1] * libm::sin(uv), 0.0],
+        w.map(|c| c * s_true[2]),
+    ];
+    // Rotation by 7° about z then 7° about x, applied as S' = S·Rᵀ.
+    let (s7, c7) = (libm::sin(7f64.to_radians()), libm::cos(7f64.to_radians()));
+    let tilt = |v: [f64; 3]| {
+        let [x, y, z] = v;
+        let (x, y) = (c7 * x - s7 * y, s7 * x + c7 * y);
+        [x, c7 * y - s7 * z, s7 * y + c7 * z]
+    };
+    let s = dev.map(tilt);
+    let fits = [0usize, 1, 2].map(|axis| {
+        let c = crate::synth::coefficients(&s, &[0.0; 3], 9.80101, axis);
+        ConditionFit {
+            a: c.map(|r| r[0]),
+            b: c.map(|r| r[1]),
+            cov: [[[0.01, 0.0], [0.0, 0.01]]; 3],
+        }
+    });
+    let r = from_gram(&fits, 9.80101, 0.0).map_err(|_| "from_gram failed")?;
+    for (e, t) in r.sensitivity.iter().zip(s_true) {
+        check(close(e.value, t, 1e-9 * t), "sensitivity not exact")?;
+    }
+    for (e, t) in r.angle_deg.iter().zip([90.077, 90.095, 89.910]) {
+        check(close(e.value, t, 1e-9), "angle not exact")?;
+    }
+    Ok(())
 }
