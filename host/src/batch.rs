@@ -70,7 +70,12 @@ pub fn seconds_between(t: Ticks, t_ref: Ticks, clock: TickRate) -> f64 {
     (t.0 as i128 - t_ref.0 as i128) as f64 / f64::from(clock.hz())
 }
 
-/// Least squares of each column of `y` on `h` by QR.
+/// Least squares of each of `ys` on the regressor matrix `h` by QR, with standard
+/// errors from σ̂²(HᵀH)⁻¹.
+pub fn least_squares(h: DMatrix<f64>, ys: &[DVector<f64>]) -> Result<BatchFit, BatchError> {
+    solve_qr(h, ys)
+}
+
 fn solve_qr(h: DMatrix<f64>, ys: &[DVector<f64>]) -> Result<BatchFit, BatchError> {
     let (n, p) = h.shape();
     if n <= p {

@@ -3,11 +3,12 @@
 //! Takes the fits of the three conditions (from `rotacal_shared::SineFit` or the batch
 //! fit), assembles each fit's (A, B) covariance, and computes the Gram intrinsic
 //! properties and the phase-difference angles with their uncertainties
-//! (`rotacal_shared::intrinsic`). Reading recordings, rate estimation and the static
-//! method build on this.
+//! (`rotacal_shared::intrinsic`); and the static stepped method (seed 001).
 
+use crate::batch::{self, BatchError};
+use nalgebra::{DMatrix, DVector};
 use rotacal_shared::intrinsic::{self, ConditionFit, Estimate, Intrinsic, IntrinsicError};
-use rotacal_shared::{FitResult, Param};
+use rotacal_shared::{Condition, FitResult, Param};
 
 /// The (A, B) coefficients and their covariance per channel of one condition's fit.
 pub fn condition_fit(fit: &FitResult<f64>) -> ConditionFit {
@@ -48,5 +49,218 @@ pub fn rotation(
     Ok(RotationCalibration {
         intrinsic: intrinsic::from_gram(&cf, g, u_g)?,
         phase_angles_deg: intrinsic::from_phase_differences(&cf)?,
+    })
+}
+
+/// One condition of a static (stepped-angle) record.
+#[derive(Clone, Copy, Debug)]
+pub struct StaticCondition<'a> {
+    /// The platter axis turned about.
+    pub condition: Condition,
+    /// Table angle of each row, degrees.
+    pub angle_deg: &'a [f64],
+    /// Readings u, v, w of each row.
+    pub y: [&'a [f64]; 3],
+}
+
+/// A fit `y = A sin α + B cos α + O` of one channel of one condition.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SineFit3 {
+    /// A, B, O.
+    pub coef: [f64; 3],
+    /// Their standard errors.
+    pub se: [f64; 3],
+    /// Residual RMS.
+    pub rms_residual: f64,
+    /// Rows fitted.
+    pub n: usize,
+}
+
+/// The static method's result.
+#[derive(Clone, Debug)]
+pub struct StaticCalibration {
+    /// Sensitivity matrix S (rows u, v, w; columns platter x, y, z), output units per
+    /// m/s², from the joint least-squares fit of S and O to all three conditions.
+    pub s: [[f64; 3]; 3],
+    /// Standard uncertainties of S.
+    pub s_std: [[f64; 3]; 3],
+    /// Offsets O_u, O_v, O_w (output units).
+    pub offsets: [Estimate; 3],
+    /// Covariance of each row S_j.
+    pub row_cov: [[[f64; 3]; 3]; 3],
+    /// Intrinsic properties from the rows of S.
+    pub intrinsic: Intrinsic,
+    /// Seed 001's estimator (its eqs. 20–21): each element of S the mean of its two
+    /// duplicates, each offset the mean over the conditions. For comparison.
+    pub duplicate_average: DuplicateAverage,
+    /// Per condition (x, y, z) and channel, the sine fit of seed 001's Table 1.
+    pub fits: [[SineFit3; 3]; 3],
+}
+
+/// Seed 001's duplicate-averaging estimator, with standard uncertainties from the fits'
+/// standard errors (independent conditions).
+#[derive(Clone, Copy, Debug)]
+pub struct DuplicateAverage {
+    /// S, output units per m/s².
+    pub s: [[Estimate; 3]; 3],
+    /// Offsets.
+    pub offsets: [Estimate; 3],
+}
+
+/// Why the static method failed.
+#[derive(Debug, thiserror::Error)]
+pub enum StaticError {
+    /// A condition is missing or given twice.
+    #[error("static calibration needs each of the conditions x, y and z exactly once")]
+    Conditions,
+    /// Columns of unequal length.
+    #[error("condition {0}: angle and reading columns differ in length")]
+    Lengths(char),
+    /// A least-squares problem failed.
+    #[error("condition {0}: {1}")]
+    Fit(char, BatchError),
+    /// The joint fit failed.
+    #[error("joint fit: {0}")]
+    Joint(BatchError),
+    /// No intrinsic properties.
+    #[error(transparent)]
+    Intrinsic(#[from] IntrinsicError),
+}
+
+/// ĝ(α) in the platter frame for `condition` (method.md §1).
+pub fn gravity_direction(condition: Condition, alpha_rad: f64) -> [f64; 3] {
+    let (s, c) = alpha_rad.sin_cos();
+    match condition {
+        Condition::X => [0.0, s, c],
+        Condition::Y => [s, 0.0, c],
+        Condition::Z => [s, c, 0.0],
+    }
+}
+
+/// The static method: per channel, one least-squares fit of (S_j, O_j) to the rows of
+/// all three conditions, `y = g·S_j·ĝ(α) + O_j` (method.md §3); then intrinsic
+/// properties from the rows of S with the rows' covariances.
+pub fn static_method(
+    conds: &[StaticCondition<'_>],
+    g: f64,
+) -> Result<StaticCalibration, StaticError> {
+    let mut by_cond: [Option<&StaticCondition<'_>>; 3] = [None; 3];
+    for c in conds {
+        let slot = &mut by_cond[c.condition.index()];
+        if slot.is_some() {
+            return Err(StaticError::Conditions);
+        }
+        if c.y.iter().any(|y| y.len() != c.angle_deg.len()) {
+            return Err(StaticError::Lengths(c.condition.letter()));
+        }
+        *slot = Some(c);
+    }
+    let [Some(cx), Some(cy), Some(cz)] = by_cond else {
+        return Err(StaticError::Conditions);
+    };
+    let ordered = [cx, cy, cz];
+
+    // Per-condition sine fits (seed 001 Table 1).
+    let mut fits = [[SineFit3 {
+        coef: [0.0; 3],
+        se: [0.0; 3],
+        rms_residual: 0.0,
+        n: 0,
+    }; 3]; 3];
+    for (fc, c) in fits.iter_mut().zip(ordered) {
+        let n = c.angle_deg.len();
+        let h = DMatrix::from_fn(n, 3, |i, j| {
+            let a = c.angle_deg[i].to_radians();
+            [a.sin(), a.cos(), 1.0][j]
+        });
+        let ys: Vec<DVector<f64>> = c.y.iter().map(|y| DVector::from_column_slice(y)).collect();
+        let r =
+            batch::least_squares(h, &ys).map_err(|e| StaticError::Fit(c.condition.letter(), e))?;
+        for (out, ch) in fc.iter_mut().zip(&r.channels) {
+            *out = SineFit3 {
+                coef: [ch.coef[0], ch.coef[1], ch.coef[2]],
+                se: [ch.se[0], ch.se[1], ch.se[2]],
+                rms_residual: (ch.rss / n as f64).sqrt(),
+                n,
+            };
+        }
+    }
+
+    // Joint fit per channel: unknowns (S_jx, S_jy, S_jz, O_j).
+    let rows: usize = ordered.iter().map(|c| c.angle_deg.len()).sum();
+    let mut h = DMatrix::zeros(rows, 4);
+    let mut ys = vec![DVector::zeros(rows); 3];
+    let mut i = 0;
+    for c in ordered {
+        for (k, a) in c.angle_deg.iter().enumerate() {
+            let gd = gravity_direction(c.condition, a.to_radians());
+            for (col, v) in gd.iter().enumerate() {
+                h[(i, col)] = g * v;
+            }
+            h[(i, 3)] = 1.0;
+            for (y, col) in ys.iter_mut().zip(c.y) {
+                y[i] = col[k];
+            }
+            i += 1;
+        }
+    }
+    let joint = batch::least_squares(h, &ys).map_err(StaticError::Joint)?;
+    let mut s = [[0.0; 3]; 3];
+    let mut s_std = [[0.0; 3]; 3];
+    let mut row_cov = [[[0.0; 3]; 3]; 3];
+    let mut offsets = [Estimate {
+        value: 0.0,
+        std_unc: 0.0,
+    }; 3];
+    for (j, ch) in joint.channels.iter().enumerate() {
+        let var = ch.sigma * ch.sigma;
+        for a in 0..3 {
+            s[j][a] = ch.coef[a];
+            s_std[j][a] = ch.se[a];
+            for (b, cov) in row_cov[j][a].iter_mut().enumerate() {
+                *cov = var * joint.unscaled_cov[(a, b)];
+            }
+        }
+        offsets[j] = Estimate {
+            value: ch.coef[3],
+            std_unc: ch.se[3],
+        };
+    }
+    let intrinsic = intrinsic::from_matrix(&s, &row_cov)?;
+
+    // Seed 001 eqs. 20–21: S_jx from A of y and z, S_jy from A of x and B of z, S_jz
+    // from B of x and y; offsets averaged over the three conditions.
+    let mean2 = |p: (usize, usize), q: (usize, usize), j: usize| {
+        let (f1, f2) = (fits[p.0][j], fits[q.0][j]);
+        Estimate {
+            value: (f1.coef[p.1] + f2.coef[q.1]) / (2.0 * g),
+            std_unc: f1.se[p.1].hypot(f2.se[q.1]) / (2.0 * g),
+        }
+    };
+    let dup_s = [0, 1, 2].map(|j| {
+        [
+            mean2((1, 0), (2, 0), j),
+            mean2((0, 0), (2, 1), j),
+            mean2((0, 1), (1, 1), j),
+        ]
+    });
+    let dup_o = [0, 1, 2].map(|j| {
+        let f = [fits[0][j], fits[1][j], fits[2][j]];
+        Estimate {
+            value: f.iter().map(|x| x.coef[2]).sum::<f64>() / 3.0,
+            std_unc: f.iter().map(|x| x.se[2].powi(2)).sum::<f64>().sqrt() / 3.0,
+        }
+    });
+    Ok(StaticCalibration {
+        s,
+        s_std,
+        offsets,
+        row_cov,
+        intrinsic,
+        duplicate_average: DuplicateAverage {
+            s: dup_s,
+            offsets: dup_o,
+        },
+        fits,
     })
 }

@@ -243,3 +243,84 @@ pub fn from_phase_differences(fits: &[ConditionFit; 3]) -> Result<[Estimate; 3],
     }
     Ok(out)
 }
+
+/// Intrinsic sensitivities and angles from a sensitivity matrix `s` (rows u, v, w, in
+/// output units per m/s²) whose rows are estimated independently with covariances
+/// `row_cov[j]` (3×3), as the static method gives them: `s_j = |S_j|`,
+/// `cos φ_jk = S_j·S_k/(s_j s_k)`.
+pub fn from_matrix(
+    s: &[[f64; 3]; 3],
+    row_cov: &[[[f64; 3]; 3]; 3],
+) -> Result<Intrinsic, IntrinsicError> {
+    let dot = |a: &[f64; 3], b: &[f64; 3]| a.iter().zip(b).map(|(x, y)| x * y).sum::<f64>();
+    let row = |j: usize| s.get(j).copied().unwrap_or([f64::NAN; 3]);
+    let norms = [0, 1, 2].map(|j| libm::sqrt(dot(&row(j), &row(j))));
+    let cosines = ANGLE_PAIRS.map(|(j, k)| dot(&row(j), &row(k)) / (at(&norms, j) * at(&norms, k)));
+    let positive = norms.iter().all(|v| v.is_finite() && *v > 0.0);
+    if !positive || !cosines.iter().all(|c| c.is_finite() && c.abs() < 1.0) {
+        return Err(IntrinsicError::Degenerate);
+    }
+    let angles = cosines.map(|c| libm::acos(c).to_degrees());
+    // Gradient of each output with respect to each row S_m (3-vectors).
+    let mut grad = [[[0.0f64; 3]; 3]; 6];
+    for (o, go) in grad.iter_mut().enumerate() {
+        for (m, gm) in go.iter_mut().enumerate() {
+            if o < 3 {
+                if m == o {
+                    *gm = row(m).map(|x| x / at(&norms, m)); // ∂|S_m|/∂S_m = S_m/s_m
+                }
+            } else {
+                let (j, k) = ANGLE_PAIRS.get(o - 3).copied().unwrap_or((0, 0));
+                let r = at(&cosines, o - 3);
+                let dphi = -(1.0 / libm::sqrt(1.0 - r * r)).to_degrees();
+                let (sj, sk) = (at(&norms, j), at(&norms, k));
+                // ∂r/∂S_j = S_k/(s_j s_k) − r·S_j/s_j², likewise for k.
+                let (this, other, s_this) = if m == j {
+                    (row(j), row(k), sj)
+                } else if m == k {
+                    (row(k), row(j), sk)
+                } else {
+                    continue;
+                };
+                for ((g, t), u) in gm.iter_mut().zip(this).zip(other) {
+                    *g = dphi * (u / (sj * sk) - r * t / (s_this * s_this));
+                }
+            }
+        }
+    }
+    let mut cov = [[0.0; 6]; 6];
+    for (ci, gi) in cov.iter_mut().zip(grad.iter()) {
+        for (c, gj) in ci.iter_mut().zip(grad.iter()) {
+            *c = gi
+                .iter()
+                .zip(gj.iter())
+                .zip(row_cov.iter())
+                .map(|((a, b), m)| {
+                    m.iter()
+                        .zip(a)
+                        .map(|(mrow, ai)| ai * dot(mrow, b))
+                        .sum::<f64>()
+                })
+                .sum();
+        }
+    }
+    let mut gram = [[0.0; 3]; 3];
+    for (j, gr) in gram.iter_mut().enumerate() {
+        for (k, g) in gr.iter_mut().enumerate() {
+            *g = dot(&row(j), &row(k));
+        }
+    }
+    let values = [
+        norms[0], norms[1], norms[2], angles[0], angles[1], angles[2],
+    ];
+    if !all_finite(&values, &cov) {
+        return Err(IntrinsicError::Degenerate);
+    }
+    let e = estimates(values, &cov);
+    Ok(Intrinsic {
+        sensitivity: [e[0], e[1], e[2]],
+        angle_deg: [e[3], e[4], e[5]],
+        cov,
+        gram,
+    })
+}
