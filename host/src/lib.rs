@@ -7,6 +7,9 @@
 //! - [`demo`]: the main job without hardware.
 pub mod batch;
 pub mod calibrate;
+pub mod calibrate_recording;
+pub mod calibration_file;
 pub mod demo;
 pub mod fitcheck;
 pub mod output;
+pub mod recording;

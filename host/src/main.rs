@@ -1,6 +1,7 @@
 //! `rotacal`: calibrate triaxial accelerometers by rotation in Earth's gravity.
 //! A thin command-line layer over the `rotacal` library.
-use clap::{Parser, Subcommand};
+use clap::{Parser, Subcommand, ValueEnum};
+use std::path::PathBuf;
 use std::process::ExitCode;
 
 #[derive(Parser)]
@@ -10,8 +11,32 @@ struct Cli {
     command: Command,
 }
 
+#[derive(Clone, Copy, ValueEnum)]
+enum MethodArg {
+    Rotation,
+    Static,
+}
+
 #[derive(Subcommand)]
 enum Command {
+    /// Intrinsic properties (sensitivities, angles, offsets) with uncertainties from a
+    /// recording (../shared/docs/formats.md).
+    Calibrate {
+        /// The recording CSV.
+        file: PathBuf,
+        /// Override the method (default: the file's `method`, else rotation if it has t_s).
+        #[arg(long, value_enum)]
+        method: Option<MethodArg>,
+        /// Nominal rotation rate, Hz (overrides `# rate_hz=`).
+        #[arg(long)]
+        rate_hz: Option<f64>,
+        /// Local gravity, m/s² (overrides `# g_loc=`).
+        #[arg(long)]
+        g_loc: Option<f64>,
+        /// Write the result as JSON (formats.md) here.
+        #[arg(long)]
+        json: Option<PathBuf>,
+    },
     /// The main job without hardware: simulate seed 000's 10 mHz run and fit it.
     Demo {
         /// Seed of the simulated noise.
@@ -23,6 +48,13 @@ enum Command {
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
+        Command::Calibrate {
+            file,
+            method,
+            rate_hz,
+            g_loc,
+            json,
+        } => calibrate(file, method, rate_hz, g_loc, json),
         Command::Demo { seed } => rotacal::demo::run(seed)
             .and_then(|d| Ok(rotacal::output::emit(&rotacal::demo::render(&d))?)),
     };
@@ -33,4 +65,30 @@ fn main() -> ExitCode {
             ExitCode::FAILURE
         }
     }
+}
+
+fn calibrate(
+    file: PathBuf,
+    method: Option<MethodArg>,
+    rate_hz: Option<f64>,
+    g_loc: Option<f64>,
+    json: Option<PathBuf>,
+) -> anyhow::Result<()> {
+    use rotacal::recording::Method;
+    let rec = rotacal::recording::read(&file)?;
+    let opts = rotacal::calibrate_recording::Options {
+        method: method.map(|m| match m {
+            MethodArg::Rotation => Method::Rotation,
+            MethodArg::Static => Method::Static,
+        }),
+        rate_hz,
+        g_loc,
+    };
+    let cal = rotacal::calibrate_recording::calibrate(&rec, &opts)?;
+    if let Some(path) = json {
+        let text = serde_json::to_string_pretty(&cal)? + "\n";
+        std::fs::write(&path, text).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+    }
+    rotacal::output::emit(&rotacal::calibrate_recording::render(&cal))?;
+    Ok(())
 }

@@ -1,0 +1,1255 @@
+//! The recording CSV (`../shared/docs/formats.md`, "Recording CSV"): reader and writer.
+//!
+//! A recording is an optional preamble of `#` comment lines, some of them `# key=value`
+//! metadata, then a header line and one row per sample:
+//!
+//! ```text
+//! # rotacal recording v1
+//! # method=rotation
+//! # rate_hz=0.01
+//! condition,t_s,u,v,w,temp_c
+//! x,0.0,-12.0,16377.0,-231.0,24.91
+//! ```
+//!
+//! [`read`] / [`read_from`] stream the file through the `csv` crate, reusing one
+//! [`csv::ByteRecord`] and parsing numbers straight from its bytes, and keep only the
+//! numeric columns, grouped by (condition, nominal rate) for rotation and by condition for
+//! static files. Every problem is a [`RecordingError`] whose message names the file, the
+//! 1-based physical line (comment and blank lines count) and the problem; no input makes
+//! the reader panic.
+//!
+//! [`Writer`] writes files that the reader reads back exactly (floats are written with
+//! Rust's shortest round-trip representation).
+//!
+//! Extensions to formats.md, all of them lenient:
+//! - upper-case conditions (`X`, `Y`, `Z`) are accepted;
+//! - spaces around fields and column names are ignored, and so is a UTF-8 byte-order mark;
+//! - blank lines (also whitespace-only ones) are skipped anywhere;
+//! - `#` lines after the header are comments too (ignored, not metadata);
+//! - unknown columns are ignored; LF and CRLF line endings are both accepted.
+//!
+//! Checks beyond formats.md: the rate (`rate_hz` metadata or column), `g_loc` and
+//! `sample_rate_hz` must be positive, `noise_sigma` non-negative; a known metadata key given
+//! twice with different values is an error; `seq` must be a non-negative integer.
+
+use std::collections::BTreeMap;
+use std::fmt;
+use std::fs::File;
+use std::io::{self, BufRead, BufReader, BufWriter, Read, Write};
+use std::path::Path;
+
+use rotacal_shared::Condition;
+
+/// How the data were taken (formats.md `method`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Method {
+    /// Constant rotation (seed 000): rows carry device time `t_s`.
+    Rotation,
+    /// Static steps (seed 001): rows carry the table angle `angle_deg`.
+    Static,
+}
+
+impl Method {
+    /// `rotation` or `static`, as in files.
+    pub const fn as_str(self) -> &'static str {
+        match self {
+            Method::Rotation => "rotation",
+            Method::Static => "static",
+        }
+    }
+}
+
+impl fmt::Display for Method {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+impl std::str::FromStr for Method {
+    type Err = String;
+    /// `rotation` or `static` (any case, surrounding spaces ignored).
+    fn from_str(s: &str) -> Result<Self, String> {
+        let t = s.trim();
+        if t.eq_ignore_ascii_case("rotation") {
+            Ok(Method::Rotation)
+        } else if t.eq_ignore_ascii_case("static") {
+            Ok(Method::Static)
+        } else {
+            Err(format!(
+                "expected 'rotation' or 'static', got '{}'",
+                snippet(t.as_bytes())
+            ))
+        }
+    }
+}
+
+/// The `# key=value` lines before the header. Command-line flags override these.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Metadata {
+    /// `method`.
+    pub method: Option<Method>,
+    /// `rate_hz`: nominal rotation rate (positive).
+    pub rate_hz: Option<f64>,
+    /// `g_loc`: local gravity in m/s² (positive).
+    pub g_loc: Option<f64>,
+    /// `units`: free text, e.g. `counts` or `V`.
+    pub units: Option<String>,
+    /// `sample_rate_hz` (positive).
+    pub sample_rate_hz: Option<f64>,
+    /// `noise_sigma`: white-noise standard deviation per sample, output units (≥ 0).
+    pub noise_sigma: Option<f64>,
+    /// `device`: free text.
+    pub device: Option<String>,
+    /// Unknown keys, kept as read (values trimmed).
+    pub other: BTreeMap<String, String>,
+}
+
+/// The metadata keys that formats.md defines, in the order the writer puts them.
+pub const KNOWN_KEYS: [&str; 7] = [
+    "method",
+    "rate_hz",
+    "g_loc",
+    "units",
+    "sample_rate_hz",
+    "noise_sigma",
+    "device",
+];
+
+/// All rows of one condition (and, for rotation, one nominal rate), in file order.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Group {
+    /// The platter axis of rotation.
+    pub condition: Condition,
+    /// The rows' `rate_hz` column, or `None` when the file has none (then the metadata or
+    /// command-line rate applies). Always `None` for static files.
+    pub rate_hz: Option<f64>,
+    /// Device time in seconds; empty when the file has no `t_s` column (static files).
+    pub t_s: Vec<f64>,
+    /// Table angle in degrees; empty when the file has no `angle_deg` column.
+    pub angle_deg: Vec<f64>,
+    /// Channel U, output units.
+    pub u: Vec<f64>,
+    /// Channel V, output units.
+    pub v: Vec<f64>,
+    /// Channel W, output units.
+    pub w: Vec<f64>,
+    /// `seq` column, if the file has one.
+    pub seq: Option<Vec<u64>>,
+    /// `temp_c` column, if the file has one.
+    pub temp_c: Option<Vec<f64>>,
+    /// 1-based file line of the group's first row (for messages).
+    pub first_line: u64,
+}
+
+impl Group {
+    fn new(condition: Condition, rate_hz: Option<f64>, cols: &ColumnIndex, line: u64) -> Self {
+        Group {
+            condition,
+            rate_hz,
+            t_s: Vec::new(),
+            angle_deg: Vec::new(),
+            u: Vec::new(),
+            v: Vec::new(),
+            w: Vec::new(),
+            seq: cols.seq.map(|_| Vec::new()),
+            temp_c: cols.temp_c.map(|_| Vec::new()),
+            first_line: line,
+        }
+    }
+
+    /// Number of rows.
+    pub fn len(&self) -> usize {
+        self.u.len()
+    }
+
+    /// True if the group has no rows (never the case for a group the reader returns).
+    pub fn is_empty(&self) -> bool {
+        self.u.is_empty()
+    }
+}
+
+/// A whole recording, read and checked.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Recording {
+    /// The path or name used in messages.
+    pub source: String,
+    /// The preamble's metadata.
+    pub meta: Metadata,
+    /// The method: the metadata's, else rotation if there is a `t_s` column, else static.
+    pub method: Method,
+    /// The groups, in order of first appearance in the file.
+    pub groups: Vec<Group>,
+}
+
+impl Recording {
+    /// The distinct nominal rates of the groups, in order of first appearance (`[None]`
+    /// for a single-rate file or a static file).
+    pub fn rates(&self) -> Vec<Option<f64>> {
+        let mut out: Vec<Option<f64>> = Vec::new();
+        for g in &self.groups {
+            if !out.iter().any(|r| same_rate(*r, g.rate_hz)) {
+                out.push(g.rate_hz);
+            }
+        }
+        out
+    }
+
+    /// The group of `condition` at `rate_hz` (`None` for single-rate and static files).
+    pub fn group(&self, condition: Condition, rate_hz: Option<f64>) -> Option<&Group> {
+        self.groups
+            .iter()
+            .find(|g| g.condition == condition && same_rate(g.rate_hz, rate_hz))
+    }
+
+    /// The nominal rate that applies to `group`: its `rate_hz` column, else the metadata's
+    /// (command-line flags, which override both, are the caller's business).
+    pub fn nominal_rate(&self, group: &Group) -> Option<f64> {
+        group.rate_hz.or(self.meta.rate_hz)
+    }
+
+    /// Total number of data rows.
+    pub fn rows(&self) -> usize {
+        self.groups.iter().map(Group::len).sum()
+    }
+}
+
+fn same_rate(a: Option<f64>, b: Option<f64>) -> bool {
+    a.map(f64::to_bits) == b.map(f64::to_bits)
+}
+
+/// A problem with a recording: which file, which line (if one applies) and what.
+#[derive(Debug)]
+pub struct RecordingError {
+    /// The path or name of the file.
+    pub source_name: String,
+    /// 1-based physical line in the file, counting comment and blank lines.
+    pub line: Option<u64>,
+    /// The problem.
+    pub kind: RecordingErrorKind,
+}
+
+impl fmt::Display for RecordingError {
+    /// `FILE:LINE: problem`, or `FILE: problem` when no line applies.
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self.line {
+            Some(line) => write!(f, "{}:{}: {}", self.source_name, line, self.kind),
+            None => write!(f, "{}: {}", self.source_name, self.kind),
+        }
+    }
+}
+
+impl std::error::Error for RecordingError {}
+
+/// What is wrong with a recording.
+#[derive(Debug)]
+pub enum RecordingErrorKind {
+    /// The file could not be opened or read.
+    Io(io::Error),
+    /// Nothing but comments and blank lines: no header, no data.
+    Empty,
+    /// The first line that is not a comment names none of the known columns.
+    NoHeader,
+    /// A header but no data rows.
+    NoData,
+    /// A required column is absent from the header.
+    MissingColumn(&'static str),
+    /// A required column is absent, but a column differing only in case is there (names
+    /// are case-sensitive).
+    WrongCaseColumn {
+        /// The name formats.md defines.
+        expected: &'static str,
+        /// The name found in the header.
+        found: String,
+    },
+    /// A known column appears twice in the header.
+    DuplicateColumn(String),
+    /// Lines end in a bare carriage return (old Mac line endings).
+    BadLineEndings,
+    /// A `# key=value` line with a bad value for a known key, or a known key given twice.
+    BadMetadata(String),
+    /// A row with a different number of fields than the header.
+    WrongFieldCount {
+        /// Fields in the header.
+        expected: usize,
+        /// Fields in the row.
+        got: usize,
+    },
+    /// A condition other than `x`, `y` or `z`.
+    UnknownCondition(String),
+    /// A field that is not a number.
+    NotANumber {
+        /// The column.
+        column: &'static str,
+        /// The field (possibly shortened).
+        text: String,
+    },
+    /// NaN or an infinity (including a number too large for f64).
+    NotFinite {
+        /// The column.
+        column: &'static str,
+    },
+    /// A field that must be a non-negative integer (`seq`) and is not.
+    NotAnInteger {
+        /// The column.
+        column: &'static str,
+        /// The field (possibly shortened).
+        text: String,
+    },
+    /// A field that must be positive (`rate_hz`) and is not.
+    NotPositive {
+        /// The column.
+        column: &'static str,
+        /// The value.
+        value: f64,
+    },
+    /// Rotation: `t_s` decreased within one (condition, rate) group.
+    TimeWentBackwards {
+        /// The group's condition.
+        condition: Condition,
+        /// The group's rate (`None`: no `rate_hz` column).
+        rate_hz: Option<f64>,
+        /// The group's previous time.
+        previous: f64,
+        /// This row's time.
+        got: f64,
+    },
+    /// A condition has no rows (at some rate, for a multi-rate file).
+    MissingCondition {
+        /// The missing condition.
+        condition: Condition,
+        /// The rate it is missing at (`None`: no `rate_hz` column, or static).
+        rate_hz: Option<f64>,
+    },
+}
+
+fn rate_suffix(rate_hz: Option<f64>) -> String {
+    match rate_hz {
+        Some(r) => format!(" at rate_hz={r}"),
+        None => String::new(),
+    }
+}
+
+impl fmt::Display for RecordingErrorKind {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        use RecordingErrorKind as K;
+        match self {
+            K::Io(e) => write!(f, "cannot read: {e}"),
+            K::Empty => f.write_str(
+                "empty recording: no header line and no data (only comments or blank lines)",
+            ),
+            K::NoHeader => write!(
+                f,
+                "no header line: the first line that is not a comment names none of the \
+                 columns {}",
+                COLUMN_NAMES.join(", ")
+            ),
+            K::NoData => f.write_str("no data rows after the header"),
+            K::MissingColumn(c) => {
+                write!(f, "missing column '{c}'")?;
+                match *c {
+                    "t_s" => f.write_str(" (method rotation needs it)"),
+                    "angle_deg" => f.write_str(
+                        " (method static needs it; without a t_s column the method is static)",
+                    ),
+                    _ => Ok(()),
+                }
+            }
+            K::WrongCaseColumn { expected, found } => write!(
+                f,
+                "missing column '{expected}': found '{found}', but column names are \
+                 case-sensitive"
+            ),
+            K::DuplicateColumn(c) => write!(f, "column '{c}' appears twice in the header"),
+            K::BadLineEndings => {
+                f.write_str("lines end in a bare carriage return (CR); use LF or CRLF line endings")
+            }
+            K::BadMetadata(m) => write!(f, "bad metadata: {m}"),
+            K::WrongFieldCount { expected, got } => {
+                write!(
+                    f,
+                    "wrong number of fields: {got}, but the header has {expected}"
+                )
+            }
+            K::UnknownCondition(c) => {
+                write!(f, "unknown condition '{c}' (expected x, y or z)")
+            }
+            K::NotANumber { column, text } => {
+                write!(f, "column {column}: '{text}' is not a number")
+            }
+            K::NotFinite { column } => {
+                write!(f, "column {column}: value is not finite (NaN or infinity)")
+            }
+            K::NotAnInteger { column, text } => {
+                write!(f, "column {column}: '{text}' is not a non-negative integer")
+            }
+            K::NotPositive { column, value } => {
+                write!(f, "column {column}: {value} is not positive")
+            }
+            K::TimeWentBackwards {
+                condition,
+                rate_hz,
+                previous,
+                got,
+            } => write!(
+                f,
+                "time went backwards in condition {}{}: t_s={got} after t_s={previous}",
+                condition.letter(),
+                rate_suffix(*rate_hz)
+            ),
+            K::MissingCondition { condition, rate_hz } => write!(
+                f,
+                "condition {} missing: no rows for it{} (need all of x, y, z)",
+                condition.letter(),
+                rate_suffix(*rate_hz)
+            ),
+        }
+    }
+}
+
+/// The column names formats.md defines.
+pub const COLUMN_NAMES: [&str; 9] = [
+    "condition",
+    "t_s",
+    "angle_deg",
+    "u",
+    "v",
+    "w",
+    "seq",
+    "temp_c",
+    "rate_hz",
+];
+
+/// Read the recording at `path`.
+pub fn read(path: &Path) -> Result<Recording, RecordingError> {
+    let source = path.display().to_string();
+    match File::open(path) {
+        Ok(f) => read_from(f, &source),
+        Err(e) => Err(RecordingError {
+            source_name: source,
+            line: None,
+            kind: RecordingErrorKind::Io(e),
+        }),
+    }
+}
+
+/// Read a recording from `reader`; `source` names it in messages.
+pub fn read_from<R: Read>(reader: R, source: &str) -> Result<Recording, RecordingError> {
+    Parser {
+        source,
+        line_offset: 0,
+    }
+    .run(reader)
+}
+
+// ---------------------------------------------------------------------------------------
+// Reader internals
+
+/// Appends a `\n` to a stream that doesn't end in one, so that every csv record ends with
+/// a consumed `\n` and its line number can be worked out from the reader's position.
+struct FinalNewline<R> {
+    inner: R,
+    last: Option<u8>,
+    done: bool,
+}
+
+impl<R: Read> Read for FinalNewline<R> {
+    fn read(&mut self, buf: &mut [u8]) -> io::Result<usize> {
+        if self.done || buf.is_empty() {
+            return Ok(0);
+        }
+        let n = self.inner.read(buf)?;
+        if n > 0 {
+            if let Some(&b) = buf.get(..n).and_then(<[u8]>::last) {
+                self.last = Some(b);
+            }
+            return Ok(n);
+        }
+        self.done = true;
+        match (self.last, buf.first_mut()) {
+            (Some(b), Some(slot)) if b != b'\n' => {
+                *slot = b'\n';
+                Ok(1)
+            }
+            _ => Ok(0),
+        }
+    }
+}
+
+/// Where each known column is in the header.
+#[derive(Debug)]
+struct ColumnIndex {
+    n: usize,
+    condition: usize,
+    u: usize,
+    v: usize,
+    w: usize,
+    t_s: Option<usize>,
+    angle_deg: Option<usize>,
+    seq: Option<usize>,
+    temp_c: Option<usize>,
+    rate_hz: Option<usize>,
+}
+
+struct Parser<'a> {
+    source: &'a str,
+    /// Physical lines consumed before the csv reader took over.
+    line_offset: u64,
+}
+
+type Res<T> = Result<T, RecordingError>;
+
+impl Parser<'_> {
+    fn err(&self, line: Option<u64>, kind: RecordingErrorKind) -> RecordingError {
+        RecordingError {
+            source_name: self.source.to_string(),
+            line,
+            kind,
+        }
+    }
+
+    /// The 1-based physical line on which `rec`, just read, starts. Every record ends with
+    /// a consumed `\n` (see [`FinalNewline`]), so the reader's line is one past its last
+    /// line; newlines inside quoted fields make a record span several lines.
+    fn line_of<R: Read>(&self, rdr: &csv::Reader<R>, rec: &csv::ByteRecord) -> u64 {
+        let inner = rec.as_slice().iter().filter(|&&b| b == b'\n').count() as u64;
+        self.line_offset
+            .saturating_add(rdr.position().line())
+            .saturating_sub(1)
+            .saturating_sub(inner)
+            .max(1)
+    }
+
+    fn run<R: Read>(mut self, reader: R) -> Res<Recording> {
+        let mut br = BufReader::with_capacity(
+            1 << 16,
+            FinalNewline {
+                inner: reader,
+                last: None,
+                done: false,
+            },
+        );
+        let meta = self.preamble(&mut br)?;
+
+        let mut rdr = csv::ReaderBuilder::new()
+            .has_headers(false)
+            .flexible(true)
+            .comment(Some(b'#'))
+            .terminator(csv::Terminator::Any(b'\n'))
+            .buffer_capacity(1 << 16)
+            .from_reader(br);
+        let mut rec = csv::ByteRecord::new();
+
+        // The header: the first record that isn't blank.
+        let header_line = loop {
+            if !self.next(&mut rdr, &mut rec)? {
+                return Err(self.err(None, RecordingErrorKind::Empty));
+            }
+            if !is_blank(&rec) {
+                break self.line_of(&rdr, &rec);
+            }
+        };
+        let (cols, method) = self.header(&rec, header_line, &meta)?;
+
+        let mut groups: Vec<Group> = Vec::new();
+        // (condition, rate bits) of the group the previous row went to, and its index.
+        let mut last: Option<(Condition, Option<u64>, usize)> = None;
+        let rotation = method == Method::Rotation;
+
+        while self.next(&mut rdr, &mut rec)? {
+            if rec.len() != cols.n {
+                if is_blank(&rec) {
+                    continue;
+                }
+                let line = self.line_of(&rdr, &rec);
+                return Err(self.err(
+                    Some(line),
+                    RecordingErrorKind::WrongFieldCount {
+                        expected: cols.n,
+                        got: rec.len(),
+                    },
+                ));
+            }
+            let row = match parse_row(&rec, &cols) {
+                Ok(row) => row,
+                Err(kind) => return Err(self.err(Some(self.line_of(&rdr, &rec)), kind)),
+            };
+            let rate = if rotation { row.rate_hz } else { None };
+            let key = rate.map(f64::to_bits);
+            let gi = match last {
+                Some((c, k, i)) if c == row.condition && k == key => i,
+                _ => {
+                    let found = groups.iter().position(|g| {
+                        g.condition == row.condition && g.rate_hz.map(f64::to_bits) == key
+                    });
+                    let i = match found {
+                        Some(i) => i,
+                        None => {
+                            let line = self.line_of(&rdr, &rec);
+                            groups.push(Group::new(row.condition, rate, &cols, line));
+                            groups.len() - 1
+                        }
+                    };
+                    last = Some((row.condition, key, i));
+                    i
+                }
+            };
+            let Some(g) = groups.get_mut(gi) else {
+                continue; // cannot happen: gi indexes `groups`
+            };
+            if let Some(t) = row.t_s {
+                if rotation {
+                    if let Some(&prev) = g.t_s.last() {
+                        if t < prev {
+                            let kind = RecordingErrorKind::TimeWentBackwards {
+                                condition: row.condition,
+                                rate_hz: rate,
+                                previous: prev,
+                                got: t,
+                            };
+                            return Err(self.err(Some(self.line_of(&rdr, &rec)), kind));
+                        }
+                    }
+                }
+                g.t_s.push(t);
+            }
+            if let Some(a) = row.angle_deg {
+                g.angle_deg.push(a);
+            }
+            g.u.push(row.u);
+            g.v.push(row.v);
+            g.w.push(row.w);
+            if let (Some(s), Some(v)) = (row.seq, g.seq.as_mut()) {
+                v.push(s);
+            }
+            if let (Some(t), Some(v)) = (row.temp_c, g.temp_c.as_mut()) {
+                v.push(t);
+            }
+        }
+
+        if groups.is_empty() {
+            return Err(self.err(None, RecordingErrorKind::NoData));
+        }
+        // Every rate needs all three conditions.
+        let mut rates: Vec<Option<u64>> = Vec::new();
+        for g in &groups {
+            let k = g.rate_hz.map(f64::to_bits);
+            if !rates.contains(&k) {
+                rates.push(k);
+            }
+        }
+        for k in rates {
+            for c in Condition::ALL {
+                if !groups
+                    .iter()
+                    .any(|g| g.condition == c && g.rate_hz.map(f64::to_bits) == k)
+                {
+                    let kind = RecordingErrorKind::MissingCondition {
+                        condition: c,
+                        rate_hz: k.map(f64::from_bits),
+                    };
+                    return Err(self.err(None, kind));
+                }
+            }
+        }
+        for g in &mut groups {
+            g.t_s.shrink_to_fit();
+            g.angle_deg.shrink_to_fit();
+            g.u.shrink_to_fit();
+            g.v.shrink_to_fit();
+            g.w.shrink_to_fit();
+        }
+
+        Ok(Recording {
+            source: self.source.to_string(),
+            meta,
+            method,
+            groups,
+        })
+    }
+
+    fn next<R: Read>(&self, rdr: &mut csv::Reader<R>, rec: &mut csv::ByteRecord) -> Res<bool> {
+        rdr.read_byte_record(rec).map_err(|e| {
+            let kind = match e.into_kind() {
+                csv::ErrorKind::Io(io) => io,
+                other => io::Error::other(format!("{other:?}")),
+            };
+            self.err(None, RecordingErrorKind::Io(kind))
+        })
+    }
+
+    /// Read the `#` and blank lines before the header, leaving the reader at the header.
+    fn preamble<R: BufRead>(&mut self, br: &mut R) -> Res<Metadata> {
+        let io_err = |s: &Self, e: io::Error| s.err(None, RecordingErrorKind::Io(e));
+        // A UTF-8 byte-order mark.
+        {
+            let buf = br.fill_buf().map_err(|e| io_err(self, e))?;
+            if buf.starts_with(b"\xEF\xBB\xBF") {
+                br.consume(3);
+            }
+        }
+        let mut meta = Metadata::default();
+        // Line of each known key, for duplicate messages.
+        let mut seen: BTreeMap<&'static str, u64> = BTreeMap::new();
+        let mut line = Vec::new();
+        loop {
+            let buf = br.fill_buf().map_err(|e| io_err(self, e))?;
+            let first = buf.iter().find(|&&b| !matches!(b, b' ' | b'\t' | b'\r'));
+            let comment = match first {
+                Some(b'#') => true,
+                Some(b'\n') => false,
+                // The header (or a whitespace-only buffer: the csv stage skips blank lines).
+                _ => break,
+            };
+            line.clear();
+            br.read_until(b'\n', &mut line)
+                .map_err(|e| io_err(self, e))?;
+            self.line_offset += 1;
+            let body = line.strip_suffix(b"\n").unwrap_or(&line);
+            let body = body.strip_suffix(b"\r").unwrap_or(body);
+            if body.contains(&b'\r') {
+                let kind = RecordingErrorKind::BadLineEndings;
+                return Err(self.err(Some(self.line_offset), kind));
+            }
+            if comment {
+                self.metadata_line(&line, &mut meta, &mut seen)?;
+            }
+        }
+        Ok(meta)
+    }
+
+    fn metadata_line(
+        &self,
+        raw: &[u8],
+        meta: &mut Metadata,
+        seen: &mut BTreeMap<&'static str, u64>,
+    ) -> Res<()> {
+        let lineno = self.line_offset;
+        let text = String::from_utf8_lossy(raw);
+        let Some(body) = text.trim().strip_prefix('#') else {
+            return Ok(());
+        };
+        let Some((key, value)) = body.split_once('=') else {
+            return Ok(());
+        };
+        let (key, value) = (key.trim(), value.trim());
+        if !is_key(key) {
+            return Ok(()); // a plain comment that happens to hold '='
+        }
+        let Some(&known) = KNOWN_KEYS.iter().find(|k| **k == key) else {
+            meta.other.insert(key.to_string(), value.to_string());
+            return Ok(());
+        };
+        let bad = |m: String| self.err(Some(lineno), RecordingErrorKind::BadMetadata(m));
+        let before = meta.clone();
+        match known {
+            "method" => {
+                meta.method = Some(
+                    value
+                        .parse::<Method>()
+                        .map_err(|m| bad(format!("method: {m}")))?,
+                )
+            }
+            "units" => meta.units = Some(value.to_string()),
+            "device" => meta.device = Some(value.to_string()),
+            _ => {
+                let x: f64 = value.parse().map_err(|_| {
+                    bad(format!(
+                        "{known}: '{}' is not a number",
+                        snippet(value.as_bytes())
+                    ))
+                })?;
+                check_meta_number(known, x).map_err(bad)?;
+                match known {
+                    "rate_hz" => meta.rate_hz = Some(x),
+                    "g_loc" => meta.g_loc = Some(x),
+                    "sample_rate_hz" => meta.sample_rate_hz = Some(x),
+                    _ => meta.noise_sigma = Some(x),
+                }
+            }
+        }
+        if let Some(&first) = seen.get(known) {
+            if before != *meta {
+                return Err(bad(format!(
+                    "{known} given twice with different values (first on line {first})"
+                )));
+            }
+        } else {
+            seen.insert(known, lineno);
+        }
+        Ok(())
+    }
+
+    fn header(
+        &self,
+        rec: &csv::ByteRecord,
+        line: u64,
+        meta: &Metadata,
+    ) -> Res<(ColumnIndex, Method)> {
+        let at = |kind| self.err(Some(line), kind);
+        let names: Vec<String> = rec
+            .iter()
+            .map(|f| String::from_utf8_lossy(f.trim_ascii()).into_owned())
+            .collect();
+        if names.iter().any(|n| n.contains('\r')) {
+            return Err(at(RecordingErrorKind::BadLineEndings));
+        }
+        let mut found: [Option<usize>; COLUMN_NAMES.len()] = [None; COLUMN_NAMES.len()];
+        for (i, name) in names.iter().enumerate() {
+            if let Some(k) = COLUMN_NAMES.iter().position(|c| c == name) {
+                if let Some(slot) = found.get_mut(k) {
+                    if slot.is_some() {
+                        return Err(at(RecordingErrorKind::DuplicateColumn(name.clone())));
+                    }
+                    *slot = Some(i);
+                }
+            }
+        }
+        if found.iter().all(Option::is_none) {
+            return Err(at(RecordingErrorKind::NoHeader));
+        }
+        let idx = |name: &str| {
+            COLUMN_NAMES
+                .iter()
+                .position(|c| *c == name)
+                .and_then(|k| found.get(k).copied().flatten())
+        };
+        let require = |name: &'static str| -> Res<usize> {
+            idx(name).ok_or_else(
+                || match names.iter().find(|n| n.eq_ignore_ascii_case(name)) {
+                    Some(n) => at(RecordingErrorKind::WrongCaseColumn {
+                        expected: name,
+                        found: n.clone(),
+                    }),
+                    None => at(RecordingErrorKind::MissingColumn(name)),
+                },
+            )
+        };
+        let condition = require("condition")?;
+        let u = require("u")?;
+        let v = require("v")?;
+        let w = require("w")?;
+        let t_s = idx("t_s");
+        let method = meta.method.unwrap_or(if t_s.is_some() {
+            Method::Rotation
+        } else {
+            Method::Static
+        });
+        match method {
+            Method::Rotation => {
+                require("t_s")?;
+            }
+            Method::Static => {
+                require("angle_deg")?;
+            }
+        }
+        Ok((
+            ColumnIndex {
+                n: names.len(),
+                condition,
+                u,
+                v,
+                w,
+                t_s,
+                angle_deg: idx("angle_deg"),
+                seq: idx("seq"),
+                temp_c: idx("temp_c"),
+                rate_hz: idx("rate_hz"),
+            },
+            method,
+        ))
+    }
+}
+
+fn is_key(key: &str) -> bool {
+    !key.is_empty()
+        && key
+            .bytes()
+            .all(|b| b.is_ascii_alphanumeric() || matches!(b, b'_' | b'-' | b'.'))
+}
+
+/// Check a known numeric metadata value; the message names the key.
+fn check_meta_number(key: &str, x: f64) -> Result<(), String> {
+    if !x.is_finite() {
+        return Err(format!("{key}: {x} is not finite"));
+    }
+    match key {
+        "noise_sigma" if x < 0.0 => Err(format!("{key}: {x} is negative")),
+        "rate_hz" | "g_loc" | "sample_rate_hz" if x <= 0.0 => {
+            Err(format!("{key}: {x} is not positive"))
+        }
+        _ => Ok(()),
+    }
+}
+
+fn is_blank(rec: &csv::ByteRecord) -> bool {
+    rec.iter().all(|f| f.trim_ascii().is_empty())
+}
+
+/// A field as text for messages: lossy UTF-8, at most 40 characters.
+fn snippet(bytes: &[u8]) -> String {
+    let s = String::from_utf8_lossy(bytes);
+    let mut out: String = s.chars().take(40).collect();
+    if s.chars().nth(40).is_some() {
+        out.push('…');
+    }
+    out
+}
+
+fn field(rec: &csv::ByteRecord, i: usize) -> &[u8] {
+    rec.get(i).unwrap_or(b"").trim_ascii()
+}
+
+fn parse_f64(
+    rec: &csv::ByteRecord,
+    i: usize,
+    column: &'static str,
+) -> Result<f64, RecordingErrorKind> {
+    let f = field(rec, i);
+    let x = std::str::from_utf8(f)
+        .ok()
+        .and_then(|s| s.parse::<f64>().ok())
+        .ok_or_else(|| RecordingErrorKind::NotANumber {
+            column,
+            text: snippet(f),
+        })?;
+    if x.is_finite() {
+        Ok(x)
+    } else {
+        Err(RecordingErrorKind::NotFinite { column })
+    }
+}
+
+fn parse_opt(
+    rec: &csv::ByteRecord,
+    i: Option<usize>,
+    column: &'static str,
+) -> Result<Option<f64>, RecordingErrorKind> {
+    i.map(|i| parse_f64(rec, i, column)).transpose()
+}
+
+fn parse_row(rec: &csv::ByteRecord, cols: &ColumnIndex) -> Result<Row, RecordingErrorKind> {
+    let c = field(rec, cols.condition);
+    let condition = match c {
+        [b] => Condition::from_letter(char::from(*b)),
+        _ => None,
+    }
+    .ok_or_else(|| RecordingErrorKind::UnknownCondition(snippet(c)))?;
+    let t_s = parse_opt(rec, cols.t_s, "t_s")?;
+    let angle_deg = parse_opt(rec, cols.angle_deg, "angle_deg")?;
+    let u = parse_f64(rec, cols.u, "u")?;
+    let v = parse_f64(rec, cols.v, "v")?;
+    let w = parse_f64(rec, cols.w, "w")?;
+    let seq = match cols.seq {
+        Some(i) => {
+            let f = field(rec, i);
+            let s = std::str::from_utf8(f)
+                .ok()
+                .and_then(|s| s.parse::<u64>().ok())
+                .ok_or_else(|| RecordingErrorKind::NotAnInteger {
+                    column: "seq",
+                    text: snippet(f),
+                })?;
+            Some(s)
+        }
+        None => None,
+    };
+    let temp_c = parse_opt(rec, cols.temp_c, "temp_c")?;
+    let rate_hz = parse_opt(rec, cols.rate_hz, "rate_hz")?;
+    if let Some(r) = rate_hz {
+        if r <= 0.0 {
+            return Err(RecordingErrorKind::NotPositive {
+                column: "rate_hz",
+                value: r,
+            });
+        }
+    }
+    Ok(Row {
+        condition,
+        t_s,
+        angle_deg,
+        u,
+        v,
+        w,
+        seq,
+        temp_c,
+        rate_hz,
+    })
+}
+
+// ---------------------------------------------------------------------------------------
+// Writer
+
+/// Which optional columns a written file has (`condition`, `u`, `v`, `w` always).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub struct Columns {
+    /// `t_s` (rotation needs it).
+    pub t_s: bool,
+    /// `angle_deg` (static needs it).
+    pub angle_deg: bool,
+    /// `seq`.
+    pub seq: bool,
+    /// `temp_c`.
+    pub temp_c: bool,
+    /// `rate_hz` (multi-rate files).
+    pub rate_hz: bool,
+}
+
+impl Columns {
+    /// A plain rotation file: `condition,t_s,u,v,w`.
+    pub const ROTATION: Columns = Columns {
+        t_s: true,
+        angle_deg: false,
+        seq: false,
+        temp_c: false,
+        rate_hz: false,
+    };
+    /// A plain static file: `condition,angle_deg,u,v,w`.
+    pub const STATIC: Columns = Columns {
+        t_s: false,
+        angle_deg: true,
+        seq: false,
+        temp_c: false,
+        rate_hz: false,
+    };
+
+    /// The header line's names, in the order the writer puts them.
+    pub fn names(&self) -> Vec<&'static str> {
+        let mut out = vec!["condition"];
+        let opt = [
+            (self.rate_hz, "rate_hz"),
+            (self.seq, "seq"),
+            (self.t_s, "t_s"),
+            (self.angle_deg, "angle_deg"),
+        ];
+        out.extend(opt.iter().filter(|(on, _)| *on).map(|(_, n)| *n));
+        out.extend(["u", "v", "w"]);
+        if self.temp_c {
+            out.push("temp_c");
+        }
+        out
+    }
+}
+
+/// One row to write.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Row {
+    /// The condition.
+    pub condition: Condition,
+    /// Device time, s (the file must have the `t_s` column exactly when this is `Some`).
+    pub t_s: Option<f64>,
+    /// Table angle, degrees.
+    pub angle_deg: Option<f64>,
+    /// Channel U.
+    pub u: f64,
+    /// Channel V.
+    pub v: f64,
+    /// Channel W.
+    pub w: f64,
+    /// Sample sequence number.
+    pub seq: Option<u64>,
+    /// Temperature, °C.
+    pub temp_c: Option<f64>,
+    /// Nominal rate of this row, Hz.
+    pub rate_hz: Option<f64>,
+}
+
+impl Row {
+    /// A row with only the channels; set the optional fields as needed.
+    pub fn new(condition: Condition, u: f64, v: f64, w: f64) -> Self {
+        Row {
+            condition,
+            t_s: None,
+            angle_deg: None,
+            u,
+            v,
+            w,
+            seq: None,
+            temp_c: None,
+            rate_hz: None,
+        }
+    }
+}
+
+/// Writes a recording: `# rotacal recording v1`, the metadata, the header, then rows.
+///
+/// Output is buffered: call [`Writer::flush`] (or [`Writer::sync`] for a file) at the end
+/// and check its result. Rows and metadata that the reader would reject are refused with
+/// [`io::ErrorKind::InvalidInput`], so every file it writes reads back.
+pub struct Writer<W: Write> {
+    out: BufWriter<W>,
+    columns: Columns,
+    line: String,
+}
+
+fn invalid(msg: String) -> io::Error {
+    io::Error::new(io::ErrorKind::InvalidInput, msg)
+}
+
+fn check_value(key: &str, value: &str) -> io::Result<()> {
+    if value.contains(['\n', '\r']) {
+        return Err(invalid(format!(
+            "metadata {key}: value contains a line break"
+        )));
+    }
+    Ok(())
+}
+
+impl Writer<File> {
+    /// Create (or truncate) the file at `path` and write the preamble and header.
+    pub fn create(path: impl AsRef<Path>, meta: &Metadata, columns: &Columns) -> io::Result<Self> {
+        Writer::new(File::create(path)?, meta, columns)
+    }
+
+    /// Flush and ask the OS to put the data on disk (`File::sync_data`).
+    pub fn sync(&mut self) -> io::Result<()> {
+        self.out.flush()?;
+        self.out.get_ref().sync_data()
+    }
+}
+
+impl<W: Write> Writer<W> {
+    /// Write the preamble (`# rotacal recording v1`, then `# key=value` for every metadata
+    /// value set, known keys first, values trimmed) and the header to `w`.
+    pub fn new(w: W, meta: &Metadata, columns: &Columns) -> io::Result<Self> {
+        let method = meta.method.unwrap_or(if columns.t_s {
+            Method::Rotation
+        } else {
+            Method::Static
+        });
+        match method {
+            Method::Rotation if !columns.t_s => {
+                return Err(invalid("method rotation needs the t_s column".into()))
+            }
+            Method::Static if !columns.angle_deg => {
+                return Err(invalid("method static needs the angle_deg column".into()))
+            }
+            _ => {}
+        }
+        let mut pre = String::from("# rotacal recording v1\n");
+        let mut kv = |key: &str, value: &str| -> io::Result<()> {
+            check_value(key, value)?;
+            pre.push_str(&format!("# {key}={}\n", value.trim()));
+            Ok(())
+        };
+        if let Some(m) = meta.method {
+            kv("method", m.as_str())?;
+        }
+        let nums = [
+            ("rate_hz", meta.rate_hz),
+            ("g_loc", meta.g_loc),
+            ("units", None),
+            ("sample_rate_hz", meta.sample_rate_hz),
+            ("noise_sigma", meta.noise_sigma),
+        ];
+        for (key, x) in nums {
+            if key == "units" {
+                if let Some(u) = &meta.units {
+                    kv("units", u)?;
+                }
+            } else if let Some(x) = x {
+                check_meta_number(key, x).map_err(invalid)?;
+                kv(key, &format!("{x:?}"))?;
+            }
+        }
+        if let Some(d) = &meta.device {
+            kv("device", d)?;
+        }
+        for (key, value) in &meta.other {
+            if !is_key(key) {
+                return Err(invalid(format!(
+                    "metadata key '{key}': use letters, digits, '_', '-' and '.'"
+                )));
+            }
+            if KNOWN_KEYS.contains(&key.as_str()) {
+                return Err(invalid(format!(
+                    "metadata key '{key}' is a known key: set the field, not `other`"
+                )));
+            }
+            kv(key, value)?;
+        }
+        pre.push_str(&columns.names().join(","));
+        pre.push('\n');
+        let mut out = BufWriter::with_capacity(1 << 16, w);
+        out.write_all(pre.as_bytes())?;
+        Ok(Writer {
+            out,
+            columns: *columns,
+            line: String::with_capacity(128),
+        })
+    }
+
+    /// The columns this writer writes.
+    pub fn columns(&self) -> &Columns {
+        &self.columns
+    }
+
+    /// Write one row. Its optional fields must be set exactly for the file's optional
+    /// columns, and its numbers finite (`rate_hz` positive).
+    pub fn write_row(&mut self, row: &Row) -> io::Result<()> {
+        use std::fmt::Write as _;
+        let c = self.columns;
+        fn num(line: &mut String, name: &str, x: f64) -> io::Result<()> {
+            if !x.is_finite() {
+                return Err(invalid(format!("{name}={x} is not finite")));
+            }
+            let _ = write!(line, ",{x:?}");
+            Ok(())
+        }
+        fn opt<T>(on: bool, name: &str, x: Option<T>) -> io::Result<Option<T>> {
+            match (on, x) {
+                (true, Some(x)) => Ok(Some(x)),
+                (false, None) => Ok(None),
+                (true, None) => Err(invalid(format!(
+                    "row has no {name}, but the file has a {name} column"
+                ))),
+                (false, Some(_)) => Err(invalid(format!(
+                    "row has {name}, but the file has no {name} column"
+                ))),
+            }
+        }
+        let line = &mut self.line;
+        line.clear();
+        line.push(row.condition.letter());
+        if let Some(r) = opt(c.rate_hz, "rate_hz", row.rate_hz)? {
+            if r.is_finite() && r <= 0.0 {
+                return Err(invalid(format!("rate_hz={r} is not positive")));
+            }
+            num(line, "rate_hz", r)?;
+        }
+        if let Some(s) = opt(c.seq, "seq", row.seq)? {
+            let _ = write!(line, ",{s}");
+        }
+        if let Some(t) = opt(c.t_s, "t_s", row.t_s)? {
+            num(line, "t_s", t)?;
+        }
+        if let Some(a) = opt(c.angle_deg, "angle_deg", row.angle_deg)? {
+            num(line, "angle_deg", a)?;
+        }
+        num(line, "u", row.u)?;
+        num(line, "v", row.v)?;
+        num(line, "w", row.w)?;
+        if let Some(t) = opt(c.temp_c, "temp_c", row.temp_c)? {
+            num(line, "temp_c", t)?;
+        }
+        line.push('\n');
+        self.out.write_all(line.as_bytes())
+    }
+
+    /// Flush buffered rows to the underlying writer.
+    pub fn flush(&mut self) -> io::Result<()> {
+        self.out.flush()
+    }
+
+    /// The underlying writer.
+    pub fn get_ref(&self) -> &W {
+        self.out.get_ref()
+    }
+
+    /// Flush and return the underlying writer.
+    pub fn into_inner(self) -> io::Result<W> {
+        self.out
+            .into_inner()
+            .map_err(io::IntoInnerError::into_error)
+    }
+}
