@@ -1,0 +1,276 @@
+//! `rotacal calibrate`: from a recording to the calibration JSON and a terminal table.
+//!
+//! Rotation files: per nominal rate and condition, the IEEE 1057 fit tests whether the
+//! data's rotation rate differs from nominal (by more than 3 standard errors); if so that
+//! rate is used (and reported as `rate_hz_fitted`). Each channel is then fitted with the
+//! streaming fit in f64, and the intrinsic properties come from the Gram matrix.
+//! Timestamps are converted to ticks of a 1 MHz clock (t_s has microsecond resolution in
+//! every writer we know of).
+
+use crate::batch;
+use crate::calibrate::{self, StaticCondition};
+use crate::calibration_file::{self, CalibrationJson, FitJson};
+use crate::recording::{Group, Method, Recording};
+use rotacal_shared::{Condition, FitConfig, FitResult, Param, PhaseStep, SineFit, TickRate, Ticks};
+use std::fmt::Write as _;
+
+/// Command-line choices, which override the file's metadata.
+#[derive(Clone, Debug, Default)]
+pub struct Options {
+    /// Force the method.
+    pub method: Option<Method>,
+    /// Nominal rotation rate, Hz.
+    pub rate_hz: Option<f64>,
+    /// Local gravity, m/s².
+    pub g_loc: Option<f64>,
+}
+
+/// A calibration failure, naming the file and, where it applies, the line.
+#[derive(Debug, thiserror::Error)]
+#[error("{source_name}{}: {message}", line.map(|l| format!(":{l}")).unwrap_or_default())]
+pub struct CalibrateError {
+    /// The recording.
+    pub source_name: String,
+    /// First line of the data concerned.
+    pub line: Option<u64>,
+    /// What is wrong.
+    pub message: String,
+}
+
+const CLOCK: TickRate = TickRate::MHZ_1;
+
+fn err(rec: &Recording, line: Option<u64>, message: impl Into<String>) -> CalibrateError {
+    CalibrateError {
+        source_name: rec.source.clone(),
+        line,
+        message: message.into(),
+    }
+}
+
+fn samples(rec: &Recording, g: &Group) -> Result<Vec<(Ticks, [f64; 3])>, CalibrateError> {
+    let t0 = g.t_s.first().copied().unwrap_or(0.0);
+    g.t_s
+        .iter()
+        .zip(g.u.iter().zip(g.v.iter().zip(g.w.iter())))
+        .map(|(t, (u, (v, w)))| {
+            let ticks = ((t - t0) * f64::from(CLOCK.hz())).round();
+            if !(0.0..1.8e19).contains(&ticks) {
+                return Err(err(rec, Some(g.first_line), "t_s out of range"));
+            }
+            Ok((Ticks(ticks as u64), [*u, *v, *w]))
+        })
+        .collect()
+}
+
+fn fit_group(
+    rec: &Recording,
+    g: &Group,
+    nominal_hz: f64,
+) -> Result<(FitResult<f64>, Option<f64>), CalibrateError> {
+    let cond = g.condition.letter();
+    let s = samples(rec, g)?;
+    let nominal = PhaseStep::from_hz(nominal_hz, CLOCK).ok_or_else(|| {
+        err(
+            rec,
+            Some(g.first_line),
+            format!("rotation rate {nominal_hz} Hz is not usable"),
+        )
+    })?;
+    // Span check first, so a short record gets the plain message.
+    let streaming = |step| -> Result<FitResult<f64>, CalibrateError> {
+        let mut fit = SineFit::<f64>::new(FitConfig::sine(step, CLOCK));
+        for (t, y) in &s {
+            fit.update(*t, *y)
+                .map_err(|e| err(rec, Some(g.first_line), format!("condition {cond}: {e}")))?;
+        }
+        fit.solve()
+            .map_err(|e| err(rec, Some(g.first_line), format!("condition {cond}: {e}")))
+    };
+    let at_nominal = streaming(nominal)?;
+    let four = batch::fit_four_param(&s, nominal, CLOCK).map_err(|e| {
+        err(
+            rec,
+            Some(g.first_line),
+            format!("condition {cond}: rate fit: {e}"),
+        )
+    })?;
+    if (four.rate_hz - nominal_hz).abs() > 3.0 * four.se_rate_hz {
+        let step = PhaseStep::from_hz(four.rate_hz, CLOCK)
+            .ok_or_else(|| err(rec, Some(g.first_line), "fitted rate unusable"))?;
+        Ok((streaming(step)?, Some(four.rate_hz)))
+    } else {
+        Ok((at_nominal, None))
+    }
+}
+
+fn fit_json(cond: Condition, r: &FitResult<f64>, rate: Option<f64>) -> Vec<FitJson> {
+    ['u', 'v', 'w']
+        .iter()
+        .enumerate()
+        .map(|(ch, name)| {
+            let c = |p| r.coef(ch, p).map(|v| v.to_f64()).unwrap_or(f64::NAN);
+            let se = |p| r.se(ch, p).unwrap_or(f64::NAN);
+            FitJson {
+                condition: cond.letter().to_string(),
+                channel: name.to_string(),
+                a: c(Param::A),
+                b: c(Param::B),
+                c: c(Param::C),
+                se_a: se(Param::A),
+                se_b: se(Param::B),
+                se_c: se(Param::C),
+                n: u64::from(r.n),
+                rms_residual: r.channels[ch].rms_residual,
+                rate_hz_fitted: rate,
+            }
+        })
+        .collect()
+}
+
+/// Calibrate a recording.
+pub fn calibrate(rec: &Recording, opts: &Options) -> Result<CalibrationJson, CalibrateError> {
+    let g = opts.g_loc.or(rec.meta.g_loc).ok_or_else(|| {
+        err(
+            rec,
+            None,
+            "local gravity unknown: give --g-loc or a '# g_loc=' line",
+        )
+    })?;
+    if !(g.is_finite() && g > 0.0) {
+        return Err(err(
+            rec,
+            None,
+            format!("g_loc {g} is not a positive number"),
+        ));
+    }
+    let method = opts.method.unwrap_or(rec.method);
+    let units = rec
+        .meta
+        .units
+        .clone()
+        .unwrap_or_else(|| "output units".into());
+    let mut by_rate = Vec::new();
+    match method {
+        Method::Rotation => {
+            for rate in rec.rates() {
+                let nominal = rate
+                    .or(opts.rate_hz)
+                    .or(rec.meta.rate_hz)
+                    .ok_or_else(|| err(rec, None, "rotation rate unknown: give --rate-hz, a '# rate_hz=' line or a rate_hz column"))?;
+                let mut fits = Vec::new();
+                let mut json_fits = Vec::new();
+                for cond in Condition::ALL {
+                    let grp = rec.group(cond, rate).ok_or_else(|| {
+                        err(
+                            rec,
+                            None,
+                            format!("condition {} missing at {nominal} Hz", cond.letter()),
+                        )
+                    })?;
+                    if grp.t_s.len() != grp.u.len() {
+                        return Err(err(
+                            rec,
+                            Some(grp.first_line),
+                            "rotation needs a t_s column",
+                        ));
+                    }
+                    let (fit, fitted) = fit_group(rec, grp, nominal)?;
+                    json_fits.extend(fit_json(cond, &fit, fitted));
+                    fits.push(fit);
+                }
+                let [fx, fy, fz] = fits.as_slice() else {
+                    return Err(err(rec, None, "expected three conditions"));
+                };
+                let cal = calibrate::rotation([fx, fy, fz], g, 0.0)
+                    .map_err(|e| err(rec, None, format!("at {nominal} Hz: {e}")))?;
+                by_rate.push(calibration_file::rotation_entry(nominal, &cal, json_fits));
+            }
+        }
+        Method::Static => {
+            let mut conds = Vec::new();
+            for grp in &rec.groups {
+                if grp.angle_deg.len() != grp.u.len() {
+                    return Err(err(
+                        rec,
+                        Some(grp.first_line),
+                        "static calibration needs an angle_deg column",
+                    ));
+                }
+                conds.push(StaticCondition {
+                    condition: grp.condition,
+                    angle_deg: &grp.angle_deg,
+                    y: [&grp.u, &grp.v, &grp.w],
+                });
+            }
+            let cal =
+                calibrate::static_method(&conds, g).map_err(|e| err(rec, None, e.to_string()))?;
+            by_rate.push(calibration_file::static_entry(&cal));
+        }
+    }
+    Ok(CalibrationJson {
+        method: method.as_str().to_string(),
+        g_loc: g,
+        units,
+        by_rate,
+    })
+}
+
+/// The terminal table: value ± U (k = 2) with units.
+pub fn render(c: &CalibrationJson) -> String {
+    let mut o = String::new();
+    let su = format!("{} per m/s²", c.units);
+    let _ = writeln!(
+        o,
+        "method {}, g_loc = {} m/s²; ± is the expanded uncertainty U (k = 2)",
+        c.method, c.g_loc
+    );
+    for r in &c.by_rate {
+        let rate = r
+            .rate_hz
+            .map(|f| format!("rotation at {f} Hz"))
+            .unwrap_or_else(|| "static".into());
+        let _ = writeln!(o, "\n{rate}");
+        let q = |name: &str, x: &calibration_file::Quantity, unit: &str, d: usize| {
+            format!(
+                "  {name:<7} {:>14.d$} ± {:<10.d$} {unit}\n",
+                x.value, x.expanded_unc
+            )
+        };
+        let s = &r.intrinsic.sensitivity;
+        let a = &r.intrinsic.angle_deg;
+        o += &q("s_u", &s.u, &su, 5);
+        o += &q("s_v", &s.v, &su, 5);
+        o += &q("s_w", &s.w, &su, 5);
+        o += &q("φ_uv", &a.uv, "°", 5);
+        o += &q("φ_vw", &a.vw, "°", 5);
+        o += &q("φ_wu", &a.wu, "°", 5);
+        if let Some(off) = &r.intrinsic.offset {
+            o += &q("O_u", &off.u, &c.units, 5);
+            o += &q("O_v", &off.v, &c.units, 5);
+            o += &q("O_w", &off.w, &c.units, 5);
+        }
+        if let Some(p) = &r.angle_deg_phase_method {
+            let _ = writeln!(o, "  phase-difference angles (seed 000 eqs. 12–16, for comparison; biased when tilted):");
+            o += &q("φ_uv", &p.uv, "°", 5);
+            o += &q("φ_vw", &p.vw, "°", 5);
+            o += &q("φ_wu", &p.wu, "°", 5);
+        }
+        let fitted: Vec<String> = r
+            .fits
+            .iter()
+            .filter(|f| f.channel == "u")
+            .filter_map(|f| {
+                f.rate_hz_fitted
+                    .map(|h| format!("{} {h:.9} Hz", f.condition))
+            })
+            .collect();
+        if !fitted.is_empty() {
+            let _ = writeln!(
+                o,
+                "  rate differs from nominal; fitted: {}",
+                fitted.join(", ")
+            );
+        }
+    }
+    o
+}

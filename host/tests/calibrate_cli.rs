@@ -1,0 +1,211 @@
+//! `rotacal calibrate` end to end: recordings written with the recording writer, the
+//! binary run on them, its JSON checked against formats.md and the truth.
+use rotacal::demo::{
+    sensitivity_from_intrinsic, PAPER_DC_ANGLES_DEG, PAPER_DC_OFFSETS, PAPER_DC_SENSITIVITY,
+    PAPER_G_LOC,
+};
+use rotacal::recording::{Columns, Metadata, Method, Row, Writer};
+use rotacal_shared::synth::{self, crosscheck, Synth, SynthSpec};
+use rotacal_shared::{Condition, PhaseStep, TickRate};
+use serde_json::Value;
+use std::path::PathBuf;
+use std::process::Command;
+
+fn tmp(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("rotacal-test-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    dir.join(name)
+}
+
+/// A rotation recording of the seed 000 device; `rate_ppm` is how far the true rate is
+/// off the nominal 10 mHz written in the metadata.
+fn write_rotation(path: &PathBuf, rate_ppm: f64) {
+    let clock = TickRate::MHZ_1;
+    let s = sensitivity_from_intrinsic(PAPER_DC_SENSITIVITY, PAPER_DC_ANGLES_DEG);
+    let meta = Metadata {
+        method: Some(Method::Rotation),
+        rate_hz: Some(0.01),
+        g_loc: Some(PAPER_G_LOC),
+        units: Some("counts".into()),
+        ..Metadata::default()
+    };
+    let mut w = Writer::create(path, &meta, &Columns::ROTATION).unwrap();
+    for (axis, cond) in Condition::ALL.into_iter().enumerate() {
+        let spec = SynthSpec {
+            coef: synth::coefficients(&s, &PAPER_DC_OFFSETS, PAPER_G_LOC, axis),
+            noise_sigma: crosscheck::noise_sigma(16_000),
+            step: PhaseStep::from_hz(0.01 * (1.0 + rate_ppm * 1e-6), clock).unwrap(),
+            clock,
+            sample_rate_mhz: 16_000,
+            n_samples: 4200,
+            drop_per_million: 0,
+            seed: 77 + axis as u64,
+        };
+        for smp in Synth::new(spec) {
+            let [u, v, ww] = smp.counts.map(f64::from);
+            let mut row = Row::new(cond, u, v, ww);
+            row.t_s = Some(smp.t.0 as f64 * 1e-6);
+            w.write_row(&row).unwrap();
+        }
+    }
+    w.flush().unwrap();
+}
+
+fn run(args: &[&str]) -> (bool, String, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_rotacal"))
+        .args(args)
+        .output()
+        .unwrap();
+    (
+        out.status.success(),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+fn check_q(q: &Value, truth: f64) {
+    let (v, u, big_u, k) = (
+        q["value"].as_f64().unwrap(),
+        q["std_unc"].as_f64().unwrap(),
+        q["expanded_unc"].as_f64().unwrap(),
+        q["k"].as_f64().unwrap(),
+    );
+    assert_eq!(k, 2.0);
+    assert!((big_u - 2.0 * u).abs() <= 1e-12 * big_u);
+    assert!(
+        (v - truth).abs() <= big_u * 2.0,
+        "{v} vs truth {truth} (U = {big_u})"
+    );
+}
+
+#[test]
+fn rotation_recording_to_json() {
+    for (ppm, expect_fitted) in [(0.0, false), (300.0, true)] {
+        let rec = tmp(&format!("rot-{ppm}.csv"));
+        let json = tmp(&format!("rot-{ppm}.json"));
+        write_rotation(&rec, ppm);
+        let (ok, stdout, stderr) = run(&[
+            "calibrate",
+            rec.to_str().unwrap(),
+            "--json",
+            json.to_str().unwrap(),
+        ]);
+        assert!(ok, "{stderr}");
+        assert!(stdout.contains("s_u") && stdout.contains("± "), "{stdout}");
+        let v: Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+        assert_eq!(v["method"], "rotation");
+        assert_eq!(v["units"], "counts");
+        assert_eq!(v["g_loc"].as_f64(), Some(PAPER_G_LOC));
+        let r = &v["by_rate"][0];
+        assert_eq!(r["rate_hz"].as_f64(), Some(0.01));
+        assert!(r["intrinsic"]["offset"].is_null());
+        assert!(r["sensitivity_matrix"].is_null());
+        for (name, t) in ["u", "v", "w"].iter().zip(PAPER_DC_SENSITIVITY) {
+            check_q(&r["intrinsic"]["sensitivity"][name], t);
+        }
+        for (name, t) in ["uv", "vw", "wu"].iter().zip(PAPER_DC_ANGLES_DEG) {
+            check_q(&r["intrinsic"]["angle_deg"][name], t);
+            assert!(r["angle_deg_phase_method"][name]["value"].is_f64());
+        }
+        let fits = r["fits"].as_array().unwrap();
+        assert_eq!(fits.len(), 9);
+        for f in fits {
+            for key in [
+                "condition",
+                "channel",
+                "A",
+                "B",
+                "C",
+                "se_A",
+                "se_B",
+                "se_C",
+                "n",
+                "rms_residual",
+                "rate_hz_fitted",
+            ] {
+                assert!(f.get(key).is_some(), "fit lacks {key}");
+            }
+            assert_eq!(f["n"].as_u64(), Some(4200));
+            assert_eq!(
+                f["rate_hz_fitted"].is_f64(),
+                expect_fitted,
+                "{ppm} ppm: {f}"
+            );
+            if expect_fitted {
+                let fitted = f["rate_hz_fitted"].as_f64().unwrap();
+                assert!(
+                    (fitted / 0.01 - 1.0 - 300e-6).abs() < 20e-6,
+                    "fitted rate {fitted}"
+                );
+            }
+        }
+    }
+}
+
+#[test]
+fn static_recording_to_json() {
+    let rec = tmp("static.csv");
+    let json = tmp("static.json");
+    let s = sensitivity_from_intrinsic([0.2013, 0.2016, 0.2024], [90.99, 90.75, 90.30]);
+    let meta = Metadata {
+        g_loc: Some(9.801018),
+        units: Some("V".into()),
+        ..Metadata::default()
+    };
+    let mut w = Writer::create(&rec, &meta, &Columns::STATIC).unwrap();
+    for c in Condition::ALL {
+        for i in 0..72usize {
+            let a = i as f64 * 5.0;
+            let gd = rotacal::calibrate::gravity_direction(c, a.to_radians());
+            let y = [0, 1, 2].map(|j| {
+                9.801018 * (s[j][0] * gd[0] + s[j][1] * gd[1] + s[j][2] * gd[2])
+                    + 0.001 * j as f64
+                    + 1e-4 * ((i * 7 + j * 3) % 5) as f64
+            });
+            let mut row = Row::new(c, y[0], y[1], y[2]);
+            row.angle_deg = Some(a);
+            w.write_row(&row).unwrap();
+        }
+    }
+    w.flush().unwrap();
+    let (ok, _, stderr) = run(&[
+        "calibrate",
+        rec.to_str().unwrap(),
+        "--json",
+        json.to_str().unwrap(),
+    ]);
+    assert!(ok, "{stderr}");
+    let v: Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    assert_eq!(v["method"], "static");
+    let r = &v["by_rate"][0];
+    assert!(r["rate_hz"].is_null());
+    assert!(r["angle_deg_phase_method"].is_null());
+    assert!(r["intrinsic"]["offset"]["u"]["value"].is_f64());
+    assert_eq!(
+        r["sensitivity_matrix"]["value"].as_array().unwrap().len(),
+        3
+    );
+    assert_eq!(r["fits"].as_array().unwrap().len(), 9);
+    let su = r["intrinsic"]["sensitivity"]["u"]["value"]
+        .as_f64()
+        .unwrap();
+    assert!((su - 0.2013).abs() < 1e-4, "{su}");
+}
+
+#[test]
+fn bad_input_names_file_and_line() {
+    let rec = tmp("short.csv");
+    std::fs::write(&rec, "# g_loc=9.8\n# rate_hz=0.01\ncondition,t_s,u,v,w\nx,0,1,2,3\nx,1,1,2,3\nx,2,1,2,3\nx,3,1,2,3\nx,4,1,2,3\ny,0,1,2,3\ny,1,1,2,3\ny,2,1,2,3\ny,3,1,2,3\ny,4,1,2,3\nz,0,1,2,3\nz,1,1,2,3\nz,2,1,2,3\nz,3,1,2,3\nz,4,1,2,3\n").unwrap();
+    let (ok, _, stderr) = run(&["calibrate", rec.to_str().unwrap()]);
+    assert!(!ok);
+    assert!(
+        stderr.contains("short.csv:4") && stderr.contains("periods"),
+        "{stderr}"
+    );
+    assert!(!stderr.contains("panicked"));
+    let (ok, _, stderr) = run(&["calibrate", "/nonexistent/file.csv"]);
+    assert!(
+        !ok && stderr.contains("/nonexistent/file.csv") && !stderr.contains("panicked"),
+        "{stderr}"
+    );
+}
