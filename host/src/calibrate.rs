@@ -264,3 +264,119 @@ pub fn static_method(
         fits,
     })
 }
+
+/// A Monte Carlo (GUM Supplement 1) propagation of one output.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
+pub struct McSummary {
+    /// Mean of the trials.
+    pub mean: f64,
+    /// Standard deviation of the trials: the Monte Carlo standard uncertainty.
+    pub std_unc: f64,
+    /// Probabilistically symmetric 95 % coverage interval, low end.
+    pub low_95: f64,
+    /// High end.
+    pub high_95: f64,
+}
+
+fn summarise(mut v: Vec<f64>) -> McSummary {
+    let n = v.len().max(2) as f64;
+    let mean = v.iter().sum::<f64>() / n;
+    let var = v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1.0);
+    v.sort_by(f64::total_cmp);
+    let q = |p: f64| {
+        v.get(((v.len() as f64 - 1.0) * p).round() as usize)
+            .copied()
+            .unwrap_or(f64::NAN)
+    };
+    McSummary {
+        mean,
+        std_unc: var.sqrt(),
+        low_95: q(0.025),
+        high_95: q(0.975),
+    }
+}
+
+/// Lower Cholesky factor of a small covariance matrix (positive semi-definite: a zero
+/// pivot gives a zero column).
+fn chol<const N: usize>(c: &[[f64; N]; N]) -> [[f64; N]; N] {
+    let mut l = [[0.0; N]; N];
+    for i in 0..N {
+        for j in 0..=i {
+            let s = c[i][j] - (0..j).map(|k| l[i][k] * l[j][k]).sum::<f64>();
+            l[i][j] = if i == j {
+                s.max(0.0).sqrt()
+            } else if l[j][j] > 0.0 {
+                s / l[j][j]
+            } else {
+                0.0
+            };
+        }
+    }
+    l
+}
+
+fn draw<const N: usize, R: rand::Rng>(mean: [f64; N], l: &[[f64; N]; N], rng: &mut R) -> [f64; N] {
+    use rand_distr::{Distribution, StandardNormal};
+    let z: [f64; N] = std::array::from_fn(|_| StandardNormal.sample(rng));
+    std::array::from_fn(|i| mean[i] + (0..=i).map(|k| l[i][k] * z[k]).sum::<f64>())
+}
+
+/// GUM Supplement 1 check of the rotation method: `trials` draws of every fit's (A, B)
+/// from its normal distribution, pushed through the exact (nonlinear) Gram computation.
+/// Outputs in the order s_u, s_v, s_w, φ_uv, φ_vw, φ_wu.
+pub fn monte_carlo_rotation(
+    fits: &[ConditionFit; 3],
+    g: f64,
+    trials: usize,
+    seed: u64,
+) -> Result<[McSummary; 6], IntrinsicError> {
+    use rand::SeedableRng;
+    let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
+    let factors = fits.map(|f| f.cov.map(|c| chol(&c)));
+    let mut out: [Vec<f64>; 6] = Default::default();
+    for _ in 0..trials {
+        let mut draw_fits = *fits;
+        for ((df, f), ls) in draw_fits.iter_mut().zip(fits).zip(&factors) {
+            for (ch, l) in ls.iter().enumerate() {
+                let [a, b] = draw([f.a[ch], f.b[ch]], l, &mut rng);
+                df.a[ch] = a;
+                df.b[ch] = b;
+            }
+        }
+        let r = intrinsic::from_gram(&draw_fits, g, 0.0)?;
+        for (o, e) in out
+            .iter_mut()
+            .zip(r.sensitivity.iter().chain(r.angle_deg.iter()))
+        {
+            o.push(e.value);
+        }
+    }
+    Ok(out.map(summarise))
+}
+
+/// GUM Supplement 1 check of the static method: draws of each row S_j from its normal
+/// distribution through the intrinsic computation. Outputs s_u … φ_wu as above.
+pub fn monte_carlo_static(
+    cal: &StaticCalibration,
+    trials: usize,
+    seed: u64,
+) -> Result<[McSummary; 6], IntrinsicError> {
+    use rand::SeedableRng;
+    let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
+    let factors = cal.row_cov.map(|c| chol(&c));
+    let mut out: [Vec<f64>; 6] = Default::default();
+    for _ in 0..trials {
+        let mut s = cal.s;
+        for ((row, mean), l) in s.iter_mut().zip(cal.s).zip(&factors) {
+            *row = draw(mean, l, &mut rng);
+        }
+        let r = intrinsic::from_matrix(&s, &cal.row_cov)?;
+        for (o, e) in out
+            .iter_mut()
+            .zip(r.sensitivity.iter().chain(r.angle_deg.iter()))
+        {
+            o.push(e.value);
+        }
+    }
+    Ok(out.map(summarise))
+}

@@ -23,6 +23,8 @@ pub struct Options {
     pub rate_hz: Option<f64>,
     /// Local gravity, m/s².
     pub g_loc: Option<f64>,
+    /// Also propagate by Monte Carlo (GUM Supplement 1) with this many trials.
+    pub monte_carlo: Option<usize>,
 }
 
 /// A calibration failure, naming the file and, where it applies, the line.
@@ -183,7 +185,14 @@ pub fn calibrate(rec: &Recording, opts: &Options) -> Result<CalibrationJson, Cal
                 };
                 let cal = calibrate::rotation([fx, fy, fz], g, 0.0)
                     .map_err(|e| err(rec, None, format!("at {nominal} Hz: {e}")))?;
-                by_rate.push(calibration_file::rotation_entry(nominal, &cal, json_fits));
+                let mut entry = calibration_file::rotation_entry(nominal, &cal, json_fits);
+                if let Some(trials) = opts.monte_carlo {
+                    let cf = [fx, fy, fz].map(calibrate::condition_fit);
+                    let mc = calibrate::monte_carlo_rotation(&cf, g, trials, 1)
+                        .map_err(|e| err(rec, None, format!("Monte Carlo at {nominal} Hz: {e}")))?;
+                    entry.monte_carlo = Some(calibration_file::mc_map(mc));
+                }
+                by_rate.push(entry);
             }
         }
         Method::Static => {
@@ -204,7 +213,13 @@ pub fn calibrate(rec: &Recording, opts: &Options) -> Result<CalibrationJson, Cal
             }
             let cal =
                 calibrate::static_method(&conds, g).map_err(|e| err(rec, None, e.to_string()))?;
-            by_rate.push(calibration_file::static_entry(&cal));
+            let mut entry = calibration_file::static_entry(&cal);
+            if let Some(trials) = opts.monte_carlo {
+                let mc = calibrate::monte_carlo_static(&cal, trials, 1)
+                    .map_err(|e| err(rec, None, format!("Monte Carlo: {e}")))?;
+                entry.monte_carlo = Some(calibration_file::mc_map(mc));
+            }
+            by_rate.push(entry);
         }
     }
     Ok(CalibrationJson {
@@ -254,6 +269,24 @@ pub fn render(c: &CalibrationJson) -> String {
             o += &q("φ_uv", &p.uv, "°", 5);
             o += &q("φ_vw", &p.vw, "°", 5);
             o += &q("φ_wu", &p.wu, "°", 5);
+        }
+        if let Some(mc) = &r.monte_carlo {
+            let _ = writeln!(
+                o,
+                "  Monte Carlo (GUM S1) check: standard uncertainty and 95 % interval"
+            );
+            for (key, linear) in calibration_file::MC_KEYS
+                .iter()
+                .zip([&s.u, &s.v, &s.w, &a.uv, &a.vw, &a.wu])
+            {
+                if let Some(m) = mc.get(*key) {
+                    let _ = writeln!(
+                        o,
+                        "  {key:<7} u = {:.6} (linear {:.6}), [{:.6}, {:.6}]",
+                        m.std_unc, linear.std_unc, m.low_95, m.high_95
+                    );
+                }
+            }
         }
         let fitted: Vec<String> = r
             .fits

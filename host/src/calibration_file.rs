@@ -137,6 +137,20 @@ pub struct RateJson {
     pub sensitivity_matrix: Option<MatrixJson>,
     /// Every (condition, channel) fit.
     pub fits: Vec<FitJson>,
+    /// With `--monte-carlo N` only (an extension of formats.md): the GUM Supplement 1
+    /// propagation of the same inputs, keyed s_u, s_v, s_w, phi_uv, phi_vw, phi_wu.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub monte_carlo: Option<std::collections::BTreeMap<String, crate::calibrate::McSummary>>,
+}
+
+/// Keys of the Monte Carlo summaries, in output order.
+pub const MC_KEYS: [&str; 6] = ["s_u", "s_v", "s_w", "phi_uv", "phi_vw", "phi_wu"];
+
+/// The `monte_carlo` map from the six summaries.
+pub fn mc_map(
+    s: [crate::calibrate::McSummary; 6],
+) -> std::collections::BTreeMap<String, crate::calibrate::McSummary> {
+    MC_KEYS.iter().map(|k| k.to_string()).zip(s).collect()
 }
 
 /// The whole file.
@@ -164,6 +178,7 @@ pub fn rotation_entry(rate_hz: f64, cal: &RotationCalibration, fits: Vec<FitJson
         angle_deg_phase_method: Some(pairs(cal.phase_angles_deg)),
         sensitivity_matrix: None,
         fits,
+        monte_carlo: None,
     }
 }
 
@@ -200,5 +215,6 @@ pub fn static_entry(cal: &StaticCalibration) -> RateJson {
             std_unc: cal.s_std,
         }),
         fits,
+        monte_carlo: None,
     }
 }

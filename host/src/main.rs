@@ -36,6 +36,9 @@ enum Command {
         /// Write the result as JSON (formats.md) here.
         #[arg(long)]
         json: Option<PathBuf>,
+        /// Check the uncertainties by Monte Carlo (GUM Supplement 1) with N trials.
+        #[arg(long, value_name = "N")]
+        monte_carlo: Option<usize>,
     },
     /// The main job without hardware: simulate seed 000's 10 mHz run and fit it.
     Demo {
@@ -54,7 +57,8 @@ fn main() -> ExitCode {
             rate_hz,
             g_loc,
             json,
-        } => calibrate(file, method, rate_hz, g_loc, json),
+            monte_carlo,
+        } => calibrate(file, method, rate_hz, g_loc, json, monte_carlo),
         Command::Demo { seed } => rotacal::demo::run(seed)
             .and_then(|d| Ok(rotacal::output::emit(&rotacal::demo::render(&d))?)),
     };
@@ -73,6 +77,7 @@ fn calibrate(
     rate_hz: Option<f64>,
     g_loc: Option<f64>,
     json: Option<PathBuf>,
+    monte_carlo: Option<usize>,
 ) -> anyhow::Result<()> {
     use rotacal::recording::Method;
     let rec = rotacal::recording::read(&file)?;
@@ -83,6 +88,7 @@ fn calibrate(
         }),
         rate_hz,
         g_loc,
+        monte_carlo,
     };
     let cal = rotacal::calibrate_recording::calibrate(&rec, &opts)?;
     if let Some(path) = json {

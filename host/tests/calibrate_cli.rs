@@ -142,6 +142,56 @@ fn rotation_recording_to_json() {
     }
 }
 
+/// GUM S1 check: on the paper run the model is close to linear, so the Monte Carlo
+/// standard uncertainties equal the linear ones within the sampling error of 20 000 trials
+/// (0.5 %) plus a little nonlinearity: 5 % is asserted.
+#[test]
+fn monte_carlo_agrees_with_linear_propagation() {
+    let rec = tmp("mc.csv");
+    let json = tmp("mc.json");
+    write_rotation(&rec, 0.0);
+    let (ok, stdout, stderr) = run(&[
+        "calibrate",
+        rec.to_str().unwrap(),
+        "--json",
+        json.to_str().unwrap(),
+        "--monte-carlo",
+        "20000",
+    ]);
+    assert!(ok, "{stderr}");
+    assert!(stdout.contains("Monte Carlo"), "{stdout}");
+    let v: Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let r = &v["by_rate"][0];
+    let linear = [
+        &r["intrinsic"]["sensitivity"]["u"],
+        &r["intrinsic"]["sensitivity"]["v"],
+        &r["intrinsic"]["sensitivity"]["w"],
+        &r["intrinsic"]["angle_deg"]["uv"],
+        &r["intrinsic"]["angle_deg"]["vw"],
+        &r["intrinsic"]["angle_deg"]["wu"],
+    ];
+    for (key, lin) in ["s_u", "s_v", "s_w", "phi_uv", "phi_vw", "phi_wu"]
+        .iter()
+        .zip(linear)
+    {
+        let mc = r["monte_carlo"][key]["std_unc"].as_f64().unwrap();
+        let l = lin["std_unc"].as_f64().unwrap();
+        assert!(
+            (mc / l - 1.0).abs() < 0.05,
+            "{key}: Monte Carlo {mc} vs linear {l}"
+        );
+        let (lo, hi) = (
+            r["monte_carlo"][key]["low_95"].as_f64().unwrap(),
+            r["monte_carlo"][key]["high_95"].as_f64().unwrap(),
+        );
+        let value = lin["value"].as_f64().unwrap();
+        assert!(
+            lo < value && value < hi,
+            "{key}: {value} outside [{lo}, {hi}]"
+        );
+    }
+}
+
 #[test]
 fn static_recording_to_json() {
     let rec = tmp("static.csv");
