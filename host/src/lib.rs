@@ -11,5 +11,6 @@ pub mod calibrate_recording;
 pub mod calibration_file;
 pub mod demo;
 pub mod fitcheck;
+pub mod geometry;
 pub mod output;
 pub mod recording;

@@ -11,28 +11,15 @@ use rotacal::demo::{
     sensitivity_from_intrinsic, PAPER_DC_ANGLES_DEG, PAPER_DC_OFFSETS, PAPER_DC_SENSITIVITY,
     PAPER_G_LOC,
 };
+use rotacal::geometry::{mounted, rotation};
 use rotacal_shared::synth::{self, crosscheck, Synth, SynthSpec};
 use rotacal_shared::{FitConfig, PhaseStep, SineFit, TickRate};
 
 const TRIALS: u64 = 2000;
 
+/// 3° about (1, 2, 2).
 fn tilt(s: [[f64; 3]; 3]) -> [[f64; 3]; 3] {
-    // 3° about (1, 2, 2)/3: S' = S·Rᵀ.
-    let (x, y, z) = (1.0 / 3.0, 2.0 / 3.0, 2.0 / 3.0);
-    let (sn, c) = 3f64.to_radians().sin_cos();
-    let t = 1.0 - c;
-    let r = [
-        [c + x * x * t, x * y * t - z * sn, x * z * t + y * sn],
-        [y * x * t + z * sn, c + y * y * t, y * z * t - x * sn],
-        [z * x * t - y * sn, z * y * t + x * sn, c + z * z * t],
-    ];
-    let mut out = [[0.0; 3]; 3];
-    for j in 0..3 {
-        for a in 0..3 {
-            out[j][a] = (0..3).map(|b| s[j][b] * r[a][b]).sum();
-        }
-    }
-    out
+    mounted(&s, &rotation([1.0, 2.0, 2.0], 3.0))
 }
 
 #[test]

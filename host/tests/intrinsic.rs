@@ -5,35 +5,11 @@
 #![allow(clippy::needless_range_loop)]
 
 use rotacal::demo::{sensitivity_from_intrinsic, PAPER_DC_ANGLES_DEG, PAPER_DC_SENSITIVITY};
+use rotacal::geometry::{mounted, rotation};
 use rotacal_shared::intrinsic::{from_gram, from_phase_differences, ConditionFit};
 use rotacal_shared::synth;
 
 const G: f64 = 9.80101;
-
-/// Rotation by `deg` about `axis` (Rodrigues).
-fn rotation(axis: [f64; 3], deg: f64) -> [[f64; 3]; 3] {
-    let n = (axis[0].powi(2) + axis[1].powi(2) + axis[2].powi(2)).sqrt();
-    let [x, y, z] = axis.map(|v| v / n);
-    let (s, c) = deg.to_radians().sin_cos();
-    let t = 1.0 - c;
-    [
-        [c + x * x * t, x * y * t - z * s, x * z * t + y * s],
-        [y * x * t + z * s, c + y * y * t, y * z * t - x * s],
-        [z * x * t - y * s, z * y * t + x * s, c + z * z * t],
-    ]
-}
-
-/// The device's rows S_j expressed in the platter frame after mounting it rotated by R:
-/// a platter vector p is seen by the device as Rᵀp, so S' = S·Rᵀ.
-fn mounted(s: &[[f64; 3]; 3], r: &[[f64; 3]; 3]) -> [[f64; 3]; 3] {
-    let mut out = [[0.0; 3]; 3];
-    for j in 0..3 {
-        for a in 0..3 {
-            out[j][a] = (0..3).map(|b| s[j][b] * r[a][b]).sum();
-        }
-    }
-    out
-}
 
 fn noise_free_fits(s: &[[f64; 3]; 3], cov: f64) -> [ConditionFit; 3] {
     [0, 1, 2].map(|axis| {

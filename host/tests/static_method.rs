@@ -7,6 +7,7 @@
 use rand::{Rng, SeedableRng};
 use rand_distr::{Distribution, Normal};
 use rotacal::calibrate::{gravity_direction, static_method, StaticCondition};
+use rotacal::geometry::{mounted, rotation};
 use rotacal_shared::Condition;
 
 /// Seed 001's g_loc, m/s².
@@ -122,25 +123,7 @@ fn device(rot: &[[f64; 3]; 3]) -> ([[f64; 3]; 3], [f64; 3]) {
             (TABLE1[0][j][1] + TABLE1[1][j][1]) / (2.0 * G),
         ];
     }
-    let mut s = [[0.0; 3]; 3];
-    for j in 0..3 {
-        for a in 0..3 {
-            s[j][a] = (0..3).map(|b| s0[j][b] * rot[a][b]).sum();
-        }
-    }
-    (s, [-0.0051, 0.0139, 0.0030])
-}
-
-fn rot(axis: [f64; 3], deg: f64) -> [[f64; 3]; 3] {
-    let n = (axis[0].powi(2) + axis[1].powi(2) + axis[2].powi(2)).sqrt();
-    let [x, y, z] = axis.map(|v| v / n);
-    let (s, c) = deg.to_radians().sin_cos();
-    let t = 1.0 - c;
-    [
-        [c + x * x * t, x * y * t - z * s, x * z * t + y * s],
-        [y * x * t + z * s, c + y * y * t, y * z * t - x * s],
-        [z * x * t - y * s, z * y * t + x * s, c + z * z * t],
-    ]
+    (mounted(&s0, rot), [-0.0051, 0.0139, 0.0030])
 }
 
 fn simulate(s: &[[f64; 3]; 3], o: &[f64; 3], sigma: f64, rng: &mut impl Rng) -> Vec<[Vec<f64>; 3]> {
@@ -180,7 +163,7 @@ fn calibrate(data: &[[Vec<f64>; 3]]) -> rotacal::calibrate::StaticCalibration {
 #[test]
 fn static_k2_intervals_cover_the_truth() {
     const TRIALS: usize = 2000;
-    let (s, o) = device(&rot([1.0, -1.0, 2.0], 4.0));
+    let (s, o) = device(&rotation([1.0, -1.0, 2.0], 4.0));
     let truth_s: Vec<f64> = (0..3)
         .map(|j| (s[j][0].powi(2) + s[j][1].powi(2) + s[j][2].powi(2)).sqrt())
         .collect();
@@ -225,14 +208,14 @@ fn static_k2_intervals_cover_the_truth() {
 #[test]
 fn matrix_moves_with_mounting_intrinsic_does_not() {
     let mut rng = rand::rngs::StdRng::seed_from_u64(0);
-    let (s0, o) = device(&rot([1.0, 0.0, 0.0], 0.0));
+    let (s0, o) = device(&rotation([1.0, 0.0, 0.0], 0.0));
     let base = calibrate(&simulate(&s0, &o, 0.0, &mut rng));
     for (axis, deg) in [
         ([1.0, 0.0, 0.0], 2.0),
         ([0.0, 1.0, 1.0], 5.0),
         ([1.0, 1.0, 1.0], 10.0),
     ] {
-        let (s, o) = device(&rot(axis, deg));
+        let (s, o) = device(&rotation(axis, deg));
         let r = calibrate(&simulate(&s, &o, 0.0, &mut rng));
         let moved = (0..3)
             .flat_map(|j| (0..3).map(move |a| (j, a)))

@@ -116,8 +116,27 @@ fn estimates(values: [f64; 6], cov: &[[f64; 6]; 6]) -> [Estimate; 6] {
     out
 }
 
-fn all_finite(values: &[f64], cov: &[[f64; 6]; 6]) -> bool {
-    values.iter().all(|v| v.is_finite()) && cov.iter().flatten().all(|v| v.is_finite())
+/// The result from the six values (s_u, s_v, s_w, φ_uv, φ_vw, φ_wu) and their covariance,
+/// or `Degenerate` if anything is not finite.
+fn finish(
+    values: [f64; 6],
+    cov: [[f64; 6]; 6],
+    gram: [[f64; 3]; 3],
+) -> Result<Intrinsic, IntrinsicError> {
+    let finite = values
+        .iter()
+        .chain(cov.iter().flatten())
+        .all(|v| v.is_finite());
+    if !finite {
+        return Err(IntrinsicError::Degenerate);
+    }
+    let [e0, e1, e2, e3, e4, e5] = estimates(values, &cov);
+    Ok(Intrinsic {
+        sensitivity: [e0, e1, e2],
+        angle_deg: [e3, e4, e5],
+        cov,
+        gram,
+    })
 }
 
 /// Intrinsic sensitivities and angles from the fits of conditions x, y, z (in that
@@ -190,16 +209,7 @@ pub fn from_gram(fits: &[ConditionFit; 3], g: f64, u_g: f64) -> Result<Intrinsic
         }
     }
     let values = [s[0], s[1], s[2], angles[0], angles[1], angles[2]];
-    if !all_finite(&values, &cov) {
-        return Err(IntrinsicError::Degenerate);
-    }
-    let e = estimates(values, &cov);
-    Ok(Intrinsic {
-        sensitivity: [e[0], e[1], e[2]],
-        angle_deg: [e[3], e[4], e[5]],
-        cov,
-        gram,
-    })
+    finish(values, cov, gram)
 }
 
 /// Seed 000's phase-difference angles (eqs. 12–16), with atan2 so there is no 180°
@@ -313,14 +323,5 @@ pub fn from_matrix(
     let values = [
         norms[0], norms[1], norms[2], angles[0], angles[1], angles[2],
     ];
-    if !all_finite(&values, &cov) {
-        return Err(IntrinsicError::Degenerate);
-    }
-    let e = estimates(values, &cov);
-    Ok(Intrinsic {
-        sensitivity: [e[0], e[1], e[2]],
-        angle_deg: [e[3], e[4], e[5]],
-        cov,
-        gram,
-    })
+    finish(values, cov, gram)
 }
