@@ -78,7 +78,6 @@ fn fit_group(
             format!("rotation rate {nominal_hz} Hz is not usable"),
         )
     })?;
-    // Span check first, so a short record gets the plain message.
     let streaming = |step| -> Result<FitResult<f64>, CalibrateError> {
         let mut fit = SineFit::<f64>::new(FitConfig::sine(step, CLOCK));
         for (t, y) in &s {
@@ -88,6 +87,8 @@ fn fit_group(
         fit.solve()
             .map_err(|e| err(rec, Some(g.first_line), format!("condition {cond}: {e}")))
     };
+    // Fitted first at the nominal rate: this also checks the span, so a short record gets
+    // the plain 'too few periods' message rather than a failure of the rate fit.
     let at_nominal = streaming(nominal)?;
     let four = batch::fit_four_param(&s, nominal, CLOCK).map_err(|e| {
         err(

@@ -47,6 +47,23 @@ pub fn sensitivity_from_intrinsic(s: [f64; 3], angles_deg: [f64; 3]) -> [[f64; 3
     ]
 }
 
+/// Seed 000's 10 mHz run, one condition: the sensitivity matrix `s` (counts per m/s²)
+/// turned about platter axis `axis` (0 = x, 1 = y, 2 = z) with seed 000 Table 1's DC
+/// offsets, 4200 samples at 16 Hz with LSM6DS33 noise, timestamps on a 1 MHz clock.
+/// `step` is the true rotation per tick (nominally 10 mHz).
+pub fn paper_run_spec(s: &[[f64; 3]; 3], axis: usize, step: PhaseStep, seed: u64) -> SynthSpec {
+    SynthSpec {
+        coef: synth::coefficients(s, &PAPER_DC_OFFSETS, PAPER_G_LOC, axis),
+        noise_sigma: crosscheck::noise_sigma(16_000),
+        step,
+        clock: TickRate::MHZ_1,
+        sample_rate_mhz: 16_000,
+        n_samples: 4200,
+        drop_per_million: 0,
+        seed,
+    }
+}
+
 /// One fitted (condition, channel).
 #[derive(Clone, Debug)]
 pub struct DemoRow {
@@ -87,17 +104,8 @@ pub fn run(seed: u64) -> anyhow::Result<Demo> {
     let mut n = 0;
     let mut f64_fits = Vec::new();
     for (axis, condition) in ['x', 'y', 'z'].into_iter().enumerate() {
-        let coef = synth::coefficients(&s, &PAPER_DC_OFFSETS, PAPER_G_LOC, axis);
-        let spec = SynthSpec {
-            coef,
-            noise_sigma: sigma,
-            step,
-            clock,
-            sample_rate_mhz: 16_000,
-            n_samples: 4200,
-            drop_per_million: 0,
-            seed: seed.wrapping_add(axis as u64),
-        };
+        let spec = paper_run_spec(&s, axis, step, seed.wrapping_add(axis as u64));
+        let coef = spec.coef;
         let samples: Vec<(Ticks, [i16; 3])> = Synth::new(spec).map(|s| (s.t, s.counts)).collect();
         n = samples.len();
         let mut dev = SineFit::<f32>::new(FitConfig::sine(step, clock));

@@ -1,11 +1,11 @@
 //! `rotacal calibrate` end to end: recordings written with the recording writer, the
 //! binary run on them, its JSON checked against formats.md and the truth.
 use rotacal::demo::{
-    sensitivity_from_intrinsic, PAPER_DC_ANGLES_DEG, PAPER_DC_OFFSETS, PAPER_DC_SENSITIVITY,
+    paper_run_spec, sensitivity_from_intrinsic, PAPER_DC_ANGLES_DEG, PAPER_DC_SENSITIVITY,
     PAPER_G_LOC,
 };
 use rotacal::recording::{Columns, Metadata, Method, Row, Writer};
-use rotacal_shared::synth::{self, crosscheck, Synth, SynthSpec};
+use rotacal_shared::synth::Synth;
 use rotacal_shared::{Condition, PhaseStep, TickRate};
 use serde_json::Value;
 use std::path::PathBuf;
@@ -31,16 +31,8 @@ fn write_rotation(path: &PathBuf, rate_ppm: f64) {
     };
     let mut w = Writer::create(path, &meta, &Columns::ROTATION).unwrap();
     for (axis, cond) in Condition::ALL.into_iter().enumerate() {
-        let spec = SynthSpec {
-            coef: synth::coefficients(&s, &PAPER_DC_OFFSETS, PAPER_G_LOC, axis),
-            noise_sigma: crosscheck::noise_sigma(16_000),
-            step: PhaseStep::from_hz(0.01 * (1.0 + rate_ppm * 1e-6), clock).unwrap(),
-            clock,
-            sample_rate_mhz: 16_000,
-            n_samples: 4200,
-            drop_per_million: 0,
-            seed: 77 + axis as u64,
-        };
+        let step = PhaseStep::from_hz(0.01 * (1.0 + rate_ppm * 1e-6), clock).unwrap();
+        let spec = paper_run_spec(&s, axis, step, 77 + axis as u64);
         for smp in Synth::new(spec) {
             let [u, v, ww] = smp.counts.map(f64::from);
             let mut row = Row::new(cond, u, v, ww);

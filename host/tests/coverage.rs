@@ -8,11 +8,11 @@
 #![allow(clippy::needless_range_loop)]
 use rotacal::calibrate;
 use rotacal::demo::{
-    sensitivity_from_intrinsic, PAPER_DC_ANGLES_DEG, PAPER_DC_OFFSETS, PAPER_DC_SENSITIVITY,
+    paper_run_spec, sensitivity_from_intrinsic, PAPER_DC_ANGLES_DEG, PAPER_DC_SENSITIVITY,
     PAPER_G_LOC,
 };
 use rotacal::geometry::{mounted, rotation};
-use rotacal_shared::synth::{self, crosscheck, Synth, SynthSpec};
+use rotacal_shared::synth::Synth;
 use rotacal_shared::{FitConfig, PhaseStep, SineFit, TickRate};
 
 const TRIALS: u64 = 2000;
@@ -35,23 +35,13 @@ fn rotation_k2_intervals_cover_the_truth() {
         .chain(PAPER_DC_ANGLES_DEG.iter())
         .copied()
         .collect();
-    let sigma = crosscheck::noise_sigma(16_000);
     let mut covered = [0u32; 6];
     let mut sum = [0.0f64; 6];
     let mut sum2 = [0.0f64; 6];
     let mut mean_u = [0.0f64; 6];
     for trial in 0..TRIALS {
         let fits = [0usize, 1, 2].map(|axis| {
-            let spec = SynthSpec {
-                coef: synth::coefficients(&s, &PAPER_DC_OFFSETS, PAPER_G_LOC, axis),
-                noise_sigma: sigma,
-                step,
-                clock,
-                sample_rate_mhz: 16_000,
-                n_samples: 4200,
-                drop_per_million: 0,
-                seed: 0x5EED_0000 + 3 * trial + axis as u64,
-            };
+            let spec = paper_run_spec(&s, axis, step, 0x5EED_0000 + 3 * trial + axis as u64);
             let mut fit = SineFit::<f64>::new(FitConfig::sine(step, clock));
             for smp in Synth::new(spec) {
                 fit.update(smp.t, smp.counts.map(f64::from)).unwrap();
