@@ -231,7 +231,15 @@ pub fn calibrate(rec: &Recording, opts: &Options) -> Result<CalibrationJson, Cal
     })
 }
 
-/// The terminal table: value ± U (k = 2) with units.
+/// Decimal places that show `u` to two significant digits (at most 12).
+fn decimals(u: f64) -> usize {
+    if !(u.is_finite() && u > 0.0) {
+        return 6;
+    }
+    (1.0 - u.log10().floor()).clamp(0.0, 12.0) as usize
+}
+
+/// The terminal table: value ± U (k = 2) with units, U to two significant digits.
 pub fn render(c: &CalibrationJson) -> String {
     let mut o = String::new();
     let su = format!("{} per m/s²", c.units);
@@ -246,30 +254,31 @@ pub fn render(c: &CalibrationJson) -> String {
             .map(|f| format!("rotation at {f} Hz"))
             .unwrap_or_else(|| "static".into());
         let _ = writeln!(o, "\n{rate}");
-        let q = |name: &str, x: &calibration_file::Quantity, unit: &str, d: usize| {
+        let q = |name: &str, x: &calibration_file::Quantity, unit: &str| {
+            let d = decimals(x.expanded_unc);
             format!(
-                "  {name:<7} {:>14.d$} ± {:<10.d$} {unit}\n",
+                "  {name:<7} {:>16.d$} ± {:<12.d$} {unit}\n",
                 x.value, x.expanded_unc
             )
         };
         let s = &r.intrinsic.sensitivity;
         let a = &r.intrinsic.angle_deg;
-        o += &q("s_u", &s.u, &su, 5);
-        o += &q("s_v", &s.v, &su, 5);
-        o += &q("s_w", &s.w, &su, 5);
-        o += &q("φ_uv", &a.uv, "°", 5);
-        o += &q("φ_vw", &a.vw, "°", 5);
-        o += &q("φ_wu", &a.wu, "°", 5);
+        o += &q("s_u", &s.u, &su);
+        o += &q("s_v", &s.v, &su);
+        o += &q("s_w", &s.w, &su);
+        o += &q("φ_uv", &a.uv, "°");
+        o += &q("φ_vw", &a.vw, "°");
+        o += &q("φ_wu", &a.wu, "°");
         if let Some(off) = &r.intrinsic.offset {
-            o += &q("O_u", &off.u, &c.units, 5);
-            o += &q("O_v", &off.v, &c.units, 5);
-            o += &q("O_w", &off.w, &c.units, 5);
+            o += &q("O_u", &off.u, &c.units);
+            o += &q("O_v", &off.v, &c.units);
+            o += &q("O_w", &off.w, &c.units);
         }
         if let Some(p) = &r.angle_deg_phase_method {
             let _ = writeln!(o, "  phase-difference angles (seed 000 eqs. 12–16, for comparison; biased when tilted):");
-            o += &q("φ_uv", &p.uv, "°", 5);
-            o += &q("φ_vw", &p.vw, "°", 5);
-            o += &q("φ_wu", &p.wu, "°", 5);
+            o += &q("φ_uv", &p.uv, "°");
+            o += &q("φ_vw", &p.vw, "°");
+            o += &q("φ_wu", &p.wu, "°");
         }
         if let Some(mc) = &r.monte_carlo {
             let _ = writeln!(

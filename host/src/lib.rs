@@ -5,6 +5,7 @@
 //! - [`fitcheck`]: checks the device's f32 streaming fit (run on the emulated Cortex-M4F)
 //!   against the f64 batch fit of the same samples.
 //! - [`demo`]: the main job without hardware.
+//! - [`simulate`]: the forward model of the experiment that writes recordings.
 pub mod batch;
 pub mod calibrate;
 pub mod calibrate_recording;
@@ -14,3 +15,4 @@ pub mod fitcheck;
 pub mod geometry;
 pub mod output;
 pub mod recording;
+pub mod simulate;

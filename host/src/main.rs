@@ -40,6 +40,18 @@ enum Command {
         #[arg(long, value_name = "N")]
         monte_carlo: Option<usize>,
     },
+    /// Simulate the experiment and write a recording (docs/simulator.md).
+    Simulate {
+        /// A TOML configuration file, or the name of a preset (paper-10mhz,
+        /// paper-multirate, metrologia-static).
+        config: String,
+        /// The recording to write.
+        #[arg(long)]
+        out: PathBuf,
+        /// Override the configuration's seed.
+        #[arg(long)]
+        seed: Option<u64>,
+    },
     /// The main job without hardware: simulate seed 000's 10 mHz run and fit it.
     Demo {
         /// Seed of the simulated noise.
@@ -59,6 +71,7 @@ fn main() -> ExitCode {
             json,
             monte_carlo,
         } => calibrate(file, method, rate_hz, g_loc, json, monte_carlo),
+        Command::Simulate { config, out, seed } => simulate(&config, &out, seed),
         Command::Demo { seed } => rotacal::demo::run(seed)
             .and_then(|d| Ok(rotacal::output::emit(&rotacal::demo::render(&d))?)),
     };
@@ -96,5 +109,31 @@ fn calibrate(
         std::fs::write(&path, text).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
     }
     rotacal::output::emit(&rotacal::calibrate_recording::render(&cal))?;
+    Ok(())
+}
+
+fn simulate(config: &str, out: &std::path::Path, seed: Option<u64>) -> anyhow::Result<()> {
+    use rotacal::simulate::{Config, Simulation, PRESETS};
+    let path = std::path::Path::new(config);
+    let mut cfg = if path.exists() {
+        let text = std::fs::read_to_string(path).map_err(|e| anyhow::anyhow!("{config}: {e}"))?;
+        Config::from_toml(&text).map_err(|e| anyhow::anyhow!("{config}: {e}"))?
+    } else if PRESETS.iter().any(|(n, _)| *n == config) {
+        Config::preset(config)?
+    } else {
+        let names: Vec<&str> = PRESETS.iter().map(|(n, _)| *n).collect();
+        anyhow::bail!(
+            "{config}: no such file, and not a preset (presets: {})",
+            names.join(", ")
+        );
+    };
+    if let Some(s) = seed {
+        cfg.seed = s;
+    }
+    let sim = Simulation::new(cfg).map_err(|e| anyhow::anyhow!("{config}: {e}"))?;
+    let sum = sim
+        .write_file(out)
+        .map_err(|e| anyhow::anyhow!("{}: {e}", out.display()))?;
+    rotacal::output::emit(&rotacal::simulate::render(&sim, &sum, out))?;
     Ok(())
 }

@@ -1,0 +1,760 @@
+//! The simulator's configuration: TOML, optionally layered over a named preset.
+//!
+//! Every section and key is optional except the device; every effect is off unless its
+//! table is present. Units are stated per key. Unknown keys are errors, so that a typo
+//! never silently turns an effect off. See docs/simulator.md.
+
+use crate::recording::Method;
+use serde::Deserialize;
+use std::fmt;
+
+/// The presets, as TOML documents (host/presets/).
+pub const PRESETS: [(&str, &str); 3] = [
+    (
+        "paper-10mhz",
+        include_str!("../../presets/paper-10mhz.toml"),
+    ),
+    (
+        "paper-multirate",
+        include_str!("../../presets/paper-multirate.toml"),
+    ),
+    (
+        "metrologia-static",
+        include_str!("../../presets/metrologia-static.toml"),
+    ),
+];
+
+/// The LSM6DS33's acceleration noise density (datasheet, ±2 g, high-performance mode),
+/// g/√Hz; with its count of 0.061 mg this gives the default noise.
+pub const LSM6DS33_NOISE_DENSITY_G: f64 = 90e-6;
+/// The LSM6DS33's sensitivity at ±2 g, g per count.
+pub const LSM6DS33_G_PER_COUNT: f64 = 0.061e-3;
+
+/// A simulated experiment.
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct Config {
+    /// The preset this file builds on (its keys are overridden by this file's).
+    #[serde(default)]
+    pub preset: Option<String>,
+    /// Seed of every random draw: the same seed and config give the same file.
+    #[serde(default = "default_seed")]
+    pub seed: u64,
+    /// `rotation` (constant rate, seed 000) or `static` (angle steps, seed 001).
+    #[serde(default = "default_method")]
+    pub method: Method,
+    /// Local gravity, m/s².
+    #[serde(default = "default_g")]
+    pub g_loc: f64,
+    /// The device's output units (free text; `counts` enables the LSM6DS33 noise default).
+    #[serde(default = "default_units")]
+    pub units: String,
+    /// The device under test.
+    pub device: Device,
+    /// How it sits on the platter.
+    #[serde(default)]
+    pub mounting: Mounting,
+    /// Noise and the output stage.
+    #[serde(default)]
+    pub sensor: Sensor,
+    /// Sampling and timestamps.
+    #[serde(default)]
+    pub timing: Timing,
+    /// What the table does.
+    #[serde(default)]
+    pub table: Table,
+    /// The temperature profile written to `temp_c`.
+    #[serde(default)]
+    pub temperature: Temperature,
+    /// Physical effects beyond the papers' model, each off unless given.
+    #[serde(default)]
+    pub effects: Effects,
+}
+
+fn default_seed() -> u64 {
+    1
+}
+fn default_method() -> Method {
+    Method::Rotation
+}
+fn default_g() -> f64 {
+    9.80665
+}
+fn default_units() -> String {
+    "counts".into()
+}
+
+/// The device: either its intrinsic properties (then S is built in its own frame, u
+/// along x and v in the xy plane) or a full sensitivity matrix, plus offsets.
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct Device {
+    /// Written to the `device` metadata.
+    #[serde(default)]
+    pub name: Option<String>,
+    /// s_u, s_v, s_w, output units per m/s².
+    #[serde(default)]
+    pub sensitivity: Option<[f64; 3]>,
+    /// φ_uv, φ_vw, φ_wu, degrees.
+    #[serde(default)]
+    pub angles_deg: Option<[f64; 3]>,
+    /// S (rows u, v, w; columns the device's x, y, z), output units per m/s².
+    #[serde(default)]
+    pub matrix: Option<[[f64; 3]; 3]>,
+    /// O_u, O_v, O_w, output units.
+    #[serde(default)]
+    pub offsets: [f64; 3],
+}
+
+/// The mounting misalignment: any rotation, as an axis and angle or as a matrix.
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct Mounting {
+    /// Rotation axis (any length).
+    #[serde(default = "default_axis")]
+    pub axis: [f64; 3],
+    /// Rotation angle, degrees.
+    #[serde(default)]
+    pub angle_deg: f64,
+    /// The rotation matrix (instead of axis and angle).
+    #[serde(default)]
+    pub matrix: Option<[[f64; 3]; 3]>,
+}
+
+fn default_axis() -> [f64; 3] {
+    [0.0, 0.0, 1.0]
+}
+
+impl Default for Mounting {
+    fn default() -> Self {
+        Mounting {
+            axis: default_axis(),
+            angle_deg: 0.0,
+            matrix: None,
+        }
+    }
+}
+
+/// Noise, quantisation and the output range.
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct Sensor {
+    /// White noise per sample, output units. Default (counts only): the LSM6DS33's
+    /// 90 µg/√Hz over the band up to half the sample rate.
+    #[serde(default)]
+    pub noise_sigma: Option<f64>,
+    /// Quantisation step, output units; 0 turns quantisation off.
+    #[serde(default = "default_lsb")]
+    pub lsb: f64,
+    /// The output register's range [low, high], output units: readings are clipped to it.
+    #[serde(default = "default_full_scale")]
+    pub full_scale: [f64; 2],
+}
+
+fn default_lsb() -> f64 {
+    1.0
+}
+fn default_full_scale() -> [f64; 2] {
+    [-32768.0, 32767.0]
+}
+
+impl Default for Sensor {
+    fn default() -> Self {
+        Sensor {
+            noise_sigma: None,
+            lsb: default_lsb(),
+            full_scale: default_full_scale(),
+        }
+    }
+}
+
+/// Sampling and timestamps.
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct Timing {
+    /// Samples per second (of true time).
+    #[serde(default = "default_fs")]
+    pub sample_rate_hz: f64,
+    /// The device clock's rate error, ppm: timestamps are (1 + ε)·t.
+    #[serde(default)]
+    pub clock_error_ppm: f64,
+    /// Timestamp jitter (standard deviation), s. At most 0.05 of the sample period.
+    #[serde(default)]
+    pub jitter_s: f64,
+    /// Probability that a sample is lost (its `seq` is skipped).
+    #[serde(default)]
+    pub drop_probability: f64,
+    /// Timestamp resolution: ticks per second of the device clock.
+    #[serde(default = "default_tick_hz")]
+    pub tick_hz: f64,
+    /// Time between one condition (or rate) and the next, s.
+    #[serde(default = "default_gap")]
+    pub gap_s: f64,
+}
+
+fn default_fs() -> f64 {
+    16.0
+}
+fn default_tick_hz() -> f64 {
+    1e6
+}
+fn default_gap() -> f64 {
+    60.0
+}
+
+impl Default for Timing {
+    fn default() -> Self {
+        Timing {
+            sample_rate_hz: default_fs(),
+            clock_error_ppm: 0.0,
+            jitter_s: 0.0,
+            drop_probability: 0.0,
+            tick_hz: default_tick_hz(),
+            gap_s: default_gap(),
+        }
+    }
+}
+
+/// What the table does.
+#[derive(Clone, Debug, Deserialize, PartialEq, Default)]
+#[serde(deny_unknown_fields)]
+pub struct Table {
+    /// Rotation: nominal rates, Hz (several make a multi-rate file). Default 0.01.
+    #[serde(default)]
+    pub rates_hz: Option<Vec<f64>>,
+    /// Rotation: samples per condition and rate.
+    #[serde(default)]
+    pub samples_per_condition: Option<u64>,
+    /// Rotation: record length per condition and rate, s (instead of a sample count).
+    #[serde(default)]
+    pub duration_s: Option<f64>,
+    /// Rotation: the table angle at each condition's first sample, degrees, for x, y, z.
+    /// Default: drawn uniformly from the seed (the method does not know it).
+    #[serde(default)]
+    pub start_angle_deg: Option<[f64; 3]>,
+    /// Static: the angle list, degrees.
+    #[serde(default)]
+    pub angles_deg: Option<Vec<f64>>,
+    /// Static: 0, step, 2·step, … below 360° (instead of a list).
+    #[serde(default)]
+    pub angle_step_deg: Option<f64>,
+    /// Static: readings at each angle (one sample period apart).
+    #[serde(default)]
+    pub readings_per_angle: Option<u32>,
+    /// Static: time from one angle to the next, s.
+    #[serde(default)]
+    pub dwell_s: Option<f64>,
+}
+
+/// The temperature profile T(t) = t0 + ramp·t + swing·sin(2πt/period), written to
+/// `temp_c` at the given resolution; `temperature_offset` acts on T − t0.
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct Temperature {
+    /// °C at the start of the session.
+    #[serde(default = "default_t0")]
+    pub t0_c: f64,
+    /// °C per hour.
+    #[serde(default)]
+    pub ramp_c_per_h: f64,
+    /// Amplitude of a periodic swing, °C (air conditioning cycling, for example).
+    #[serde(default)]
+    pub swing_c: f64,
+    /// Its period, s.
+    #[serde(default = "default_swing_period")]
+    pub period_s: f64,
+    /// Resolution of the written temperature, °C.
+    #[serde(default = "default_t_res")]
+    pub resolution_c: f64,
+}
+
+fn default_t0() -> f64 {
+    25.0
+}
+fn default_swing_period() -> f64 {
+    1800.0
+}
+fn default_t_res() -> f64 {
+    0.01
+}
+
+impl Default for Temperature {
+    fn default() -> Self {
+        Temperature {
+            t0_c: default_t0(),
+            ramp_c_per_h: 0.0,
+            swing_c: 0.0,
+            period_s: default_swing_period(),
+            resolution_c: default_t_res(),
+        }
+    }
+}
+
+/// The effects of formats.md, each a physical parameterisation (docs/simulator.md).
+#[derive(Clone, Debug, Deserialize, PartialEq, Default)]
+#[serde(deny_unknown_fields)]
+pub struct Effects {
+    /// The table turns at (1 + relative) times the nominal rate.
+    #[serde(default)]
+    pub rate_error: Option<RateError>,
+    /// Offsets drift linearly in session time.
+    #[serde(default)]
+    pub offset_drift: Option<OffsetDrift>,
+    /// Offsets follow temperature.
+    #[serde(default)]
+    pub temperature_offset: Option<TemperatureOffset>,
+    /// Quadratic response along each sensitive axis.
+    #[serde(default)]
+    pub nonlinearity_2nd: Option<Nonlinearity2>,
+    /// Cubic response along each sensitive axis.
+    #[serde(default)]
+    pub nonlinearity_3rd: Option<Nonlinearity3>,
+    /// The analog output saturates at rails inside the output range.
+    #[serde(default)]
+    pub saturation: Option<Saturation>,
+    /// The sensor sits off the rotation axis.
+    #[serde(default)]
+    pub centripetal: Option<Centripetal>,
+    /// Channels are sampled at slightly different times.
+    #[serde(default)]
+    pub axis_time_skew: Option<AxisTimeSkew>,
+    /// The rate varies once per revolution.
+    #[serde(default)]
+    pub rate_ripple: Option<RateRipple>,
+}
+
+/// `rate_error`.
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct RateError {
+    /// True rate / nominal − 1.
+    pub relative: f64,
+}
+
+/// `offset_drift`: O_j + D_j·t, t in seconds from the start of the session.
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct OffsetDrift {
+    /// D_u, D_v, D_w, output units per second.
+    pub per_s: [f64; 3],
+}
+
+/// `temperature_offset`: O_j + c_j·(T − t0).
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct TemperatureOffset {
+    /// c_u, c_v, c_w, output units per °C.
+    pub per_c: [f64; 3],
+}
+
+/// `nonlinearity_2nd`: the output is s_j·(a + K2_j·a²) with a the acceleration along
+/// axis j.
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct Nonlinearity2 {
+    /// K2 per channel, 1/(m/s²).
+    pub k2: [f64; 3],
+}
+
+/// `nonlinearity_3rd`: s_j·(a + K3_j·a³).
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct Nonlinearity3 {
+    /// K3 per channel, 1/(m/s²)².
+    pub k3: [f64; 3],
+}
+
+/// `saturation`: the analog output (noise included) is clipped to [low, high].
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct Saturation {
+    /// [low, high], output units.
+    pub rails: [f64; 2],
+}
+
+/// `centripetal`: the sensor sits `radius_m` from the rotation axis, so it also senses
+/// −ω²·r along the outward direction (fixed in the platter frame).
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct Centripetal {
+    /// Distance from the axis, m.
+    pub radius_m: f64,
+    /// Outward direction from the axis to the sensor in the platter frame, for the x, y
+    /// and z conditions (the part along the axis is removed). Default +y, +z, +x.
+    #[serde(default)]
+    pub directions: Option<[[f64; 3]; 3]>,
+}
+
+/// `axis_time_skew`: channel j is sampled at t + τ_j.
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct AxisTimeSkew {
+    /// τ_u, τ_v, τ_w, s.
+    pub skew_s: [f64; 3],
+}
+
+/// `rate_ripple`: dα/dt = ω·(1 + ε·cos(ωτ + ψ)), so the angle carries ε·sin(ωτ + ψ).
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct RateRipple {
+    /// ε, relative rate ripple (equal to the angle ripple in radians).
+    pub relative: f64,
+    /// ψ, degrees.
+    #[serde(default)]
+    pub phase_deg: f64,
+}
+
+/// A configuration problem, naming the key.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ConfigError(pub String);
+
+impl fmt::Display for ConfigError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+impl std::error::Error for ConfigError {}
+
+fn preset_text(name: &str) -> Result<&'static str, ConfigError> {
+    PRESETS
+        .iter()
+        .find(|(n, _)| *n == name)
+        .map(|(_, t)| *t)
+        .ok_or_else(|| {
+            let names: Vec<&str> = PRESETS.iter().map(|(n, _)| *n).collect();
+            ConfigError(format!(
+                "unknown preset '{name}' (presets: {})",
+                names.join(", ")
+            ))
+        })
+}
+
+/// Later tables override earlier ones key by key; other values replace.
+fn merge(base: &mut toml::Table, over: toml::Table) {
+    for (k, v) in over {
+        match (base.get_mut(&k), v) {
+            (Some(toml::Value::Table(b)), toml::Value::Table(o)) => merge(b, o),
+            (_, v) => {
+                base.insert(k, v);
+            }
+        }
+    }
+}
+
+impl Config {
+    /// A preset by name.
+    pub fn preset(name: &str) -> Result<Config, ConfigError> {
+        Config::from_toml(&format!("preset = \"{name}\"\n"))
+    }
+
+    /// Parse TOML text; a `preset = "…"` key layers it over that preset.
+    pub fn from_toml(text: &str) -> Result<Config, ConfigError> {
+        let table: toml::Table = text.parse().map_err(|e: toml::de::Error| {
+            ConfigError(e.to_string().trim_end().replace('\n', "\n  "))
+        })?;
+        let merged = match table.get("preset") {
+            Some(toml::Value::String(name)) => {
+                let mut base: toml::Table = preset_text(name)?
+                    .parse()
+                    .map_err(|e| ConfigError(format!("preset {name}: {e}")))?;
+                merge(&mut base, table);
+                base
+            }
+            Some(_) => return Err(ConfigError("preset: expected a preset name".into())),
+            None => table,
+        };
+        let cfg: Config = toml::Value::Table(merged)
+            .try_into()
+            .map_err(|e: toml::de::Error| ConfigError(e.to_string().trim_end().into()))?;
+        cfg.validate()?;
+        Ok(cfg)
+    }
+
+    /// The white-noise standard deviation per sample, output units.
+    pub fn noise_sigma(&self) -> Result<f64, ConfigError> {
+        match self.sensor.noise_sigma {
+            Some(s) => Ok(s),
+            None if self.units == "counts" => Ok(LSM6DS33_NOISE_DENSITY_G
+                * (self.timing.sample_rate_hz / 2.0).sqrt()
+                / LSM6DS33_G_PER_COUNT),
+            None => Err(ConfigError(format!(
+                "sensor.noise_sigma: give it (the LSM6DS33 default applies only to units = \"counts\", not \"{}\")",
+                self.units
+            ))),
+        }
+    }
+
+    /// Rotation: the nominal rates.
+    pub fn rates_hz(&self) -> Vec<f64> {
+        self.table.rates_hz.clone().unwrap_or_else(|| vec![0.01])
+    }
+
+    /// Rotation: samples per condition and rate.
+    pub fn samples_per_condition(&self) -> u64 {
+        match (self.table.samples_per_condition, self.table.duration_s) {
+            (Some(n), _) => n,
+            (None, Some(d)) => (d * self.timing.sample_rate_hz).round() as u64,
+            (None, None) => 4200,
+        }
+    }
+
+    /// Static: the angle list, degrees.
+    pub fn static_angles(&self) -> Vec<f64> {
+        if let Some(a) = &self.table.angles_deg {
+            return a.clone();
+        }
+        let step = self.table.angle_step_deg.unwrap_or(5.0);
+        let n = (360.0 / step - 1e-9).ceil() as usize;
+        (0..n).map(|i| i as f64 * step).collect()
+    }
+
+    fn validate(&self) -> Result<(), ConfigError> {
+        let bad = |key: &str, why: &str| Err(ConfigError(format!("{key}: {why}")));
+        let finite = |key: &str, xs: &[f64]| -> Result<(), ConfigError> {
+            if xs.iter().all(|x| x.is_finite()) {
+                Ok(())
+            } else {
+                Err(ConfigError(format!("{key}: values must be finite")))
+            }
+        };
+        if !(self.g_loc.is_finite() && self.g_loc > 0.0) {
+            return bad("g_loc", "must be a positive number of m/s²");
+        }
+        let d = &self.device;
+        match (d.sensitivity, d.angles_deg, d.matrix) {
+            (Some(s), Some(a), None) => {
+                finite("device.sensitivity", &s)?;
+                finite("device.angles_deg", &a)?;
+                if s.iter().any(|x| *x <= 0.0) {
+                    return bad("device.sensitivity", "must be positive");
+                }
+                if a.iter().any(|x| *x <= 0.0 || *x >= 180.0) {
+                    return bad("device.angles_deg", "must lie between 0 and 180");
+                }
+            }
+            (None, None, Some(m)) => finite("device.matrix", m.as_flattened())?,
+            _ => {
+                return bad(
+                    "device",
+                    "give either sensitivity and angles_deg, or matrix",
+                )
+            }
+        }
+        finite("device.offsets", &d.offsets)?;
+        finite("mounting.axis", &self.mounting.axis)?;
+        finite("mounting.angle_deg", &[self.mounting.angle_deg])?;
+        if self.mounting.matrix.is_none() && self.mounting.axis.iter().all(|x| *x == 0.0) {
+            return bad("mounting.axis", "must not be zero");
+        }
+        if let Some(m) = &self.mounting.matrix {
+            finite("mounting.matrix", m.as_flattened())?;
+            if !is_rotation(m) {
+                return bad(
+                    "mounting.matrix",
+                    "is not a rotation (needs RᵀR = I to 1e-9 and det R = +1)",
+                );
+            }
+        }
+        let s = &self.sensor;
+        if let Some(n) = s.noise_sigma {
+            if !(n.is_finite() && n >= 0.0) {
+                return bad("sensor.noise_sigma", "must be ≥ 0");
+            }
+        }
+        self.noise_sigma()?;
+        if !(s.lsb.is_finite() && s.lsb >= 0.0) {
+            return bad("sensor.lsb", "must be ≥ 0 (0: no quantisation)");
+        }
+        finite("sensor.full_scale", &s.full_scale)?;
+        if s.full_scale[0] >= s.full_scale[1] {
+            return bad("sensor.full_scale", "low must be below high");
+        }
+        let t = &self.timing;
+        if !(t.sample_rate_hz.is_finite() && t.sample_rate_hz > 0.0) {
+            return bad("timing.sample_rate_hz", "must be positive");
+        }
+        if !(t.clock_error_ppm.is_finite() && t.clock_error_ppm.abs() < 1e5) {
+            return bad("timing.clock_error_ppm", "must be finite and below 1e5");
+        }
+        if !(t.jitter_s.is_finite() && t.jitter_s >= 0.0 && t.jitter_s <= 0.05 / t.sample_rate_hz) {
+            return bad(
+                "timing.jitter_s",
+                "must be ≥ 0 and at most 0.05 of the sample period (so timestamps stay in order)",
+            );
+        }
+        if !(0.0..1.0).contains(&t.drop_probability) {
+            return bad("timing.drop_probability", "must lie in [0, 1)");
+        }
+        if !(t.tick_hz.is_finite() && t.tick_hz >= t.sample_rate_hz) {
+            return bad("timing.tick_hz", "must be at least the sample rate");
+        }
+        if !(t.gap_s.is_finite() && t.gap_s >= 0.0) {
+            return bad("timing.gap_s", "must be ≥ 0");
+        }
+        let tb = &self.table;
+        match self.method {
+            Method::Rotation => {
+                let rates = self.rates_hz();
+                if rates.is_empty() || rates.iter().any(|r| !(r.is_finite() && *r > 0.0)) {
+                    return bad("table.rates_hz", "give one or more positive rates");
+                }
+                if let Some(d) = tb.duration_s {
+                    if !(d.is_finite() && d > 0.0) {
+                        return bad("table.duration_s", "must be positive");
+                    }
+                }
+                if self.samples_per_condition() < 8 {
+                    return bad("table.samples_per_condition", "must be at least 8");
+                }
+                if let Some(a) = tb.start_angle_deg {
+                    finite("table.start_angle_deg", &a)?;
+                }
+                only_for(
+                    "static",
+                    &[
+                        ("table.angles_deg", tb.angles_deg.is_some()),
+                        ("table.angle_step_deg", tb.angle_step_deg.is_some()),
+                        ("table.readings_per_angle", tb.readings_per_angle.is_some()),
+                        ("table.dwell_s", tb.dwell_s.is_some()),
+                    ],
+                )?;
+            }
+            Method::Static => {
+                let fx = &self.effects;
+                only_for(
+                    "rotation",
+                    &[
+                        ("table.rates_hz", tb.rates_hz.is_some()),
+                        (
+                            "table.samples_per_condition",
+                            tb.samples_per_condition.is_some(),
+                        ),
+                        ("table.duration_s", tb.duration_s.is_some()),
+                        ("table.start_angle_deg", tb.start_angle_deg.is_some()),
+                        ("effects.rate_error", fx.rate_error.is_some()),
+                        ("effects.centripetal", fx.centripetal.is_some()),
+                        ("effects.axis_time_skew", fx.axis_time_skew.is_some()),
+                        ("effects.rate_ripple", fx.rate_ripple.is_some()),
+                    ],
+                )?;
+                if let Some(step) = tb.angle_step_deg {
+                    if !(step.is_finite() && step > 0.0 && step <= 120.0) {
+                        return bad("table.angle_step_deg", "must lie in (0, 120]");
+                    }
+                }
+                if let Some(a) = &tb.angles_deg {
+                    finite("table.angles_deg", a)?;
+                    if a.len() < 3 {
+                        return bad("table.angles_deg", "give at least 3 angles");
+                    }
+                }
+                if tb.readings_per_angle == Some(0) {
+                    return bad("table.readings_per_angle", "must be at least 1");
+                }
+                if let Some(d) = tb.dwell_s {
+                    if !(d.is_finite() && d >= 0.0) {
+                        return bad("table.dwell_s", "must be ≥ 0");
+                    }
+                }
+            }
+        }
+        let tp = &self.temperature;
+        finite(
+            "temperature",
+            &[
+                tp.t0_c,
+                tp.ramp_c_per_h,
+                tp.swing_c,
+                tp.period_s,
+                tp.resolution_c,
+            ],
+        )?;
+        if tp.period_s <= 0.0 {
+            return bad("temperature.period_s", "must be positive");
+        }
+        if tp.resolution_c < 0.0 {
+            return bad("temperature.resolution_c", "must be ≥ 0");
+        }
+        let e = &self.effects;
+        if let Some(r) = &e.rate_error {
+            if !(r.relative.is_finite() && r.relative.abs() < 0.1) {
+                return bad(
+                    "effects.rate_error.relative",
+                    "must be finite and below 0.1 in size",
+                );
+            }
+        }
+        if let Some(x) = &e.offset_drift {
+            finite("effects.offset_drift.per_s", &x.per_s)?;
+        }
+        if let Some(x) = &e.temperature_offset {
+            finite("effects.temperature_offset.per_c", &x.per_c)?;
+        }
+        if let Some(x) = &e.nonlinearity_2nd {
+            finite("effects.nonlinearity_2nd.k2", &x.k2)?;
+        }
+        if let Some(x) = &e.nonlinearity_3rd {
+            finite("effects.nonlinearity_3rd.k3", &x.k3)?;
+        }
+        if let Some(x) = &e.saturation {
+            finite("effects.saturation.rails", &x.rails)?;
+            if x.rails[0] >= x.rails[1] {
+                return bad("effects.saturation.rails", "low must be below high");
+            }
+        }
+        if let Some(x) = &e.centripetal {
+            if !(x.radius_m.is_finite() && x.radius_m >= 0.0) {
+                return bad("effects.centripetal.radius_m", "must be ≥ 0");
+            }
+            if let Some(d) = &x.directions {
+                finite("effects.centripetal.directions", d.as_flattened())?;
+                for (i, dir) in d.iter().enumerate() {
+                    let mut p = *dir;
+                    p[i] = 0.0;
+                    if p.iter().map(|v| v * v).sum::<f64>() < 1e-12 {
+                        return bad(
+                            "effects.centripetal.directions",
+                            "each must have a part across its condition's axis",
+                        );
+                    }
+                }
+            }
+        }
+        if let Some(x) = &e.axis_time_skew {
+            finite("effects.axis_time_skew.skew_s", &x.skew_s)?;
+        }
+        if let Some(x) = &e.rate_ripple {
+            finite("effects.rate_ripple", &[x.relative, x.phase_deg])?;
+            if x.relative.abs() >= 1.0 {
+                return bad("effects.rate_ripple.relative", "must be below 1 in size");
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Refuse keys that belong to the other method.
+fn only_for(method: &str, keys: &[(&str, bool)]) -> Result<(), ConfigError> {
+    match keys.iter().find(|(_, set)| *set) {
+        Some((key, _)) => Err(ConfigError(format!(
+            "{key}: applies to method = \"{method}\" only"
+        ))),
+        None => Ok(()),
+    }
+}
+
+fn is_rotation(m: &[[f64; 3]; 3]) -> bool {
+    let mut ok = true;
+    for i in 0..3 {
+        for j in 0..3 {
+            let dot: f64 = (0..3).map(|k| m[k][i] * m[k][j]).sum();
+            let want = if i == j { 1.0 } else { 0.0 };
+            ok &= (dot - want).abs() <= 1e-9;
+        }
+    }
+    let det = m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1])
+        - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
+        + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0]);
+    ok && (det - 1.0).abs() <= 1e-9
+}

@@ -1,0 +1,532 @@
+//! The simulator against an independent implementation of docs/simulator.md, its
+//! randomness (seeded, and with the stated statistics), its presets (calibrated back to
+//! their truth) and its configuration errors.
+// Matrix arithmetic on small fixed arrays reads more plainly with indices.
+#![allow(clippy::needless_range_loop)]
+
+use rotacal::calibrate_recording::{self, Options};
+use rotacal::recording::{Group, Recording};
+use rotacal::simulate::{Config, Simulation};
+use std::f64::consts::TAU;
+use std::process::Command;
+
+fn sim(toml: &str) -> Simulation {
+    Simulation::new(Config::from_toml(toml).unwrap()).unwrap()
+}
+
+fn rec(s: &Simulation) -> Recording {
+    s.recording().unwrap()
+}
+
+/// Rotation by `deg` about x, then y, then z (R = Rz·Ry·Rx): a different construction from
+/// the library's axis-angle formula.
+fn rot_xyz(dx: f64, dy: f64, dz: f64) -> [[f64; 3]; 3] {
+    let (sx, cx) = dx.to_radians().sin_cos();
+    let (sy, cy) = dy.to_radians().sin_cos();
+    let (sz, cz) = dz.to_radians().sin_cos();
+    let rx = [[1.0, 0.0, 0.0], [0.0, cx, -sx], [0.0, sx, cx]];
+    let ry = [[cy, 0.0, sy], [0.0, 1.0, 0.0], [-sy, 0.0, cy]];
+    let rz = [[cz, -sz, 0.0], [sz, cz, 0.0], [0.0, 0.0, 1.0]];
+    mul(&rz, &mul(&ry, &rx))
+}
+
+fn mul(a: &[[f64; 3]; 3], b: &[[f64; 3]; 3]) -> [[f64; 3]; 3] {
+    let mut m = [[0.0; 3]; 3];
+    for i in 0..3 {
+        for j in 0..3 {
+            m[i][j] = (0..3).map(|k| a[i][k] * b[k][j]).sum();
+        }
+    }
+    m
+}
+
+fn fmt_matrix(m: &[[f64; 3]; 3]) -> String {
+    format!(
+        "[[{:?}, {:?}, {:?}], [{:?}, {:?}, {:?}], [{:?}, {:?}, {:?}]]",
+        m[0][0], m[0][1], m[0][2], m[1][0], m[1][1], m[1][2], m[2][0], m[2][1], m[2][2]
+    )
+}
+
+/// ĝ(α) per condition (method.md §1), written out again.
+fn g_hat(cond: usize, a: f64) -> [f64; 3] {
+    match cond {
+        0 => [0.0, a.sin(), a.cos()],
+        1 => [a.sin(), 0.0, a.cos()],
+        _ => [a.sin(), a.cos(), 0.0],
+    }
+}
+
+const S: [[f64; 3]; 3] = [
+    [1650.0, 12.0, -8.0],
+    [-6.0, 1680.0, 15.0],
+    [9.0, -4.0, 1700.0],
+];
+const O: [f64; 3] = [300.0, -150.0, 60.0];
+const G: f64 = 9.81;
+
+/// Everything on at once (rotation, two rates, noise-free), compared value by value with
+/// the model written out in this test.
+#[test]
+fn rotation_with_every_effect_matches_an_independent_model() {
+    let r = rot_xyz(2.0, -3.0, 4.0);
+    let toml = format!(
+        r#"
+seed = 5
+g_loc = {G}
+[device]
+matrix = {s}
+offsets = [{o0}, {o1}, {o2}]
+[mounting]
+matrix = {r}
+[sensor]
+noise_sigma = 0.0
+lsb = 0.0
+full_scale = [-1e9, 1e9]
+[timing]
+sample_rate_hz = 10.0
+clock_error_ppm = 250.0
+tick_hz = 1e9
+gap_s = 7.5
+[table]
+rates_hz = [0.02, 0.3]
+samples_per_condition = 600
+start_angle_deg = [10.0, 200.0, 300.0]
+[temperature]
+t0_c = 22.0
+ramp_c_per_h = 3.0
+swing_c = 0.4
+period_s = 500.0
+resolution_c = 0.0
+[effects.rate_error]
+relative = 2e-4
+[effects.offset_drift]
+per_s = [0.01, -0.02, 0.005]
+[effects.temperature_offset]
+per_c = [3.0, -2.0, 1.0]
+[effects.nonlinearity_2nd]
+k2 = [1e-3, -2e-3, 5e-4]
+[effects.nonlinearity_3rd]
+k3 = [-1e-4, 2e-4, 3e-4]
+[effects.centripetal]
+radius_m = 0.22
+directions = [[0.0, 1.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]
+[effects.axis_time_skew]
+skew_s = [0.0, 0.004, -0.002]
+[effects.rate_ripple]
+relative = 0.01
+phase_deg = 30.0
+"#,
+        s = fmt_matrix(&S),
+        r = fmt_matrix(&r),
+        o0 = O[0],
+        o1 = O[1],
+        o2 = O[2],
+    );
+    let simulation = sim(&toml);
+    let recording = rec(&simulation);
+    // Platter-frame matrix S·Rᵀ.
+    let mut sp = [[0.0; 3]; 3];
+    for j in 0..3 {
+        for k in 0..3 {
+            sp[j][k] = (0..3).map(|m| S[j][m] * r[k][m]).sum();
+        }
+    }
+    let dirs = [[0.0, 1.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]].map(|d: [f64; 3]| {
+        let n = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+        d.map(|v| v / n)
+    });
+    let k2 = [1e-3, -2e-3, 5e-4];
+    let k3 = [-1e-4, 2e-4, 3e-4];
+    let drift = [0.01, -0.02, 0.005];
+    let tc = [3.0, -2.0, 1.0];
+    let skew = [0.0, 0.004, -0.002];
+    let start = [10.0f64, 200.0, 300.0].map(f64::to_radians);
+    let (n, fs, gap) = (600usize, 10.0, 7.5);
+    assert_eq!(recording.groups.len(), 6);
+    let mut worst = 0.0f64;
+    for (gi, g) in recording.groups.iter().enumerate() {
+        assert_eq!(g.len(), n);
+        let rate = [0.02, 0.3][gi / 3];
+        assert_eq!(g.rate_hz, Some(rate));
+        let cond = g.condition.index();
+        assert_eq!(cond, gi % 3);
+        let omega = TAU * rate * (1.0 + 2e-4);
+        let tg = gi as f64 * (n as f64 / fs + gap);
+        let seq = g.seq.as_ref().unwrap();
+        let temp = g.temp_c.as_ref().unwrap();
+        for k in 0..n {
+            assert_eq!(seq[k], (gi * n + k) as u64);
+            let tau = k as f64 / fs;
+            let t = tg + tau;
+            let ts = ((1.0 + 250e-6) * t * 1e9).round() / 1e9;
+            assert!(
+                (g.t_s[k] - ts).abs() <= 1e-12 * ts.max(1.0),
+                "t_s {} vs {ts}",
+                g.t_s[k]
+            );
+            let temp_t = 22.0 + 3.0 * t / 3600.0 + 0.4 * (TAU * t / 500.0).sin();
+            assert!((temp[k] - temp_t).abs() < 1e-12);
+            let y = [g.u[k], g.v[k], g.w[k]];
+            for j in 0..3 {
+                let tj = tau + skew[j];
+                let psi = 30f64.to_radians();
+                let alpha =
+                    start[cond] + omega * tj + 0.01 * ((omega * tj + psi).sin() - psi.sin());
+                let gh = g_hat(cond, alpha);
+                let f: Vec<f64> = (0..3)
+                    .map(|i| G * gh[i] - omega * omega * 0.22 * dirs[cond][i])
+                    .collect();
+                let sj = (sp[j][0].powi(2) + sp[j][1].powi(2) + sp[j][2].powi(2)).sqrt();
+                let a = (0..3).map(|i| sp[j][i] * f[i]).sum::<f64>() / sj;
+                let want = sj * (a + k2[j] * a * a + k3[j] * a * a * a)
+                    + O[j]
+                    + drift[j] * t
+                    + tc[j] * (temp_t - 22.0);
+                worst = worst.max((y[j] - want).abs() / want.abs().max(1.0));
+            }
+        }
+    }
+    assert!(worst < 1e-11, "worst relative difference {worst:e}");
+    // The truth the simulation reports is the device's, not the mounted matrix's.
+    let t = simulation.truth();
+    let sn = S.map(|row| (row[0] * row[0] + row[1] * row[1] + row[2] * row[2]).sqrt());
+    for j in 0..3 {
+        assert!((t.sensitivity[j] - sn[j]).abs() < 1e-9);
+    }
+    let uv = ((0..3).map(|i| S[0][i] * S[1][i]).sum::<f64>() / (sn[0] * sn[1]))
+        .acos()
+        .to_degrees();
+    assert!((t.angles_deg[0] - uv).abs() < 1e-9);
+}
+
+/// The static method's timing and effects, with repeated readings and an angle list.
+#[test]
+fn static_with_effects_matches_an_independent_model() {
+    let toml = format!(
+        r#"
+method = "static"
+g_loc = {G}
+units = "V"
+[device]
+matrix = {s}
+offsets = [0.1, -0.2, 0.3]
+[mounting]
+axis = [0.0, 0.0, 1.0]
+angle_deg = 90.0
+[sensor]
+noise_sigma = 0.0
+lsb = 0.0
+full_scale = [-1e9, 1e9]
+[timing]
+sample_rate_hz = 2.0
+gap_s = 100.0
+[table]
+angles_deg = [0.0, 30.0, 90.0, 200.0]
+readings_per_angle = 3
+dwell_s = 5.0
+[temperature]
+ramp_c_per_h = 36.0
+resolution_c = 0.0
+[effects.offset_drift]
+per_s = [1e-4, 0.0, -1e-4]
+[effects.temperature_offset]
+per_c = [0.0, 0.01, 0.0]
+[effects.nonlinearity_2nd]
+k2 = [1e-3, 0.0, 0.0]
+"#,
+        s = fmt_matrix(&S.map(|r| r.map(|v| v * 1e-4)))
+    );
+    let recording = rec(&sim(&toml));
+    // 90° about z, written as a matrix: R = [[0,-1,0],[1,0,0],[0,0,1]]; S·Rᵀ.
+    let sp = S.map(|r| [-r[1] * 1e-4, r[0] * 1e-4, r[2] * 1e-4]);
+    let angles = [0.0f64, 30.0, 90.0, 200.0];
+    for (c, g) in recording.groups.iter().enumerate() {
+        assert_eq!(g.len(), 12);
+        let tg = c as f64 * (4.0 * 5.0 + 100.0);
+        for row in 0..12 {
+            let (k, r) = (row / 3, row % 3);
+            assert_eq!(g.angle_deg[row], angles[k]);
+            let t = tg + k as f64 * 5.0 + r as f64 / 2.0;
+            assert!((g.t_s[row] - t).abs() < 1e-9);
+            let temp = 25.0 + 36.0 * t / 3600.0;
+            let f = g_hat(c, angles[k].to_radians()).map(|v| G * v);
+            let y = [g.u[row], g.v[row], g.w[row]];
+            for j in 0..3 {
+                let sj = (sp[j][0].powi(2) + sp[j][1].powi(2) + sp[j][2].powi(2)).sqrt();
+                let a = (0..3).map(|i| sp[j][i] * f[i]).sum::<f64>() / sj;
+                let k2 = [1e-3, 0.0, 0.0][j];
+                let want = sj * (a + k2 * a * a)
+                    + [0.1, -0.2, 0.3][j]
+                    + [1e-4, 0.0, -1e-4][j] * t
+                    + [0.0, 0.01, 0.0][j] * (temp - 25.0);
+                assert!((y[j] - want).abs() < 1e-12, "{} vs {want}", y[j]);
+            }
+        }
+    }
+}
+
+/// Rails, quantisation and the register range act in that order, and are counted.
+#[test]
+fn saturation_quantisation_and_range() {
+    let base = format!(
+        r#"
+g_loc = {G}
+[device]
+matrix = {s}
+offsets = [300.0, -150.0, 60.0]
+[sensor]
+noise_sigma = 0.0
+lsb = 0.5
+full_scale = [-16000.0, 16000.5]
+[table]
+samples_per_condition = 1000
+rates_hz = [0.05]
+"#,
+        s = fmt_matrix(&S)
+    );
+    let plain = sim(&base);
+    let (sum0, _) = plain.write(Vec::new()).unwrap();
+    let clipped = sim(&(base.clone() + "[effects.saturation]\nrails = [-15000.0, 15500.2]\n"));
+    let (sum1, _) = clipped.write(Vec::new()).unwrap();
+    let (a, b) = (rec(&plain), rec(&clipped));
+    let mut at_rails = 0u64;
+    let mut at_range = 0u64;
+    for (ga, gb) in a.groups.iter().zip(&b.groups) {
+        for (ya, yb) in [(&ga.u, &gb.u), (&ga.v, &gb.v), (&ga.w, &gb.w)] {
+            for (x, y) in ya.iter().zip(yb.iter()) {
+                assert_eq!((x / 0.5).fract(), 0.0, "{x} not a multiple of the lsb");
+                if *x == -16000.0 || *x == 16000.5 {
+                    at_range += 1;
+                }
+                // Rails, then rounding to the lsb.
+                let want = (x.clamp(-15000.0, 15500.2) / 0.5).round() * 0.5;
+                assert_eq!(*y, want);
+                if *y != *x {
+                    at_rails += 1;
+                }
+            }
+        }
+    }
+    // S·ĝ·g reaches about 1700·9.81 + 300 ≈ 16980: both stages must have clipped.
+    assert!(at_range > 0 && at_rails > 0);
+    assert_eq!(sum0.clipped, at_range);
+    assert!(sum1.clipped >= at_rails);
+}
+
+/// Same seed, same bytes; another seed, other bytes; the CLI's --seed overrides.
+#[test]
+fn seeded_and_reproducible() {
+    let cfg = Config::preset("paper-10mhz").unwrap();
+    let one = Simulation::new(cfg.clone())
+        .unwrap()
+        .write(Vec::new())
+        .unwrap()
+        .1;
+    let two = Simulation::new(cfg.clone())
+        .unwrap()
+        .write(Vec::new())
+        .unwrap()
+        .1;
+    assert_eq!(one, two);
+    let mut other = cfg;
+    other.seed += 1;
+    let three = Simulation::new(other).unwrap().write(Vec::new()).unwrap().1;
+    assert_ne!(one, three);
+
+    let dir = std::env::temp_dir().join(format!("rotacal-sim-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let out = dir.join("a.csv");
+    let status = Command::new(env!("CARGO_BIN_EXE_rotacal"))
+        .args(["simulate", "paper-10mhz", "--seed", "2022", "--out"])
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(status.status.success());
+    assert_eq!(std::fs::read(&out).unwrap(), one, "preset seed is 2022");
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+/// Noise (the LSM6DS33 default, plus quantisation), jitter and drops have the stated
+/// statistics. Bounds are ±5 standard errors of each estimate.
+#[test]
+fn noise_jitter_and_drops_have_the_stated_statistics() {
+    let cfg = Config::from_toml(
+        r#"
+preset = "paper-10mhz"
+seed = 77
+[table]
+samples_per_condition = 20000
+start_angle_deg = [0.0, 90.0, 45.0]
+[timing]
+jitter_s = 0.002
+drop_probability = 0.1
+"#,
+    )
+    .unwrap();
+    let s = Simulation::new(cfg).unwrap();
+    // 90 µg/√Hz · √8 Hz / 0.061 mg = 4.173 counts; with lsb²/12: 4.183.
+    assert!((s.truth().noise_sigma - 4.173_089).abs() < 1e-5);
+    let floor = s.noise_floor();
+    let r = rec(&s);
+    assert_eq!(r.meta.noise_sigma, Some(floor));
+    let mut kept = 0usize;
+    for g in &r.groups {
+        kept += g.len();
+        // Drops change which rows exist, not the noise draws' statistics.
+        let sd = residual_sd_with_drops(g, &s);
+        for x in sd {
+            let se = floor / (2.0 * g.len() as f64).sqrt();
+            assert!((x - floor).abs() < 5.0 * se, "noise sd {x} vs {floor}");
+        }
+        // Jitter: t_s minus the nominal instant (from seq).
+        let seq = g.seq.as_ref().unwrap();
+        let gi = r
+            .groups
+            .iter()
+            .position(|h| h.condition == g.condition)
+            .unwrap();
+        let tg = gi as f64 * (20000.0 / 16.0 + 60.0);
+        let d: Vec<f64> = seq
+            .iter()
+            .zip(&g.t_s)
+            .map(|(q, t)| t - (tg + (*q as usize - gi * 20000) as f64 / 16.0))
+            .collect();
+        let m = d.iter().sum::<f64>() / d.len() as f64;
+        let sd = (d.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (d.len() - 1) as f64).sqrt();
+        let se = 0.002 / (2.0 * d.len() as f64).sqrt();
+        assert!((sd - 0.002).abs() < 5.0 * se + 1e-6, "jitter sd {sd}");
+    }
+    let total = 60000.0;
+    let dropped = total - kept as f64;
+    let se = (total * 0.1 * 0.9).sqrt();
+    assert!((dropped - 6000.0).abs() < 5.0 * se, "dropped {dropped}");
+}
+
+fn residual_sd_with_drops(g: &Group, s: &Simulation) -> Vec<f64> {
+    // The noise-free twin has no jitter/drop draws, so match rows by seq.
+    let mut cfg = s.config().clone();
+    cfg.sensor.noise_sigma = Some(0.0);
+    cfg.sensor.lsb = 0.0;
+    cfg.timing.jitter_s = 0.0;
+    cfg.timing.drop_probability = 0.0;
+    let twin = Simulation::new(cfg).unwrap().recording().unwrap();
+    let tg = twin.group(g.condition, g.rate_hz).unwrap();
+    let tseq = tg.seq.as_ref().unwrap();
+    let first = tseq[0];
+    let seq = g.seq.as_ref().unwrap();
+    let idx: Vec<usize> = seq.iter().map(|q| (q - first) as usize).collect();
+    [(&g.u, &tg.u), (&g.v, &tg.v), (&g.w, &tg.w)]
+        .iter()
+        .map(|(y, y0)| {
+            let d: Vec<f64> = y.iter().zip(&idx).map(|(a, i)| a - y0[*i]).collect();
+            let m = d.iter().sum::<f64>() / d.len() as f64;
+            (d.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (d.len() - 1) as f64).sqrt()
+        })
+        .collect()
+}
+
+/// Every preset calibrates back to its truth. One draw per property, so the bound is
+/// 5 standard uncertainties (a false failure about once in 10⁵ runs); the k = 2 coverage
+/// is tested over 2000 trials in tests/coverage.rs.
+#[test]
+fn presets_calibrate_to_their_truth() {
+    for name in ["paper-10mhz", "paper-multirate", "metrologia-static"] {
+        let s = Simulation::new(Config::preset(name).unwrap()).unwrap();
+        let r = rec(&s);
+        let cal = calibrate_recording::calibrate(&r, &Options::default()).unwrap();
+        let t = s.truth();
+        let expect_rates = if name == "paper-multirate" { 4 } else { 1 };
+        assert_eq!(cal.by_rate.len(), expect_rates, "{name}");
+        for entry in &cal.by_rate {
+            let i = &entry.intrinsic;
+            let mut pairs = vec![
+                (&i.sensitivity.u, t.sensitivity[0]),
+                (&i.sensitivity.v, t.sensitivity[1]),
+                (&i.sensitivity.w, t.sensitivity[2]),
+                (&i.angle_deg.uv, t.angles_deg[0]),
+                (&i.angle_deg.vw, t.angles_deg[1]),
+                (&i.angle_deg.wu, t.angles_deg[2]),
+            ];
+            if let Some(o) = &i.offset {
+                pairs.extend([
+                    (&o.u, t.offsets[0]),
+                    (&o.v, t.offsets[1]),
+                    (&o.w, t.offsets[2]),
+                ]);
+            }
+            for (q, truth) in pairs {
+                assert!(
+                    (q.value - truth).abs() < 5.0 * q.std_unc,
+                    "{name}: {} ± {} vs truth {truth}",
+                    q.value,
+                    q.std_unc
+                );
+            }
+        }
+    }
+}
+
+/// The axis-angle and matrix forms of the mounting agree (90° about z).
+#[test]
+fn mounting_axis_angle_equals_matrix() {
+    let base = "preset = \"paper-10mhz\"\n[table]\nsamples_per_condition = 100\n";
+    let a = sim(&format!(
+        "{base}[mounting]\naxis = [0.0, 0.0, 2.0]\nangle_deg = 90.0\n"
+    ));
+    let b = sim(&format!(
+        "{base}[mounting]\nmatrix = [[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]\n"
+    ));
+    let (ta, tb) = (a.truth(), b.truth());
+    for j in 0..3 {
+        for k in 0..3 {
+            assert!((ta.matrix_platter[j][k] - tb.matrix_platter[j][k]).abs() < 1e-9);
+        }
+    }
+    assert_eq!(ta.matrix_device, tb.matrix_device);
+}
+
+/// Configuration mistakes are refused with a message that names the key.
+#[test]
+fn bad_configurations_name_the_key() {
+    let cases: &[(&str, &str)] = &[
+        ("preset = \"paper-10mhz\"\n[sensor]\nnois_sigma = 1.0\n", "nois_sigma"),
+        ("[device]\noffsets = [0.0, 0.0, 0.0]\n", "device"),
+        ("preset = \"nope\"\n", "unknown preset 'nope'"),
+        ("preset = \"paper-10mhz\"\n[timing]\njitter_s = 0.01\n", "timing.jitter_s"),
+        ("preset = \"paper-10mhz\"\n[timing]\ndrop_probability = 1.0\n", "timing.drop_probability"),
+        (
+            "preset = \"paper-10mhz\"\n[mounting]\nmatrix = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, -1.0]]\n",
+            "mounting.matrix",
+        ),
+        (
+            "preset = \"metrologia-static\"\n[effects.rate_error]\nrelative = 1e-4\n",
+            "effects.rate_error",
+        ),
+        ("preset = \"paper-10mhz\"\n[table]\nrates_hz = [0.01, -1.0]\n", "table.rates_hz"),
+        ("preset = \"paper-10mhz\"\nunits = \"V\"\n", "sensor.noise_sigma"),
+        ("preset = \"paper-10mhz\"\n[effects.saturation]\nrails = [5.0, 1.0]\n", "effects.saturation.rails"),
+        ("preset = \"paper-10mhz\"\n[table]\nangle_step_deg = 5.0\n", "table.angle_step_deg"),
+        ("preset = \"paper-10mhz\"\n[device]\nsensitivity = [1.0, 1.0]\n", "sensitivity"),
+        ("g_loc = -1.0\n[device]\nmatrix = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]\n", "g_loc"),
+        ("this is not toml", "TOML"),
+    ];
+    for (text, want) in cases {
+        let err = Config::from_toml(text)
+            .and_then(Simulation::new)
+            .err()
+            .unwrap_or_else(|| panic!("accepted:\n{text}"));
+        let msg = err.to_string();
+        assert!(msg.contains(want), "for\n{text}\ngot: {msg}");
+    }
+    // The CLI: a missing file that is not a preset.
+    let out = Command::new(env!("CARGO_BIN_EXE_rotacal"))
+        .args(["simulate", "no-such.toml", "--out", "/dev/null"])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("no-such.toml") && err.contains("paper-10mhz"),
+        "{err}"
+    );
+}
