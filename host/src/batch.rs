@@ -114,6 +114,102 @@ fn solve_qr(h: DMatrix<f64>, ys: &[DVector<f64>]) -> Result<BatchFit, BatchError
     })
 }
 
+/// Least squares by QR of row blocks (TSQR): the rows of the augmented matrix [H | y]
+/// are folded in a block at a time into its triangular factor T, so memory does not grow
+/// with the number of rows. At the end T = [[R, z], [0, ρ]]: R c = z gives the
+/// coefficients and ρ² is the residual sum of squares, without forming Q or residuals.
+/// For one right-hand side (the joint rate fit, where H has 3N rows).
+#[derive(Clone, Debug)]
+pub struct IncrementalQr {
+    p: usize,
+    /// Triangular factor so far ((p+1)×(p+1)), or none before the first block.
+    t: Option<DMatrix<f64>>,
+    /// Rows waiting to be folded in.
+    block: Vec<f64>,
+    n: usize,
+}
+
+const QR_BLOCK_ROWS: usize = 4096;
+
+impl IncrementalQr {
+    /// For `p` regressors.
+    pub fn new(p: usize) -> Self {
+        IncrementalQr {
+            p,
+            t: None,
+            block: Vec::with_capacity(QR_BLOCK_ROWS * (p + 1)),
+            n: 0,
+        }
+    }
+
+    /// Add one row: regressors `h` (length p) and observation `y`.
+    pub fn push(&mut self, h: &[f64], y: f64) {
+        self.block.extend_from_slice(h);
+        self.block.push(y);
+        self.n += 1;
+        if self.block.len() >= QR_BLOCK_ROWS * (self.p + 1) {
+            self.fold();
+        }
+    }
+
+    fn fold(&mut self) {
+        let w = self.p + 1;
+        let rows = self.block.len() / w;
+        if rows == 0 {
+            return;
+        }
+        let top = self.t.as_ref().map_or(0, |t| t.nrows());
+        let mut m = DMatrix::zeros(top + rows, w);
+        if let Some(t) = &self.t {
+            m.rows_mut(0, top).copy_from(t);
+        }
+        m.rows_mut(top, rows)
+            .copy_from(&DMatrix::from_row_slice(rows, w, &self.block));
+        self.block.clear();
+        self.t = Some(m.qr().r());
+    }
+
+    /// Solve: coefficients and standard errors from σ̂²(HᵀH)⁻¹ = σ̂²R⁻¹R⁻ᵀ.
+    pub fn solve(mut self) -> Result<BatchFit, BatchError> {
+        let p = self.p;
+        if self.n <= p {
+            return Err(BatchError::TooFewSamples {
+                n: self.n,
+                needed: p + 1,
+            });
+        }
+        self.fold();
+        let t = self.t.ok_or(BatchError::Singular)?;
+        if t.nrows() < p + 1 {
+            return Err(BatchError::Singular);
+        }
+        let r = t.view((0, 0), (p, p)).into_owned();
+        let z = t.view((0, p), (p, 1)).into_owned();
+        let rss = t[(p, p)].powi(2);
+        let rmax = r.diagonal().amax();
+        if r.diagonal().iter().any(|d| d.abs() <= 1e-13 * rmax) {
+            return Err(BatchError::Singular);
+        }
+        let coef = r.solve_upper_triangular(&z).ok_or(BatchError::Singular)?;
+        let r_inv = r.try_inverse().ok_or(BatchError::Singular)?;
+        let unscaled_cov = &r_inv * r_inv.transpose();
+        let var = rss / (self.n - p) as f64;
+        let se = (0..p)
+            .map(|i| (var * unscaled_cov[(i, i)]).sqrt())
+            .collect();
+        Ok(BatchFit {
+            n: self.n,
+            unscaled_cov,
+            channels: vec![BatchChannel {
+                coef: coef.iter().copied().collect(),
+                se,
+                rss,
+                sigma: var.sqrt(),
+            }],
+        })
+    }
+}
+
 /// Fit `model` to samples `(t, [u, v, w])` with rotation `step` per tick; τ terms are
 /// taken about `t_ref`.
 pub fn fit(
@@ -176,25 +272,24 @@ pub fn fit_four_param(
     let mut last = fit(samples, nominal, clock, Model::SINE, t_mid)?;
     for iter in 1..=MAX_ITER {
         let step = PhaseStep::from_hz(rate, clock).ok_or(BatchError::Singular)?;
-        // Joint unknowns: (A, B, C) × 3 channels, then δω.
-        let mut h = DMatrix::zeros(3 * n, 10);
-        let mut y = DVector::zeros(3 * n);
-        for (i, (t, v)) in samples.iter().enumerate() {
+        // Joint unknowns: (A, B, C) × 3 channels, then δω; 3N rows, folded in blocks.
+        let mut joint = IncrementalQr::new(10);
+        for (t, v) in samples {
             let (s, c) = step.phase_at(*t).sin_cos::<f64>();
             let (s, c) = (s.hi, c.hi);
             let tau = seconds_between(*t, t_mid, clock);
             for ch in 0..3 {
-                let row = 3 * i + ch;
                 let a = last.channels[ch].coef[0];
                 let b = last.channels[ch].coef[1];
-                h[(row, 3 * ch)] = s;
-                h[(row, 3 * ch + 1)] = c;
-                h[(row, 3 * ch + 2)] = 1.0;
-                h[(row, 9)] = tau * (a * c - b * s);
-                y[row] = v[ch];
+                let mut h = [0.0; 10];
+                h[3 * ch] = s;
+                h[3 * ch + 1] = c;
+                h[3 * ch + 2] = 1.0;
+                h[9] = tau * (a * c - b * s);
+                joint.push(&h, v[ch]);
             }
         }
-        let joint = solve_qr(h, &[y])?;
+        let joint = joint.solve()?;
         let dw = joint.channels[0].coef[9];
         let se_dw = joint.channels[0].se[9];
         rate += dw / TAU;

@@ -82,6 +82,18 @@ pub struct IntrinsicJson {
     pub offset: Option<Uvw>,
 }
 
+impl IntrinsicJson {
+    /// s_u, s_v, s_w, φ_uv, φ_vw, φ_wu, then O_u, O_v, O_w when present.
+    pub fn quantities(&self) -> Vec<&Quantity> {
+        let (s, a) = (&self.sensitivity, &self.angle_deg);
+        let mut q = vec![&s.u, &s.v, &s.w, &a.uv, &a.vw, &a.wu];
+        if let Some(o) = &self.offset {
+            q.extend([&o.u, &o.v, &o.w]);
+        }
+        q
+    }
+}
+
 /// `sensitivity_matrix`.
 #[derive(Clone, Debug, Serialize)]
 pub struct MatrixJson {

@@ -53,6 +53,7 @@ impl Tally {
     }
 
     fn add(&mut self, qs: &[&Quantity]) {
+        assert_eq!(qs.len(), self.names.len());
         for (k, q) in qs.iter().enumerate() {
             assert_eq!(q.k, 2.0);
             assert!((q.expanded_unc - 2.0 * q.std_unc).abs() <= 1e-12 * q.expanded_unc);
@@ -186,15 +187,7 @@ fn rotation_coverage_and_efficiency_through_the_simulator() {
     let mut crb = [0.0; 3];
     let mut rate_fitted = 0;
     for (entry, var, _) in &results {
-        let i = &entry.intrinsic;
-        tally.add(&[
-            &i.sensitivity.u,
-            &i.sensitivity.v,
-            &i.sensitivity.w,
-            &i.angle_deg.uv,
-            &i.angle_deg.vw,
-            &i.angle_deg.wu,
-        ]);
+        tally.add(&entry.intrinsic.quantities());
         for j in 0..3 {
             crb[j] += var[j] / TRIALS as f64;
         }
@@ -248,27 +241,10 @@ fn static_coverage_through_the_simulator() {
         vec![
             "s_u", "s_v", "s_w", "φ_uv", "φ_vw", "φ_wu", "O_u", "O_v", "O_w",
         ],
-        t.sensitivity
-            .iter()
-            .chain(&t.angles_deg)
-            .chain(&t.offsets)
-            .copied()
-            .collect(),
+        t.properties().to_vec(),
     );
     for entry in &results {
-        let i = &entry.intrinsic;
-        let o = i.offset.as_ref().unwrap();
-        tally.add(&[
-            &i.sensitivity.u,
-            &i.sensitivity.v,
-            &i.sensitivity.w,
-            &i.angle_deg.uv,
-            &i.angle_deg.vw,
-            &i.angle_deg.wu,
-            &o.u,
-            &o.v,
-            &o.w,
-        ]);
+        tally.add(&entry.intrinsic.quantities());
     }
     let failures = tally.check();
     assert!(failures.is_empty(), "{failures:?}");

@@ -165,3 +165,35 @@ fn four_parameter_fit_estimates_the_rate() {
     // The misfit also inflates the fixed-rate fit's σ̂, so compare with the right fit's se.
     assert!((fixed_amp - true_amp).abs() > 100.0 * c.se[0]);
 }
+
+/// The block-wise QR (used for the joint rate fit, whose 3N rows would not fit in memory
+/// as one matrix) against one dense QR of the same rows: several blocks, a ragged last
+/// block, badly scaled columns like the rate column.
+#[test]
+fn incremental_qr_equals_dense_qr() {
+    use nalgebra::{DMatrix, DVector};
+    use rand::{Rng, SeedableRng};
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(9);
+    let (n, p) = (10_001, 10);
+    let scale = [1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 3e4];
+    let h = DMatrix::from_fn(n, p, |_, j| scale[j] * rng.gen_range(-1.0..1.0));
+    let truth = DVector::from_fn(p, |i, _| (i as f64 + 1.0) / scale[i]);
+    let y = &h * &truth + DVector::from_fn(n, |_, _| rng.gen_range(-0.5..0.5));
+    let dense = batch::least_squares(h.clone(), std::slice::from_ref(&y)).unwrap();
+    let mut inc = batch::IncrementalQr::new(p);
+    for i in 0..n {
+        let row: Vec<f64> = h.row(i).iter().copied().collect();
+        inc.push(&row, y[i]);
+    }
+    let inc = inc.solve().unwrap();
+    let (a, b) = (&dense.channels[0], &inc.channels[0]);
+    for i in 0..p {
+        assert!(
+            (a.coef[i] - b.coef[i]).abs() <= 1e-12 * a.coef[i].abs(),
+            "coef {i}"
+        );
+        assert!((a.se[i] - b.se[i]).abs() <= 1e-10 * a.se[i], "se {i}");
+    }
+    assert!((a.rss - b.rss).abs() <= 1e-10 * a.rss);
+    assert_eq!(inc.n, n);
+}

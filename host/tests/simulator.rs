@@ -438,22 +438,7 @@ fn presets_calibrate_to_their_truth() {
         let expect_rates = if name == "paper-multirate" { 4 } else { 1 };
         assert_eq!(cal.by_rate.len(), expect_rates, "{name}");
         for entry in &cal.by_rate {
-            let i = &entry.intrinsic;
-            let mut pairs = vec![
-                (&i.sensitivity.u, t.sensitivity[0]),
-                (&i.sensitivity.v, t.sensitivity[1]),
-                (&i.sensitivity.w, t.sensitivity[2]),
-                (&i.angle_deg.uv, t.angles_deg[0]),
-                (&i.angle_deg.vw, t.angles_deg[1]),
-                (&i.angle_deg.wu, t.angles_deg[2]),
-            ];
-            if let Some(o) = &i.offset {
-                pairs.extend([
-                    (&o.u, t.offsets[0]),
-                    (&o.v, t.offsets[1]),
-                    (&o.w, t.offsets[2]),
-                ]);
-            }
+            let pairs = entry.intrinsic.quantities().into_iter().zip(t.properties());
             for (q, truth) in pairs {
                 assert!(
                     (q.value - truth).abs() < 5.0 * q.std_unc,
@@ -485,6 +470,24 @@ fn mounting_axis_angle_equals_matrix() {
     assert_eq!(ta.matrix_device, tb.matrix_device);
 }
 
+/// A file's key replaces the preset's alternative to it.
+#[test]
+fn alternatives_replace_the_presets() {
+    let c = Config::from_toml("preset = \"paper-10mhz\"\n[table]\nduration_s = 60.0\n").unwrap();
+    assert_eq!(c.samples_per_condition(), 960);
+    let c = Config::from_toml(
+        "preset = \"paper-10mhz\"\n[device]\nmatrix = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]\n",
+    )
+    .unwrap();
+    assert_eq!(c.device.sensitivity, None);
+    assert_eq!(c.device.offsets, [525.1, 99.6, 442.4]);
+    let c = Config::from_toml(
+        "preset = \"metrologia-static\"\n[table]\nangles_deg = [0.0, 90.0, 180.0, 270.0]\n",
+    )
+    .unwrap();
+    assert_eq!(c.static_angles(), vec![0.0, 90.0, 180.0, 270.0]);
+}
+
 /// Configuration mistakes are refused with a message that names the key.
 #[test]
 fn bad_configurations_name_the_key() {
@@ -509,6 +512,14 @@ fn bad_configurations_name_the_key() {
         ("preset = \"paper-10mhz\"\n[device]\nsensitivity = [1.0, 1.0]\n", "sensitivity"),
         ("g_loc = -1.0\n[device]\nmatrix = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]\n", "g_loc"),
         ("this is not toml", "TOML"),
+        (
+            "preset = \"paper-10mhz\"\n[table]\nduration_s = 60.0\nsamples_per_condition = 100\n",
+            "not both",
+        ),
+        (
+            "preset = \"paper-10mhz\"\n[mounting]\nangle_deg = 2.0\nmatrix = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]\n",
+            "not both",
+        ),
     ];
     for (text, want) in cases {
         let err = Config::from_toml(text)

@@ -442,6 +442,33 @@ fn merge(base: &mut toml::Table, over: toml::Table) {
     }
 }
 
+/// Keys that say the same thing in different ways, per section: setting one in a file
+/// replaces the preset's other.
+const ALTERNATIVES: [(&str, &[&str], &[&str]); 4] = [
+    ("device", &["sensitivity", "angles_deg"], &["matrix"]),
+    ("mounting", &["axis", "angle_deg"], &["matrix"]),
+    ("table", &["samples_per_condition"], &["duration_s"]),
+    ("table", &["angles_deg"], &["angle_step_deg"]),
+];
+
+/// Drop from `base` whatever `over` replaces by an alternative key.
+fn drop_replaced(base: &mut toml::Table, over: &toml::Table) {
+    for (section, one, other) in ALTERNATIVES {
+        let (Some(toml::Value::Table(b)), Some(toml::Value::Table(o))) =
+            (base.get_mut(section), over.get(section))
+        else {
+            continue;
+        };
+        for (mine, theirs) in [(one, other), (other, one)] {
+            if mine.iter().any(|k| o.contains_key(*k)) {
+                for k in theirs.iter() {
+                    b.remove(*k);
+                }
+            }
+        }
+    }
+}
+
 impl Config {
     /// A preset by name.
     pub fn preset(name: &str) -> Result<Config, ConfigError> {
@@ -458,6 +485,7 @@ impl Config {
                 let mut base: toml::Table = preset_text(name)?
                     .parse()
                     .map_err(|e| ConfigError(format!("preset {name}: {e}")))?;
+                drop_replaced(&mut base, &table);
                 merge(&mut base, table);
                 base
             }
@@ -547,6 +575,9 @@ impl Config {
         if self.mounting.matrix.is_none() && self.mounting.axis.iter().all(|x| *x == 0.0) {
             return bad("mounting.axis", "must not be zero");
         }
+        if self.mounting.matrix.is_some() && self.mounting.angle_deg != 0.0 {
+            return bad("mounting", "give axis and angle_deg, or matrix, not both");
+        }
         if let Some(m) = &self.mounting.matrix {
             finite("mounting.matrix", m.as_flattened())?;
             if !is_rotation(m) {
@@ -599,6 +630,12 @@ impl Config {
                 if rates.is_empty() || rates.iter().any(|r| !(r.is_finite() && *r > 0.0)) {
                     return bad("table.rates_hz", "give one or more positive rates");
                 }
+                if tb.duration_s.is_some() && tb.samples_per_condition.is_some() {
+                    return bad(
+                        "table",
+                        "give samples_per_condition or duration_s, not both",
+                    );
+                }
                 if let Some(d) = tb.duration_s {
                     if !(d.is_finite() && d > 0.0) {
                         return bad("table.duration_s", "must be positive");
@@ -638,6 +675,9 @@ impl Config {
                         ("effects.rate_ripple", fx.rate_ripple.is_some()),
                     ],
                 )?;
+                if tb.angles_deg.is_some() && tb.angle_step_deg.is_some() {
+                    return bad("table", "give angles_deg or angle_step_deg, not both");
+                }
                 if let Some(step) = tb.angle_step_deg {
                     if !(step.is_finite() && step > 0.0 && step <= 120.0) {
                         return bad("table.angle_step_deg", "must lie in (0, 120]");

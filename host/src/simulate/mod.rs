@@ -48,6 +48,15 @@ pub struct Truth {
     pub noise_sigma: f64,
 }
 
+impl Truth {
+    /// s_u, s_v, s_w, φ_uv, φ_vw, φ_wu, O_u, O_v, O_w: the order of
+    /// `IntrinsicJson::quantities`.
+    pub fn properties(&self) -> [f64; 9] {
+        let [s, a, o] = [self.sensitivity, self.angles_deg, self.offsets];
+        [s[0], s[1], s[2], a[0], a[1], a[2], o[0], o[1], o[2]]
+    }
+}
+
 /// Intrinsic sensitivities and angles (degrees) of a sensitivity matrix.
 pub fn intrinsic_of(s: &[[f64; 3]; 3]) -> ([f64; 3], [f64; 3]) {
     let dot = |a: &[f64; 3], b: &[f64; 3]| a.iter().zip(b).map(|(x, y)| x * y).sum::<f64>();
