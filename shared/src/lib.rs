@@ -13,6 +13,7 @@ pub mod condition;
 pub mod dword;
 pub mod fit;
 pub mod intrinsic;
+pub mod packet;
 pub mod phase;
 pub mod real;
 #[cfg(feature = "selftest")]

@@ -1,0 +1,918 @@
+//! The BLE packet protocol between the device and the host (docs/protocol.md).
+//!
+//! Every packet is one GATT value: a 4-byte header (protocol version, kind, and two bytes
+//! that depend on the kind), then a fixed layout per kind, little-endian. Packets are
+//! self-contained, so a lost notification loses only its own samples, which the host
+//! fetches again from the device's ring buffer by sequence number.
+//!
+//! [`Packet::decode`] accepts exactly the bytes [`Packet::encode`] writes and refuses
+//! everything else with a [`DecodeError`]; it never panics, on any input (property tests
+//! in `shared/tests/packet.rs`, and the fuzz target in `fuzz/`).
+
+use crate::Condition;
+
+/// The protocol version this code speaks. A decoder refuses other versions.
+pub const VERSION: u8 = 1;
+
+/// Samples per [`SampleBatch`]: 16 + 11·20 = 236 bytes, inside one notification at the
+/// ATT MTU of 247 the device asks for (244 bytes of value).
+pub const MAX_SAMPLES: usize = 20;
+
+/// Largest packet, bytes.
+pub const MAX_PACKET: usize = 16 + 11 * MAX_SAMPLES;
+
+/// One accelerometer sample as the device sends it.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Sample {
+    /// Ticks from the batch's `t0` to this sample's data-ready edge.
+    pub dt: u32,
+    /// Raw counts u, v, w.
+    pub counts: [i16; 3],
+    /// [`SampleFlags`] bits.
+    pub flags: u8,
+}
+
+/// Bits of [`Sample::flags`].
+pub struct SampleFlags;
+
+impl SampleFlags {
+    /// A channel read the rail (i16::MIN or i16::MAX): the sample is clipped.
+    pub const CLIPPED: u8 = 1 << 0;
+    /// The data-ready edge was not captured for this sample (the timestamp is the
+    /// read time and may be up to one sensor period late: method.md §7).
+    pub const LATE_TIMESTAMP: u8 = 1 << 1;
+    /// Every defined bit.
+    pub const ALL: u8 = Self::CLIPPED | Self::LATE_TIMESTAMP;
+}
+
+/// Consecutive samples: sample i has sequence number `first_seq + i` and timestamp
+/// `t0 + samples[i].dt` ticks of the device clock ([`DeviceInfo::tick_hz`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct SampleBatch {
+    /// The condition the device was running when it took them.
+    pub condition: Condition,
+    /// Sent again from the ring buffer on request (not live).
+    pub replay: bool,
+    /// Sequence number of the first sample.
+    pub first_seq: u32,
+    /// Timestamp of the batch's reference, device ticks (64-bit, extended).
+    pub t0: u64,
+    len: u8,
+    samples: [Sample; MAX_SAMPLES],
+}
+
+impl SampleBatch {
+    /// An empty batch.
+    pub const fn new(condition: Condition, replay: bool, first_seq: u32, t0: u64) -> Self {
+        SampleBatch {
+            condition,
+            replay,
+            first_seq,
+            t0,
+            len: 0,
+            samples: [Sample {
+                dt: 0,
+                counts: [0; 3],
+                flags: 0,
+            }; MAX_SAMPLES],
+        }
+    }
+
+    /// The samples.
+    pub fn samples(&self) -> &[Sample] {
+        self.samples.get(..usize::from(self.len)).unwrap_or(&[])
+    }
+
+    /// Number of samples.
+    pub fn len(&self) -> usize {
+        usize::from(self.len)
+    }
+
+    /// True if there are none.
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+
+    /// True if no more fit.
+    pub fn is_full(&self) -> bool {
+        usize::from(self.len) >= MAX_SAMPLES
+    }
+
+    /// Append a sample taken at absolute tick `t`; refused when the batch is full or `t`
+    /// is before `t0` or more than u32::MAX ticks after it (then start a new batch).
+    pub fn push(&mut self, t: u64, counts: [i16; 3], flags: u8) -> Result<(), BatchRefused> {
+        let dt = t.checked_sub(self.t0).ok_or(BatchRefused::TimeOutOfRange)?;
+        let dt = u32::try_from(dt).map_err(|_| BatchRefused::TimeOutOfRange)?;
+        let slot = self
+            .samples
+            .get_mut(usize::from(self.len))
+            .ok_or(BatchRefused::Full)?;
+        *slot = Sample { dt, counts, flags };
+        self.len += 1;
+        Ok(())
+    }
+
+    /// Sequence number and absolute tick of each sample.
+    pub fn iter(&self) -> impl Iterator<Item = (u32, u64, &Sample)> + '_ {
+        self.samples().iter().zip(0u32..).map(move |(s, i)| {
+            (
+                self.first_seq.wrapping_add(i),
+                self.t0.wrapping_add(u64::from(s.dt)),
+                s,
+            )
+        })
+    }
+}
+
+/// Why [`SampleBatch::push`] refused a sample.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum BatchRefused {
+    /// It holds [`MAX_SAMPLES`] already.
+    Full,
+    /// Before the batch's `t0`, or more than u32::MAX ticks after it.
+    TimeOutOfRange,
+}
+
+/// A temperature reading from the sensor, sent at a lower rate than the samples.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Temperature {
+    /// Sequence number of the sample it was read with.
+    pub seq: u32,
+    /// Hundredths of a degree Celsius.
+    pub centi_c: i16,
+}
+
+/// What the device's streaming f32 fit found for one condition, with what the host needs
+/// to re-fit exactly the same samples: the window (first and last seq) and the rotation
+/// step per tick (the regressors are sin/cos of `step·t mod 2⁶⁴`, method.md §6).
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct FitReport {
+    /// The condition.
+    pub condition: Condition,
+    /// Sent at stop (the condition's final result) rather than periodically.
+    pub is_final: bool,
+    /// Samples fitted.
+    pub n: u32,
+    /// Sequence numbers of the first and last sample fitted (those between that reached
+    /// the fit; samples lost on the sensor side are absent from both).
+    pub first_seq: u32,
+    /// See `first_seq`.
+    pub last_seq: u32,
+    /// Nominal rotation rate, µHz.
+    pub rate_uhz: u32,
+    /// Rotation per tick as a fraction of a turn, 2⁻⁶⁴ units ([`crate::PhaseStep`]).
+    pub step: u64,
+    /// A, B, C per channel u, v, w, counts.
+    pub coef: [[f32; 3]; 3],
+    /// Standard errors of A, B, C per channel, counts.
+    pub se: [[f32; 3]; 3],
+    /// Residual RMS per channel, counts.
+    pub rms: [f32; 3],
+}
+
+/// The quick-look calibration after x, y and z: intrinsic properties from the exact Gram
+/// form (method.md §2) in f32.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct QuickLook {
+    /// s_u, s_v, s_w, counts per m/s².
+    pub sensitivity: [f32; 3],
+    /// Their standard uncertainties.
+    pub sensitivity_u: [f32; 3],
+    /// φ_uv, φ_vw, φ_wu, degrees.
+    pub angle_deg: [f32; 3],
+    /// Their standard uncertainties.
+    pub angle_u: [f32; 3],
+    /// The g_loc used, m/s².
+    pub g_loc: f32,
+}
+
+/// Which accelerometer the device found.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Chip {
+    /// None answered.
+    None,
+    /// LSM6DS33 (WHO_AM_I 0x69).
+    Lsm6ds33,
+    /// LSM6DS3TR-C (WHO_AM_I 0x6A).
+    Lsm6ds3trc,
+}
+
+/// What stamps the samples.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum ClockSource {
+    /// A TIMER on the 64 MHz crystal (HFXO), data-ready edge captured by GPIOTE → PPI.
+    TimerHfxo,
+    /// The RTC on the low-frequency RC oscillator (±500 ppm).
+    RtcLfrc,
+}
+
+/// Static facts about the device (the device-info value).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct DeviceInfo {
+    /// Firmware version major, minor, patch.
+    pub firmware: [u8; 3],
+    /// The accelerometer fitted.
+    pub chip: Chip,
+    /// The timestamp clock.
+    pub clock: ClockSource,
+    /// Timestamp ticks per second.
+    pub tick_hz: u32,
+    /// The sensor's own output data rate, mHz.
+    pub sensor_odr_mhz: u32,
+    /// The rate samples are sent at, mHz.
+    pub sample_rate_mhz: u32,
+    /// Full scale, ±g.
+    pub full_scale_g: u8,
+    /// Samples the ring buffer holds.
+    pub ring_capacity: u16,
+}
+
+/// The device's state machine.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum RunState {
+    /// Not sampling.
+    Idle,
+    /// Sampling and fitting a condition.
+    Running,
+    /// x, y and z done; the quick-look is published.
+    Complete,
+}
+
+/// The sensor's health.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum SensorStatus {
+    /// Answering, data-ready edges arriving.
+    Ok,
+    /// No chip answered at 0x6A or 0x6B (SA0 high or low).
+    Absent,
+    /// A chip answered with an unknown WHO_AM_I.
+    UnknownChip,
+    /// I²C transfers fail.
+    BusError,
+    /// No data-ready edge for longer than two sensor periods.
+    NoDataReady,
+}
+
+/// The device's status, notified on change.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Status {
+    /// Run state.
+    pub state: RunState,
+    /// Sensor health.
+    pub sensor: SensorStatus,
+    /// Active (or last) condition, if any.
+    pub condition: Option<Condition>,
+    /// Samples lost on the device (sensor overruns, full queues) since start.
+    pub lost: u32,
+    /// Oldest and newest sequence numbers in the ring buffer (equal when empty).
+    pub ring_oldest: u32,
+    /// See `ring_oldest`.
+    pub ring_newest: u32,
+    /// The last command refused, if any.
+    pub last_error: Option<CommandError>,
+}
+
+/// Commands written to the control characteristic.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Command {
+    /// Start sampling and fitting `condition` at the nominal rotation rate.
+    Start {
+        /// The platter axis.
+        condition: Condition,
+        /// Nominal rotation rate, µHz (non-zero).
+        rate_uhz: u32,
+    },
+    /// Stop: publish the condition's final fit.
+    Stop,
+    /// Change the sample rate (only while idle), mHz.
+    SetSampleRate {
+        /// mHz, non-zero.
+        mhz: u32,
+    },
+    /// Forget the fits of every condition and the quick-look.
+    Reset,
+    /// Send again the samples from `from_seq` on, at most `count`, from the ring buffer.
+    Backfill {
+        /// First sequence number wanted.
+        from_seq: u32,
+        /// How many.
+        count: u16,
+    },
+}
+
+/// Why the device refused a command ([`Status::last_error`]; the discriminant is its code
+/// on the wire).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum CommandError {
+    /// Start while running, or a sample-rate change while running.
+    Busy = 1,
+    /// Stop while idle.
+    NotRunning = 2,
+    /// The rate is unusable (zero, or the phase step overflows).
+    BadRate = 3,
+    /// The sensor is absent or failing.
+    SensorFault = 4,
+    /// The wanted samples have left the ring buffer.
+    NotInRing = 5,
+}
+
+/// Everything that travels between device and host.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Packet {
+    /// Stream characteristic.
+    Samples(SampleBatch),
+    /// Stream characteristic.
+    Temperature(Temperature),
+    /// Fit-results characteristic.
+    Fit(FitReport),
+    /// Fit-results characteristic.
+    QuickLook(QuickLook),
+    /// Device-info characteristic.
+    Info(DeviceInfo),
+    /// Status (on the fit-results characteristic, and readable).
+    Status(Status),
+    /// Control characteristic (host → device).
+    Command(Command),
+}
+
+/// Why bytes are not a packet. Offsets count from the packet's first byte.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum DecodeError {
+    /// Shorter than its kind's layout.
+    TooShort {
+        /// Bytes the layout needs.
+        need: usize,
+        /// Bytes given.
+        got: usize,
+    },
+    /// Longer than its kind's layout.
+    TooLong {
+        /// Bytes the layout has.
+        want: usize,
+        /// Bytes given.
+        got: usize,
+    },
+    /// A protocol version this decoder does not speak.
+    Version(u8),
+    /// An unknown packet kind.
+    Kind(u8),
+    /// A field holds a value outside its range.
+    Field {
+        /// Byte offset of the field.
+        offset: usize,
+        /// The field's name.
+        name: &'static str,
+    },
+}
+
+impl core::fmt::Display for DecodeError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            DecodeError::TooShort { need, got } => {
+                write!(f, "packet too short: {got} bytes, its kind needs {need}")
+            }
+            DecodeError::TooLong { want, got } => {
+                write!(f, "packet too long: {got} bytes, its kind has {want}")
+            }
+            DecodeError::Version(v) => {
+                write!(f, "protocol version {v}, this decoder speaks {VERSION}")
+            }
+            DecodeError::Kind(k) => write!(f, "unknown packet kind 0x{k:02x}"),
+            DecodeError::Field { offset, name } => {
+                write!(f, "byte {offset}: {name} out of range")
+            }
+        }
+    }
+}
+
+/// The output buffer is too small.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct BufferTooSmall {
+    /// Bytes the packet needs.
+    pub need: usize,
+}
+
+mod kind {
+    pub const SAMPLES: u8 = 0x01;
+    pub const TEMPERATURE: u8 = 0x02;
+    pub const FIT: u8 = 0x03;
+    pub const QUICK_LOOK: u8 = 0x04;
+    pub const INFO: u8 = 0x05;
+    pub const STATUS: u8 = 0x06;
+    pub const START: u8 = 0x10;
+    pub const STOP: u8 = 0x11;
+    pub const SET_SAMPLE_RATE: u8 = 0x12;
+    pub const RESET: u8 = 0x13;
+    pub const BACKFILL: u8 = 0x14;
+}
+
+fn cond_code(c: Condition) -> u8 {
+    c.index() as u8 + 1
+}
+
+fn cond_from(code: u8) -> Option<Condition> {
+    match code {
+        1 => Some(Condition::X),
+        2 => Some(Condition::Y),
+        3 => Some(Condition::Z),
+        _ => None,
+    }
+}
+
+/// Little-endian writer over a slice; it has been sized before it is used.
+struct Out<'a> {
+    buf: &'a mut [u8],
+    at: usize,
+}
+
+impl Out<'_> {
+    fn bytes(&mut self, b: &[u8]) {
+        if let Some(dst) = self.buf.get_mut(self.at..self.at + b.len()) {
+            dst.copy_from_slice(b);
+        }
+        self.at += b.len();
+    }
+    fn u8(&mut self, v: u8) {
+        self.bytes(&[v]);
+    }
+    fn u16(&mut self, v: u16) {
+        self.bytes(&v.to_le_bytes());
+    }
+    fn i16(&mut self, v: i16) {
+        self.bytes(&v.to_le_bytes());
+    }
+    fn u32(&mut self, v: u32) {
+        self.bytes(&v.to_le_bytes());
+    }
+    fn u64(&mut self, v: u64) {
+        self.bytes(&v.to_le_bytes());
+    }
+    fn f32(&mut self, v: f32) {
+        self.bytes(&v.to_le_bytes());
+    }
+    fn f32s(&mut self, v: &[f32]) {
+        for x in v {
+            self.f32(*x);
+        }
+    }
+}
+
+/// Little-endian reader; the length has been checked against the layout first, and a
+/// short read yields zeros rather than a panic (it cannot happen after that check).
+struct In<'a> {
+    buf: &'a [u8],
+    at: usize,
+}
+
+impl In<'_> {
+    fn take<const N: usize>(&mut self) -> [u8; N] {
+        let mut out = [0u8; N];
+        if let Some(src) = self.buf.get(self.at..self.at + N) {
+            out.copy_from_slice(src);
+        }
+        self.at += N;
+        out
+    }
+    fn u8(&mut self) -> u8 {
+        self.take::<1>()[0]
+    }
+    fn u16(&mut self) -> u16 {
+        u16::from_le_bytes(self.take())
+    }
+    fn i16(&mut self) -> i16 {
+        i16::from_le_bytes(self.take())
+    }
+    fn u32(&mut self) -> u32 {
+        u32::from_le_bytes(self.take())
+    }
+    fn u64(&mut self) -> u64 {
+        u64::from_le_bytes(self.take())
+    }
+    fn f32(&mut self) -> f32 {
+        f32::from_le_bytes(self.take())
+    }
+    fn f32x3(&mut self) -> [f32; 3] {
+        [self.f32(), self.f32(), self.f32()]
+    }
+    fn field(&self, name: &'static str) -> DecodeError {
+        DecodeError::Field {
+            offset: self.at.saturating_sub(1),
+            name,
+        }
+    }
+}
+
+/// Bytes of each fixed layout (header included).
+mod size {
+    pub const HEADER: usize = 4;
+    pub const SAMPLES_HEAD: usize = 16;
+    pub const SAMPLE: usize = 11;
+    pub const TEMPERATURE: usize = HEADER + 4 + 2;
+    pub const FIT: usize = HEADER + 4 + 4 + 4 + 4 + 8 + 4 * 21;
+    pub const QUICK_LOOK: usize = HEADER + 4 * 13;
+    pub const INFO: usize = HEADER + 3 + 1 + 1 + 4 + 4 + 4 + 1 + 2;
+    pub const STATUS: usize = HEADER + 1 + 4 + 4 + 4;
+    pub const START: usize = HEADER + 4;
+    pub const STOP: usize = HEADER;
+    pub const SET_SAMPLE_RATE: usize = HEADER + 4;
+    pub const RESET: usize = HEADER;
+    pub const BACKFILL: usize = HEADER + 4 + 2;
+}
+
+impl Packet {
+    /// Bytes [`Packet::encode`] writes.
+    pub fn encoded_len(&self) -> usize {
+        match self {
+            Packet::Samples(b) => size::SAMPLES_HEAD + size::SAMPLE * b.len(),
+            Packet::Temperature(_) => size::TEMPERATURE,
+            Packet::Fit(_) => size::FIT,
+            Packet::QuickLook(_) => size::QUICK_LOOK,
+            Packet::Info(_) => size::INFO,
+            Packet::Status(_) => size::STATUS,
+            Packet::Command(c) => match c {
+                Command::Start { .. } => size::START,
+                Command::Stop => size::STOP,
+                Command::SetSampleRate { .. } => size::SET_SAMPLE_RATE,
+                Command::Reset => size::RESET,
+                Command::Backfill { .. } => size::BACKFILL,
+            },
+        }
+    }
+
+    /// Write the packet to the front of `buf`; returns the bytes written.
+    pub fn encode(&self, buf: &mut [u8]) -> Result<usize, BufferTooSmall> {
+        let need = self.encoded_len();
+        let buf = buf.get_mut(..need).ok_or(BufferTooSmall { need })?;
+        let mut o = Out { buf, at: 0 };
+        o.u8(VERSION);
+        match self {
+            Packet::Samples(b) => {
+                o.u8(kind::SAMPLES);
+                o.u8(b.len);
+                o.u8(cond_code(b.condition) | if b.replay { 0x80 } else { 0 });
+                o.u32(b.first_seq);
+                o.u64(b.t0);
+                for s in b.samples() {
+                    o.u32(s.dt);
+                    for c in s.counts {
+                        o.i16(c);
+                    }
+                    o.u8(s.flags);
+                }
+            }
+            Packet::Temperature(t) => {
+                o.bytes(&[kind::TEMPERATURE, 0, 0]);
+                o.u32(t.seq);
+                o.i16(t.centi_c);
+            }
+            Packet::Fit(f) => {
+                o.bytes(&[kind::FIT, cond_code(f.condition), u8::from(f.is_final)]);
+                o.u32(f.n);
+                o.u32(f.first_seq);
+                o.u32(f.last_seq);
+                o.u32(f.rate_uhz);
+                o.u64(f.step);
+                for ch in 0..3 {
+                    if let (Some(c), Some(s)) = (f.coef.get(ch), f.se.get(ch)) {
+                        o.f32s(c);
+                        o.f32s(s);
+                    }
+                }
+                o.f32s(&f.rms);
+            }
+            Packet::QuickLook(q) => {
+                o.bytes(&[kind::QUICK_LOOK, 0, 0]);
+                o.f32s(&q.sensitivity);
+                o.f32s(&q.sensitivity_u);
+                o.f32s(&q.angle_deg);
+                o.f32s(&q.angle_u);
+                o.f32(q.g_loc);
+            }
+            Packet::Info(i) => {
+                o.bytes(&[kind::INFO, 0, 0]);
+                o.bytes(&i.firmware);
+                o.u8(match i.chip {
+                    Chip::None => 0,
+                    Chip::Lsm6ds33 => 1,
+                    Chip::Lsm6ds3trc => 2,
+                });
+                o.u8(match i.clock {
+                    ClockSource::TimerHfxo => 0,
+                    ClockSource::RtcLfrc => 1,
+                });
+                o.u32(i.tick_hz);
+                o.u32(i.sensor_odr_mhz);
+                o.u32(i.sample_rate_mhz);
+                o.u8(i.full_scale_g);
+                o.u16(i.ring_capacity);
+            }
+            Packet::Status(s) => {
+                o.u8(kind::STATUS);
+                o.u8(match s.state {
+                    RunState::Idle => 0,
+                    RunState::Running => 1,
+                    RunState::Complete => 2,
+                });
+                o.u8(match s.sensor {
+                    SensorStatus::Ok => 0,
+                    SensorStatus::Absent => 1,
+                    SensorStatus::UnknownChip => 2,
+                    SensorStatus::BusError => 3,
+                    SensorStatus::NoDataReady => 4,
+                });
+                o.u8(s.condition.map_or(0, cond_code) | (s.last_error.map_or(0, |e| e as u8) << 4));
+                o.u32(s.lost);
+                o.u32(s.ring_oldest);
+                o.u32(s.ring_newest);
+            }
+            Packet::Command(c) => match c {
+                Command::Start {
+                    condition,
+                    rate_uhz,
+                } => {
+                    o.bytes(&[kind::START, cond_code(*condition), 0]);
+                    o.u32(*rate_uhz);
+                }
+                Command::Stop => o.bytes(&[kind::STOP, 0, 0]),
+                Command::SetSampleRate { mhz } => {
+                    o.bytes(&[kind::SET_SAMPLE_RATE, 0, 0]);
+                    o.u32(*mhz);
+                }
+                Command::Reset => o.bytes(&[kind::RESET, 0, 0]),
+                Command::Backfill { from_seq, count } => {
+                    o.bytes(&[kind::BACKFILL, 0, 0]);
+                    o.u32(*from_seq);
+                    o.u16(*count);
+                }
+            },
+        }
+        Ok(need)
+    }
+
+    /// Read one packet: exactly the bytes of one GATT value.
+    pub fn decode(bytes: &[u8]) -> Result<Packet, DecodeError> {
+        let got = bytes.len();
+        let [version, k, b2, b3] = match bytes.first_chunk::<4>() {
+            Some(h) => *h,
+            None => {
+                return Err(DecodeError::TooShort {
+                    need: size::HEADER,
+                    got,
+                })
+            }
+        };
+        if version != VERSION {
+            return Err(DecodeError::Version(version));
+        }
+        let want = match k {
+            kind::SAMPLES => size::SAMPLES_HEAD + size::SAMPLE * usize::from(b2),
+            kind::TEMPERATURE => size::TEMPERATURE,
+            kind::FIT => size::FIT,
+            kind::QUICK_LOOK => size::QUICK_LOOK,
+            kind::INFO => size::INFO,
+            kind::STATUS => size::STATUS,
+            kind::START => size::START,
+            kind::STOP => size::STOP,
+            kind::SET_SAMPLE_RATE => size::SET_SAMPLE_RATE,
+            kind::RESET => size::RESET,
+            kind::BACKFILL => size::BACKFILL,
+            other => return Err(DecodeError::Kind(other)),
+        };
+        if got < want {
+            return Err(DecodeError::TooShort { need: want, got });
+        }
+        if got > want {
+            return Err(DecodeError::TooLong { want, got });
+        }
+        let zero = |offset: usize, v: u8, name| {
+            if v == 0 {
+                Ok(())
+            } else {
+                Err(DecodeError::Field { offset, name })
+            }
+        };
+        let cond = |offset: usize, v: u8| {
+            cond_from(v).ok_or(DecodeError::Field {
+                offset,
+                name: "condition",
+            })
+        };
+        let mut i = In { buf: bytes, at: 4 };
+        let packet = match k {
+            kind::SAMPLES => {
+                if b2 == 0 || usize::from(b2) > MAX_SAMPLES {
+                    return Err(DecodeError::Field {
+                        offset: 2,
+                        name: "sample count",
+                    });
+                }
+                zero(3, b3 & 0x7C, "batch flags")?;
+                let condition = cond(3, b3 & 0x03)?;
+                let mut b = SampleBatch::new(condition, b3 & 0x80 != 0, i.u32(), i.u64());
+                for slot in b.samples.iter_mut().take(usize::from(b2)) {
+                    let dt = i.u32();
+                    let counts = [i.i16(), i.i16(), i.i16()];
+                    let flags = i.u8();
+                    if flags & !SampleFlags::ALL != 0 {
+                        return Err(i.field("sample flags"));
+                    }
+                    *slot = Sample { dt, counts, flags };
+                }
+                b.len = b2;
+                Packet::Samples(b)
+            }
+            kind::TEMPERATURE => {
+                zero(2, b2, "reserved")?;
+                zero(3, b3, "reserved")?;
+                Packet::Temperature(Temperature {
+                    seq: i.u32(),
+                    centi_c: i.i16(),
+                })
+            }
+            kind::FIT => {
+                let condition = cond(2, b2)?;
+                if b3 > 1 {
+                    return Err(DecodeError::Field {
+                        offset: 3,
+                        name: "final flag",
+                    });
+                }
+                let (n, first_seq, last_seq, rate_uhz, step) =
+                    (i.u32(), i.u32(), i.u32(), i.u32(), i.u64());
+                let mut coef = [[0.0f32; 3]; 3];
+                let mut se = [[0.0f32; 3]; 3];
+                for (c, s) in coef.iter_mut().zip(se.iter_mut()) {
+                    *c = i.f32x3();
+                    *s = i.f32x3();
+                }
+                Packet::Fit(FitReport {
+                    condition,
+                    is_final: b3 == 1,
+                    n,
+                    first_seq,
+                    last_seq,
+                    rate_uhz,
+                    step,
+                    coef,
+                    se,
+                    rms: i.f32x3(),
+                })
+            }
+            kind::QUICK_LOOK => {
+                zero(2, b2, "reserved")?;
+                zero(3, b3, "reserved")?;
+                Packet::QuickLook(QuickLook {
+                    sensitivity: i.f32x3(),
+                    sensitivity_u: i.f32x3(),
+                    angle_deg: i.f32x3(),
+                    angle_u: i.f32x3(),
+                    g_loc: i.f32(),
+                })
+            }
+            kind::INFO => {
+                zero(2, b2, "reserved")?;
+                zero(3, b3, "reserved")?;
+                let firmware = [i.u8(), i.u8(), i.u8()];
+                let chip = match i.u8() {
+                    0 => Chip::None,
+                    1 => Chip::Lsm6ds33,
+                    2 => Chip::Lsm6ds3trc,
+                    _ => return Err(i.field("chip")),
+                };
+                let clock = match i.u8() {
+                    0 => ClockSource::TimerHfxo,
+                    1 => ClockSource::RtcLfrc,
+                    _ => return Err(i.field("clock source")),
+                };
+                Packet::Info(DeviceInfo {
+                    firmware,
+                    chip,
+                    clock,
+                    tick_hz: i.u32(),
+                    sensor_odr_mhz: i.u32(),
+                    sample_rate_mhz: i.u32(),
+                    full_scale_g: i.u8(),
+                    ring_capacity: i.u16(),
+                })
+            }
+            kind::STATUS => {
+                let state = match b2 {
+                    0 => RunState::Idle,
+                    1 => RunState::Running,
+                    2 => RunState::Complete,
+                    _ => {
+                        return Err(DecodeError::Field {
+                            offset: 2,
+                            name: "run state",
+                        })
+                    }
+                };
+                let sensor = match b3 {
+                    0 => SensorStatus::Ok,
+                    1 => SensorStatus::Absent,
+                    2 => SensorStatus::UnknownChip,
+                    3 => SensorStatus::BusError,
+                    4 => SensorStatus::NoDataReady,
+                    _ => {
+                        return Err(DecodeError::Field {
+                            offset: 3,
+                            name: "sensor status",
+                        })
+                    }
+                };
+                // Byte 4: condition code in the low nibble, error code in the high one.
+                let ce = i.u8();
+                let condition = match ce & 0x0F {
+                    0 => None,
+                    c => Some(cond(4, c)?),
+                };
+                let last_error = match ce >> 4 {
+                    0 => None,
+                    1 => Some(CommandError::Busy),
+                    2 => Some(CommandError::NotRunning),
+                    3 => Some(CommandError::BadRate),
+                    4 => Some(CommandError::SensorFault),
+                    5 => Some(CommandError::NotInRing),
+                    _ => {
+                        return Err(DecodeError::Field {
+                            offset: 4,
+                            name: "error code",
+                        })
+                    }
+                };
+                Packet::Status(Status {
+                    state,
+                    sensor,
+                    condition,
+                    lost: i.u32(),
+                    ring_oldest: i.u32(),
+                    ring_newest: i.u32(),
+                    last_error,
+                })
+            }
+            kind::START => {
+                let condition = cond(2, b2)?;
+                zero(3, b3, "reserved")?;
+                let rate_uhz = i.u32();
+                if rate_uhz == 0 {
+                    return Err(DecodeError::Field {
+                        offset: 4,
+                        name: "rate",
+                    });
+                }
+                Packet::Command(Command::Start {
+                    condition,
+                    rate_uhz,
+                })
+            }
+            kind::SET_SAMPLE_RATE => {
+                zero(2, b2, "reserved")?;
+                zero(3, b3, "reserved")?;
+                let mhz = i.u32();
+                if mhz == 0 {
+                    return Err(DecodeError::Field {
+                        offset: 4,
+                        name: "sample rate",
+                    });
+                }
+                Packet::Command(Command::SetSampleRate { mhz })
+            }
+            kind::STOP | kind::RESET => {
+                zero(2, b2, "reserved")?;
+                zero(3, b3, "reserved")?;
+                Packet::Command(if k == kind::STOP {
+                    Command::Stop
+                } else {
+                    Command::Reset
+                })
+            }
+            _ => {
+                // kind::BACKFILL (every other kind returned above).
+                zero(2, b2, "reserved")?;
+                zero(3, b3, "reserved")?;
+                Packet::Command(Command::Backfill {
+                    from_seq: i.u32(),
+                    count: i.u16(),
+                })
+            }
+        };
+        Ok(packet)
+    }
+}

@@ -1,0 +1,275 @@
+//! The packet protocol: every packet survives encode → decode unchanged, and the decoder
+//! never panics on arbitrary bytes; whatever it accepts re-encodes to the same bytes (one
+//! encoding per packet), so nothing is silently dropped or altered.
+
+// A test reports failure by panicking; the crate itself (src/) allows none of these.
+#![allow(clippy::unwrap_used, clippy::indexing_slicing)]
+
+use proptest::prelude::*;
+use rotacal_shared::packet::*;
+use rotacal_shared::Condition;
+
+fn condition() -> impl Strategy<Value = Condition> {
+    prop_oneof![Just(Condition::X), Just(Condition::Y), Just(Condition::Z)]
+}
+
+fn f32x3() -> impl Strategy<Value = [f32; 3]> {
+    // Any bit pattern, NaNs included: compared through their encodings below.
+    prop::array::uniform3(any::<u32>().prop_map(f32::from_bits))
+}
+
+fn batch() -> impl Strategy<Value = SampleBatch> {
+    (
+        condition(),
+        any::<bool>(),
+        any::<u32>(),
+        any::<u64>(),
+        prop::collection::vec(
+            (
+                any::<u32>(),
+                prop::array::uniform3(any::<i16>()),
+                0..=SampleFlags::ALL,
+            ),
+            1..=MAX_SAMPLES,
+        ),
+    )
+        .prop_map(|(c, replay, seq, t0, samples)| {
+            let mut b = SampleBatch::new(c, replay, seq, t0);
+            for (dt, counts, flags) in samples {
+                b.push(t0.wrapping_add(u64::from(dt)), counts, flags).ok();
+            }
+            b
+        })
+        .prop_filter("at least one sample", |b| !b.is_empty())
+}
+
+fn command() -> impl Strategy<Value = Command> {
+    prop_oneof![
+        (condition(), 1..=u32::MAX).prop_map(|(condition, rate_uhz)| Command::Start {
+            condition,
+            rate_uhz
+        }),
+        Just(Command::Stop),
+        (1..=u32::MAX).prop_map(|mhz| Command::SetSampleRate { mhz }),
+        Just(Command::Reset),
+        (any::<u32>(), any::<u16>())
+            .prop_map(|(from_seq, count)| Command::Backfill { from_seq, count }),
+    ]
+}
+
+fn packet() -> impl Strategy<Value = Packet> {
+    prop_oneof![
+        batch().prop_map(Packet::Samples),
+        (any::<u32>(), any::<i16>())
+            .prop_map(|(seq, centi_c)| Packet::Temperature(Temperature { seq, centi_c })),
+        (
+            condition(),
+            any::<bool>(),
+            prop::array::uniform5(any::<u32>()),
+            any::<u64>(),
+            prop::array::uniform3(f32x3()),
+            prop::array::uniform3(f32x3()),
+            f32x3(),
+        )
+            .prop_map(|(condition, is_final, w, step, coef, se, rms)| {
+                Packet::Fit(FitReport {
+                    condition,
+                    is_final,
+                    n: w[0],
+                    first_seq: w[1],
+                    last_seq: w[2],
+                    rate_uhz: w[3],
+                    step,
+                    coef,
+                    se,
+                    rms,
+                })
+            }),
+        (f32x3(), f32x3(), f32x3(), f32x3(), any::<u32>()).prop_map(|(s, su, a, au, g)| {
+            Packet::QuickLook(QuickLook {
+                sensitivity: s,
+                sensitivity_u: su,
+                angle_deg: a,
+                angle_u: au,
+                g_loc: f32::from_bits(g),
+            })
+        }),
+        (
+            prop::array::uniform3(any::<u8>()),
+            prop_oneof![
+                Just(Chip::None),
+                Just(Chip::Lsm6ds33),
+                Just(Chip::Lsm6ds3trc)
+            ],
+            prop_oneof![Just(ClockSource::TimerHfxo), Just(ClockSource::RtcLfrc)],
+            prop::array::uniform3(any::<u32>()),
+            any::<u8>(),
+            any::<u16>(),
+        )
+            .prop_map(|(firmware, chip, clock, r, full_scale_g, ring_capacity)| {
+                Packet::Info(DeviceInfo {
+                    firmware,
+                    chip,
+                    clock,
+                    tick_hz: r[0],
+                    sensor_odr_mhz: r[1],
+                    sample_rate_mhz: r[2],
+                    full_scale_g,
+                    ring_capacity,
+                })
+            }),
+        (
+            prop_oneof![
+                Just(RunState::Idle),
+                Just(RunState::Running),
+                Just(RunState::Complete)
+            ],
+            prop_oneof![
+                Just(SensorStatus::Ok),
+                Just(SensorStatus::Absent),
+                Just(SensorStatus::UnknownChip),
+                Just(SensorStatus::BusError),
+                Just(SensorStatus::NoDataReady)
+            ],
+            prop::option::of(condition()),
+            prop::array::uniform3(any::<u32>()),
+            prop::option::of(prop_oneof![
+                Just(CommandError::Busy),
+                Just(CommandError::NotRunning),
+                Just(CommandError::BadRate),
+                Just(CommandError::SensorFault),
+                Just(CommandError::NotInRing)
+            ]),
+        )
+            .prop_map(|(state, sensor, condition, r, last_error)| {
+                Packet::Status(Status {
+                    state,
+                    sensor,
+                    condition,
+                    lost: r[0],
+                    ring_oldest: r[1],
+                    ring_newest: r[2],
+                    last_error,
+                })
+            }),
+        command().prop_map(Packet::Command),
+    ]
+}
+
+fn encode(p: &Packet) -> Vec<u8> {
+    let mut buf = [0u8; MAX_PACKET];
+    let n = p.encode(&mut buf).unwrap();
+    assert_eq!(n, p.encoded_len());
+    assert!(
+        n <= 244,
+        "every packet fits one notification at ATT MTU 247"
+    );
+    buf[..n].to_vec()
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(5000))]
+
+    #[test]
+    fn round_trip(p in packet()) {
+        let bytes = encode(&p);
+        let back = Packet::decode(&bytes).unwrap();
+        // Bytes compare NaNs exactly; PartialEq would not.
+        prop_assert_eq!(encode(&back), bytes);
+        prop_assert_eq!(format!("{back:?}"), format!("{p:?}"));
+    }
+
+    #[test]
+    fn arbitrary_bytes_never_panic(bytes in prop::collection::vec(any::<u8>(), 0..300)) {
+        if let Ok(p) = Packet::decode(&bytes) {
+            prop_assert_eq!(encode(&p), bytes);
+        }
+    }
+
+    /// Mostly-valid packets with one byte changed or the length cut: the decoder's
+    /// checks are exercised far more often than by uniform bytes.
+    #[test]
+    fn mutated_packets_never_panic(p in packet(), at in any::<prop::sample::Index>(), to in any::<u8>(), cut in any::<bool>()) {
+        let mut bytes = encode(&p);
+        let i = at.index(bytes.len());
+        if cut {
+            bytes.truncate(i);
+        } else {
+            bytes[i] = to;
+        }
+        if let Ok(q) = Packet::decode(&bytes) {
+            prop_assert_eq!(encode(&q), bytes);
+        }
+    }
+}
+
+#[test]
+fn errors_say_what_and_where() {
+    assert_eq!(
+        Packet::decode(&[]),
+        Err(DecodeError::TooShort { need: 4, got: 0 })
+    );
+    assert_eq!(Packet::decode(&[2, 1, 1, 1]), Err(DecodeError::Version(2)));
+    assert_eq!(
+        Packet::decode(&[1, 0x7f, 0, 0]),
+        Err(DecodeError::Kind(0x7f))
+    );
+    let start = encode(&Packet::Command(Command::Start {
+        condition: Condition::Y,
+        rate_uhz: 10_000,
+    }));
+    assert_eq!(start, [1, 0x10, 2, 0, 0x10, 0x27, 0, 0]);
+    let mut bad = start.clone();
+    bad[2] = 4;
+    assert_eq!(
+        Packet::decode(&bad),
+        Err(DecodeError::Field {
+            offset: 2,
+            name: "condition"
+        })
+    );
+    let mut long = start.clone();
+    long.push(0);
+    assert_eq!(
+        Packet::decode(&long),
+        Err(DecodeError::TooLong { want: 8, got: 9 })
+    );
+    assert_eq!(
+        Packet::decode(&start[..6]),
+        Err(DecodeError::TooShort { need: 8, got: 6 })
+    );
+    let msg = format!(
+        "{}",
+        DecodeError::Field {
+            offset: 2,
+            name: "condition"
+        }
+    );
+    assert_eq!(msg, "byte 2: condition out of range");
+}
+
+#[test]
+fn a_full_batch_has_the_documented_layout() {
+    let mut b = SampleBatch::new(Condition::Z, true, 7, 1_000_000);
+    for i in 0..MAX_SAMPLES as u64 {
+        b.push(1_000_000 + 62_500 * i, [1, -2, 3], 0).unwrap();
+    }
+    assert!(b.is_full());
+    assert!(b.push(2_000_000, [0; 3], 0).is_err());
+    let bytes = encode(&Packet::Samples(b));
+    assert_eq!(bytes.len(), 16 + 11 * MAX_SAMPLES);
+    assert_eq!(&bytes[..4], &[1, 0x01, MAX_SAMPLES as u8, 0x83]);
+    assert_eq!(&bytes[4..8], &7u32.to_le_bytes());
+    assert_eq!(&bytes[8..16], &1_000_000u64.to_le_bytes());
+    // Second sample: dt 62 500, counts 1, −2, 3, flags 0.
+    assert_eq!(
+        &bytes[27..38],
+        &[0x24, 0xF4, 0, 0, 1, 0, 0xFE, 0xFF, 3, 0, 0]
+    );
+    let seqs: Vec<(u32, u64)> = b.iter().map(|(s, t, _)| (s, t)).take(2).collect();
+    assert_eq!(seqs, [(7, 1_000_000), (8, 1_062_500)]);
+    // Before t0, or beyond u32 ticks after it, is refused.
+    let mut c = SampleBatch::new(Condition::X, false, 0, 10);
+    assert!(c.push(9, [0; 3], 0).is_err());
+    assert!(c.push(10 + (1u64 << 32), [0; 3], 0).is_err());
+}
