@@ -8,26 +8,11 @@
 use crate::batch::{self, BatchError};
 use nalgebra::{DMatrix, DVector};
 use rotacal_shared::intrinsic::{self, ConditionFit, Estimate, Intrinsic, IntrinsicError};
-use rotacal_shared::{Condition, FitResult, Param};
+use rotacal_shared::{Condition, FitResult};
 
 /// The (A, B) coefficients and their covariance per channel of one condition's fit.
 pub fn condition_fit(fit: &FitResult<f64>) -> ConditionFit {
-    let mut out = ConditionFit {
-        a: [0.0; 3],
-        b: [0.0; 3],
-        cov: [[[0.0; 2]; 2]; 3],
-    };
-    for ch in 0..3 {
-        let get = |p| fit.coef(ch, p).map(|v| v.to_f64()).unwrap_or(f64::NAN);
-        let cov = |p, q| fit.covariance(ch, p, q).unwrap_or(f64::NAN);
-        out.a[ch] = get(Param::A);
-        out.b[ch] = get(Param::B);
-        out.cov[ch] = [
-            [cov(Param::A, Param::A), cov(Param::A, Param::B)],
-            [cov(Param::B, Param::A), cov(Param::B, Param::B)],
-        ];
-    }
-    out
+    ConditionFit::from_fit(fit)
 }
 
 /// The rotation method's result for one rate.

@@ -26,6 +26,35 @@ pub struct ConditionFit {
     pub cov: [[[f64; 2]; 2]; 3],
 }
 
+impl ConditionFit {
+    /// From a condition's fit (any model: A and B are its sine and cosine terms).
+    pub fn from_fit<T: crate::Real, const CH: usize>(fit: &crate::FitResult<T, CH>) -> Self {
+        use crate::Param;
+        let mut out = ConditionFit {
+            a: [0.0; 3],
+            b: [0.0; 3],
+            cov: [[[0.0; 2]; 2]; 3],
+        };
+        for (ch, ((a, b), cov)) in out
+            .a
+            .iter_mut()
+            .zip(out.b.iter_mut())
+            .zip(out.cov.iter_mut())
+            .enumerate()
+        {
+            let get = |p| fit.coef(ch, p).map_or(f64::NAN, |v| v.to_f64());
+            let c = |p, q| fit.covariance(ch, p, q).map_or(f64::NAN, |v| v.to_f64());
+            *a = get(Param::A);
+            *b = get(Param::B);
+            *cov = [
+                [c(Param::A, Param::A), c(Param::A, Param::B)],
+                [c(Param::B, Param::A), c(Param::B, Param::B)],
+            ];
+        }
+        out
+    }
+}
+
 /// A value and its standard uncertainty.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Estimate {

@@ -10,6 +10,7 @@
 #![no_std]
 
 pub mod condition;
+pub mod device;
 pub mod dword;
 pub mod fit;
 pub mod intrinsic;

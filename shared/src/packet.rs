@@ -167,8 +167,9 @@ pub struct FitReport {
     pub rate_uhz: u32,
     /// Rotation per tick as a fraction of a turn, 2⁻⁶⁴ units ([`crate::PhaseStep`]).
     pub step: u64,
-    /// A, B, C per channel u, v, w, counts.
-    pub coef: [[f32; 3]; 3],
+    /// A, B, C per channel u, v, w, counts: the fit's double-word (hi + lo) result,
+    /// exact in f64, so that rounding to f32 costs no accuracy on the wire.
+    pub coef: [[f64; 3]; 3],
     /// Standard errors of A, B, C per channel, counts.
     pub se: [[f32; 3]; 3],
     /// Residual RMS per channel, counts.
@@ -181,15 +182,15 @@ pub struct FitReport {
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct QuickLook {
     /// s_u, s_v, s_w, counts per m/s².
-    pub sensitivity: [f32; 3],
+    pub sensitivity: [f64; 3],
     /// Their standard uncertainties.
     pub sensitivity_u: [f32; 3],
     /// φ_uv, φ_vw, φ_wu, degrees.
-    pub angle_deg: [f32; 3],
+    pub angle_deg: [f64; 3],
     /// Their standard uncertainties.
     pub angle_u: [f32; 3],
     /// The g_loc used, m/s².
-    pub g_loc: f32,
+    pub g_loc: f64,
 }
 
 /// Which accelerometer the device found.
@@ -328,6 +329,8 @@ pub enum CommandError {
     SensorFault = 4,
     /// The wanted samples have left the ring buffer.
     NotInRing = 5,
+    /// Stop found no fit result (too few samples or periods); nothing was recorded.
+    FitFailed = 6,
 }
 
 /// Everything that travels between device and host.
@@ -467,6 +470,11 @@ impl Out<'_> {
     fn f32(&mut self, v: f32) {
         self.bytes(&v.to_le_bytes());
     }
+    fn f64s(&mut self, v: &[f64]) {
+        for x in v {
+            self.bytes(&x.to_le_bytes());
+        }
+    }
     fn f32s(&mut self, v: &[f32]) {
         for x in v {
             self.f32(*x);
@@ -508,6 +516,12 @@ impl In<'_> {
     fn f32(&mut self) -> f32 {
         f32::from_le_bytes(self.take())
     }
+    fn f64(&mut self) -> f64 {
+        f64::from_le_bytes(self.take())
+    }
+    fn f64x3(&mut self) -> [f64; 3] {
+        [self.f64(), self.f64(), self.f64()]
+    }
     fn f32x3(&mut self) -> [f32; 3] {
         [self.f32(), self.f32(), self.f32()]
     }
@@ -525,8 +539,8 @@ mod size {
     pub const SAMPLES_HEAD: usize = 16;
     pub const SAMPLE: usize = 11;
     pub const TEMPERATURE: usize = HEADER + 4 + 2;
-    pub const FIT: usize = HEADER + 4 + 4 + 4 + 4 + 8 + 4 * 21;
-    pub const QUICK_LOOK: usize = HEADER + 4 * 13;
+    pub const FIT: usize = HEADER + 4 + 4 + 4 + 4 + 8 + 3 * (3 * 8 + 3 * 4) + 3 * 4;
+    pub const QUICK_LOOK: usize = HEADER + 3 * 8 + 3 * 4 + 3 * 8 + 3 * 4 + 8;
     pub const INFO: usize = HEADER + 3 + 1 + 1 + 4 + 4 + 4 + 1 + 2;
     pub const STATUS: usize = HEADER + 1 + 4 + 4 + 4;
     pub const START: usize = HEADER + 4;
@@ -591,7 +605,7 @@ impl Packet {
                 o.u64(f.step);
                 for ch in 0..3 {
                     if let (Some(c), Some(s)) = (f.coef.get(ch), f.se.get(ch)) {
-                        o.f32s(c);
+                        o.f64s(c);
                         o.f32s(s);
                     }
                 }
@@ -599,11 +613,11 @@ impl Packet {
             }
             Packet::QuickLook(q) => {
                 o.bytes(&[kind::QUICK_LOOK, 0, 0]);
-                o.f32s(&q.sensitivity);
+                o.f64s(&q.sensitivity);
                 o.f32s(&q.sensitivity_u);
-                o.f32s(&q.angle_deg);
+                o.f64s(&q.angle_deg);
                 o.f32s(&q.angle_u);
-                o.f32(q.g_loc);
+                o.f64s(&[q.g_loc]);
             }
             Packet::Info(i) => {
                 o.bytes(&[kind::INFO, 0, 0]);
@@ -756,10 +770,10 @@ impl Packet {
                 }
                 let (n, first_seq, last_seq, rate_uhz, step) =
                     (i.u32(), i.u32(), i.u32(), i.u32(), i.u64());
-                let mut coef = [[0.0f32; 3]; 3];
+                let mut coef = [[0.0f64; 3]; 3];
                 let mut se = [[0.0f32; 3]; 3];
                 for (c, s) in coef.iter_mut().zip(se.iter_mut()) {
-                    *c = i.f32x3();
+                    *c = i.f64x3();
                     *s = i.f32x3();
                 }
                 Packet::Fit(FitReport {
@@ -779,11 +793,11 @@ impl Packet {
                 zero(2, b2, "reserved")?;
                 zero(3, b3, "reserved")?;
                 Packet::QuickLook(QuickLook {
-                    sensitivity: i.f32x3(),
+                    sensitivity: i.f64x3(),
                     sensitivity_u: i.f32x3(),
-                    angle_deg: i.f32x3(),
+                    angle_deg: i.f64x3(),
                     angle_u: i.f32x3(),
-                    g_loc: i.f32(),
+                    g_loc: i.f64(),
                 })
             }
             kind::INFO => {
@@ -850,6 +864,7 @@ impl Packet {
                     3 => Some(CommandError::BadRate),
                     4 => Some(CommandError::SensorFault),
                     5 => Some(CommandError::NotInRing),
+                    6 => Some(CommandError::FitFailed),
                     _ => {
                         return Err(DecodeError::Field {
                             offset: 4,

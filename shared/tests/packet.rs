@@ -18,6 +18,10 @@ fn f32x3() -> impl Strategy<Value = [f32; 3]> {
     prop::array::uniform3(any::<u32>().prop_map(f32::from_bits))
 }
 
+fn f64x3() -> impl Strategy<Value = [f64; 3]> {
+    prop::array::uniform3(any::<u64>().prop_map(f64::from_bits))
+}
+
 fn batch() -> impl Strategy<Value = SampleBatch> {
     (
         condition(),
@@ -67,7 +71,7 @@ fn packet() -> impl Strategy<Value = Packet> {
             any::<bool>(),
             prop::array::uniform5(any::<u32>()),
             any::<u64>(),
-            prop::array::uniform3(f32x3()),
+            prop::array::uniform3(f64x3()),
             prop::array::uniform3(f32x3()),
             f32x3(),
         )
@@ -85,13 +89,13 @@ fn packet() -> impl Strategy<Value = Packet> {
                     rms,
                 })
             }),
-        (f32x3(), f32x3(), f32x3(), f32x3(), any::<u32>()).prop_map(|(s, su, a, au, g)| {
+        (f64x3(), f32x3(), f64x3(), f32x3(), any::<u64>()).prop_map(|(s, su, a, au, g)| {
             Packet::QuickLook(QuickLook {
                 sensitivity: s,
                 sensitivity_u: su,
                 angle_deg: a,
                 angle_u: au,
-                g_loc: f32::from_bits(g),
+                g_loc: f64::from_bits(g),
             })
         }),
         (
@@ -138,7 +142,8 @@ fn packet() -> impl Strategy<Value = Packet> {
                 Just(CommandError::NotRunning),
                 Just(CommandError::BadRate),
                 Just(CommandError::SensorFault),
-                Just(CommandError::NotInRing)
+                Just(CommandError::NotInRing),
+                Just(CommandError::FitFailed)
             ]),
         )
             .prop_map(|(state, sensor, condition, r, last_error)| {

@@ -1,0 +1,224 @@
+//! The firmware's logic, without hardware: everything between "the sensor's data-ready
+//! edge was captured at timer value c and the sample read" and "these packets go out".
+//! The firmware crate only wires drivers, BLE and tasks to a [`Device`]; the same code
+//! runs in the host's tests and on the emulated Cortex-M4F (tests/qemu `session`).
+//!
+//! Data path: [`sampler`] (64-bit timestamps, decimation to the sample rate, sequence
+//! numbers) → [`ring`] (recent samples, for backfill) and [`packetiser`] (sample batches)
+//! → [`session`] (the condition's streaming fit, fit reports, the quick-look).
+//! Output goes through a callback, so nothing here allocates or blocks.
+
+pub mod packetiser;
+pub mod ring;
+pub mod sampler;
+pub mod session;
+pub mod simulated;
+
+use crate::packet::{
+    Chip, ClockSource, Command, CommandError, DeviceInfo, Packet, RunState, SensorStatus, Status,
+    Temperature,
+};
+use crate::time::TickRate;
+use packetiser::Packetiser;
+use ring::Ring;
+use sampler::{Sampler, StreamSample};
+use session::Session;
+
+/// How the device is set up.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Config {
+    /// The timestamp clock.
+    pub clock: TickRate,
+    /// What drives it.
+    pub clock_source: ClockSource,
+    /// Width of the hardware counter the captures come from (32 for a TIMER, 24 for the RTC).
+    pub counter_bits: u32,
+    /// The sensor's output data rate, mHz.
+    pub sensor_odr_mhz: u32,
+    /// The rate samples are streamed and fitted at, mHz (at most the ODR).
+    pub sample_rate_mhz: u32,
+    /// Publish a periodic fit report every this many samples of a condition (0: never).
+    pub publish_every: u32,
+    /// Longest a sample waits in a part-filled batch, ticks.
+    pub max_batch_age: u64,
+    /// Gravity for the quick-look, m/s² (the host's calibration uses the lab's value).
+    pub g_loc: f64,
+    /// Full scale, ±g (reported in the device info).
+    pub full_scale_g: u8,
+}
+
+impl Config {
+    /// The Feather nRF52840 Sense: TIMER at 1 MHz on the crystal, sensor at 104 Hz,
+    /// 16 Hz stream, a fit report every 10 s, batches at most 1 s old, ±2 g.
+    pub const FEATHER: Config = Config {
+        clock: TickRate::MHZ_1,
+        clock_source: ClockSource::TimerHfxo,
+        counter_bits: 32,
+        sensor_odr_mhz: 104_000,
+        sample_rate_mhz: 16_000,
+        publish_every: 160,
+        max_batch_age: 1_000_000,
+        g_loc: 9.80665,
+        full_scale_g: 2,
+    };
+}
+
+/// The device's logic. `RING` is the number of recent samples kept for backfill.
+#[derive(Clone, Debug)]
+pub struct Device<const RING: usize> {
+    cfg: Config,
+    sampler: Sampler,
+    ring: Ring<RING>,
+    live: Packetiser,
+    session: Session,
+    sensor: SensorStatus,
+    lost: u32,
+    last_error: Option<CommandError>,
+    latest: Option<StreamSample>,
+}
+
+impl<const RING: usize> Device<RING> {
+    /// A device in the idle state.
+    pub fn new(cfg: Config) -> Self {
+        Device {
+            cfg,
+            sampler: Sampler::new(&cfg),
+            ring: Ring::new(),
+            live: Packetiser::new(false),
+            session: Session::new(cfg.clock, cfg.publish_every, cfg.g_loc),
+            sensor: SensorStatus::Ok,
+            lost: 0,
+            last_error: None,
+            latest: None,
+        }
+    }
+
+    /// The device-info value.
+    pub fn info(&self, chip: Chip, firmware: [u8; 3]) -> DeviceInfo {
+        DeviceInfo {
+            firmware,
+            chip,
+            clock: self.cfg.clock_source,
+            tick_hz: self.cfg.clock.hz(),
+            sensor_odr_mhz: self.cfg.sensor_odr_mhz,
+            sample_rate_mhz: self.sampler.sample_rate_mhz(),
+            full_scale_g: self.cfg.full_scale_g,
+            ring_capacity: u16::try_from(RING).unwrap_or(u16::MAX),
+        }
+    }
+
+    /// The current status.
+    pub fn status(&self) -> Status {
+        let (ring_oldest, ring_newest) = self.ring.span();
+        Status {
+            state: self.session.state(),
+            sensor: self.sensor,
+            condition: self.session.condition(),
+            lost: self.lost,
+            ring_oldest,
+            ring_newest,
+            last_error: self.last_error,
+        }
+    }
+
+    /// The quick-look, once x, y and z are done.
+    pub fn quick_look(&self) -> Option<crate::packet::QuickLook> {
+        self.session.quick_look()
+    }
+
+    /// A data-ready edge captured at raw counter value `capture`, and the sample read
+    /// after it. `late`: the edge was missed and `capture` is the read time.
+    pub fn on_sample(
+        &mut self,
+        capture: u64,
+        counts: [i16; 3],
+        late: bool,
+        out: &mut impl FnMut(Packet),
+    ) {
+        let running = self.session.state() == RunState::Running;
+        let Some(s) = self.sampler.accept(capture, counts, late, running) else {
+            return;
+        };
+        let Some(cond) = self.session.condition() else {
+            return;
+        };
+        self.latest = Some(s);
+        self.ring.push(ring::Entry {
+            sample: s,
+            condition: cond,
+        });
+        self.live.push(&s, cond, out);
+        self.session.on_sample(&s, out);
+    }
+
+    /// A temperature reading, hundredths of °C: streamed with the latest sample's seq.
+    pub fn on_temperature(&mut self, centi_c: i16, out: &mut impl FnMut(Packet)) {
+        if self.session.state() != RunState::Running {
+            return;
+        }
+        if let Some(s) = self.latest {
+            out(Packet::Temperature(Temperature {
+                seq: s.seq,
+                centi_c,
+            }));
+        }
+    }
+
+    /// Samples lost before they reached the device logic (sensor overrun, full queue).
+    pub fn on_lost(&mut self, n: u32) {
+        self.lost = self.lost.saturating_add(n);
+    }
+
+    /// The sensor's health changed.
+    pub fn on_sensor_status(&mut self, s: SensorStatus, out: &mut impl FnMut(Packet)) {
+        if s != self.sensor {
+            self.sensor = s;
+            out(Packet::Status(self.status()));
+        }
+    }
+
+    /// Call now and then (every ~100 ms) with the current raw counter value: sends a
+    /// part-filled batch once its oldest sample is `max_batch_age` old.
+    pub fn poll(&mut self, now_capture: u64, out: &mut impl FnMut(Packet)) {
+        let now = self.sampler.peek_time(now_capture);
+        self.live.flush_if_older(now, self.cfg.max_batch_age, out);
+    }
+
+    /// A command from the host. Refusals set `last_error` and are reported in a status.
+    pub fn on_command(&mut self, cmd: Command, out: &mut impl FnMut(Packet)) {
+        let result = match cmd {
+            Command::Start {
+                condition,
+                rate_uhz,
+            } => {
+                if self.sensor != SensorStatus::Ok {
+                    Err(CommandError::SensorFault)
+                } else {
+                    self.session.start(condition, rate_uhz)
+                }
+            }
+            Command::Stop => {
+                // The condition's last samples go out before its final fit.
+                self.live.flush(out);
+                self.session.stop(out)
+            }
+            Command::SetSampleRate { mhz } => {
+                if self.session.state() == RunState::Running {
+                    Err(CommandError::Busy)
+                } else {
+                    self.sampler.set_sample_rate(mhz, self.cfg.sensor_odr_mhz)
+                }
+            }
+            Command::Reset => {
+                self.live.flush(out);
+                self.session.reset();
+                self.lost = 0;
+                Ok(())
+            }
+            Command::Backfill { from_seq, count } => self.ring.replay(from_seq, count, out),
+        };
+        self.last_error = result.err();
+        out(Packet::Status(self.status()));
+    }
+}

@@ -1,0 +1,386 @@
+//! The firmware's logic on the host: a simulated three-condition session through
+//! `Device`, its packets decoded and checked against f64 fits of the same samples, and its
+//! command handling, backfill, batching and clock extension.
+// A test reports failure by panicking; the crate itself (src/) allows none of these.
+#![allow(clippy::unwrap_used, clippy::indexing_slicing, clippy::panic)]
+// Small fixed arrays read more plainly with indices.
+#![allow(clippy::needless_range_loop)]
+
+use rotacal_shared::device::simulated::SessionSpec;
+use rotacal_shared::device::{Config, Device};
+use rotacal_shared::packet::*;
+use rotacal_shared::synth::crosscheck;
+use rotacal_shared::{Condition, FitConfig, Param, PhaseStep, SineFit, TickRate, Ticks};
+
+const RING: usize = 512;
+
+fn run_paper() -> (Vec<Packet>, Device<RING>) {
+    let mut dev = Device::<RING>::new(Config::FEATHER);
+    let mut packets = Vec::new();
+    SessionSpec::PAPER.run(&mut dev, &mut |p| {
+        // Every packet crosses the wire: encode, decode, compare bytes.
+        let mut buf = [0u8; MAX_PACKET];
+        let n = p.encode(&mut buf).unwrap();
+        let back = Packet::decode(&buf[..n]).unwrap();
+        let mut again = [0u8; MAX_PACKET];
+        assert_eq!(back.encode(&mut again).unwrap(), n);
+        assert_eq!(buf[..n], again[..n]);
+        packets.push(back);
+    });
+    (packets, dev)
+}
+
+/// (seq, t, counts, condition) of every live sample.
+fn samples(packets: &[Packet]) -> Vec<(u32, u64, [i16; 3], Condition)> {
+    let mut out = Vec::new();
+    for p in packets {
+        if let Packet::Samples(b) = p {
+            assert!(!b.replay);
+            for (seq, t, s) in b.iter() {
+                out.push((seq, t, s.counts, b.condition));
+            }
+        }
+    }
+    out
+}
+
+#[test]
+fn paper_session_streams_every_sample_once_in_order() {
+    let (packets, dev) = run_paper();
+    let s = samples(&packets);
+    assert_eq!(s.len(), 3 * 4200, "16 Hz for 262.5 s per condition");
+    for (i, w) in s.windows(2).enumerate() {
+        assert_eq!(w[1].0, w[0].0 + 1, "seq contiguous at {i}");
+        assert!(w[1].1 > w[0].1, "time increases at {i}");
+        if w[0].3 == w[1].3 {
+            // Grid 62 500 µs; each sample is the sensor's edge nearest its grid point
+            // (sensor period 9615 µs), so spacing is within one sensor period of it.
+            let dt = w[1].1 - w[0].1;
+            assert!(
+                (62_500 - 9_616..=62_500 + 9_616).contains(&dt),
+                "spacing {dt} at {i}"
+            );
+        }
+    }
+    // Across the counter's wrap (it starts at 0xFFFF_0000) time kept increasing: above.
+    assert!(s[0].1 >= 0xFFFF_0000);
+    let st = dev.status();
+    assert_eq!(st.state, RunState::Complete);
+    assert_eq!(st.lost, 0);
+    assert_eq!(
+        (st.ring_oldest, st.ring_newest),
+        (12_600 - RING as u32, 12_599)
+    );
+}
+
+fn sigma_crlb(n: usize) -> [f64; 3] {
+    let s2 = crosscheck::noise_sigma(104_000).powi(2) + 1.0 / 12.0;
+    let n = n as f64;
+    [
+        (2.0 * s2 / n).sqrt(),
+        (2.0 * s2 / n).sqrt(),
+        (s2 / n).sqrt(),
+    ]
+}
+
+/// Every fit report, periodic and final, against an f64 fit of exactly the samples of its
+/// window, with the step it reports: within 0.01 σ_CRLB (the fit issue's bound). The final
+/// ones also equal a direct f32 fit bit for bit.
+#[test]
+fn fit_reports_match_f64_fits_of_their_windows() {
+    let (packets, _) = run_paper();
+    let s = samples(&packets);
+    let mut finals = 0;
+    let mut periodic = 0;
+    let mut worst = 0.0f64;
+    for p in &packets {
+        let Packet::Fit(f) = p else { continue };
+        let window: Vec<_> = s
+            .iter()
+            .filter(|x| x.0 >= f.first_seq && x.0 <= f.last_seq)
+            .collect();
+        assert_eq!(window.len(), f.n as usize);
+        assert!(window.iter().all(|x| x.3 == f.condition));
+        let step = PhaseStep(f.step);
+        assert_eq!(
+            PhaseStep::from_micro_hz(u64::from(f.rate_uhz), TickRate::MHZ_1),
+            Some(step)
+        );
+        let mut f64_fit = SineFit::<f64>::new(FitConfig::sine(step, TickRate::MHZ_1));
+        let mut f32_fit = SineFit::<f32>::new(FitConfig::sine(step, TickRate::MHZ_1));
+        for x in &window {
+            f64_fit.update(Ticks(x.1), x.2.map(f64::from)).unwrap();
+            f32_fit.update(Ticks(x.1), x.2.map(f32::from)).unwrap();
+        }
+        let r = f64_fit.solve().unwrap();
+        let crlb = sigma_crlb(window.len());
+        for ch in 0..3 {
+            for (k, param) in [Param::A, Param::B, Param::C].into_iter().enumerate() {
+                let host = r.coef(ch, param).unwrap().to_f64();
+                let d = (f.coef[ch][k] - host).abs() / crlb[k];
+                worst = worst.max(d);
+                let se = r.se(ch, param).unwrap();
+                assert!(
+                    (f64::from(f.se[ch][k]) - se).abs() <= 1e-4 * se,
+                    "se {ch} {k}"
+                );
+            }
+        }
+        if f.is_final {
+            finals += 1;
+            let d = f32_fit.solve().unwrap();
+            let direct = rotacal_shared::device::session::report(
+                &d,
+                f.condition,
+                true,
+                f.first_seq,
+                f.last_seq,
+                f.rate_uhz,
+                step,
+            );
+            assert_eq!(&direct, f);
+        } else {
+            periodic += 1;
+        }
+    }
+    println!("worst |f32 − f64| / σ_CRLB over {finals} final and {periodic} periodic reports: {worst:.2e}");
+    assert_eq!(finals, 3);
+    // 4200 samples per condition, a report every 160 once the fit spans 1.5 periods.
+    assert!(periodic >= 3 * 10, "{periodic} periodic reports");
+    // The fit issue's bound is 0.01 (goal 0.001); its measured accuracy was 5.8e-6 at
+    // worst (bench/fit.json). Coefficients travel as exact f64, so that is the bound here.
+    assert!(worst <= 1e-5, "{worst}");
+}
+
+/// The quick-look equals the Gram computation on f64 fits of the same windows to 1e-4 of
+/// its own uncertainty, and agrees with the simulated truth.
+#[test]
+fn quick_look_matches_the_host_and_the_truth() {
+    let (packets, dev) = run_paper();
+    let q = dev.quick_look().unwrap();
+    assert_eq!(
+        packets
+            .iter()
+            .filter(|p| matches!(p, Packet::QuickLook(_)))
+            .count(),
+        1
+    );
+    let s = samples(&packets);
+    let fits: Vec<_> = Condition::ALL
+        .iter()
+        .map(|c| {
+            let step = PhaseStep::from_micro_hz(10_000, TickRate::MHZ_1).unwrap();
+            let mut f = SineFit::<f64>::new(FitConfig::sine(step, TickRate::MHZ_1));
+            for x in s.iter().filter(|x| x.3 == *c) {
+                f.update(Ticks(x.1), x.2.map(f64::from)).unwrap();
+            }
+            rotacal_shared::intrinsic::ConditionFit::from_fit(&f.solve().unwrap())
+        })
+        .collect();
+    let host =
+        rotacal_shared::intrinsic::from_gram(&[fits[0], fits[1], fits[2]], 9.80665, 0.0).unwrap();
+    let truth = crosscheck::sensitivity();
+    for j in 0..3 {
+        let h = host.sensitivity[j];
+        let d = (q.sensitivity[j] - h.value).abs();
+        assert!(
+            d <= 1e-4 * h.std_unc,
+            "s{j}: {} vs {}",
+            q.sensitivity[j],
+            h.value
+        );
+        assert!((f64::from(q.sensitivity_u[j]) - h.std_unc).abs() <= 1e-3 * h.std_unc);
+        let t = truth[j].iter().map(|x| x * x).sum::<f64>().sqrt();
+        assert!((h.value - t).abs() <= 5.0 * h.std_unc, "s{j} vs truth {t}");
+        let a = host.angle_deg[j];
+        assert!((q.angle_deg[j] - a.value).abs() <= 1e-4 * a.std_unc);
+    }
+    assert_eq!(q.g_loc, 9.80665);
+}
+
+fn collect(
+    dev: &mut Device<RING>,
+    f: impl FnOnce(&mut Device<RING>, &mut dyn FnMut(Packet)),
+) -> Vec<Packet> {
+    let mut v = Vec::new();
+    f(dev, &mut |p| v.push(p));
+    v
+}
+
+fn last_status(p: &[Packet]) -> Status {
+    match p.last() {
+        Some(Packet::Status(s)) => *s,
+        other => panic!("expected a status, got {other:?}"),
+    }
+}
+
+#[test]
+fn commands_are_checked_and_refusals_reported() {
+    let mut dev = Device::<RING>::new(Config::FEATHER);
+    let start = Command::Start {
+        condition: Condition::X,
+        rate_uhz: 10_000,
+    };
+    let p = collect(&mut dev, |d, o| d.on_command(Command::Stop, &mut |x| o(x)));
+    assert_eq!(last_status(&p).last_error, Some(CommandError::NotRunning));
+    let p = collect(&mut dev, |d, o| {
+        d.on_command(
+            Command::Start {
+                condition: Condition::X,
+                rate_uhz: 0,
+            },
+            &mut |x| o(x),
+        )
+    });
+    assert_eq!(last_status(&p).last_error, Some(CommandError::BadRate));
+    let p = collect(&mut dev, |d, o| {
+        d.on_command(Command::SetSampleRate { mhz: 200_000 }, &mut |x| o(x))
+    });
+    assert_eq!(
+        last_status(&p).last_error,
+        Some(CommandError::BadRate),
+        "above the sensor's rate"
+    );
+    let p = collect(&mut dev, |d, o| d.on_command(start, &mut |x| o(x)));
+    let st = last_status(&p);
+    assert_eq!(
+        (st.state, st.last_error, st.condition),
+        (RunState::Running, None, Some(Condition::X))
+    );
+    let p = collect(&mut dev, |d, o| d.on_command(start, &mut |x| o(x)));
+    assert_eq!(last_status(&p).last_error, Some(CommandError::Busy));
+    let p = collect(&mut dev, |d, o| {
+        d.on_command(Command::SetSampleRate { mhz: 26_000 }, &mut |x| o(x))
+    });
+    assert_eq!(last_status(&p).last_error, Some(CommandError::Busy));
+    // Stopping before 1.5 periods: no fit, nothing recorded, and the device says why.
+    let p = collect(&mut dev, |d, o| {
+        for i in 0..100u64 {
+            d.on_sample(i * 9615, [100, 200, 300], false, &mut |x| o(x));
+        }
+        d.on_command(Command::Stop, &mut |x| o(x));
+    });
+    assert!(!p.iter().any(|x| matches!(x, Packet::Fit(_))));
+    assert_eq!(last_status(&p).last_error, Some(CommandError::FitFailed));
+    assert_eq!(last_status(&p).state, RunState::Idle);
+    // A failing sensor refuses Start, with a status on the change.
+    let p = collect(&mut dev, |d, o| {
+        d.on_sensor_status(SensorStatus::BusError, &mut |x| o(x));
+        d.on_command(start, &mut |x| o(x));
+    });
+    assert_eq!(p.len(), 2);
+    let st = last_status(&p);
+    assert_eq!(
+        (st.sensor, st.last_error),
+        (SensorStatus::BusError, Some(CommandError::SensorFault))
+    );
+    // Samples while idle are not streamed and don't use sequence numbers.
+    let p = collect(&mut dev, |d, o| {
+        d.on_sensor_status(SensorStatus::Ok, &mut |x| o(x));
+        for i in 0..50u64 {
+            d.on_sample(10_000_000 + i * 9615, [1, 2, 3], false, &mut |x| o(x));
+        }
+    });
+    assert!(p.iter().all(|x| matches!(x, Packet::Status(_))));
+}
+
+#[test]
+fn backfill_resends_from_the_ring() {
+    let (_, mut dev) = run_paper();
+    let p = collect(&mut dev, |d, o| {
+        d.on_command(
+            Command::Backfill {
+                from_seq: 12_500,
+                count: 60,
+            },
+            &mut |x| o(x),
+        )
+    });
+    assert_eq!(last_status(&p).last_error, None);
+    let seqs: Vec<u32> = p
+        .iter()
+        .filter_map(|x| {
+            if let Packet::Samples(b) = x {
+                Some(b)
+            } else {
+                None
+            }
+        })
+        .inspect(|b| assert!(b.replay && b.condition == Condition::Z))
+        .flat_map(|b| b.iter().map(|(s, _, _)| s).collect::<Vec<_>>())
+        .collect();
+    assert_eq!(seqs, (12_500..12_560).collect::<Vec<_>>());
+    // Older than the ring holds: what is left is sent, and the refusal says so.
+    let oldest = 12_600 - RING as u32;
+    let p = collect(&mut dev, |d, o| {
+        d.on_command(
+            Command::Backfill {
+                from_seq: oldest - 10,
+                count: 20,
+            },
+            &mut |x| o(x),
+        )
+    });
+    assert_eq!(last_status(&p).last_error, Some(CommandError::NotInRing));
+    let n: usize = p
+        .iter()
+        .map(|x| {
+            if let Packet::Samples(b) = x {
+                b.len()
+            } else {
+                0
+            }
+        })
+        .sum();
+    assert_eq!(n, 10);
+}
+
+#[test]
+fn a_part_filled_batch_waits_at_most_max_batch_age() {
+    let mut dev = Device::<RING>::new(Config::FEATHER);
+    let mut p = Vec::new();
+    dev.on_command(
+        Command::Start {
+            condition: Condition::Y,
+            rate_uhz: 10_000,
+        },
+        &mut |x| p.push(x),
+    );
+    p.clear();
+    for i in 0..40u64 {
+        dev.on_sample(i * 9_615, [0, 0, 16_000], false, &mut |x| p.push(x));
+    }
+    // 40 sensor samples = 0.38 s: 7 streamed, not yet a second old.
+    dev.poll(400_000, &mut |x| p.push(x));
+    assert!(p.is_empty());
+    dev.poll(1_000_000, &mut |x| p.push(x));
+    match p.as_slice() {
+        [Packet::Samples(b)] => {
+            assert_eq!(b.len(), 7);
+            assert_eq!(b.samples()[0].flags, 0);
+        }
+        other => panic!("{other:?}"),
+    }
+    // A rail reading is flagged; a missed edge is flagged late.
+    p.clear();
+    for i in 0..7u64 {
+        dev.on_sample(2_000_000 + i * 9_615, [i16::MAX, 0, 0], i == 0, &mut |x| {
+            p.push(x)
+        });
+    }
+    dev.on_command(Command::Stop, &mut |x| p.push(x));
+    let b = p
+        .iter()
+        .find_map(|x| {
+            if let Packet::Samples(b) = x {
+                Some(*b)
+            } else {
+                None
+            }
+        })
+        .unwrap();
+    assert_eq!(
+        b.samples()[0].flags,
+        SampleFlags::CLIPPED | SampleFlags::LATE_TIMESTAMP
+    );
+}
