@@ -4,6 +4,7 @@
 //!   iterated four-parameter fit of IEEE 1057 that estimates the rotation rate.
 //! - [`fitcheck`]: checks the device's f32 streaming fit (run on the emulated Cortex-M4F)
 //!   against the f64 batch fit of the same samples.
+//! - [`session_check`]: checks the device logic's packets from the emulated Cortex-M4F.
 //! - [`demo`]: the main job without hardware.
 //! - [`simulate`]: the forward model of the experiment that writes recordings.
 pub mod batch;
@@ -15,4 +16,5 @@ pub mod fitcheck;
 pub mod geometry;
 pub mod output;
 pub mod recording;
+pub mod session_check;
 pub mod simulate;

@@ -14,7 +14,14 @@ use std::path::PathBuf;
 struct Args {
     /// Output of the QEMU `crosscheck` binary.
     #[arg(long)]
-    crosscheck: PathBuf,
+    crosscheck: Option<PathBuf>,
+    /// Output of the QEMU `session` binary (the device logic through a simulated session).
+    #[arg(long)]
+    session: Option<PathBuf>,
+    /// Fail the session check above this max |device − host f64| / σ_CRLB: the accuracy
+    /// the fit showed on its own (bench/fit.json: 5.8e-6 at worst).
+    #[arg(long, default_value_t = 1e-5)]
+    session_threshold: f64,
     /// Output of the QEMU `bench` binary (run with -icount shift=0), to include.
     #[arg(long)]
     bench: Option<PathBuf>,
@@ -47,17 +54,89 @@ fn main() -> std::process::ExitCode {
 }
 
 fn run(args: Args) -> Result<bool> {
-    let text = std::fs::read_to_string(&args.crosscheck)
-        .with_context(|| format!("reading {}", args.crosscheck.display()))?;
-    let log =
-        fitcheck::parse_log(&text).with_context(|| format!("{}", args.crosscheck.display()))?;
-    let rep = fitcheck::check(&log)?;
+    let mut json = serde_json::Map::new();
     let mut o = String::new();
+    let mut ok = true;
+    if args.crosscheck.is_none() && args.session.is_none() {
+        anyhow::bail!("give --crosscheck LOG, --session LOG or both");
+    }
+    if let Some(path) = &args.crosscheck {
+        ok &= crosscheck(&args, path, &mut o, &mut json)?;
+    }
+    if let Some(path) = &args.session {
+        ok &= session(&args, path, &mut o, &mut json)?;
+    }
+    if let Some(path) = &args.json {
+        if let Some(dir) = path.parent() {
+            std::fs::create_dir_all(dir)?;
+        }
+        std::fs::write(path, serde_json::to_string_pretty(&json)? + "\n")
+            .with_context(|| format!("writing {}", path.display()))?;
+        let _ = writeln!(o, "wrote {}", path.display());
+    }
+    rotacal::output::emit(&o)?;
+    if ok {
+        rotacal::output::emit("cross-check passed\n")?;
+    }
+    Ok(ok)
+}
+
+type Json = serde_json::Map<String, serde_json::Value>;
+
+fn read(path: &std::path::Path) -> Result<String> {
+    std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))
+}
+
+fn session(args: &Args, path: &std::path::Path, o: &mut String, json: &mut Json) -> Result<bool> {
+    let text = read(path)?;
+    let packets = rotacal::session_check::parse_log(&text, &path.display().to_string())?;
+    let rep = rotacal::session_check::check(&packets)?;
+    let finals = rep.fits.iter().filter(|f| f.is_final).count();
+    let _ = writeln!(
+        o,
+        "session: {} packets, {} samples, seq contiguous: {}, bit-identical to the host's run: {}",
+        rep.packets, rep.samples, rep.seq_contiguous, rep.bit_identical_to_host
+    );
+    let _ = writeln!(
+        o,
+        "session: {} fit reports ({finals} final): max |device − f64 batch| / σ_CRLB = {:.2e} (threshold {:.0e})",
+        rep.fits.len(),
+        rep.max_ratio_crlb,
+        args.session_threshold
+    );
+    match rep.quick_look_max_ratio_u {
+        Some(r) => {
+            let _ = writeln!(
+                o,
+                "session: quick-look vs host Gram form: max |Δ| / u = {r:.2e}"
+            );
+        }
+        None => {
+            let _ = writeln!(o, "session: no quick-look");
+        }
+    }
+    let ok = rep.bit_identical_to_host
+        && rep.seq_contiguous
+        && finals == 3
+        && rep.max_ratio_crlb <= args.session_threshold
+        && rep.quick_look_max_ratio_u.is_some_and(|r| r <= 1e-4);
+    json.insert("session".into(), serde_json::to_value(&rep)?);
+    Ok(ok)
+}
+
+fn crosscheck(
+    args: &Args,
+    path: &std::path::Path,
+    o: &mut String,
+    json: &mut Json,
+) -> Result<bool> {
+    let text = read(path)?;
+    let log = fitcheck::parse_log(&text).with_context(|| format!("{}", path.display()))?;
+    let rep = fitcheck::check(&log)?;
     // Output is collected and written once, through a writer that survives a closed pipe.
     macro_rules! out {
         ($($a:tt)*) => { let _ = writeln!(o, $($a)*); };
     }
-
     if args.table {
         out!(
             "{:<12} {:<4} {:<10} {:>3} {:>16} {:>16} {:>10} {:>10}",
@@ -110,11 +189,9 @@ fn run(args: Args) -> Result<bool> {
         rep.max_ratio_se_drift_rate
     );
 
-    let mut out = serde_json::Map::new();
-    out.insert("crosscheck".into(), serde_json::to_value(&rep)?);
+    json.insert("crosscheck".into(), serde_json::to_value(&rep)?);
     if let Some(path) = &args.bench {
-        let text =
-            std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+        let text = read(path)?;
         let mut bench = BTreeMap::new();
         for (i, line) in text.lines().enumerate() {
             if let Some(rest) = line.strip_prefix("bench ") {
@@ -131,7 +208,7 @@ fn run(args: Args) -> Result<bool> {
         for (k, v) in &bench {
             out!("cortex-m4f {k}: {v}");
         }
-        out.insert("cortex_m4f".into(), serde_json::to_value(&bench)?);
+        json.insert("cortex_m4f".into(), serde_json::to_value(&bench)?);
     }
     if args.throughput {
         let t = fitcheck::measure_throughput().context("no throughput record")?;
@@ -139,22 +216,9 @@ fn run(args: Args) -> Result<bool> {
             "host throughput: f64 streaming {:.3e} samples/s, f32 streaming {:.3e}, f64 batch QR {:.3e}",
             t.f64_samples_per_s, t.f32_samples_per_s, t.f64_batch_samples_per_s
         );
-        out.insert("host_throughput".into(), serde_json::to_value(&t)?);
+        json.insert("host_throughput".into(), serde_json::to_value(&t)?);
     }
-    if let Some(path) = &args.json {
-        if let Some(dir) = path.parent() {
-            std::fs::create_dir_all(dir)?;
-        }
-        std::fs::write(path, serde_json::to_string_pretty(&out)? + "\n")
-            .with_context(|| format!("writing {}", path.display()))?;
-        out!("wrote {}", path.display());
-    }
-    rotacal::output::emit(&o)?;
-    let ok = rep.checksums_match
+    Ok(rep.checksums_match
         && rep.host_f32_bit_identical
-        && rep.max_ratio_crlb_sine <= args.threshold;
-    if ok {
-        rotacal::output::emit("cross-check passed\n")?;
-    }
-    Ok(ok)
+        && rep.max_ratio_crlb_sine <= args.threshold)
 }

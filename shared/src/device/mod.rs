@@ -24,6 +24,9 @@ use ring::Ring;
 use sampler::{Sampler, StreamSample};
 use session::Session;
 
+/// Samples the Feather keeps for backfill: 32 s at 16 Hz, 16 KiB of RAM.
+pub const RING: usize = 512;
+
 /// How the device is set up.
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]

@@ -1,0 +1,217 @@
+//! Checks the device logic's output for the simulated session (tests/qemu `session`,
+//! `rotacal_shared::device::simulated::SessionSpec::PAPER`): the emulated Cortex-M4F must
+//! send the same bytes as the host running the same code, and every fit it reports must
+//! equal an f64 batch fit (nalgebra QR, independent of the streaming fit) of exactly the
+//! samples of its window; the quick-look must equal the Gram form on those f64 fits.
+
+use crate::batch;
+use crate::fitcheck::sigma_crlb;
+use rotacal_shared::device::simulated::SessionSpec;
+use rotacal_shared::device::{Config, Device, RING};
+use rotacal_shared::intrinsic::{self, ConditionFit};
+use rotacal_shared::packet::{Packet, MAX_PACKET};
+use rotacal_shared::synth::crosscheck;
+use rotacal_shared::{Model, PhaseStep, TickRate, Ticks};
+use serde::Serialize;
+
+/// A log line that is not a packet.
+#[derive(Debug, thiserror::Error)]
+#[error("{source_name}:{line}: {message}")]
+pub struct LogError {
+    /// The log.
+    pub source_name: String,
+    /// 1-based line.
+    pub line: usize,
+    /// What is wrong.
+    pub message: String,
+}
+
+/// The packets of a `session` log: every `P <hex>` line, in order. Other lines are
+/// ignored except `session done`, which must be there (a run that died is incomplete).
+pub fn parse_log(text: &str, source_name: &str) -> Result<Vec<Vec<u8>>, LogError> {
+    let err = |line, message: String| LogError {
+        source_name: source_name.into(),
+        line,
+        message,
+    };
+    let mut out = Vec::new();
+    let mut done = false;
+    for (i, line) in text.lines().enumerate() {
+        if let Some(hex) = line.strip_prefix("P ") {
+            let hex = hex.trim();
+            if hex.len() % 2 != 0 || hex.len() > 2 * MAX_PACKET {
+                return Err(err(
+                    i + 1,
+                    format!("{} hex digits is not a packet", hex.len()),
+                ));
+            }
+            let bytes = (0..hex.len())
+                .step_by(2)
+                .map(|k| u8::from_str_radix(hex.get(k..k + 2).unwrap_or("zz"), 16))
+                .collect::<Result<Vec<u8>, _>>()
+                .map_err(|e| err(i + 1, format!("not hex: {e}")))?;
+            out.push(bytes);
+        } else if line.starts_with("session done") {
+            done = true;
+        }
+    }
+    if !done {
+        return Err(err(
+            text.lines().count(),
+            "no 'session done' line: the run did not finish".into(),
+        ));
+    }
+    Ok(out)
+}
+
+/// The same session run on this host through the same code.
+pub fn host_packets() -> Vec<Vec<u8>> {
+    let mut dev = Device::<RING>::new(Config::FEATHER);
+    let mut out = Vec::new();
+    SessionSpec::PAPER.run(&mut dev, &mut |p: Packet| {
+        let mut buf = [0u8; MAX_PACKET];
+        if let Ok(n) = p.encode(&mut buf) {
+            out.push(buf[..n].to_vec());
+        }
+    });
+    out
+}
+
+/// One reported fit against the f64 batch fit of its window.
+#[derive(Clone, Debug, Serialize)]
+pub struct FitComparison {
+    /// x, y or z.
+    pub condition: char,
+    /// Final (at stop) or periodic.
+    pub is_final: bool,
+    /// Samples in the window.
+    pub n: u32,
+    /// max over channels and A, B, C of |device − host| / σ_CRLB.
+    pub max_ratio_crlb: f64,
+    /// max over channels and A, B, C of |device se − host se| / host se.
+    pub max_se_rel: f64,
+}
+
+/// The check's findings.
+#[derive(Clone, Debug, Serialize)]
+pub struct SessionReport {
+    /// Packets the device sent.
+    pub packets: usize,
+    /// Byte-identical to the host's run of the same code.
+    pub bit_identical_to_host: bool,
+    /// Index of the first packet that differs, if any.
+    pub first_difference: Option<usize>,
+    /// Live samples streamed.
+    pub samples: usize,
+    /// Sequence numbers 0, 1, 2, … with no gap or repeat.
+    pub seq_contiguous: bool,
+    /// Every fit report.
+    pub fits: Vec<FitComparison>,
+    /// Worst over all fit reports.
+    pub max_ratio_crlb: f64,
+    /// max over s and φ of |device − host| / host standard uncertainty.
+    pub quick_look_max_ratio_u: Option<f64>,
+}
+
+/// Decode and check the device's packets.
+pub fn check(device: &[Vec<u8>]) -> anyhow::Result<SessionReport> {
+    let host = host_packets();
+    let first_difference = device
+        .iter()
+        .zip(&host)
+        .position(|(a, b)| a != b)
+        .or((device.len() != host.len()).then_some(device.len().min(host.len())));
+    let mut packets = Vec::with_capacity(device.len());
+    for (i, bytes) in device.iter().enumerate() {
+        packets.push(Packet::decode(bytes).map_err(|e| anyhow::anyhow!("packet {i}: {e}"))?);
+    }
+    let mut samples: Vec<(u32, Ticks, [f64; 3])> = Vec::new();
+    for p in &packets {
+        if let Packet::Samples(b) = p {
+            samples.extend(
+                b.iter()
+                    .map(|(seq, t, s)| (seq, Ticks(t), s.counts.map(f64::from))),
+            );
+        }
+    }
+    let seq_contiguous = samples.iter().enumerate().all(|(i, s)| s.0 as usize == i);
+    let noise = crosscheck::noise_sigma(SessionSpec::PAPER.sensor_odr_mhz);
+    let clock = TickRate::MHZ_1;
+    let mut fits = Vec::new();
+    let mut finals: [Option<ConditionFit>; 3] = [None; 3];
+    for p in &packets {
+        let Packet::Fit(f) = p else { continue };
+        let window: Vec<(Ticks, [f64; 3])> = samples
+            .iter()
+            .filter(|s| s.0 >= f.first_seq && s.0 <= f.last_seq)
+            .map(|s| (s.1, s.2))
+            .collect();
+        let step = PhaseStep(f.step);
+        let r = batch::fit(&window, step, clock, Model::SINE, Ticks(0))?;
+        let crlb = sigma_crlb(noise, window.len());
+        let mut worst: f64 = if window.len() == f.n as usize {
+            0.0
+        } else {
+            f64::INFINITY
+        };
+        let mut se_rel = 0.0f64;
+        for ((host, coef), se) in r.channels.iter().zip(&f.coef).zip(&f.se) {
+            for (k, bound) in crlb.iter().enumerate() {
+                worst = worst.max((coef[k] - host.coef[k]).abs() / bound);
+                se_rel = se_rel.max((f64::from(se[k]) - host.se[k]).abs() / host.se[k]);
+            }
+        }
+        fits.push(FitComparison {
+            condition: f.condition.letter(),
+            is_final: f.is_final,
+            n: f.n,
+            max_ratio_crlb: worst,
+            max_se_rel: se_rel,
+        });
+        if f.is_final {
+            if let Some(slot) = finals.get_mut(f.condition.index()) {
+                let cov = |i: usize, j: usize, ch: usize| {
+                    r.channels[ch].sigma.powi(2) * r.unscaled_cov[(i, j)]
+                };
+                *slot = Some(ConditionFit {
+                    a: [0, 1, 2].map(|ch| r.channels[ch].coef[0]),
+                    b: [0, 1, 2].map(|ch| r.channels[ch].coef[1]),
+                    cov: [0, 1, 2].map(|ch| {
+                        [
+                            [cov(0, 0, ch), cov(0, 1, ch)],
+                            [cov(1, 0, ch), cov(1, 1, ch)],
+                        ]
+                    }),
+                });
+            }
+        }
+    }
+    let quick = packets.iter().find_map(|p| match p {
+        Packet::QuickLook(q) => Some(*q),
+        _ => None,
+    });
+    let quick_look_max_ratio_u = match (quick, finals) {
+        (Some(q), [Some(x), Some(y), Some(z)]) => {
+            let h = intrinsic::from_gram(&[x, y, z], q.g_loc, 0.0)?;
+            let mut worst = 0.0f64;
+            for j in 0..3 {
+                let (s, a) = (h.sensitivity[j], h.angle_deg[j]);
+                worst = worst.max((q.sensitivity[j] - s.value).abs() / s.std_unc);
+                worst = worst.max((q.angle_deg[j] - a.value).abs() / a.std_unc);
+            }
+            Some(worst)
+        }
+        _ => None,
+    };
+    let max_ratio_crlb = fits.iter().map(|f| f.max_ratio_crlb).fold(0.0, f64::max);
+    Ok(SessionReport {
+        packets: device.len(),
+        bit_identical_to_host: first_difference.is_none(),
+        first_difference,
+        samples: samples.len(),
+        seq_contiguous,
+        fits,
+        max_ratio_crlb,
+        quick_look_max_ratio_u,
+    })
+}
