@@ -1,62 +1,38 @@
-//! rotacal firmware for the Adafruit Feather nRF52840 Sense.
+//! rotacal firmware for the Adafruit Feather nRF52840 Sense: thin glue around
+//! `rotacal_shared::device` (the logic, tested on the host and under QEMU).
 //!
-//! For now: enable the S140 7.3.0 SoftDevice and advertise connectably as "rotacal",
-//! serving each connection until the central disconnects. Sampling and streaming come later;
-//! their logic belongs in `rotacal-shared`, this crate stays the thin nRF glue.
+//! Tasks: `sampling` (data-ready edge captured by GPIOTE → PPI → TIMER1, sample read over
+//! I²C), `logic` (the shared `Device`: stream, ring, fits, quick-look), and the BLE loop
+//! in `main` (`ble`: one GATT service, docs/protocol.md). Interrupts run at P2, as the
+//! SoftDevice requires; the LF clock is the RC oscillator (the board has no crystal).
 
 #![no_std]
 #![no_main]
 
+mod ble;
+mod events;
+mod logic;
+mod sampling;
+
 use defmt::{error, info, warn};
 use embassy_executor::Spawner;
-use embassy_nrf::interrupt::Priority;
-use embassy_time::Timer;
-use nrf_softdevice::ble::advertisement_builder::{
-    Flag, LegacyAdvertisementBuilder, LegacyAdvertisementPayload,
-};
-use nrf_softdevice::ble::gatt_server::{self, WriteOp};
-use nrf_softdevice::ble::{peripheral, Connection};
-use nrf_softdevice::{raw, Softdevice};
+use embassy_nrf::gpio::{Input, Level, Output, OutputDrive, Pull};
+use embassy_nrf::gpiote::{InputChannel, InputChannelPolarity};
+use embassy_nrf::interrupt::{self, InterruptExt, Priority};
+use embassy_nrf::peripherals::TWISPI0;
+use embassy_nrf::ppi::Ppi;
+use embassy_nrf::timer::{Frequency, Timer};
+use embassy_nrf::{bind_interrupts, twim};
+use nrf_softdevice::{raw, RawError, Softdevice};
 use {defmt_rtt as _, panic_probe as _};
 
-/// GAP device name, also sent as the complete local name in the advertisement.
-const DEVICE_NAME: &str = "rotacal";
+bind_interrupts!(struct Irqs {
+    SPIM0_SPIS0_TWIM0_TWIS0_SPI0_TWI0 => twim::InterruptHandler<TWISPI0>;
+});
 
-/// Largest ATT MTU we grant: 247 lets one notification carry 244 bytes of payload,
-/// which fits a 251-byte LL data PDU (the SoftDevice negotiates data length on request).
+/// Largest ATT MTU we grant: 247 lets one notification carry 244 bytes, the largest
+/// packet being 236 (the central asks; the SoftDevice answers with min(its, ours)).
 const ATT_MTU: u16 = 247;
-
-/// Advertising data: flags + complete local name. Built at compile time, so an oversize
-/// payload is a build error, not a runtime panic. `static` because the SoftDevice reads it
-/// for as long as advertising runs.
-static ADV_DATA: LegacyAdvertisementPayload = LegacyAdvertisementBuilder::new()
-    .flags(&[Flag::GeneralDiscovery, Flag::LE_Only])
-    .full_name(DEVICE_NAME)
-    .build();
-
-/// Scan response: empty for now (the name already fits in the advertising data).
-static SCAN_DATA: [u8; 0] = [];
-
-/// A GATT server with no services of its own yet (the SoftDevice still serves the
-/// Generic Access and Generic Attribute services). Running it on a connection answers
-/// the SoftDevice's GATTS events (e.g. missing system attributes) and ends on disconnect.
-struct NoServices;
-
-impl gatt_server::Server for NoServices {
-    type Event = ();
-
-    fn on_write(
-        &self,
-        _conn: &Connection,
-        handle: u16,
-        _op: WriteOp,
-        _offset: usize,
-        _data: &[u8],
-    ) -> Option<Self::Event> {
-        warn!("write to unknown handle {}", handle);
-        None
-    }
-}
 
 /// Runs the SoftDevice event loop; without it no BLE operation ever completes.
 #[embassy_executor::task]
@@ -68,11 +44,36 @@ async fn softdevice_task(sd: &'static Softdevice) -> ! {
 async fn main(spawner: Spawner) {
     info!("rotacal firmware starting");
 
-    // Priorities 0, 1 and 4 belong to the SoftDevice; our interrupts must use 2, 3 or lower.
+    // Priorities 0, 1 and 4 belong to the SoftDevice; ours use 2.
     let mut nrf_config = embassy_nrf::config::Config::default();
     nrf_config.gpiote_interrupt_priority = Priority::P2;
     nrf_config.time_interrupt_priority = Priority::P2;
-    let _peripherals = embassy_nrf::init(nrf_config);
+    let p = embassy_nrf::init(nrf_config);
+
+    // TIMER1 at 1 MHz, 32 bits, free-running (TIMER0 is the SoftDevice's). The data-ready
+    // edge on P1.11 triggers CAPTURE[0] through PPI channel 0 (0–16 are ours). embassy-nrf
+    // 0.2's task_capture() always names CAPTURE[0] whatever n is, so CC[0] it is; CC[1]
+    // takes software "now" readings.
+    let timer = Timer::new(p.TIMER1);
+    timer.set_frequency(Frequency::F1MHz);
+    timer.clear();
+    let drdy = InputChannel::new(
+        p.GPIOTE_CH0,
+        Input::new(p.P1_11, Pull::None),
+        InputChannelPolarity::LoToHi,
+    );
+    let mut ppi = Ppi::new_one_to_one(p.PPI_CH0, drdy.event_in(), timer.cc(0).task_capture());
+    ppi.enable();
+    // Dropping the Ppi would unwire the channel; it must live for ever.
+    core::mem::forget(ppi);
+    timer.start();
+
+    // Twim::new enables its interrupt at priority 0 unless set before.
+    interrupt::SPIM0_SPIS0_TWIM0_TWIS0_SPI0_TWI0.set_priority(Priority::P2);
+    let mut twim_config = twim::Config::default();
+    twim_config.frequency = twim::Frequency::K400;
+    let bus = twim::Twim::new(p.TWISPI0, Irqs, p.P0_12, p.P0_11, twim_config);
+    let led = Output::new(p.P1_09, Level::Low, OutputDrive::Standard);
 
     let sd_config = nrf_softdevice::Config {
         // The board has no 32.768 kHz crystal: use the LF RC oscillator, recalibrated
@@ -111,9 +112,9 @@ async fn main(spawner: Spawner) {
         // The name lives in the SoftDevice (VLOC_STACK copies it there). Write permission
         // sm=0, lv=0 means "no access": a central cannot rename the device.
         gap_device_name: Some(raw::ble_gap_cfg_device_name_t {
-            p_value: DEVICE_NAME.as_ptr().cast_mut(),
-            current_len: DEVICE_NAME.len() as u16,
-            max_len: DEVICE_NAME.len() as u16,
+            p_value: ble::DEVICE_NAME.as_ptr().cast_mut(),
+            current_len: ble::DEVICE_NAME.len() as u16,
+            max_len: ble::DEVICE_NAME.len() as u16,
             write_perm: raw::ble_gap_conn_sec_mode_t {
                 _bitfield_1: raw::ble_gap_conn_sec_mode_t::new_bitfield_1(0, 0),
             },
@@ -126,35 +127,39 @@ async fn main(spawner: Spawner) {
 
     // Panics (after logging the RAM start it needs) if memory.x gives the SoftDevice too
     // little RAM: a build configuration error, not something to recover from at run time.
-    let sd: &'static Softdevice = Softdevice::enable(&sd_config);
-
-    if let Err(e) = spawner.spawn(softdevice_task(sd)) {
-        // Only possible if the task were spawned twice. Without the event loop advertising
-        // would never complete, so stop here (the executor idles) rather than hang in it.
-        error!("cannot spawn the SoftDevice task: {}", e);
+    let sd = Softdevice::enable(&sd_config);
+    let server = match ble::Server::new(sd) {
+        Ok(s) => s,
+        Err(e) => {
+            error!("GATT service registration failed: {}", e);
+            return;
+        }
+    };
+    let sd: &'static Softdevice = sd;
+    let Some(device) = logic::device() else {
+        error!("device state already taken");
+        return;
+    };
+    let spawned = [
+        spawner.spawn(softdevice_task(sd)),
+        spawner.spawn(sampling::sensor_task(timer, drdy, bus)),
+        spawner.spawn(logic::logic_task(device, led)),
+    ];
+    if spawned.iter().any(Result::is_err) {
+        // Only possible if a task were spawned twice.
+        error!("cannot spawn the tasks");
         return;
     }
 
-    let server = NoServices;
-    let adv_config = peripheral::Config::default(); // 250 ms interval, 0 dBm, no timeout
-    loop {
-        let adv = peripheral::ConnectableAdvertisement::ScannableUndirected {
-            adv_data: &ADV_DATA,
-            scan_data: &SCAN_DATA,
-        };
-        let conn = match peripheral::advertise_connectable(sd, adv, &adv_config).await {
-            Ok(conn) => conn,
-            Err(e) => {
-                // E.g. a SoftDevice error; back off instead of spinning, then retry.
-                warn!("advertising failed: {}", e);
-                Timer::after_secs(1).await;
-                continue;
-            }
-        };
-        info!("connected");
-
-        // Serve the connection until the central goes away, then advertise again.
-        gatt_server::run(&conn, &server, |()| {}).await;
-        info!("disconnected");
+    // TIMER1 counts HFCLK: put it on the 32 MHz crystal (±20–40 ppm) rather than the
+    // internal RC, so that timestamps hold the rate (method.md §7).
+    // SAFETY: a SoftDevice call with no pointer arguments, made after it is enabled.
+    if let Err(e) = RawError::convert(unsafe { raw::sd_clock_hfclk_request() }) {
+        warn!(
+            "HFXO request failed: {}; timestamps run on the RC oscillator",
+            e
+        );
     }
+
+    ble::run(sd, &server).await
 }

@@ -1,0 +1,53 @@
+//! What the tasks tell each other: sensor and BLE events into the logic task, encoded
+//! packets out of it.
+
+use core::sync::atomic::{AtomicU32, Ordering};
+use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
+use embassy_sync::channel::Channel;
+use heapless::Vec;
+use rotacal_sensor::Chip;
+use rotacal_shared::packet::{Command, SensorStatus};
+
+/// Into the logic task.
+#[derive(Clone, Copy, defmt::Format)]
+pub enum Event {
+    /// A sample: TIMER1 value at its data-ready edge, raw counts, edge missed.
+    Sample {
+        /// Raw 32-bit capture.
+        capture: u32,
+        /// u, v, w.
+        counts: [i16; 3],
+        /// The edge was missed; `capture` is the read time.
+        late: bool,
+    },
+    /// Die temperature, hundredths of °C.
+    Temperature(i16),
+    /// Sensor health, and the chip once known.
+    Sensor(SensorStatus, Option<Chip>),
+    /// A command from the host.
+    Command(Command),
+    /// Time passes without samples (TIMER1 now).
+    Poll(u32),
+}
+
+/// One encoded packet, for a notification.
+pub type Encoded = Vec<u8, 244>;
+
+/// Sensor and BLE → logic.
+pub static EVENTS: Channel<CriticalSectionRawMutex, Event, 32> = Channel::new();
+/// Logic → BLE: packets for the stream characteristic.
+pub static STREAM: Channel<CriticalSectionRawMutex, Encoded, 12> = Channel::new();
+/// Logic → BLE: packets for the fit-results characteristic.
+pub static RESULTS: Channel<CriticalSectionRawMutex, Encoded, 6> = Channel::new();
+
+static OVERFLOWS: AtomicU32 = AtomicU32::new(0);
+
+/// An event was dropped because the logic task fell behind.
+pub fn note_overflow() {
+    OVERFLOWS.fetch_add(1, Ordering::Relaxed);
+}
+
+/// Events dropped since the last call.
+pub fn take_overflows() -> u32 {
+    OVERFLOWS.swap(0, Ordering::Relaxed)
+}

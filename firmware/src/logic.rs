@@ -1,0 +1,104 @@
+//! The logic task: owns the hardware-independent [`Device`] (rotacal-shared), feeds it the
+//! sensor's and the host's events, and routes what it sends to the BLE characteristics.
+
+use crate::events::{take_overflows, Encoded, Event, EVENTS, RESULTS, STREAM};
+use crate::sampling::chip_code;
+use defmt::{info, warn};
+use embassy_nrf::gpio::Output;
+use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
+use embassy_sync::signal::Signal;
+use rotacal_shared::device::{Config, Device, RING};
+use rotacal_shared::packet::{Packet, RunState};
+
+/// The latest device-info value, for the BLE side to publish.
+pub static INFO: Signal<CriticalSectionRawMutex, Encoded> = Signal::new();
+
+fn version() -> [u8; 3] {
+    let p = |s: &str| s.parse::<u8>().unwrap_or(0);
+    [
+        p(env!("CARGO_PKG_VERSION_MAJOR")),
+        p(env!("CARGO_PKG_VERSION_MINOR")),
+        p(env!("CARGO_PKG_VERSION_PATCH")),
+    ]
+}
+
+fn encode(p: &Packet) -> Option<Encoded> {
+    let mut buf = [0u8; rotacal_shared::packet::MAX_PACKET];
+    let n = p.encode(&mut buf).ok()?;
+    Encoded::from_slice(buf.get(..n)?).ok()
+}
+
+/// Samples and temperatures to the stream characteristic; fits, the quick-look and
+/// status to the fit-results one. A full queue drops the packet: samples can be fetched
+/// again from the ring (Backfill), and the next status repeats the state.
+fn route(p: Packet) {
+    let Some(v) = encode(&p) else {
+        warn!("cannot encode {}", p);
+        return;
+    };
+    let sent = match p {
+        Packet::Samples(_) | Packet::Temperature(_) => STREAM.try_send(v).is_ok(),
+        _ => RESULTS.try_send(v).is_ok(),
+    };
+    if !sent {
+        warn!("BLE queue full: packet dropped");
+    }
+}
+
+/// The device's state, 12 KiB with its ring: a static of its own rather than part of
+/// the task's future, which lives in the executor's small arena.
+pub fn device() -> Option<&'static mut Device<RING>> {
+    cortex_m::singleton!(: Device<RING> = Device::new(Config::FEATHER))
+}
+
+/// See the module documentation. `led` (red, P1.09) lights when x, y and z are done.
+#[embassy_executor::task]
+pub async fn logic_task(dev: &'static mut Device<RING>, mut led: Output<'static>) {
+    let mut chip = None;
+    let mut out = route;
+    loop {
+        let ev = EVENTS.receive().await;
+        let lost = take_overflows();
+        if lost > 0 {
+            dev.on_lost(lost);
+        }
+        match ev {
+            Event::Sample {
+                capture,
+                counts,
+                late,
+            } => {
+                dev.on_sample(u64::from(capture), counts, late, &mut out);
+                dev.poll(u64::from(capture), &mut out);
+            }
+            Event::Temperature(t) => dev.on_temperature(t, &mut out),
+            Event::Sensor(status, c) => {
+                if c.is_some() {
+                    chip = c;
+                }
+                dev.on_sensor_status(status, &mut out);
+                if let Some(v) = encode(&Packet::Info(dev.info(chip_code(chip), version()))) {
+                    INFO.signal(v);
+                }
+            }
+            Event::Command(c) => {
+                info!("command {}", c);
+                let before = dev.status().state;
+                dev.on_command(c, &mut out);
+                let now = dev.status().state;
+                if now == RunState::Complete && before != RunState::Complete {
+                    if let Some(q) = dev.quick_look() {
+                        info!(
+                            "quick-look: s = {} counts/(m/s²), φ = {} deg",
+                            q.sensitivity, q.angle_deg
+                        );
+                    }
+                    led.set_high();
+                } else if now != RunState::Complete {
+                    led.set_low();
+                }
+            }
+            Event::Poll(now) => dev.poll(u64::from(now), &mut out),
+        }
+    }
+}
