@@ -17,8 +17,11 @@ use nrf_softdevice::ble::{peripheral, Connection};
 use nrf_softdevice::{RawError, Softdevice};
 use rotacal_shared::packet::Packet;
 
-/// GAP name, also in the scan response.
+/// GAP name, also in the advertisement.
 pub const DEVICE_NAME: &str = "rotacal";
+
+/// Largest ATT MTU: one notification then carries 244 bytes, the largest packet being 236.
+pub const ATT_MTU: u16 = 247;
 
 /// The rotacal service and its characteristics.
 #[nrf_softdevice::gatt_service(uuid = "7f1e0001-52a1-4b8e-9c3d-5ad1c0ca1e00")]
@@ -84,6 +87,22 @@ fn set_info(server: &Server, v: &Encoded) {
     }
 }
 
+/// Ask for the 247-byte ATT MTU, for centrals that don't ask themselves (one sample
+/// batch needs up to 236 bytes). Refused when the central already started an exchange,
+/// which is fine: the SoftDevice answers that one with our maximum. Without the GATT
+/// client feature the reply event is not passed up, so `att_mtu()` may not show the new
+/// value; the SoftDevice still uses it.
+fn request_mtu(conn: &Connection) {
+    if let Some(handle) = conn.handle() {
+        // SAFETY: a SoftDevice call on a live connection handle, no pointers.
+        let ret =
+            unsafe { nrf_softdevice::raw::sd_ble_gattc_exchange_mtu_request(handle, ATT_MTU) };
+        if let Err(e) = RawError::convert(ret) {
+            info!("MTU request not sent: {}", e);
+        }
+    }
+}
+
 /// Serve one connection until it ends.
 async fn serve(server: &Server, conn: &Connection) {
     let gatt = gatt_server::run(conn, server, |e| match e {
@@ -123,6 +142,7 @@ pub async fn run(sd: &'static Softdevice, server: &Server) -> ! {
         match peripheral::advertise_connectable(sd, adv, &config).await {
             Ok(conn) => {
                 info!("connected");
+                request_mtu(&conn);
                 serve(server, &conn).await;
             }
             Err(e) => {

@@ -30,10 +30,6 @@ bind_interrupts!(struct Irqs {
     SPIM0_SPIS0_TWIM0_TWIS0_SPI0_TWI0 => twim::InterruptHandler<TWISPI0>;
 });
 
-/// Largest ATT MTU we grant: 247 lets one notification carry 244 bytes, the largest
-/// packet being 236 (the central asks; the SoftDevice answers with min(its, ours)).
-const ATT_MTU: u16 = 247;
-
 /// Runs the SoftDevice event loop; without it no BLE operation ever completes.
 #[embassy_executor::task]
 async fn softdevice_task(sd: &'static Softdevice) -> ! {
@@ -91,7 +87,9 @@ async fn main(spawner: Spawner) {
             conn_count: 1,
             event_length: 24,
         }),
-        conn_gatt: Some(raw::ble_gatt_conn_cfg_t { att_mtu: ATT_MTU }),
+        conn_gatt: Some(raw::ble_gatt_conn_cfg_t {
+            att_mtu: ble::ATT_MTU,
+        }),
         // Notifications are queued here; a full queue makes notify fail, so leave headroom.
         conn_gatts: Some(raw::ble_gatts_conn_cfg_t {
             hvn_tx_queue_size: 16,
