@@ -7,10 +7,12 @@
 //! - [`session_check`]: checks the device logic's packets from the emulated Cortex-M4F.
 //! - [`demo`]: the main job without hardware.
 //! - [`simulate`]: the forward model of the experiment that writes recordings.
+pub mod acquire;
 pub mod batch;
 pub mod calibrate;
 pub mod calibrate_recording;
 pub mod calibration_file;
+pub mod crosscheck;
 pub mod demo;
 pub mod fitcheck;
 pub mod geometry;

@@ -40,6 +40,20 @@ enum Command {
         #[arg(long, value_name = "N")]
         monte_carlo: Option<usize>,
     },
+    /// Re-fit in f64 exactly the sample windows the device fitted, and compare
+    /// (exit 1 if any differs by more than the threshold).
+    Crosscheck {
+        /// The recording CSV (with a seq column).
+        recording: PathBuf,
+        /// The device's fit log (JSON lines).
+        fit_log: PathBuf,
+        /// Pass threshold, in σ_CRLB.
+        #[arg(long, default_value_t = rotacal::crosscheck::DEFAULT_THRESHOLD)]
+        threshold: f64,
+        /// Write the comparison as JSON here.
+        #[arg(long)]
+        json: Option<PathBuf>,
+    },
     /// Simulate the experiment and write a recording (docs/simulator.md).
     Simulate {
         /// A TOML configuration file, or the name of a preset (paper-10mhz,
@@ -72,6 +86,12 @@ fn main() -> ExitCode {
             monte_carlo,
         } => calibrate(file, method, rate_hz, g_loc, json, monte_carlo),
         Command::Simulate { config, out, seed } => simulate(&config, &out, seed),
+        Command::Crosscheck {
+            recording,
+            fit_log,
+            threshold,
+            json,
+        } => crosscheck(&recording, &fit_log, threshold, json.as_deref()),
         Command::Demo { seed } => rotacal::demo::run(seed)
             .and_then(|d| Ok(rotacal::output::emit(&rotacal::demo::render(&d))?)),
     };
@@ -135,5 +155,29 @@ fn simulate(config: &str, out: &std::path::Path, seed: Option<u64>) -> anyhow::R
         .write_file(out)
         .map_err(|e| anyhow::anyhow!("{}: {e}", out.display()))?;
     rotacal::output::emit(&rotacal::simulate::render(&sim, &sum, out))?;
+    Ok(())
+}
+
+fn crosscheck(
+    recording: &std::path::Path,
+    fit_log: &std::path::Path,
+    threshold: f64,
+    json: Option<&std::path::Path>,
+) -> anyhow::Result<()> {
+    let rec = rotacal::recording::read(recording)?;
+    let text = std::fs::read_to_string(fit_log)
+        .map_err(|e| anyhow::anyhow!("{}: {e}", fit_log.display()))?;
+    let log = rotacal::acquire::read_fit_log(&text, &fit_log.display().to_string())
+        .map_err(anyhow::Error::msg)?;
+    let report =
+        rotacal::crosscheck::crosscheck(&rec, &log, threshold).map_err(anyhow::Error::msg)?;
+    if let Some(path) = json {
+        std::fs::write(path, serde_json::to_string_pretty(&report)? + "\n")
+            .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+    }
+    rotacal::output::emit(&rotacal::crosscheck::render(&report))?;
+    if !report.passed {
+        anyhow::bail!("the device's fits do not match the recording (see the table)");
+    }
     Ok(())
 }

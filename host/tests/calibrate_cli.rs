@@ -1,5 +1,7 @@
 //! `rotacal calibrate` end to end: recordings written with the recording writer, the
 //! binary run on them, its JSON checked against formats.md and the truth.
+mod common;
+use common::run;
 use rotacal::demo::{
     paper_run_spec, sensitivity_from_intrinsic, PAPER_DC_ANGLES_DEG, PAPER_DC_SENSITIVITY,
     PAPER_G_LOC,
@@ -9,7 +11,6 @@ use rotacal_shared::synth::Synth;
 use rotacal_shared::{Condition, PhaseStep, TickRate};
 use serde_json::Value;
 use std::path::PathBuf;
-use std::process::Command;
 
 fn tmp(name: &str) -> PathBuf {
     let dir = std::env::temp_dir().join(format!("rotacal-test-{}", std::process::id()));
@@ -41,18 +42,6 @@ fn write_rotation(path: &PathBuf, rate_ppm: f64) {
         }
     }
     w.flush().unwrap();
-}
-
-fn run(args: &[&str]) -> (bool, String, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_rotacal"))
-        .args(args)
-        .output()
-        .unwrap();
-    (
-        out.status.success(),
-        String::from_utf8_lossy(&out.stdout).into_owned(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
 }
 
 fn check_q(q: &Value, truth: f64) {

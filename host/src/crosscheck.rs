@@ -1,0 +1,159 @@
+//! `rotacal crosscheck RECORDING FIT-LOG`: re-fits in f64 (nalgebra QR), from the recorded
+//! samples, exactly the windows the device fitted (first to last seq, per condition),
+//! with the device's regressors (its phase step and clock), and compares.
+//!
+//! Pass: every A, B, C of every report within `threshold` σ_CRLB of the host's value,
+//! with σ_CRLB = √(2σ̂²/N) for A and B and √(σ̂²/N) for C (σ̂ the host fit's residual
+//! standard deviation), and every window complete. The default threshold, 0.01, is the
+//! accuracy issue 2 requires of the device's f32 fit.
+
+use crate::acquire::{FitLine, LogLine};
+use crate::batch;
+use crate::fitcheck::sigma_crlb;
+use crate::recording::Recording;
+use rotacal_shared::{Condition, Model, PhaseStep, TickRate, Ticks};
+use serde::Serialize;
+use std::fmt::Write as _;
+
+/// The default pass threshold, in σ_CRLB.
+pub const DEFAULT_THRESHOLD: f64 = 0.01;
+
+/// One device fit against the host's.
+#[derive(Clone, Debug, Serialize)]
+pub struct FitCheck {
+    /// x, y or z.
+    pub condition: char,
+    /// At stop or periodic.
+    pub is_final: bool,
+    /// The device's window.
+    pub first_seq: u32,
+    /// See `first_seq`.
+    pub last_seq: u32,
+    /// Samples the device fitted.
+    pub n_device: u32,
+    /// Rows of the window found in the recording.
+    pub n_recorded: usize,
+    /// max over channels and A, B, C of |device − host| / host standard error.
+    pub max_delta_se: f64,
+    /// … / σ_CRLB.
+    pub max_delta_crlb: f64,
+    /// Within the threshold and complete.
+    pub passed: bool,
+}
+
+/// The comparison.
+#[derive(Clone, Debug, Serialize)]
+pub struct CrosscheckReport {
+    /// Pass threshold, σ_CRLB.
+    pub threshold: f64,
+    /// Every report.
+    pub fits: Vec<FitCheck>,
+    /// Worst over all.
+    pub max_delta_crlb: f64,
+    /// All passed (and there was at least one).
+    pub passed: bool,
+}
+
+fn check_one(rec: &Recording, f: &FitLine, threshold: f64) -> Result<FitCheck, String> {
+    let cond = Condition::from_letter(f.condition)
+        .ok_or_else(|| format!("fit log: condition '{}'", f.condition))?;
+    let clock = TickRate::new(f.tick_hz).ok_or("fit log: tick_hz 0")?;
+    let mut window = Vec::new();
+    for g in rec.groups.iter().filter(|g| g.condition == cond) {
+        let seq = g.seq.as_ref().ok_or_else(|| {
+            format!(
+                "{}: no seq column, so the device's windows can't be found",
+                rec.source
+            )
+        })?;
+        for (i, s) in seq.iter().enumerate() {
+            if (u64::from(f.first_seq)..=u64::from(f.last_seq)).contains(s) {
+                let t = g.t_s.get(i).ok_or("recording has no t_s")?;
+                let ticks = (t * f64::from(f.tick_hz)).round();
+                if !(0.0..1.8e19).contains(&ticks) {
+                    return Err(format!("{}: t_s {t} out of range", rec.source));
+                }
+                window.push((Ticks(ticks as u64), [g.u[i], g.v[i], g.w[i]]));
+            }
+        }
+    }
+    let n_recorded = window.len();
+    let (mut max_se, mut max_crlb) = (f64::INFINITY, f64::INFINITY);
+    if n_recorded == f.n as usize {
+        let r = batch::fit(&window, PhaseStep(f.step), clock, Model::SINE, Ticks(0))
+            .map_err(|e| format!("condition {}: host fit: {e}", f.condition))?;
+        (max_se, max_crlb) = (0.0, 0.0);
+        for (host, device) in r.channels.iter().zip(&f.coef) {
+            let crlb = sigma_crlb(host.sigma, n_recorded);
+            for (k, bound) in crlb.iter().enumerate() {
+                let d = (device[k] - host.coef[k]).abs();
+                max_se = max_se.max(d / host.se[k]);
+                max_crlb = max_crlb.max(d / bound);
+            }
+        }
+    }
+    Ok(FitCheck {
+        condition: f.condition,
+        is_final: f.is_final,
+        first_seq: f.first_seq,
+        last_seq: f.last_seq,
+        n_device: f.n,
+        n_recorded,
+        max_delta_se: max_se,
+        max_delta_crlb: max_crlb,
+        passed: max_crlb <= threshold,
+    })
+}
+
+/// Compare every fit report of the log with the recording.
+pub fn crosscheck(
+    rec: &Recording,
+    log: &[LogLine],
+    threshold: f64,
+) -> Result<CrosscheckReport, String> {
+    let fits = log
+        .iter()
+        .filter_map(|l| match l {
+            LogLine::Fit(f) => Some(check_one(rec, f, threshold)),
+            LogLine::QuickLook { .. } => None,
+        })
+        .collect::<Result<Vec<_>, _>>()?;
+    let max = fits.iter().map(|f| f.max_delta_crlb).fold(0.0, f64::max);
+    Ok(CrosscheckReport {
+        threshold,
+        passed: !fits.is_empty() && fits.iter().all(|f| f.passed),
+        max_delta_crlb: max,
+        fits,
+    })
+}
+
+/// The terminal table.
+pub fn render(r: &CrosscheckReport) -> String {
+    let mut o = String::from(
+        "cond  kind      seq window        n dev / rec   max Δ/se   max Δ/σ_CRLB  result\n",
+    );
+    for f in &r.fits {
+        let _ = writeln!(
+            o,
+            "{:<5} {:<9} {:>7}–{:<7} {:>6} / {:<6} {:>9.2e}   {:>12.2e}  {}",
+            f.condition,
+            if f.is_final { "final" } else { "periodic" },
+            f.first_seq,
+            f.last_seq,
+            f.n_device,
+            f.n_recorded,
+            f.max_delta_se,
+            f.max_delta_crlb,
+            if f.passed { "ok" } else { "FAIL" }
+        );
+    }
+    let _ = writeln!(
+        o,
+        "{} device fits; worst |device − host f64| = {:.2e} σ_CRLB (threshold {}): {}",
+        r.fits.len(),
+        r.max_delta_crlb,
+        r.threshold,
+        if r.passed { "passed" } else { "FAILED" }
+    );
+    o
+}
