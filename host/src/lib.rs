@@ -16,6 +16,7 @@ pub mod crosscheck;
 pub mod demo;
 pub mod fitcheck;
 pub mod geometry;
+pub mod import;
 pub mod output;
 pub mod recording;
 pub mod session_check;
