@@ -39,7 +39,8 @@ pub struct CalibrateError {
     pub message: String,
 }
 
-const CLOCK: TickRate = TickRate::MHZ_1;
+/// The clock rotation timestamps are converted to (t_s has microsecond resolution).
+pub const CLOCK: TickRate = TickRate::MHZ_1;
 
 fn err(rec: &Recording, line: Option<u64>, message: impl Into<String>) -> CalibrateError {
     CalibrateError {
@@ -49,7 +50,9 @@ fn err(rec: &Recording, line: Option<u64>, message: impl Into<String>) -> Calibr
     }
 }
 
-fn samples(rec: &Recording, g: &Group) -> Result<Vec<(Ticks, [f64; 3])>, CalibrateError> {
+/// A group's samples as (ticks of the 1 MHz clock from its first row, [u, v, w]): the
+/// times and phases every rotation fit here uses.
+pub fn samples(rec: &Recording, g: &Group) -> Result<Vec<(Ticks, [f64; 3])>, CalibrateError> {
     let t0 = g.t_s.first().copied().unwrap_or(0.0);
     g.t_s
         .iter()

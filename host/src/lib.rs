@@ -19,5 +19,6 @@ pub mod geometry;
 pub mod import;
 pub mod output;
 pub mod recording;
+pub mod report;
 pub mod session_check;
 pub mod simulate;

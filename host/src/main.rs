@@ -40,6 +40,21 @@ enum Command {
         #[arg(long, value_name = "N")]
         monte_carlo: Option<usize>,
     },
+    /// A Markdown report with SVG plots: data and fits, residuals, residual spectrum,
+    /// the intrinsic properties with U (k = 2), properties against rate.
+    Report {
+        /// The recording CSV.
+        file: PathBuf,
+        /// The folder to write (created if missing).
+        #[arg(long)]
+        out: PathBuf,
+        /// Nominal rotation rate, Hz (overrides `# rate_hz=`).
+        #[arg(long)]
+        rate_hz: Option<f64>,
+        /// Local gravity, m/s² (overrides `# g_loc=`).
+        #[arg(long)]
+        g_loc: Option<f64>,
+    },
     /// Re-fit in f64 exactly the sample windows the device fitted, and compare
     /// (exit 1 if any differs by more than the threshold).
     Crosscheck {
@@ -116,6 +131,12 @@ fn main() -> ExitCode {
             monte_carlo,
         } => calibrate(file, method, rate_hz, g_loc, json, monte_carlo),
         Command::Simulate { config, out, seed } => simulate(&config, &out, seed),
+        Command::Report {
+            file,
+            out,
+            rate_hz,
+            g_loc,
+        } => report(&file, &out, rate_hz, g_loc),
         Command::Import {
             inputs,
             columns,
@@ -281,5 +302,22 @@ fn import(
             .collect::<Vec<_>>()
             .join(", ")
     ))?;
+    Ok(())
+}
+
+fn report(
+    file: &std::path::Path,
+    out: &std::path::Path,
+    rate_hz: Option<f64>,
+    g_loc: Option<f64>,
+) -> anyhow::Result<()> {
+    let rec = rotacal::recording::read(file)?;
+    let opts = rotacal::calibrate_recording::Options {
+        rate_hz,
+        g_loc,
+        ..Default::default()
+    };
+    let path = rotacal::report::write(&rec, &opts, out)?;
+    rotacal::output::emit(&format!("wrote {}\n", path.display()))?;
     Ok(())
 }

@@ -1,0 +1,90 @@
+//! `rotacal report`: every preset gives a Markdown report whose table is the calibration's,
+//! with its plots; the residual spectrum finds a simulated second-order nonlinearity at
+//! the second harmonic of the channel that has it; a bad file fails with its place.
+mod common;
+use common::run;
+use rotacal::simulate::{Config, Simulation};
+use std::path::PathBuf;
+
+fn dir(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("rotacal-report-{}-{name}", std::process::id()));
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+fn report(cfg: Config, name: &str) -> (PathBuf, String) {
+    let d = dir(name);
+    let rec = d.join("rec.csv");
+    Simulation::new(cfg).unwrap().write_file(&rec).unwrap();
+    let out = d.join("report");
+    let (ok, stdout, stderr) = run(&[
+        "report".to_string(),
+        rec.display().to_string(),
+        "--out".into(),
+        out.display().to_string(),
+    ]);
+    assert!(ok, "{stdout}\n{stderr}");
+    let md = std::fs::read_to_string(out.join("report.md")).unwrap();
+    // Every image the report names exists and is a whole SVG document.
+    for img in md.split("](").skip(1).filter_map(|s| s.split(')').next()) {
+        let svg = std::fs::read_to_string(out.join(img)).unwrap();
+        assert!(
+            svg.starts_with("<svg") && svg.trim_end().ends_with("</svg>"),
+            "{img}"
+        );
+    }
+    (out, md)
+}
+
+#[test]
+fn every_preset_reports() {
+    let (_, md) = report(Config::preset("paper-10mhz").unwrap(), "paper");
+    assert!(md.contains("| s_u | 1669."), "{md}");
+    assert_eq!(md.matches("![data and fit]").count(), 3);
+    assert_eq!(md.matches("![residual spectrum]").count(), 3);
+    let (out, md) = report(Config::preset("paper-multirate").unwrap(), "multi");
+    assert_eq!(md.matches("## Rotation at").count(), 4);
+    assert!(md.contains("![properties against rate](rates.svg)"));
+    assert!(out.join("rates.svg").exists());
+    let (_, md) = report(Config::preset("metrologia-static").unwrap(), "static");
+    assert!(md.contains("Sensitivity matrix S"));
+    assert!(md.contains("| O_u |"));
+    assert!(!md.contains("residual spectrum"));
+}
+
+/// K2 = 2e-4 /(m/s²) on w: its second harmonic is s·K2·g²/2 ≈ 16 counts in condition x,
+/// where w sees the whole of g; u (along the axis) and v (no K2) show only noise
+/// (≈ 0.1 count).
+#[test]
+fn the_spectrum_finds_a_second_order_nonlinearity() {
+    let mut cfg = Config::preset("paper-10mhz").unwrap();
+    cfg.effects.nonlinearity_2nd = Some(rotacal::simulate::config::Nonlinearity2 {
+        k2: [0.0, 0.0, 2e-4],
+    });
+    let (_, md) = report(cfg, "k2");
+    let x = md.split("### condition x").nth(1).unwrap();
+    let row = x.lines().find(|l| l.starts_with("| 2 |")).unwrap();
+    let amps: Vec<f64> = row
+        .split('|')
+        .filter_map(|c| c.trim().parse::<f64>().ok())
+        .skip(1)
+        .collect();
+    let expected = 1676.46 * 2e-4 * 9.80101f64.powi(2) / 2.0;
+    assert!((amps[2] - expected).abs() < 0.05 * expected, "{row}");
+    assert!(amps[0] < 0.5 && amps[1] < 0.5, "{row}");
+}
+
+#[test]
+fn a_bad_recording_fails_with_its_place() {
+    let d = dir("bad");
+    let p = d.join("bad.csv");
+    std::fs::write(&p, "condition,t_s,u,v,w\nx,0,1,2,3\nq,1,1,2,3\n").unwrap();
+    let (ok, _, err) = run(&[
+        "report".to_string(),
+        p.display().to_string(),
+        "--out".into(),
+        d.join("r").display().to_string(),
+    ]);
+    assert!(!ok);
+    assert!(err.contains("bad.csv:3"), "{err}");
+}
