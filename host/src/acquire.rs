@@ -109,8 +109,10 @@ pub struct Recorder<W: Write, F: Write> {
     rows: Writer<W>,
     fits: F,
     tick_hz: u32,
-    pending: Vec<(u32, Row)>,
-    temp: Option<(u32, f64)>,
+    /// Rows waiting for the first temperature.
+    pending: Vec<Row>,
+    /// Latest temperature, °C.
+    temp: Option<f64>,
     next_seq: Option<u32>,
     summary: RecordSummary,
 }
@@ -144,14 +146,14 @@ impl<W: Write, F: Write> Recorder<W, F> {
         })
     }
 
-    fn write_row(&mut self, seq: u32, mut row: Row) -> io::Result<()> {
+    fn write_row(&mut self, mut row: Row) -> io::Result<()> {
         match self.temp {
-            Some((_, t)) => {
+            Some(t) => {
                 row.temp_c = Some(t);
                 self.rows.write_row(&row)?;
                 self.summary.rows += 1;
             }
-            None => self.pending.push((seq, row)),
+            None => self.pending.push(row),
         }
         Ok(())
     }
@@ -178,13 +180,13 @@ impl<W: Write, F: Write> Recorder<W, F> {
                     let mut row = Row::new(b.condition, u, v, w);
                     row.seq = Some(u64::from(seq));
                     row.t_s = Some(t as f64 / f64::from(self.tick_hz));
-                    self.write_row(seq, row)?;
+                    self.write_row(row)?;
                 }
             }
             Packet::Temperature(t) => {
                 let c = f64::from(t.centi_c) / 100.0;
-                self.temp = Some((t.seq, c));
-                for (_, mut row) in std::mem::take(&mut self.pending) {
+                self.temp = Some(c);
+                for mut row in std::mem::take(&mut self.pending) {
                     row.temp_c = Some(c);
                     self.rows.write_row(&row)?;
                     self.summary.rows += 1;

@@ -76,6 +76,31 @@ pub fn least_squares(h: DMatrix<f64>, ys: &[DVector<f64>]) -> Result<BatchFit, B
     solve_qr(h, ys)
 }
 
+/// (HᵀH)⁻¹ = R⁻¹R⁻ᵀ from the triangular factor, refusing a (numerically) singular R.
+fn unscaled_cov(r: &DMatrix<f64>) -> Result<DMatrix<f64>, BatchError> {
+    let rmax = r.diagonal().amax();
+    if r.diagonal().iter().any(|d| d.abs() <= 1e-13 * rmax) {
+        return Err(BatchError::Singular);
+    }
+    let r_inv = r.clone().try_inverse().ok_or(BatchError::Singular)?;
+    Ok(&r_inv * r_inv.transpose())
+}
+
+/// A channel's result from its coefficients and residual sum of squares over `n` rows:
+/// standard errors √(σ̂²·[(HᵀH)⁻¹]ᵢᵢ) with σ̂² = RSS/(n − p).
+fn channel(coef: &[f64], rss: f64, n: usize, unscaled_cov: &DMatrix<f64>) -> BatchChannel {
+    let p = coef.len();
+    let var = rss / (n - p) as f64;
+    BatchChannel {
+        coef: coef.to_vec(),
+        se: (0..p)
+            .map(|i| (var * unscaled_cov[(i, i)]).sqrt())
+            .collect(),
+        rss,
+        sigma: var.sqrt(),
+    }
+}
+
 fn solve_qr(h: DMatrix<f64>, ys: &[DVector<f64>]) -> Result<BatchFit, BatchError> {
     let (n, p) = h.shape();
     if n <= p {
@@ -83,29 +108,19 @@ fn solve_qr(h: DMatrix<f64>, ys: &[DVector<f64>]) -> Result<BatchFit, BatchError
     }
     let qr = h.clone().qr();
     let r = qr.r();
-    let rmax = r.diagonal().amax();
-    if r.diagonal().iter().any(|d| d.abs() <= 1e-13 * rmax) {
-        return Err(BatchError::Singular);
-    }
-    let r_inv = r.clone().try_inverse().ok_or(BatchError::Singular)?;
-    let unscaled_cov = &r_inv * r_inv.transpose();
+    let unscaled_cov = unscaled_cov(&r)?;
     let q = qr.q();
     let mut channels = Vec::with_capacity(ys.len());
     for y in ys {
         let qty = q.transpose() * y;
         let coef = r.solve_upper_triangular(&qty).ok_or(BatchError::Singular)?;
         let resid = y - &h * &coef;
-        let rss = resid.norm_squared();
-        let var = rss / (n - p) as f64;
-        let se = (0..p)
-            .map(|i| (var * unscaled_cov[(i, i)]).sqrt())
-            .collect();
-        channels.push(BatchChannel {
-            coef: coef.iter().copied().collect(),
-            se,
-            rss,
-            sigma: var.sqrt(),
-        });
+        channels.push(channel(
+            coef.as_slice(),
+            resid.norm_squared(),
+            n,
+            &unscaled_cov,
+        ));
     }
     Ok(BatchFit {
         n,
@@ -186,26 +201,12 @@ impl IncrementalQr {
         let r = t.view((0, 0), (p, p)).into_owned();
         let z = t.view((0, p), (p, 1)).into_owned();
         let rss = t[(p, p)].powi(2);
-        let rmax = r.diagonal().amax();
-        if r.diagonal().iter().any(|d| d.abs() <= 1e-13 * rmax) {
-            return Err(BatchError::Singular);
-        }
+        let unscaled_cov = unscaled_cov(&r)?;
         let coef = r.solve_upper_triangular(&z).ok_or(BatchError::Singular)?;
-        let r_inv = r.try_inverse().ok_or(BatchError::Singular)?;
-        let unscaled_cov = &r_inv * r_inv.transpose();
-        let var = rss / (self.n - p) as f64;
-        let se = (0..p)
-            .map(|i| (var * unscaled_cov[(i, i)]).sqrt())
-            .collect();
         Ok(BatchFit {
             n: self.n,
+            channels: vec![channel(coef.as_slice(), rss, self.n, &unscaled_cov)],
             unscaled_cov,
-            channels: vec![BatchChannel {
-                coef: coef.iter().copied().collect(),
-                se,
-                rss,
-                sigma: var.sqrt(),
-            }],
         })
     }
 }

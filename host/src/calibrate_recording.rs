@@ -235,7 +235,7 @@ pub fn calibrate(rec: &Recording, opts: &Options) -> Result<CalibrationJson, Cal
 }
 
 /// Decimal places that show `u` to two significant digits (at most 12).
-fn decimals(u: f64) -> usize {
+pub fn decimals(u: f64) -> usize {
     if !(u.is_finite() && u > 0.0) {
         return 6;
     }

@@ -54,10 +54,41 @@ pub struct CrosscheckReport {
     pub passed: bool,
 }
 
+/// A device fit against the f64 QR fit of the same samples with its regressors.
+pub struct Comparison {
+    /// The host's fit.
+    pub host: batch::BatchFit,
+    /// max over channels and A, B, C of |device − host| / host standard error.
+    pub max_delta_se: f64,
+    /// … / σ_CRLB, from the host fit's σ̂.
+    pub max_delta_crlb: f64,
+}
+
+/// Fit `window` (ticks of the device clock, [u, v, w]) in f64 with the device's phase
+/// step and clock, and compare with its coefficients.
+pub fn compare(window: &[(Ticks, [f64; 3])], f: &FitLine) -> Result<Comparison, String> {
+    let clock = TickRate::new(f.tick_hz).ok_or("fit log: tick_hz 0")?;
+    let host = batch::fit(window, PhaseStep(f.step), clock, Model::SINE, Ticks(0))
+        .map_err(|e| format!("condition {}: host fit: {e}", f.condition))?;
+    let (mut max_se, mut max_crlb) = (0.0f64, 0.0f64);
+    for (h, device) in host.channels.iter().zip(&f.coef) {
+        let crlb = sigma_crlb(h.sigma, window.len());
+        for (k, bound) in crlb.iter().enumerate() {
+            let d = (device[k] - h.coef[k]).abs();
+            max_se = max_se.max(d / h.se[k]);
+            max_crlb = max_crlb.max(d / bound);
+        }
+    }
+    Ok(Comparison {
+        host,
+        max_delta_se: max_se,
+        max_delta_crlb: max_crlb,
+    })
+}
+
 fn check_one(rec: &Recording, f: &FitLine, threshold: f64) -> Result<FitCheck, String> {
     let cond = Condition::from_letter(f.condition)
         .ok_or_else(|| format!("fit log: condition '{}'", f.condition))?;
-    let clock = TickRate::new(f.tick_hz).ok_or("fit log: tick_hz 0")?;
     let mut window = Vec::new();
     for g in rec.groups.iter().filter(|g| g.condition == cond) {
         let seq = g.seq.as_ref().ok_or_else(|| {
@@ -78,20 +109,12 @@ fn check_one(rec: &Recording, f: &FitLine, threshold: f64) -> Result<FitCheck, S
         }
     }
     let n_recorded = window.len();
-    let (mut max_se, mut max_crlb) = (f64::INFINITY, f64::INFINITY);
-    if n_recorded == f.n as usize {
-        let r = batch::fit(&window, PhaseStep(f.step), clock, Model::SINE, Ticks(0))
-            .map_err(|e| format!("condition {}: host fit: {e}", f.condition))?;
-        (max_se, max_crlb) = (0.0, 0.0);
-        for (host, device) in r.channels.iter().zip(&f.coef) {
-            let crlb = sigma_crlb(host.sigma, n_recorded);
-            for (k, bound) in crlb.iter().enumerate() {
-                let d = (device[k] - host.coef[k]).abs();
-                max_se = max_se.max(d / host.se[k]);
-                max_crlb = max_crlb.max(d / bound);
-            }
-        }
-    }
+    let (max_se, max_crlb) = if n_recorded == f.n as usize {
+        let c = compare(&window, f)?;
+        (c.max_delta_se, c.max_delta_crlb)
+    } else {
+        (f64::INFINITY, f64::INFINITY)
+    };
     Ok(FitCheck {
         condition: f.condition,
         is_final: f.is_final,

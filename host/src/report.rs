@@ -332,9 +332,11 @@ fn plot_spectrum(
     root.present().map_err(err(path))
 }
 
-fn props(e: &RateJson) -> [&Quantity; 6] {
-    let (s, a) = (&e.intrinsic.sensitivity, &e.intrinsic.angle_deg);
-    [&s.u, &s.v, &s.w, &a.uv, &a.vw, &a.wu]
+/// s_u, s_v, s_w, φ_uv, φ_vw, φ_wu (not the offsets).
+fn props(e: &RateJson) -> Vec<&Quantity> {
+    let mut q = e.intrinsic.quantities();
+    q.truncate(6);
+    q
 }
 
 /// Properties against rate, relative to the lowest rate, with U (k = 2) as error bars:
@@ -349,7 +351,7 @@ fn plot_rates(cal: &CalibrationJson, path: &Path) -> Result<(), ReportError> {
     let Some(first) = entries.first() else {
         return Ok(());
     };
-    let base = props(first).map(|q| q.value);
+    let base: Vec<f64> = props(first).iter().map(|q| q.value).collect();
     let root = SVGBackend::new(path, (900, 700)).into_drawing_area();
     root.fill(&WHITE).map_err(err(path))?;
     let (top, bottom) = root.split_vertically(350);
@@ -409,11 +411,7 @@ fn plot_rates(cal: &CalibrationJson, path: &Path) -> Result<(), ReportError> {
 }
 
 fn q(x: &Quantity, unit: &str) -> String {
-    let d = if x.expanded_unc > 0.0 && x.expanded_unc.is_finite() {
-        (1.0 - x.expanded_unc.log10().floor()).clamp(0.0, 12.0) as usize
-    } else {
-        6
-    };
+    let d = calibrate_recording::decimals(x.expanded_unc);
     format!("{:.d$} ± {:.d$} {unit}", x.value, x.expanded_unc)
 }
 

@@ -4,14 +4,15 @@
 //! equal an f64 batch fit (nalgebra QR, independent of the streaming fit) of exactly the
 //! samples of its window; the quick-look must equal the Gram form on those f64 fits.
 
-use crate::batch;
-use crate::fitcheck::sigma_crlb;
+use crate::acquire::FitLine;
 use rotacal_shared::device::simulated::SessionSpec;
 use rotacal_shared::device::{Config, Device, RING};
 use rotacal_shared::intrinsic::{self, ConditionFit};
 use rotacal_shared::packet::{Packet, MAX_PACKET};
-use rotacal_shared::synth::crosscheck;
-use rotacal_shared::{Model, PhaseStep, TickRate, Ticks};
+use rotacal_shared::{TickRate, Ticks};
+
+/// The device's clock in the simulated session (`Config::FEATHER`).
+const CLOCK: TickRate = Config::FEATHER.clock;
 use serde::Serialize;
 
 /// A log line that is not a packet.
@@ -86,7 +87,7 @@ pub struct FitComparison {
     pub is_final: bool,
     /// Samples in the window.
     pub n: u32,
-    /// max over channels and A, B, C of |device − host| / σ_CRLB.
+    /// max over channels and A, B, C of |device − host| / σ_CRLB (from the host fit's σ̂).
     pub max_ratio_crlb: f64,
     /// max over channels and A, B, C of |device se − host se| / host se.
     pub max_se_rel: f64,
@@ -135,8 +136,6 @@ pub fn check(device: &[Vec<u8>]) -> anyhow::Result<SessionReport> {
         }
     }
     let seq_contiguous = samples.iter().enumerate().all(|(i, s)| s.0 as usize == i);
-    let noise = crosscheck::noise_sigma(SessionSpec::PAPER.sensor_odr_mhz);
-    let clock = TickRate::MHZ_1;
     let mut fits = Vec::new();
     let mut finals: [Option<ConditionFit>; 3] = [None; 3];
     for p in &packets {
@@ -146,19 +145,18 @@ pub fn check(device: &[Vec<u8>]) -> anyhow::Result<SessionReport> {
             .filter(|s| s.0 >= f.first_seq && s.0 <= f.last_seq)
             .map(|s| (s.1, s.2))
             .collect();
-        let step = PhaseStep(f.step);
-        let r = batch::fit(&window, step, clock, Model::SINE, Ticks(0))?;
-        let crlb = sigma_crlb(noise, window.len());
-        let mut worst: f64 = if window.len() == f.n as usize {
-            0.0
+        let line = FitLine::new(f, CLOCK.hz());
+        let c = crate::crosscheck::compare(&window, &line).map_err(anyhow::Error::msg)?;
+        let r = &c.host;
+        let worst = if window.len() == f.n as usize {
+            c.max_delta_crlb
         } else {
             f64::INFINITY
         };
         let mut se_rel = 0.0f64;
-        for ((host, coef), se) in r.channels.iter().zip(&f.coef).zip(&f.se) {
-            for (k, bound) in crlb.iter().enumerate() {
-                worst = worst.max((coef[k] - host.coef[k]).abs() / bound);
-                se_rel = se_rel.max((f64::from(se[k]) - host.se[k]).abs() / host.se[k]);
+        for (host, se) in r.channels.iter().zip(&f.se) {
+            for (k, se) in se.iter().enumerate() {
+                se_rel = se_rel.max((f64::from(*se) - host.se[k]).abs() / host.se[k]);
             }
         }
         fits.push(FitComparison {

@@ -722,6 +722,8 @@ impl Packet {
                 Err(DecodeError::Field { offset, name })
             }
         };
+        // Bytes 2 and 3, where a kind leaves them unused.
+        let reserved = || zero(2, b2, "reserved").and_then(|()| zero(3, b3, "reserved"));
         let cond = |offset: usize, v: u8| {
             cond_from(v).ok_or(DecodeError::Field {
                 offset,
@@ -753,8 +755,7 @@ impl Packet {
                 Packet::Samples(b)
             }
             kind::TEMPERATURE => {
-                zero(2, b2, "reserved")?;
-                zero(3, b3, "reserved")?;
+                reserved()?;
                 Packet::Temperature(Temperature {
                     seq: i.u32(),
                     centi_c: i.i16(),
@@ -790,8 +791,7 @@ impl Packet {
                 })
             }
             kind::QUICK_LOOK => {
-                zero(2, b2, "reserved")?;
-                zero(3, b3, "reserved")?;
+                reserved()?;
                 Packet::QuickLook(QuickLook {
                     sensitivity: i.f64x3(),
                     sensitivity_u: i.f32x3(),
@@ -801,8 +801,7 @@ impl Packet {
                 })
             }
             kind::INFO => {
-                zero(2, b2, "reserved")?;
-                zero(3, b3, "reserved")?;
+                reserved()?;
                 let firmware = [i.u8(), i.u8(), i.u8()];
                 let chip = match i.u8() {
                     0 => Chip::None,
@@ -898,8 +897,7 @@ impl Packet {
                 })
             }
             kind::SET_SAMPLE_RATE => {
-                zero(2, b2, "reserved")?;
-                zero(3, b3, "reserved")?;
+                reserved()?;
                 let mhz = i.u32();
                 if mhz == 0 {
                     return Err(DecodeError::Field {
@@ -910,8 +908,7 @@ impl Packet {
                 Packet::Command(Command::SetSampleRate { mhz })
             }
             kind::STOP | kind::RESET => {
-                zero(2, b2, "reserved")?;
-                zero(3, b3, "reserved")?;
+                reserved()?;
                 Packet::Command(if k == kind::STOP {
                     Command::Stop
                 } else {
@@ -920,8 +917,7 @@ impl Packet {
             }
             _ => {
                 // kind::BACKFILL (every other kind returned above).
-                zero(2, b2, "reserved")?;
-                zero(3, b3, "reserved")?;
+                reserved()?;
                 Packet::Command(Command::Backfill {
                     from_seq: i.u32(),
                     count: i.u16(),

@@ -313,7 +313,7 @@ impl Simulation {
         };
         match c.method {
             Method::Rotation => {
-                let n = self.samples_per_condition();
+                let n = c.samples_per_condition();
                 let multi = self.multi_rate();
                 for rate in c.rates_hz() {
                     let omega = TAU
@@ -379,10 +379,6 @@ impl Simulation {
         }
         sum.duration_s = (t0 - c.timing.gap_s).max(0.0);
         Ok(sum)
-    }
-
-    fn samples_per_condition(&self) -> u64 {
-        self.cfg.samples_per_condition()
     }
 
     /// Specific force on channel j's sample `tau` seconds into a condition (the channel's
