@@ -6,10 +6,14 @@
 //! Temperatures arrive about once a second, tagged with the seq of the sample they were
 //! read with. Each row gets the latest temperature at or before its seq; rows before the
 //! first temperature wait (about a second) and get the first one.
+//!
+//! Gaps: see [`Recorder`]. The BLE recorder (`record`) asks the device to replay what
+//! [`Recorder::missing`] lists and gives up what its ring no longer holds.
 
 use crate::recording::{Columns, Metadata, Row, Writer};
 use rotacal_shared::packet::{FitReport, Packet, QuickLook};
 use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
 use std::io::{self, Write};
 
 /// One line of the fit log: a device fit report. It mirrors `packet::FitReport` field by
@@ -100,20 +104,46 @@ pub struct RecordSummary {
     pub rows: u64,
     /// Fit-log lines written.
     pub fit_lines: u64,
-    /// Missing seq ranges [first, last] (lost on the link and not recovered).
-    pub gaps: Vec<(u32, u32)>,
+    /// Rows that arrived in replay batches and filled a gap.
+    pub recovered: u64,
+    /// Samples that arrived twice (a replay overlapping live data); the first copy is kept.
+    pub duplicates: u64,
+    /// Seq ranges [first, last] that never arrived (lost on the link and not recovered).
+    pub lost: Vec<(u32, u32)>,
+}
+
+impl RecordSummary {
+    /// Samples in the `lost` ranges.
+    pub fn lost_samples(&self) -> u64 {
+        self.lost
+            .iter()
+            .map(|&(a, b)| u64::from(b.wrapping_sub(a)) + 1)
+            .sum()
+    }
 }
 
 /// See the module documentation.
+///
+/// Rows are written in seq order. A sample that arrives after a gap is held until the gap
+/// is filled by replayed samples ([`Recorder::missing`] says what to ask the device for)
+/// or given up ([`Recorder::give_up_before`]); so the recording is always a file that
+/// `calibrate` reads (time increasing within a condition), and whatever was received but
+/// not yet written is in the raw capture (`capture`).
 pub struct Recorder<W: Write, F: Write> {
     rows: Writer<W>,
     fits: F,
     tick_hz: u32,
-    /// Rows waiting for the first temperature.
+    /// Rows waiting for the first temperature (in seq order).
     pending: Vec<Row>,
-    /// Latest temperature, °C.
-    temp: Option<f64>,
+    /// Temperatures by the seq they were read with, °C.
+    temps: BTreeMap<u32, f64>,
+    /// The next seq to write; None before the first sample.
     next_seq: Option<u32>,
+    /// Rows after a gap, waiting for it to be filled or given up.
+    held: BTreeMap<u32, Row>,
+    /// Samples known to exist up to this seq (from the device's status), so that a gap at
+    /// the end of the stream shows in `missing`.
+    expected_through: Option<u32>,
     summary: RecordSummary,
 }
 
@@ -129,6 +159,15 @@ pub const COLUMNS: Columns = Columns {
 impl<W: Write, F: Write> Recorder<W, F> {
     /// Start a recording with `meta`, timestamps in ticks of `tick_hz`.
     pub fn new(rows: W, fits: F, meta: &Metadata, tick_hz: u32) -> io::Result<Self> {
+        Self::with_writer(Writer::new(rows, meta, &COLUMNS)?, fits, tick_hz)
+    }
+
+    /// Continue a recording whose preamble and header `rows` already hold.
+    pub fn append(rows: W, fits: F, tick_hz: u32) -> io::Result<Self> {
+        Self::with_writer(Writer::append(rows, &COLUMNS), fits, tick_hz)
+    }
+
+    fn with_writer(rows: Writer<W>, fits: F, tick_hz: u32) -> io::Result<Self> {
         if tick_hz == 0 {
             return Err(io::Error::new(
                 io::ErrorKind::InvalidInput,
@@ -136,24 +175,115 @@ impl<W: Write, F: Write> Recorder<W, F> {
             ));
         }
         Ok(Recorder {
-            rows: Writer::new(rows, meta, &COLUMNS)?,
+            rows,
             fits,
             tick_hz,
             pending: Vec::new(),
-            temp: None,
+            temps: BTreeMap::new(),
             next_seq: None,
+            held: BTreeMap::new(),
+            expected_through: None,
             summary: RecordSummary::default(),
         })
     }
 
-    fn write_row(&mut self, mut row: Row) -> io::Result<()> {
-        match self.temp {
+    /// What has been recorded so far.
+    pub fn summary(&self) -> &RecordSummary {
+        &self.summary
+    }
+
+    /// The temperature for a row: the latest read at or before its seq, else the first.
+    fn temp_for(&self, seq: u32) -> Option<f64> {
+        self.temps
+            .range(..=seq)
+            .next_back()
+            .or_else(|| self.temps.iter().next())
+            .map(|(_, &t)| t)
+    }
+
+    fn emit(&mut self, seq: u32, mut row: Row) -> io::Result<()> {
+        match self.temp_for(seq) {
             Some(t) => {
                 row.temp_c = Some(t);
                 self.rows.write_row(&row)?;
                 self.summary.rows += 1;
             }
             None => self.pending.push(row),
+        }
+        Ok(())
+    }
+
+    /// Write the held rows that are now in order.
+    fn drain(&mut self) -> io::Result<()> {
+        while let Some(next) = self.next_seq {
+            let Some(row) = self.held.remove(&next) else {
+                break;
+            };
+            self.emit(next, row)?;
+            self.next_seq = Some(next.wrapping_add(1));
+        }
+        Ok(())
+    }
+
+    fn sample(&mut self, seq: u32, row: Row, replay: bool) -> io::Result<()> {
+        let next = *self.next_seq.get_or_insert(seq);
+        // Sequence numbers are u32 from the device's start: 8.5 years at 16 Hz, so
+        // "before" is a plain comparison within one recording.
+        if seq < next || self.held.contains_key(&seq) {
+            self.summary.duplicates += 1;
+            return Ok(());
+        }
+        if replay {
+            self.summary.recovered += 1;
+        }
+        self.held.insert(seq, row);
+        self.drain()
+    }
+
+    /// The seq ranges [first, last] not yet received before the newest sample held (or
+    /// the newest the device said it has): what to ask the device to replay.
+    pub fn missing(&self) -> Vec<(u32, u32)> {
+        let Some(mut next) = self.next_seq else {
+            return Vec::new();
+        };
+        let mut out = Vec::new();
+        for &s in self.held.keys() {
+            if s > next {
+                out.push((next, s - 1));
+            }
+            next = s.saturating_add(1);
+        }
+        if let Some(end) = self.expected_through {
+            if end >= next {
+                out.push((next, end));
+            }
+        }
+        out
+    }
+
+    /// The device holds samples up to `seq` (its status's newest ring entry).
+    pub fn expect_through(&mut self, seq: u32) {
+        if self.next_seq.is_some() {
+            self.expected_through = Some(self.expected_through.map_or(seq, |e| e.max(seq)));
+        }
+    }
+
+    /// Give up the missing samples before `seq` (they have left the device's ring, or the
+    /// replay didn't come): they are reported lost, and the held rows after them written.
+    pub fn give_up_before(&mut self, seq: u32) -> io::Result<()> {
+        for (a, b) in self.missing() {
+            if a >= seq {
+                break;
+            }
+            let b = b.min(seq - 1);
+            self.summary.lost.push((a, b));
+            if self.next_seq == Some(a) {
+                self.next_seq = Some(b.wrapping_add(1));
+                self.drain()?;
+            }
+        }
+        if self.expected_through.is_some_and(|e| e < seq) {
+            self.expected_through = None;
         }
         Ok(())
     }
@@ -168,41 +298,45 @@ impl<W: Write, F: Write> Recorder<W, F> {
     /// Take one packet from the device.
     pub fn packet(&mut self, p: &Packet) -> io::Result<()> {
         match p {
-            Packet::Samples(b) if !b.replay => {
+            Packet::Samples(b) => {
                 for (seq, t, s) in b.iter() {
-                    if let Some(next) = self.next_seq {
-                        if seq != next {
-                            self.summary.gaps.push((next, seq.wrapping_sub(1)));
-                        }
-                    }
-                    self.next_seq = Some(seq.wrapping_add(1));
                     let [u, v, w] = s.counts.map(f64::from);
                     let mut row = Row::new(b.condition, u, v, w);
                     row.seq = Some(u64::from(seq));
                     row.t_s = Some(t as f64 / f64::from(self.tick_hz));
-                    self.write_row(row)?;
+                    self.sample(seq, row, b.replay)?;
                 }
             }
             Packet::Temperature(t) => {
-                let c = f64::from(t.centi_c) / 100.0;
-                self.temp = Some(c);
-                for mut row in std::mem::take(&mut self.pending) {
-                    row.temp_c = Some(c);
-                    self.rows.write_row(&row)?;
-                    self.summary.rows += 1;
+                self.temps.insert(t.seq, f64::from(t.centi_c) / 100.0);
+                for row in std::mem::take(&mut self.pending) {
+                    let seq = row.seq.map_or(t.seq, |s| s as u32);
+                    self.emit(seq, row)?;
                 }
             }
             Packet::Fit(f) => self.log(&LogLine::Fit(FitLine::new(f, self.tick_hz)))?,
             Packet::QuickLook(q) => self.log(&LogLine::quick_look(q))?,
-            // Replays fill gaps after a reconnect; the BLE recorder merges them.
-            Packet::Samples(_) | Packet::Info(_) | Packet::Status(_) | Packet::Command(_) => {}
+            Packet::Info(_) | Packet::Status(_) | Packet::Command(_) => {}
         }
         Ok(())
     }
 
-    /// Flush everything and say what was recorded. Rows still waiting for their first
-    /// temperature are an error: the device sent none, and none is invented.
+    /// Flush rows and fit-log lines to the underlying writers.
+    pub fn flush(&mut self) -> io::Result<()> {
+        self.rows.flush()?;
+        self.fits.flush()
+    }
+
+    /// The underlying writers (to sync files).
+    pub fn writers(&self) -> (&W, &F) {
+        (self.rows.get_ref(), &self.fits)
+    }
+
+    /// Give up whatever is still missing, flush everything and say what was recorded.
+    /// Rows still waiting for their first temperature are an error: the device sent
+    /// none, and none is invented.
     pub fn finish(mut self) -> io::Result<RecordSummary> {
+        self.give_up_before(u32::MAX)?;
         if !self.pending.is_empty() {
             return Err(io::Error::new(
                 io::ErrorKind::InvalidData,
@@ -212,9 +346,35 @@ impl<W: Write, F: Write> Recorder<W, F> {
                 ),
             ));
         }
-        self.rows.flush()?;
-        self.fits.flush()?;
+        self.flush()?;
         Ok(self.summary)
+    }
+}
+
+impl FitLine {
+    /// What makes the line unusable, if anything: the condition, the device clock, the
+    /// window and the numbers.
+    pub fn check(&self) -> Result<(), String> {
+        if rotacal_shared::Condition::from_letter(self.condition).is_none() {
+            return Err(format!(
+                "condition '{}': expected x, y or z",
+                self.condition
+            ));
+        }
+        if self.tick_hz == 0 {
+            return Err("tick_hz is 0".into());
+        }
+        if self.first_seq > self.last_seq {
+            return Err(format!(
+                "first_seq {} is after last_seq {}",
+                self.first_seq, self.last_seq
+            ));
+        }
+        let finite = self.coef.iter().chain(&self.se).flatten().chain(&self.rms);
+        if finite.into_iter().any(|x| !x.is_finite()) {
+            return Err("a coefficient, standard error or rms is not finite".into());
+        }
+        Ok(())
     }
 }
 
@@ -223,6 +383,13 @@ pub fn read_fit_log(text: &str, source: &str) -> Result<Vec<LogLine>, String> {
     text.lines()
         .enumerate()
         .filter(|(_, l)| !l.trim().is_empty())
-        .map(|(i, l)| serde_json::from_str(l).map_err(|e| format!("{source}:{}: {e}", i + 1)))
+        .map(|(i, l)| {
+            let at = |e: String| format!("{source}:{}: {e}", i + 1);
+            let line: LogLine = serde_json::from_str(l).map_err(|e| at(e.to_string()))?;
+            if let LogLine::Fit(f) = &line {
+                f.check().map_err(at)?;
+            }
+            Ok(line)
+        })
         .collect()
 }

@@ -1,14 +1,29 @@
-//! `rotacal demo`: the main job without hardware.
+//! `rotacal demo`: the main job without hardware, the whole chain.
 //!
-//! Simulates seed 000's 10 mHz run (three conditions, 4200 samples each at 16 Hz, with
-//! LSM6DS33 noise) for a device whose truth is seed 000 Table 1's DC intrinsic
-//! properties, fits every condition and channel with the device's own f32 streaming fit
-//! and with the f64 batch reference, and reports both and their agreement.
+//! 1. Simulate seed 000's 10 mHz session (`paper-10mhz`, with the sensor at its own
+//!    104 Hz output rate): truth = seed 000 Table 1's DC intrinsic properties.
+//! 2. Run it through the firmware's hardware-independent logic on this host
+//!    ([`crate::link::simulated`]: sampler, ring, packetiser, f32 fit, quick-look).
+//! 3. Decode its packets and 4. record them with `rotacal record`'s code (one condition
+//!    at a time, appending, as at the table), into a recording, a fit log and a capture.
+//! 5. Calibrate in f64, 6. cross-check the device's fits, 7. write the report folder.
+//!
+//! The session runs on a paused tokio clock: 13 minutes of device time in seconds.
 
-use crate::batch;
-use rotacal_shared::synth::{self, crosscheck, Synth, SynthSpec};
-use rotacal_shared::{FitConfig, FitResult, Param, PhaseStep, SineFit, TickRate, Ticks};
+use crate::acquire::Recorder;
+use crate::calibration_file::CalibrationJson;
+use crate::capture::CaptureWriter;
+use crate::crosscheck::CrosscheckReport;
+use crate::link::simulated::{Faults, SimulatedDevice};
+use crate::record::{self, Files, Options, Outcome, Plan, Quiet};
+use crate::recording::{Metadata, Method};
+use crate::simulate::{Config, Simulation};
+use rotacal_shared::synth::{self, crosscheck, SynthSpec};
+use rotacal_shared::{Condition, PhaseStep, TickRate};
 use std::fmt::Write as _;
+use std::fs::{File, OpenOptions};
+use std::path::{Path, PathBuf};
+use std::time::Duration;
 
 /// Seed 000 Table 1, DC column: sensitivities (counts per m/s²), angles φ_uv, φ_vw, φ_wu
 /// (degrees) and offsets (counts).
@@ -64,203 +79,225 @@ pub fn paper_run_spec(s: &[[f64; 3]; 3], axis: usize, step: PhaseStep, seed: u64
     }
 }
 
-/// One fitted (condition, channel).
-#[derive(Clone, Debug)]
-pub struct DemoRow {
-    /// Platter axis of rotation.
-    pub condition: char,
-    /// u, v or w.
-    pub channel: char,
-    /// True A, B, C, counts.
-    pub truth: [f64; 3],
-    /// f64 batch fit A, B, C and standard errors, counts.
-    pub f64_fit: ([f64; 3], [f64; 3]),
-    /// f32 streaming fit (the device's code) A, B, C, counts.
-    pub f32_fit: [f64; 3],
-    /// Residual RMS of the f64 fit, counts.
-    pub rms: f64,
-    /// max over A, B, C of |f32 − f64| / σ_CRLB.
-    pub ratio_crlb: f64,
-}
-
 /// The demo's results.
 #[derive(Clone, Debug)]
 pub struct Demo {
-    /// Samples per condition.
-    pub n: usize,
-    /// Per condition and channel.
-    pub rows: Vec<DemoRow>,
-    /// Intrinsic properties from the f64 streaming fits.
-    pub calibration: crate::calibrate::RotationCalibration,
+    /// Where the files are.
+    pub dir: PathBuf,
+    /// The simulated truth: s_u, s_v, s_w (counts per m/s²), φ_uv, φ_vw, φ_wu (°).
+    pub truth: [f64; 6],
+    /// Sensor conversions per condition (104 Hz) and samples streamed (16 Hz).
+    pub conversions: usize,
+    /// What recording each condition gave.
+    pub recorded: Vec<(Condition, Outcome)>,
+    /// The f64 calibration of the recording.
+    pub calibration: CalibrationJson,
+    /// The device's fits against the recording.
+    pub crosscheck: CrosscheckReport,
+    /// The report's Markdown file.
+    pub report: PathBuf,
 }
 
-/// Simulate and fit the paper's 10 mHz run.
-pub fn run(seed: u64) -> anyhow::Result<Demo> {
-    let clock = TickRate::MHZ_1;
-    let step = PhaseStep::from_micro_hz(10_000, clock).ok_or_else(|| anyhow::anyhow!("rate"))?;
-    let s = sensitivity_from_intrinsic(PAPER_DC_SENSITIVITY, PAPER_DC_ANGLES_DEG);
-    let sigma = crosscheck::noise_sigma(16_000);
-    let mut rows = Vec::new();
-    let mut n = 0;
-    let mut f64_fits = Vec::new();
-    for (axis, condition) in ['x', 'y', 'z'].into_iter().enumerate() {
-        let spec = paper_run_spec(&s, axis, step, seed.wrapping_add(axis as u64));
-        let coef = spec.coef;
-        let samples: Vec<(Ticks, [i16; 3])> = Synth::new(spec).map(|s| (s.t, s.counts)).collect();
-        n = samples.len();
-        let mut dev = SineFit::<f32>::new(FitConfig::sine(step, clock));
-        for (t, c) in &samples {
-            dev.update(*t, c.map(f32::from))?;
-        }
-        let dev: FitResult<f32> = dev.solve()?;
-        let mut host = SineFit::<f64>::new(FitConfig::sine(step, clock));
-        for (t, c) in &samples {
-            host.update(*t, c.map(f64::from))?;
-        }
-        f64_fits.push(host.solve()?);
-        let s64: Vec<(Ticks, [f64; 3])> = samples
-            .iter()
-            .map(|(t, c)| (*t, c.map(f64::from)))
-            .collect();
-        let reference = batch::fit(&s64, step, clock, rotacal_shared::Model::SINE, Ticks(0))?;
-        let crlb = crate::fitcheck::sigma_crlb(sigma, n);
-        let nn = n as f64;
-        for (ch, channel) in ['u', 'v', 'w'].into_iter().enumerate() {
-            let b = &reference.channels[ch];
-            let f32_fit = [Param::A, Param::B, Param::C]
-                .map(|p| dev.coef(ch, p).map(|v| v.to_f64()).unwrap_or(f64::NAN));
-            let f64_fit = (
-                [b.coef[0], b.coef[1], b.coef[2]],
-                [b.se[0], b.se[1], b.se[2]],
-            );
-            let ratio_crlb = (0..3)
-                .map(|i| (f32_fit[i] - f64_fit.0[i]).abs() / crlb[i])
-                .fold(0.0, f64::max);
-            rows.push(DemoRow {
-                condition,
-                channel,
-                truth: coef[ch],
-                f64_fit,
-                f32_fit,
-                rms: (b.rss / nn).sqrt(),
-                ratio_crlb,
-            });
-        }
-    }
-    let [fx, fy, fz] = f64_fits.as_slice() else {
-        anyhow::bail!("expected three conditions");
+/// The demo's device session: `paper-10mhz` with the sensor converting at 104 Hz for
+/// 262.5 s per condition (the Feather streams 4200 samples of it at 16 Hz).
+pub fn session_config(seed: u64) -> anyhow::Result<Config> {
+    let mut cfg = Config::preset("paper-10mhz")?;
+    cfg.seed = seed;
+    cfg.timing.sample_rate_hz = 104.0;
+    cfg.timing.tick_hz = 1e6;
+    cfg.table.samples_per_condition = Some(27_300);
+    Ok(cfg)
+}
+
+fn open_append(p: &Path) -> anyhow::Result<File> {
+    OpenOptions::new()
+        .append(true)
+        .open(p)
+        .map_err(|e| anyhow::anyhow!("{}: {e}", p.display()))
+}
+
+fn create(p: &Path) -> anyhow::Result<File> {
+    File::create(p).map_err(|e| anyhow::anyhow!("{}: {e}", p.display()))
+}
+
+/// Run the chain, writing into `dir` (created if missing).
+pub fn run(seed: u64, dir: &Path) -> anyhow::Result<Demo> {
+    std::fs::create_dir_all(dir).map_err(|e| anyhow::anyhow!("{}: {e}", dir.display()))?;
+    let sim = Simulation::new(session_config(seed)?)?;
+    let truth = sim.truth().properties();
+    let mut device = SimulatedDevice::new(&sim, Faults::default())?;
+    let paths = [
+        dir.join("recording.csv"),
+        dir.join("recording.fits.jsonl"),
+        dir.join("recording.capture"),
+    ];
+    let meta = Metadata {
+        method: Some(Method::Rotation),
+        rate_hz: Some(0.01),
+        g_loc: Some(sim.config().g_loc),
+        units: Some("counts".into()),
+        sample_rate_hz: Some(16.0),
+        noise_sigma: None,
+        device: Some("simulated Feather nRF52840 Sense (rotacal demo)".into()),
+        other: Default::default(),
     };
-    let calibration = crate::calibrate::rotation([fx, fy, fz], PAPER_G_LOC, 0.0)?;
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_time()
+        .start_paused(true)
+        .build()?;
+    let opts = Options {
+        sync: false,
+        ..Options::default()
+    };
+    let recorded = rt.block_on(async {
+        let mut obs = Quiet::default();
+        let (info, info_bytes) = record::connect(&mut device, &opts, &mut obs).await?;
+        let mut recorded = Vec::new();
+        for (i, condition) in Condition::ALL.into_iter().enumerate() {
+            let [rec, fits, cap] = &paths;
+            let files = if i == 0 {
+                let mut capture = CaptureWriter::new(create(cap)?, &meta)?;
+                capture.entry(&crate::capture::Entry::Value(
+                    crate::link::Channel::Info,
+                    info_bytes.clone(),
+                ))?;
+                Files {
+                    recorder: Recorder::new(create(rec)?, create(fits)?, &meta, info.tick_hz)?,
+                    capture,
+                }
+            } else {
+                Files {
+                    recorder: Recorder::append(
+                        open_append(rec)?,
+                        open_append(fits)?,
+                        info.tick_hz,
+                    )?,
+                    capture: CaptureWriter::append(open_append(cap)?),
+                }
+            };
+            let plan = Plan {
+                condition,
+                rate_uhz: 10_000,
+                duration: Duration::from_secs_f64(262.5),
+                sample_rate_mhz: Some(16_000),
+                restart: false,
+            };
+            let out = record::record(&mut device, info, files, plan, opts, &mut obs)
+                .await
+                .map_err(|(e, _)| anyhow::anyhow!("recording {}: {e}", condition.letter()))?;
+            recorded.push((condition, out));
+        }
+        anyhow::Ok(recorded)
+    })?;
+    let [rec_path, fits_path, _] = &paths;
+    let rec = crate::recording::read(rec_path)?;
+    let calibration = crate::calibrate_recording::calibrate(&rec, &Default::default())?;
+    let log_text = std::fs::read_to_string(fits_path)?;
+    let log = crate::acquire::read_fit_log(&log_text, &fits_path.display().to_string())
+        .map_err(anyhow::Error::msg)?;
+    let crosscheck =
+        crate::crosscheck::crosscheck(&rec, &log, crate::crosscheck::DEFAULT_THRESHOLD)
+            .map_err(anyhow::Error::msg)?;
+    std::fs::write(
+        dir.join("calibration.json"),
+        serde_json::to_string_pretty(&calibration)? + "\n",
+    )?;
+    std::fs::write(
+        dir.join("crosscheck.json"),
+        serde_json::to_string_pretty(&crosscheck)? + "\n",
+    )?;
+    let report = crate::report::write(&rec, &Default::default(), &dir.join("report"))?;
+    let [s0, s1, s2, a0, a1, a2, ..] = truth;
     Ok(Demo {
-        n,
-        rows,
+        dir: dir.to_path_buf(),
+        truth: [s0, s1, s2, a0, a1, a2],
+        conversions: 27_300,
+        recorded,
         calibration,
+        crosscheck,
+        report,
     })
 }
 
 /// The demo's terminal output.
 pub fn render(d: &Demo) -> String {
     let mut o = String::new();
-    let _ = writeln!(
-        o,
-        "Simulated seed 000 run: 10 mHz rotation, {} samples per condition at 16 Hz, LSM6DS33 noise {:.2} counts;\n\
-         truth = seed 000 Table 1 DC (s = {:?} counts/(m/s²), φ = {:?}°, O = {:?} counts), g = {} m/s².\n",
-        d.n,
-        crosscheck::noise_sigma(16_000),
-        PAPER_DC_SENSITIVITY,
-        PAPER_DC_ANGLES_DEG,
-        PAPER_DC_OFFSETS,
-        PAPER_G_LOC
-    );
-    let _ = writeln!(
-        o,
-        "Sine fits y = A sin α + B cos α + C (f64 batch QR; ± is the standard error), counts:"
-    );
-    let _ = writeln!(
-        o,
-        "{:<4} {:<3} {:>24} {:>24} {:>20} {:>8} {:>14}",
-        "cond", "ch", "A", "B", "C", "rms", "f32−f64 /σCRLB"
-    );
-    for r in &d.rows {
-        let q = |i: usize| format!("{:.3} ± {:.3}", r.f64_fit.0[i], r.f64_fit.1[i]);
-        let _ = writeln!(
-            o,
-            "{:<4} {:<3} {:>24} {:>24} {:>20} {:>8.3} {:>14.1e}",
-            r.condition,
-            r.channel,
-            q(0),
-            q(1),
-            q(2),
-            r.rms,
-            r.ratio_crlb
-        );
-    }
-    let worst_z = d
-        .rows
+    let rows: u64 = d.recorded.iter().map(|(_, r)| r.summary.rows).sum();
+    let lost: u64 = d
+        .recorded
         .iter()
-        .flat_map(|r| (0..3).map(move |i| ((r.f64_fit.0[i] - r.truth[i]) / r.f64_fit.1[i]).abs()))
-        .fold(0.0, f64::max);
-    let worst = d.rows.iter().map(|r| r.ratio_crlb).fold(0.0, f64::max);
+        .map(|(_, r)| r.summary.lost_samples())
+        .sum();
+    let fits: u64 = d.recorded.iter().map(|(_, r)| r.summary.fit_lines).sum();
     let _ = writeln!(
         o,
-        "\nf64 fit vs truth: largest |error| / standard error = {worst_z:.2} (27 values).\n\
-         Device fit (f32 streaming, the firmware's code run on this host) vs f64 batch: \
-         max |Δ| / σ_CRLB = {worst:.1e} (issue bound 0.01)."
+        "Simulated seed 000 session: 10 mHz about x, y, z; LSM6DS33 at 104 Hz ({} conversions per\n\
+         condition), truth = seed 000 Table 1 DC, g = {} m/s².\n\
+         Device logic (the firmware's, on this host) → BLE packets → decoded → recorded:\n\
+         {rows} samples at 16 Hz, {lost} lost, {fits} fit-log lines (device fit reports and quick-look).",
+        d.conversions, PAPER_G_LOC
     );
-    let c = &d.calibration;
-    let ours: Vec<_> = c
-        .intrinsic
-        .sensitivity
-        .iter()
-        .chain(c.intrinsic.angle_deg.iter())
-        .collect();
-    let truth: Vec<f64> = PAPER_DC_SENSITIVITY
-        .iter()
-        .chain(PAPER_DC_ANGLES_DEG.iter())
-        .copied()
-        .collect();
+    let x = &d.crosscheck;
     let _ = writeln!(
         o,
-        "\nIntrinsic properties (exact Gram form, method.md §2; ± is the expanded uncertainty U, k = 2,\n\
-         from sensor noise alone; s in counts/(m/s²), φ in degrees):"
+        "Cross-check: {} device fits (f32, on board) against f64 re-fits of the same samples: \n\
+         max |Δ| = {:.1e} σ_CRLB (threshold {}): {}.",
+        x.fits.len(),
+        x.max_delta_crlb,
+        x.threshold,
+        if x.passed { "pass" } else { "FAIL" }
+    );
+    let Some(r) = d.calibration.by_rate.first() else {
+        return o;
+    };
+    let ours = r.intrinsic.quantities();
+    let _ = writeln!(
+        o,
+        "\nIntrinsic properties (f64, exact Gram form, method.md §2; ± is U, k = 2;\n\
+         s in counts/(m/s²), φ in degrees):"
     );
     let _ = writeln!(
         o,
-        "{:<5} {:>22} {:>9} {:>20} {:>9} {:>20}",
-        "", "rotacal", "truth", "seed 000 (10 mHz)", "U ratio", "phase method"
+        "{:<5} {:>22} {:>9} {:>8} {:>20} {:>9} {:>20}",
+        "", "rotacal", "truth", "|err|/U", "seed 000 (10 mHz)", "U ratio", "phase method"
     );
     let names = ["s_u", "s_v", "s_w", "φ_uv", "φ_vw", "φ_wu"];
+    let phase = r
+        .angle_deg_phase_method
+        .as_ref()
+        .map(|p| [&p.uv, &p.vw, &p.wu]);
     for (k, name) in names.iter().enumerate() {
+        let Some(q) = ours.get(k) else { continue };
         let (digits, pd) = if k < 3 { (4, 2) } else { (5, 3) };
-        let phase = if k < 3 {
-            "—".to_string()
-        } else {
-            let p = c.phase_angles_deg[k - 3];
-            format!("{:.*} ± {:.*}", digits, p.value, digits, 2.0 * p.std_unc)
+        let ph = match (k, phase) {
+            (3.., Some(p)) => p
+                .get(k - 3)
+                .map(|p| format!("{:.*} ± {:.*}", digits, p.value, digits, p.expanded_unc))
+                .unwrap_or_default(),
+            _ => "—".to_string(),
         };
         let (pv, pu) = PAPER_10MHZ[k];
         let _ = writeln!(
             o,
-            "{:<5} {:>22} {:>9} {:>20} {:>8.0}× {:>20}",
+            "{:<5} {:>22} {:>9} {:>8.2} {:>20} {:>8.0}× {:>20}",
             name,
-            format!(
-                "{:.*} ± {:.*}",
-                digits,
-                ours[k].value,
-                digits,
-                2.0 * ours[k].std_unc
-            ),
-            format!("{:.*}", pd, truth[k]),
+            format!("{:.*} ± {:.*}", digits, q.value, digits, q.expanded_unc),
+            format!("{:.*}", pd, d.truth[k]),
+            (q.value - d.truth[k]).abs() / q.expanded_unc,
             format!("{:.*} ± {:.*}", pd, pv, pd, pu),
-            pu / (2.0 * ours[k].std_unc),
-            phase
+            pu / q.expanded_unc,
+            ph
         );
     }
     let _ = writeln!(
         o,
-        "U ratio: seed 000's stated uncertainty over rotacal's U. With sensor noise the only effect the\n\
-         noise limit is ~50 times below the paper's figures (method.md §7); the missing effects are\n\
-         what the discrepancy workflow is for."
+        "U ratio: seed 000's stated uncertainty over rotacal's U. With sensor noise the only effect,\n\
+         the noise limit is ~50 times below the paper's figures (method.md §7); the missing effects\n\
+         are what the discrepancy workflow is for.\n\n\
+         Files in {}: recording.csv, recording.fits.jsonl (device fits), recording.capture (every\n\
+         value received), calibration.json, crosscheck.json.\nReport: {}",
+        d.dir.display(),
+        d.report.display()
     );
     o
 }

@@ -6,18 +6,23 @@
 //!   against the f64 batch fit of the same samples.
 //! - [`session_check`]: checks the device logic's packets from the emulated Cortex-M4F.
 //! - [`demo`]: the main job without hardware.
+//! - [`link`], [`record`], [`capture`]: recording a device over BLE (or a simulated one)
+//!   with gap backfill and reconnection; [`acquire`] turns its packets into files.
 //! - [`simulate`]: the forward model of the experiment that writes recordings.
 pub mod acquire;
 pub mod batch;
 pub mod calibrate;
 pub mod calibrate_recording;
 pub mod calibration_file;
+pub mod capture;
 pub mod crosscheck;
 pub mod demo;
 pub mod fitcheck;
 pub mod geometry;
 pub mod import;
+pub mod link;
 pub mod output;
+pub mod record;
 pub mod recording;
 pub mod report;
 pub mod session_check;

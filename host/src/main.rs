@@ -4,6 +4,9 @@ use clap::{Parser, Subcommand, ValueEnum};
 use std::path::PathBuf;
 use std::process::ExitCode;
 
+mod cli;
+use cli::record;
+
 #[derive(Parser)]
 #[command(name = "rotacal", version, about)]
 struct Cli {
@@ -99,6 +102,17 @@ enum Command {
         #[arg(long)]
         out: PathBuf,
     },
+    /// Record one condition from a device over BLE (or a simulated one): the recording,
+    /// its fit log (.fits.jsonl) and a capture of every value received (.capture).
+    Record(record::Args),
+    /// Rebuild a recording and its fit log from a capture (after a crash, or to re-decode).
+    Decode {
+        /// The capture.
+        capture: PathBuf,
+        /// The recording to write; the fit log goes beside it.
+        #[arg(long)]
+        out: PathBuf,
+    },
     /// Simulate the experiment and write a recording (docs/simulator.md).
     Simulate {
         /// A TOML configuration file, or the name of a preset (paper-10mhz,
@@ -111,11 +125,15 @@ enum Command {
         #[arg(long)]
         seed: Option<u64>,
     },
-    /// The main job without hardware: simulate seed 000's 10 mHz run and fit it.
+    /// The main job without hardware: simulate seed 000's 10 mHz session, run it through
+    /// the firmware's logic, record its packets, calibrate, cross-check, report.
     Demo {
-        /// Seed of the simulated noise.
+        /// Seed of the simulation.
         #[arg(long, default_value_t = 2022)]
         seed: u64,
+        /// The folder to write (created if missing).
+        #[arg(long, default_value = "rotacal-demo")]
+        out: PathBuf,
     },
 }
 
@@ -167,14 +185,20 @@ fn main() -> ExitCode {
             threshold,
             json,
         } => crosscheck(&recording, &fit_log, threshold, json.as_deref()),
-        Command::Demo { seed } => rotacal::demo::run(seed)
+        Command::Record(args) => record::run(args),
+        Command::Decode { capture, out } => record::decode(&capture, &out),
+        Command::Demo { seed, out } => rotacal::demo::run(seed, &out)
             .and_then(|d| Ok(rotacal::output::emit(&rotacal::demo::render(&d))?)),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("rotacal: {e:#}");
-            ExitCode::FAILURE
+            if e.downcast_ref::<cli::record::Incomplete>().is_some() {
+                ExitCode::from(3)
+            } else {
+                ExitCode::FAILURE
+            }
         }
     }
 }
@@ -208,20 +232,8 @@ fn calibrate(
 }
 
 fn simulate(config: &str, out: &std::path::Path, seed: Option<u64>) -> anyhow::Result<()> {
-    use rotacal::simulate::{Config, Simulation, PRESETS};
-    let path = std::path::Path::new(config);
-    let mut cfg = if path.exists() {
-        let text = std::fs::read_to_string(path).map_err(|e| anyhow::anyhow!("{config}: {e}"))?;
-        Config::from_toml(&text).map_err(|e| anyhow::anyhow!("{config}: {e}"))?
-    } else if PRESETS.iter().any(|(n, _)| *n == config) {
-        Config::preset(config)?
-    } else {
-        let names: Vec<&str> = PRESETS.iter().map(|(n, _)| *n).collect();
-        anyhow::bail!(
-            "{config}: no such file, and not a preset (presets: {})",
-            names.join(", ")
-        );
-    };
+    use rotacal::simulate::{Config, Simulation};
+    let mut cfg = Config::load(config)?;
     if let Some(s) = seed {
         cfg.seed = s;
     }
@@ -239,7 +251,8 @@ fn crosscheck(
     threshold: f64,
     json: Option<&std::path::Path>,
 ) -> anyhow::Result<()> {
-    let rec = rotacal::recording::read(recording)?;
+    // One condition is enough to check the device's fits of it.
+    let rec = rotacal::recording::read_in_progress(recording)?;
     let text = std::fs::read_to_string(fit_log)
         .map_err(|e| anyhow::anyhow!("{}: {e}", fit_log.display()))?;
     let log = rotacal::acquire::read_fit_log(&text, &fit_log.display().to_string())

@@ -437,9 +437,38 @@ pub fn read(path: &Path) -> Result<Recording, RecordingError> {
 pub fn read_from<R: Read>(reader: R, source: &str) -> Result<Recording, RecordingError> {
     Parser {
         source,
+        complete: true,
         line_offset: 0,
     }
     .run(reader)
+}
+
+/// Read a recording in progress (`rotacal record` adds one condition at a time): every
+/// check of [`read`] except that all three conditions be present.
+pub fn read_in_progress(path: &Path) -> Result<Recording, RecordingError> {
+    let source = path.display().to_string();
+    let f = File::open(path).map_err(|e| RecordingError {
+        source_name: source.clone(),
+        line: None,
+        kind: RecordingErrorKind::Io(e),
+    })?;
+    Parser {
+        source: &source,
+        complete: false,
+        line_offset: 0,
+    }
+    .run(f)
+}
+
+/// Parse only the `#` lines at the start of `text` (the preamble) into metadata, with the
+/// reader's checks; used to carry a recording's metadata in other files (the capture).
+pub fn read_preamble(text: &str, source: &str) -> Result<Metadata, RecordingError> {
+    let mut p = Parser {
+        source,
+        complete: false,
+        line_offset: 0,
+    };
+    p.preamble(&mut BufReader::new(text.as_bytes()))
 }
 
 // ---------------------------------------------------------------------------------------
@@ -493,6 +522,8 @@ struct ColumnIndex {
 
 struct Parser<'a> {
     source: &'a str,
+    /// Require all three conditions for every rate.
+    complete: bool,
     /// Physical lines consumed before the csv reader took over.
     line_offset: u64,
 }
@@ -630,7 +661,7 @@ impl Parser<'_> {
         if groups.is_empty() {
             return Err(self.err(None, RecordingErrorKind::NoData));
         }
-        // Every rate needs all three conditions.
+        // Every rate needs all three conditions (unless reading a recording in progress).
         let mut rates: Vec<Option<u64>> = Vec::new();
         for g in &groups {
             let k = g.rate_hz.map(f64::to_bits);
@@ -638,7 +669,7 @@ impl Parser<'_> {
                 rates.push(k);
             }
         }
-        for k in rates {
+        for k in rates.into_iter().filter(|_| self.complete) {
             for c in Condition::ALL {
                 if !groups
                     .iter()
@@ -1177,6 +1208,16 @@ impl<W: Write> Writer<W> {
             columns: *columns,
             line: String::with_capacity(128),
         })
+    }
+
+    /// Continue a file whose preamble and header (with these `columns`) are already
+    /// written: rows only.
+    pub fn append(w: W, columns: &Columns) -> Self {
+        Writer {
+            out: BufWriter::with_capacity(1 << 16, w),
+            columns: *columns,
+            line: String::with_capacity(128),
+        }
     }
 
     /// The columns this writer writes.

@@ -60,7 +60,7 @@ fn record(d: &Path) -> (PathBuf, PathBuf) {
     SessionSpec::PAPER.run(&mut dev, &mut |p| r.packet(&p).unwrap());
     let sum = r.finish().unwrap();
     assert_eq!(sum.rows, 12_600);
-    assert!(sum.gaps.is_empty());
+    assert!(sum.lost.is_empty());
     assert_eq!(sum.fit_lines, 36 + 1, "36 fit reports and the quick-look");
     (rec, fits)
 }

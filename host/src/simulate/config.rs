@@ -475,6 +475,24 @@ impl Config {
         Config::from_toml(&format!("preset = \"{name}\"\n"))
     }
 
+    /// A TOML file at `name_or_path`, else the preset of that name; errors name it.
+    pub fn load(name_or_path: &str) -> Result<Config, ConfigError> {
+        let path = std::path::Path::new(name_or_path);
+        if path.exists() {
+            let text = std::fs::read_to_string(path)
+                .map_err(|e| ConfigError(format!("{name_or_path}: {e}")))?;
+            Config::from_toml(&text).map_err(|e| ConfigError(format!("{name_or_path}: {e}")))
+        } else if PRESETS.iter().any(|(n, _)| *n == name_or_path) {
+            Config::preset(name_or_path)
+        } else {
+            let names: Vec<&str> = PRESETS.iter().map(|(n, _)| *n).collect();
+            Err(ConfigError(format!(
+                "{name_or_path}: no such file, and not a preset (presets: {})",
+                names.join(", ")
+            )))
+        }
+    }
+
     /// Parse TOML text; a `preset = "…"` key layers it over that preset.
     pub fn from_toml(text: &str) -> Result<Config, ConfigError> {
         let table: toml::Table = text.parse().map_err(|e: toml::de::Error| {

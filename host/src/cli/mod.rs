@@ -1,0 +1,3 @@
+//! Parts of the `rotacal` binary that are terminal UI rather than library: the progress
+//! display and the wiring of `record`.
+pub mod record;

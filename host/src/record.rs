@@ -1,0 +1,764 @@
+//! `rotacal record`: drive a device through one condition and record what it sends.
+//!
+//! Connect, check the device-info value (protocol and firmware version), set the sample
+//! rate, start the condition, and until the duration is up: append every value to the
+//! capture, decode it, and hand it to the [`Recorder`], which writes rows in seq order.
+//! Gaps (lost notifications, link outages) are asked for again from the device's ring
+//! buffer (`Command::Backfill`); what the ring no longer holds, or what doesn't come within
+//! `backfill_wait`, is reported lost. A lost link is reconnected automatically for up to
+//! `reconnect_for`. Files are flushed, and with `sync` synced, every second. Then stop,
+//! wait for the final fit report and any tail gap, and finish.
+
+use crate::acquire::{RecordSummary, Recorder};
+use crate::capture::{CaptureWriter, Entry};
+use crate::link::{Channel, Link, LinkError};
+use rotacal_shared::packet::{
+    Command, CommandError, DeviceInfo, Packet, RunState, Status, MAX_PACKET, VERSION,
+};
+use rotacal_shared::Condition;
+use std::fs::File;
+use std::io::{self, Write};
+use std::time::Duration;
+use tokio::time::Instant;
+
+/// The firmware major version this rotacal works with.
+pub const FIRMWARE_MAJOR: u8 = 0;
+
+/// What to record.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Plan {
+    /// The platter axis the table turns about.
+    pub condition: Condition,
+    /// Nominal rotation rate, µHz.
+    pub rate_uhz: u32,
+    /// How long to record.
+    pub duration: Duration,
+    /// Sample rate to set before starting, mHz (None: the device's).
+    pub sample_rate_mhz: Option<u32>,
+    /// Stop a condition the device is already running before starting.
+    pub restart: bool,
+}
+
+/// How hard to try.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Options {
+    /// Sync files to disk every second (off only for in-memory runs).
+    pub sync: bool,
+    /// Give up when the link stays down this long.
+    pub reconnect_for: Duration,
+    /// How long a requested replay may take before its samples are reported lost.
+    pub backfill_wait: Duration,
+    /// How long to wait for a command's status reply.
+    pub reply_wait: Duration,
+}
+
+impl Default for Options {
+    fn default() -> Self {
+        Options {
+            sync: true,
+            reconnect_for: Duration::from_secs(60),
+            backfill_wait: Duration::from_secs(3),
+            reply_wait: Duration::from_secs(5),
+        }
+    }
+}
+
+/// Something that can be made durable.
+pub trait Durable: Write {
+    /// Put written data on stable storage.
+    fn sync(&self) -> io::Result<()>;
+}
+
+impl Durable for File {
+    fn sync(&self) -> io::Result<()> {
+        self.sync_data()
+    }
+}
+
+impl Durable for Vec<u8> {
+    fn sync(&self) -> io::Result<()> {
+        Ok(())
+    }
+}
+
+/// The link as the progress display shows it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum LinkState {
+    /// Connecting for the first time.
+    Connecting,
+    /// Up.
+    Connected,
+    /// Down; reconnecting (attempt number).
+    Reconnecting(u32),
+}
+
+/// What the progress display shows.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Progress {
+    /// Time since the condition started.
+    pub elapsed: Duration,
+    /// The planned duration.
+    pub duration: Duration,
+    /// Rows written.
+    pub rows: u64,
+    /// Samples missing and not (yet) recovered.
+    pub missing: u64,
+    /// Samples recovered by replay.
+    pub recovered: u64,
+    /// Samples given up.
+    pub lost: u64,
+    /// Values that did not decode.
+    pub undecodable: u64,
+    /// The link.
+    pub link: LinkState,
+}
+
+/// Receives progress and messages.
+pub trait Observer {
+    /// About once a second, and when the link changes.
+    fn progress(&mut self, p: &Progress);
+    /// Something the user should read (a warning or an event).
+    fn message(&mut self, m: &str);
+}
+
+/// An observer that keeps messages (tests, the demo).
+#[derive(Debug, Default)]
+pub struct Quiet {
+    /// Messages received.
+    pub messages: Vec<String>,
+}
+
+impl Observer for Quiet {
+    fn progress(&mut self, _: &Progress) {}
+    fn message(&mut self, m: &str) {
+        self.messages.push(m.to_string());
+    }
+}
+
+/// How a recording ended.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Outcome {
+    /// The recorder's summary.
+    pub summary: RecordSummary,
+    /// The device.
+    pub info: DeviceInfo,
+    /// Values that did not decode.
+    pub undecodable: u64,
+    /// Times the link was lost.
+    pub link_drops: u32,
+    /// The condition's final fit report arrived.
+    pub final_fit: bool,
+}
+
+/// Why recording failed. What was received up to then is in the files.
+#[derive(Debug, thiserror::Error)]
+pub enum RecordError {
+    /// The link could not be (re)established, or the adapter failed.
+    #[error(transparent)]
+    Link(#[from] LinkError),
+    /// The device is not one this rotacal can talk to.
+    #[error("{0}")]
+    Device(String),
+    /// The device refused a command.
+    #[error("the device refused {command}: {reason}")]
+    Refused {
+        /// The command.
+        command: String,
+        /// Its reason.
+        reason: String,
+    },
+    /// Writing the files failed.
+    #[error("writing the recording: {0}")]
+    Io(io::Error),
+}
+
+// Not `#[from]`: that would make the io::Error the source too, and `{:#}` would print it
+// twice.
+impl From<io::Error> for RecordError {
+    fn from(e: io::Error) -> Self {
+        RecordError::Io(e)
+    }
+}
+
+fn refusal(e: CommandError) -> String {
+    match e {
+        CommandError::Busy => {
+            "busy: it is already running a condition (another host, or a recording that was \
+             interrupted); use --restart to stop it first"
+                .into()
+        }
+        CommandError::NotRunning => "not running".into(),
+        CommandError::BadRate => "the rate is zero or too high for its clock".into(),
+        CommandError::SensorFault => "its accelerometer is absent or failing".into(),
+        CommandError::NotInRing => "the samples have left its ring buffer".into(),
+        CommandError::FitFailed => "too few samples or periods for a fit".into(),
+    }
+}
+
+/// Check the device-info value.
+pub fn check_info(bytes: &[u8]) -> Result<DeviceInfo, RecordError> {
+    match Packet::decode(bytes) {
+        Ok(Packet::Info(i)) => {
+            if i.firmware[0] != FIRMWARE_MAJOR {
+                return Err(RecordError::Device(format!(
+                    "the device runs firmware {}.{}.{}; this rotacal works with firmware \
+                     {FIRMWARE_MAJOR}.x: flash the firmware from this repository (README, \
+                     Flashing)",
+                    i.firmware[0], i.firmware[1], i.firmware[2]
+                )));
+            }
+            if i.tick_hz == 0 {
+                return Err(RecordError::Device(
+                    "the device reports a tick rate of 0 Hz".into(),
+                ));
+            }
+            Ok(i)
+        }
+        Ok(other) => Err(RecordError::Device(format!(
+            "the device-info value is not device info but {other:?}"
+        ))),
+        Err(e) => match bytes.first() {
+            Some(&v) if v != VERSION => Err(RecordError::Device(format!(
+                "the device speaks protocol version {v}; this rotacal speaks version {VERSION}: \
+                 use matching firmware and host"
+            ))),
+            _ => Err(RecordError::Device(format!(
+                "the device-info value does not decode ({e}): {} bytes {:02x?}",
+                bytes.len(),
+                bytes
+            ))),
+        },
+    }
+}
+
+fn encode(cmd: Command) -> Vec<u8> {
+    let mut buf = [0u8; MAX_PACKET];
+    let n = Packet::Command(cmd).encode(&mut buf).unwrap_or(0);
+    buf.get(..n).unwrap_or(&[]).to_vec()
+}
+
+/// The files a recording writes.
+pub struct Files<W: Durable, F: Durable, C: Durable> {
+    /// The recorder (recording and fit log).
+    pub recorder: Recorder<W, F>,
+    /// The capture.
+    pub capture: CaptureWriter<C>,
+}
+
+struct Session<'a, L: Link, W: Durable, F: Durable, C: Durable, O: Observer> {
+    link: &'a mut L,
+    files: Files<W, F, C>,
+    obs: &'a mut O,
+    opts: Options,
+    undecodable: u64,
+    link_drops: u32,
+    connected: bool,
+    last_status: Option<Status>,
+    final_fit: bool,
+    condition: Condition,
+    /// The backfill asked for: (first, last, when, how many times).
+    asked: Option<(u32, u32, Instant, u32)>,
+    last_flush: Instant,
+    started: Instant,
+    duration: Duration,
+}
+
+impl<L: Link, W: Durable, F: Durable, C: Durable, O: Observer> Session<'_, L, W, F, C, O> {
+    fn progress(&mut self) {
+        let s = self.files.recorder.summary();
+        let missing = self
+            .files
+            .recorder
+            .missing()
+            .iter()
+            .map(|&(a, b)| u64::from(b - a) + 1)
+            .sum();
+        let p = Progress {
+            elapsed: self.started.elapsed(),
+            duration: self.duration,
+            rows: s.rows,
+            missing,
+            recovered: s.recovered,
+            lost: s.lost_samples(),
+            undecodable: self.undecodable,
+            link: if self.connected {
+                LinkState::Connected
+            } else {
+                LinkState::Reconnecting(0)
+            },
+        };
+        self.obs.progress(&p);
+    }
+
+    fn flush(&mut self) -> io::Result<()> {
+        self.files.recorder.flush()?;
+        self.files.capture.flush()?;
+        if self.opts.sync {
+            let (w, f) = self.files.recorder.writers();
+            w.sync()?;
+            f.sync()?;
+            self.files.capture.get_ref().sync()?;
+        }
+        self.last_flush = Instant::now();
+        Ok(())
+    }
+
+    async fn tick(&mut self) -> io::Result<()> {
+        if self.last_flush.elapsed() >= Duration::from_secs(1) {
+            self.flush()?;
+            self.progress();
+        }
+        Ok(())
+    }
+
+    /// Take one value from the link (or time out after `wait`).
+    async fn receive(&mut self, wait: Duration) -> Result<(), RecordError> {
+        match self.link.next(wait).await {
+            Ok(Some((ch, bytes))) => {
+                self.files.capture.entry(&Entry::Value(ch, bytes.clone()))?;
+                self.handle(ch, &bytes)?;
+            }
+            Ok(None) => {}
+            Err(LinkError::Disconnected(why)) => {
+                self.connected = false;
+                self.link_drops += 1;
+                self.files.capture.entry(&Entry::Down)?;
+                self.obs
+                    .message(&format!("link lost ({why}); reconnecting"));
+                self.reconnect().await?;
+            }
+            Err(e) => return Err(e.into()),
+        }
+        self.tick().await?;
+        Ok(())
+    }
+
+    fn handle(&mut self, ch: Channel, bytes: &[u8]) -> Result<(), RecordError> {
+        let p = match Packet::decode(bytes) {
+            Ok(p) => p,
+            Err(e) => {
+                self.undecodable += 1;
+                // The first few in full; then every thousandth, so a babbling device can't
+                // flood the terminal.
+                if self.undecodable <= 3 || self.undecodable % 1000 == 0 {
+                    self.obs.message(&format!(
+                        "ignored a {}-byte value on the {ch:?} characteristic that is not a \
+                         rotacal packet ({e}); {} so far",
+                        bytes.len(),
+                        self.undecodable
+                    ));
+                }
+                return Ok(());
+            }
+        };
+        self.files.recorder.packet(&p)?;
+        match p {
+            Packet::Status(s) => {
+                if s.last_error == Some(CommandError::NotInRing) {
+                    self.files.recorder.give_up_before(s.ring_oldest)?;
+                }
+                self.last_status = Some(s);
+            }
+            Packet::Fit(f) if f.is_final && f.condition == self.condition => {
+                self.final_fit = true;
+            }
+            _ => {}
+        }
+        Ok(())
+    }
+
+    /// Write a command and wait for the status that answers it.
+    async fn command(&mut self, cmd: Command) -> Result<Status, RecordError> {
+        let bytes = encode(cmd);
+        self.files.capture.entry(&Entry::Written(bytes.clone()))?;
+        self.last_status = None;
+        loop {
+            match self.link.write(&bytes).await {
+                Ok(()) => break,
+                Err(LinkError::Disconnected(why)) => {
+                    self.connected = false;
+                    self.link_drops += 1;
+                    self.obs
+                        .message(&format!("link lost ({why}); reconnecting"));
+                    self.reconnect().await?;
+                }
+                Err(e) => return Err(e.into()),
+            }
+        }
+        let deadline = Instant::now() + self.opts.reply_wait;
+        while Instant::now() < deadline {
+            self.receive(Duration::from_millis(200)).await?;
+            if let Some(s) = self.last_status {
+                return Ok(s);
+            }
+        }
+        Err(RecordError::Device(format!(
+            "no status reply to {cmd:?} within {:.0} s",
+            self.opts.reply_wait.as_secs_f64()
+        )))
+    }
+
+    async fn reconnect(&mut self) -> Result<(), RecordError> {
+        let since = Instant::now();
+        let mut attempt = 0u32;
+        loop {
+            attempt += 1;
+            self.obs.progress(&Progress {
+                elapsed: self.started.elapsed(),
+                duration: self.duration,
+                rows: self.files.recorder.summary().rows,
+                missing: 0,
+                recovered: self.files.recorder.summary().recovered,
+                lost: self.files.recorder.summary().lost_samples(),
+                undecodable: self.undecodable,
+                link: LinkState::Reconnecting(attempt),
+            });
+            match self.link.connect().await {
+                Ok(info) => {
+                    check_info(&info)?;
+                    self.files
+                        .capture
+                        .entry(&Entry::Value(Channel::Info, info))?;
+                    self.files.capture.entry(&Entry::Up)?;
+                    self.connected = true;
+                    self.obs.message(&format!(
+                        "reconnected after {:.1} s",
+                        since.elapsed().as_secs_f64()
+                    ));
+                    self.asked = None;
+                    return Ok(());
+                }
+                Err(LinkError::Disconnected(why)) => {
+                    if since.elapsed() >= self.opts.reconnect_for {
+                        return Err(RecordError::Link(LinkError::Disconnected(format!(
+                            "{why}; gave up after {:.0} s",
+                            since.elapsed().as_secs_f64()
+                        ))));
+                    }
+                    self.flush()?;
+                    tokio::time::sleep(Duration::from_millis(500)).await;
+                }
+                Err(e) => return Err(e.into()),
+            }
+        }
+    }
+
+    /// Ask for the first missing range again; ask once more when the replay is overdue
+    /// (replays can be lost too), and give the range up after [`BACKFILL_TRIES`].
+    async fn backfill(&mut self) -> Result<(), RecordError> {
+        let Some(&(a, b)) = self.files.recorder.missing().first() else {
+            self.asked = None;
+            return Ok(());
+        };
+        let tries = match self.asked {
+            Some((qa, qb, at, tries)) if qa <= a && a <= qb => {
+                if at.elapsed() < self.opts.backfill_wait {
+                    return Ok(());
+                }
+                if tries >= BACKFILL_TRIES {
+                    let end = b.min(qb);
+                    self.obs.message(&format!(
+                        "samples {a}–{end} did not come back after {tries} requests; \
+                         reported lost"
+                    ));
+                    self.files.recorder.give_up_before(end + 1)?;
+                    self.asked = None;
+                    return Ok(());
+                }
+                tries + 1
+            }
+            _ => 1,
+        };
+        let count = u16::try_from(b - a + 1).unwrap_or(u16::MAX);
+        self.asked = Some((a, a + u32::from(count) - 1, Instant::now(), tries));
+        let s = self
+            .command(Command::Backfill { from_seq: a, count })
+            .await?;
+        if s.last_error == Some(CommandError::NotInRing) {
+            self.obs.message(&format!(
+                "samples from {a} have left the device's ring (it holds {}–{}); those \
+                 before {} are lost",
+                s.ring_oldest, s.ring_newest, s.ring_oldest
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// Requests for one missing range before it is reported lost.
+pub const BACKFILL_TRIES: u32 = 3;
+
+/// Record one condition. `files` are fresh or appended; `info` is the checked device info
+/// from the first connection ([`connect`]).
+pub async fn record<L: Link, W: Durable, F: Durable, C: Durable, O: Observer>(
+    link: &mut L,
+    info: DeviceInfo,
+    files: Files<W, F, C>,
+    plan: Plan,
+    opts: Options,
+    obs: &mut O,
+) -> Result<Outcome, (RecordError, Option<RecordSummary>)> {
+    let mut s = Session {
+        link,
+        files,
+        obs,
+        opts,
+        undecodable: 0,
+        link_drops: 0,
+        connected: true,
+        last_status: None,
+        final_fit: false,
+        condition: plan.condition,
+        asked: None,
+        last_flush: Instant::now(),
+        started: Instant::now(),
+        duration: plan.duration,
+    };
+    let result = run(&mut s, plan).await;
+    let undecodable = s.undecodable;
+    let link_drops = s.link_drops;
+    let final_fit = s.final_fit;
+    let _ = s.flush();
+    let summary = s.files.recorder.finish();
+    match (result, summary) {
+        (Ok(()), Ok(summary)) => Ok(Outcome {
+            summary,
+            info,
+            undecodable,
+            link_drops,
+            final_fit,
+        }),
+        (Err(e), sum) => Err((e, sum.ok())),
+        (Ok(()), Err(e)) => Err((e.into(), None)),
+    }
+}
+
+async fn run<L: Link, W: Durable, F: Durable, C: Durable, O: Observer>(
+    s: &mut Session<'_, L, W, F, C, O>,
+    plan: Plan,
+) -> Result<(), RecordError> {
+    let check = |cmd: &str, st: Status| match st.last_error {
+        Some(e) => Err(RecordError::Refused {
+            command: cmd.into(),
+            reason: refusal(e),
+        }),
+        None => Ok(st),
+    };
+    if plan.restart {
+        // Refused (not running) is fine: the point is that it isn't running afterwards.
+        s.command(Command::Stop).await?;
+    }
+    if let Some(mhz) = plan.sample_rate_mhz {
+        let st = s.command(Command::SetSampleRate { mhz }).await?;
+        check("the sample rate", st)?;
+    }
+    let st = s
+        .command(Command::Start {
+            condition: plan.condition,
+            rate_uhz: plan.rate_uhz,
+        })
+        .await?;
+    check("start", st)?;
+    s.started = Instant::now();
+    s.obs.message(&format!(
+        "recording condition {} for {:.0} s",
+        plan.condition.letter(),
+        plan.duration.as_secs_f64()
+    ));
+    while s.started.elapsed() < plan.duration {
+        s.receive(Duration::from_millis(200)).await?;
+        if let Some(st) = s.last_status.take() {
+            if st.state != RunState::Running {
+                return Err(RecordError::Device(format!(
+                    "the device stopped running (state {:?}, sensor {:?}): restarted or \
+                     stopped by another host",
+                    st.state, st.sensor
+                )));
+            }
+        }
+        if s.connected {
+            s.backfill().await?;
+        }
+    }
+    let st = s.command(Command::Stop).await?;
+    let fit_failed = st.last_error == Some(CommandError::FitFailed);
+    if st.last_error == Some(CommandError::FitFailed) {
+        // Stopped all the same; the samples are recorded, only the device's own fit is
+        // missing (the host fits them in `calibrate`).
+        s.obs.message(
+            "the device stopped but its fit failed (too few samples or periods): no final \
+             fit report",
+        );
+    } else {
+        check("stop", st)?;
+    }
+    // The tail: samples the device took but whose notifications were lost.
+    s.files.recorder.expect_through(st.ring_newest);
+    let deadline = Instant::now() + s.opts.reply_wait + s.opts.backfill_wait;
+    while Instant::now() < deadline
+        && ((!s.final_fit && !fit_failed) || !s.files.recorder.missing().is_empty())
+    {
+        s.receive(Duration::from_millis(200)).await?;
+        s.backfill().await?;
+    }
+    if !s.final_fit && !fit_failed {
+        s.obs
+            .message("the device's final fit report did not arrive; the fit log lacks it");
+    }
+    Ok(())
+}
+
+/// Connect for the first time, retrying for `opts.reconnect_for`, and check the device.
+pub async fn connect<L: Link>(
+    link: &mut L,
+    opts: &Options,
+    obs: &mut impl Observer,
+) -> Result<(DeviceInfo, Vec<u8>), RecordError> {
+    let since = Instant::now();
+    loop {
+        match link.connect().await {
+            Ok(bytes) => return Ok((check_info(&bytes)?, bytes)),
+            Err(LinkError::Disconnected(why)) if since.elapsed() < opts.reconnect_for => {
+                obs.message(&format!("{}: {why}; retrying", link.describe()));
+                tokio::time::sleep(Duration::from_secs(1)).await;
+            }
+            Err(e) => return Err(e.into()),
+        }
+    }
+}
+
+/// Where a recording goes: the recording, its fit log and its capture.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Paths {
+    /// The recording CSV.
+    pub recording: std::path::PathBuf,
+    /// The fit log (JSON lines).
+    pub fits: std::path::PathBuf,
+    /// The capture.
+    pub capture: std::path::PathBuf,
+}
+
+impl Paths {
+    /// `rec.csv` → `rec.fits.jsonl` and `rec.capture` beside it.
+    pub fn beside(recording: &std::path::Path) -> Self {
+        Paths {
+            recording: recording.to_path_buf(),
+            fits: recording.with_extension("fits.jsonl"),
+            capture: recording.with_extension("capture"),
+        }
+    }
+}
+
+fn named(p: &std::path::Path, e: io::Error) -> RecordError {
+    RecordError::Io(io::Error::new(e.kind(), format!("{}: {e}", p.display())))
+}
+
+/// Cut a file back to its last complete line (a host killed mid-write leaves a partial
+/// one), so that appending starts on a fresh line.
+fn truncate_partial_line(p: &std::path::Path) -> Result<(), RecordError> {
+    let bytes = std::fs::read(p).map_err(|e| named(p, e))?;
+    let keep = bytes.iter().rposition(|&b| b == b'\n').map_or(0, |i| i + 1);
+    if keep < bytes.len() {
+        let f = std::fs::OpenOptions::new()
+            .write(true)
+            .open(p)
+            .map_err(|e| named(p, e))?;
+        f.set_len(keep as u64).map_err(|e| named(p, e))?;
+    }
+    Ok(())
+}
+
+/// Open the files for a new recording (refusing to overwrite one) or, with `append`,
+/// for another condition of an existing one (which must read back, have the recorder's
+/// columns and not hold `condition` yet).
+pub fn open_files(
+    paths: &Paths,
+    meta: &crate::recording::Metadata,
+    info_bytes: &[u8],
+    tick_hz: u32,
+    condition: Condition,
+    append: bool,
+) -> Result<Files<File, File, File>, RecordError> {
+    use std::fs::OpenOptions;
+    if append {
+        for p in [&paths.recording, &paths.fits, &paths.capture] {
+            truncate_partial_line(p)?;
+        }
+        let rec = crate::recording::read_in_progress(&paths.recording)
+            .map_err(|e| RecordError::Device(format!("cannot append: {e}")))?;
+        if rec.groups.iter().any(|g| g.condition == condition) {
+            return Err(RecordError::Device(format!(
+                "cannot append: {} already holds condition {}; record it into a new file",
+                paths.recording.display(),
+                condition.letter()
+            )));
+        }
+        let open = |p: &std::path::Path| {
+            OpenOptions::new()
+                .append(true)
+                .open(p)
+                .map_err(|e| named(p, e))
+        };
+        let mut capture = CaptureWriter::append(open(&paths.capture)?);
+        capture.entry(&Entry::Value(Channel::Info, info_bytes.to_vec()))?;
+        Ok(Files {
+            recorder: Recorder::append(open(&paths.recording)?, open(&paths.fits)?, tick_hz)?,
+            capture,
+        })
+    } else {
+        let create = |p: &std::path::Path| {
+            OpenOptions::new()
+                .write(true)
+                .create_new(true)
+                .open(p)
+                .map_err(|e| {
+                    if e.kind() == io::ErrorKind::AlreadyExists {
+                        RecordError::Io(io::Error::new(
+                            e.kind(),
+                            format!(
+                                "{}: exists; use --append to add a condition to it, or \
+                                 another name",
+                                p.display()
+                            ),
+                        ))
+                    } else {
+                        named(p, e)
+                    }
+                })
+        };
+        let (rec, fits, cap) = (
+            create(&paths.recording)?,
+            create(&paths.fits)?,
+            create(&paths.capture)?,
+        );
+        let mut capture = CaptureWriter::new(cap, meta)?;
+        capture.entry(&Entry::Value(Channel::Info, info_bytes.to_vec()))?;
+        Ok(Files {
+            recorder: Recorder::new(rec, fits, meta, tick_hz)?,
+            capture,
+        })
+    }
+}
+
+/// A duration such as `300s`, `5min`, `1.5h` or `300` (seconds).
+pub fn parse_duration(s: &str) -> Result<Duration, String> {
+    let s = s.trim();
+    let (num, unit) = match s.find(|c: char| c.is_ascii_alphabetic()) {
+        Some(i) => (s.get(..i).unwrap_or(""), s.get(i..).unwrap_or("")),
+        None => (s, "s"),
+    };
+    let scale = match unit {
+        "s" => 1.0,
+        "min" | "m" => 60.0,
+        "h" => 3600.0,
+        _ => return Err(format!("'{s}': unknown unit '{unit}' (use s, min or h)")),
+    };
+    let x: f64 = num
+        .trim()
+        .parse()
+        .map_err(|_| format!("'{s}': not a number of seconds, minutes or hours"))?;
+    if !(x.is_finite() && x > 0.0 && x * scale < 1e9) {
+        return Err(format!("'{s}': must be positive"));
+    }
+    Ok(Duration::from_secs_f64(x * scale))
+}

@@ -1,0 +1,293 @@
+//! `rotacal record`'s logic against the simulated device (the firmware's logic on the
+//! host) with faults: outages shorter and longer than the ring buffer, dropped and
+//! garbage notifications, wrong firmware and protocol versions, a link that never
+//! returns. Every run is on a paused clock, so 262 s of recording take a fraction of
+//! a second. Then a real-time run of the binary killed with SIGKILL.
+mod common;
+use rotacal::capture;
+use rotacal::link::simulated::{Faults, SimulatedDevice};
+use rotacal::record::{self, Options, Outcome, Paths, Plan, Quiet, RecordError};
+use rotacal::recording::{self, Metadata, Method};
+use rotacal::simulate::Simulation;
+use rotacal_shared::Condition;
+use std::path::PathBuf;
+use std::time::Duration;
+
+/// Samples the device streams for condition x: 262.5 s at 16 Hz.
+const N: u64 = 4200;
+
+fn dir(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("rotacal-rec-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+fn sim() -> Simulation {
+    Simulation::new(rotacal::demo::session_config(7).unwrap()).unwrap()
+}
+
+struct Run {
+    result: Result<Outcome, (RecordError, Option<rotacal::acquire::RecordSummary>)>,
+    paths: Paths,
+    messages: Vec<String>,
+}
+
+fn run_with(name: &str, faults: &str, opts: Options) -> Result<Run, RecordError> {
+    let d = dir(name);
+    let paths = Paths::beside(&d.join("rec.csv"));
+    let mut dev = SimulatedDevice::new(&sim(), faults.parse::<Faults>().unwrap()).unwrap();
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_time()
+        .start_paused(true)
+        .build()
+        .unwrap();
+    let meta = Metadata {
+        method: Some(Method::Rotation),
+        rate_hz: Some(0.01),
+        units: Some("counts".into()),
+        ..Metadata::default()
+    };
+    rt.block_on(async {
+        let mut obs = Quiet::default();
+        let (info, bytes) = record::connect(&mut dev, &opts, &mut obs).await?;
+        let files = record::open_files(&paths, &meta, &bytes, info.tick_hz, Condition::X, false)?;
+        let plan = Plan {
+            condition: Condition::X,
+            rate_uhz: 10_000,
+            duration: Duration::from_secs_f64(262.5),
+            sample_rate_mhz: Some(16_000),
+            restart: false,
+        };
+        let result = record::record(&mut dev, info, files, plan, opts, &mut obs).await;
+        Ok(Run {
+            result,
+            paths,
+            messages: obs.messages,
+        })
+    })
+}
+
+fn run(name: &str, faults: &str) -> Run {
+    let opts = Options {
+        sync: false,
+        ..Options::default()
+    };
+    run_with(name, faults, opts).unwrap()
+}
+
+/// The seq column of a recording, which must read back.
+fn seqs(p: &std::path::Path) -> Vec<u64> {
+    let text = std::fs::read_to_string(p).unwrap();
+    recording::read_in_progress(p).unwrap();
+    text.lines()
+        .filter(|l| l.starts_with("x,"))
+        .map(|l| l.split(',').nth(1).unwrap().parse().unwrap())
+        .collect()
+}
+
+/// The recording rebuilt from the capture is the same file.
+fn rebuild_matches(r: &Run) {
+    let text = std::fs::read_to_string(&r.paths.capture).unwrap();
+    let cap = capture::read(&text, "capture").unwrap();
+    let (mut rows, mut fits) = (Vec::new(), Vec::new());
+    let rebuilt = capture::rebuild(&cap, &mut rows, &mut fits).unwrap();
+    assert_eq!(
+        String::from_utf8(rows).unwrap(),
+        std::fs::read_to_string(&r.paths.recording).unwrap(),
+        "rebuilt from the capture: {rebuilt:?}"
+    );
+    assert_eq!(fits, std::fs::read(&r.paths.fits).unwrap());
+}
+
+fn crosscheck_passes(r: &Run) {
+    let rec = recording::read_in_progress(&r.paths.recording).unwrap();
+    let log =
+        rotacal::acquire::read_fit_log(&std::fs::read_to_string(&r.paths.fits).unwrap(), "fits")
+            .unwrap();
+    let x = rotacal::crosscheck::crosscheck(&rec, &log, 0.01).unwrap();
+    assert!(x.passed, "{}", rotacal::crosscheck::render(&x));
+    // Periodic reports every 160 samples once the fit has a result (1.5 periods), and
+    // the final one: 12, as in the QEMU session (36 for three conditions).
+    assert_eq!(x.fits.len(), 12);
+}
+
+#[test]
+fn a_clean_session_records_every_sample() {
+    let r = run("clean", "");
+    let o = r.result.as_ref().unwrap();
+    assert_eq!(o.summary.rows, N);
+    assert!(o.summary.lost.is_empty() && o.summary.recovered == 0);
+    assert!(o.final_fit && o.link_drops == 0 && o.undecodable == 0);
+    assert_eq!(seqs(&r.paths.recording), (0..N).collect::<Vec<_>>());
+    crosscheck_passes(&r);
+    rebuild_matches(&r);
+}
+
+#[test]
+fn an_outage_shorter_than_the_ring_is_backfilled() {
+    // 10 s down: 160 samples the device kept in its 32 s ring.
+    let r = run("short-outage", "outage=100:10");
+    let o = r.result.as_ref().unwrap();
+    assert_eq!(o.link_drops, 1);
+    assert_eq!(o.summary.rows, N, "{:?}", r.messages);
+    assert!(o.summary.lost.is_empty());
+    assert!(o.summary.recovered >= 160, "{}", o.summary.recovered);
+    assert_eq!(seqs(&r.paths.recording), (0..N).collect::<Vec<_>>());
+    crosscheck_passes(&r);
+    rebuild_matches(&r);
+}
+
+#[test]
+fn an_outage_longer_than_the_ring_loses_only_what_left_it() {
+    // 60 s down: the device keeps the last 512 samples (32 s); the rest is reported lost.
+    let r = run("long-outage", "outage=100:60");
+    let o = r.result.as_ref().unwrap();
+    let s = &o.summary;
+    assert_eq!(s.lost.len(), 1, "{:?}", s.lost);
+    let (a, b) = s.lost[0];
+    assert_eq!(
+        s.rows + s.lost_samples(),
+        N,
+        "every sample written or reported lost"
+    );
+    // The loss starts where the link dropped (100 s, seq 1600, less the part-filled
+    // batch of at most 20 samples that went out into the void) and spans about 60 − 32 s.
+    assert!((1580..=1600).contains(&a), "lost from {a}");
+    let lost_s = f64::from(b - a + 1) / 16.0;
+    assert!((27.0..=31.0).contains(&lost_s), "{lost_s} s lost");
+    // The ring's 512 samples, less those pushed out between the reconnection and the
+    // replay (the gap shows with the first live batch: at most 20 samples or 1 s later,
+    // so at most 2 s at 16 Hz).
+    assert!(s.recovered >= 512 - 32, "{}", s.recovered);
+    let q = seqs(&r.paths.recording);
+    assert!(q.windows(2).all(|w| w[0] < w[1]), "seq increasing");
+    assert!(r
+        .messages
+        .iter()
+        .any(|m| m.contains("left the device's ring")));
+    rebuild_matches(&r);
+}
+
+#[test]
+fn dropped_notifications_are_asked_for_again() {
+    let r = run("drops", "drop=0.05,seed=3");
+    let o = r.result.as_ref().unwrap();
+    assert_eq!(o.summary.rows, N, "{:?}", o.summary.lost);
+    assert!(o.summary.lost.is_empty());
+    assert!(o.summary.recovered > 100, "{}", o.summary.recovered);
+    crosscheck_passes(&r);
+}
+
+#[test]
+fn garbage_notifications_are_counted_and_ignored() {
+    let r = run("garbage", "garbage=7,seed=5");
+    let o = r.result.as_ref().unwrap();
+    assert!(o.undecodable > 30, "{}", o.undecodable);
+    assert_eq!(o.summary.rows, N);
+    assert!(r
+        .messages
+        .iter()
+        .any(|m| m.contains("not a rotacal packet")));
+    crosscheck_passes(&r);
+}
+
+fn refused(faults: &str) -> String {
+    let opts = Options {
+        sync: false,
+        ..Options::default()
+    };
+    match run_with("refused", faults, opts) {
+        Err(e) => e.to_string(),
+        Ok(_) => panic!("{faults}: accepted"),
+    }
+}
+
+#[test]
+fn a_device_with_other_firmware_or_protocol_is_refused_by_name() {
+    let m = refused("firmware=1.2.3");
+    assert!(m.contains("firmware 1.2.3") && m.contains("0.x"), "{m}");
+    let m = refused("protocol=2");
+    assert!(
+        m.contains("protocol version 2") && m.contains("version 1"),
+        "{m}"
+    );
+}
+
+#[test]
+fn a_link_that_never_returns_ends_with_what_was_recorded() {
+    let opts = Options {
+        sync: false,
+        reconnect_for: Duration::from_secs(30),
+        ..Options::default()
+    };
+    let r = run_with("gone", "outage=100:10000", opts).unwrap();
+    let (e, s) = r.result.as_ref().unwrap_err();
+    assert!(e.to_string().contains("gave up after 3"), "{e}");
+    let s = s.as_ref().unwrap();
+    // Everything up to the drop (100 s at 16 Hz), within a batch.
+    assert!((1580..=1600).contains(&s.rows), "{}", s.rows);
+    assert_eq!(seqs(&r.paths.recording).len() as u64, s.rows);
+}
+
+#[test]
+fn a_killed_recording_is_valid_up_to_its_last_line() {
+    use std::io::Write;
+    let d = dir("kill");
+    let cfg = d.join("sim.toml");
+    std::fs::File::create(&cfg)
+        .unwrap()
+        .write_all(
+            b"preset = \"paper-10mhz\"\n[timing]\nsample_rate_hz = 104.0\ntick_hz = 1e6\n\
+              [table]\nsamples_per_condition = 27300\n",
+        )
+        .unwrap();
+    let out = d.join("rec.csv");
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_rotacal"))
+        .args(["record", "--simulate"])
+        .arg(&cfg)
+        .args(["--condition", "x", "--rate-hz", "0.01", "--duration", "60s"])
+        .arg("--out")
+        .arg(&out)
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    std::thread::sleep(Duration::from_millis(3500));
+    child.kill().unwrap(); // SIGKILL: no destructor, no flush
+    child.wait().unwrap();
+    let text = std::fs::read_to_string(&out).unwrap();
+    assert!(text.ends_with('\n'), "a partial last line");
+    let n = seqs(&out).len();
+    // Synced every second: at least the first two seconds are on disk.
+    assert!(n >= 32, "{n} rows after 3.5 s");
+    let q = seqs(&out);
+    assert_eq!(q, (0..n as u64).collect::<Vec<_>>());
+    // The capture rebuilds at least as much.
+    let rebuilt = d.join("rebuilt.csv");
+    let (ok, stdout, stderr) = common::run(&[
+        std::path::Path::new("decode"),
+        &d.join("rec.capture"),
+        std::path::Path::new("--out"),
+        &rebuilt,
+    ]);
+    assert!(ok, "{stdout}{stderr}");
+    assert!(seqs(&rebuilt).len() >= n);
+    // Appending another condition first cuts any partial line, then refuses condition x
+    // again by name.
+    let (ok, _, err) = common::run(&[
+        "record",
+        "--simulate",
+        cfg.to_str().unwrap(),
+        "--condition",
+        "x",
+        "--rate-hz",
+        "0.01",
+        "--duration",
+        "1s",
+        "--append",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(!ok && err.contains("already holds condition x"), "{err}");
+}
