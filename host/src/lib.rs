@@ -17,6 +17,7 @@ pub mod calibration_file;
 pub mod capture;
 pub mod crosscheck;
 pub mod demo;
+pub mod discrepancy;
 pub mod fitcheck;
 pub mod geometry;
 pub mod import;

@@ -105,6 +105,27 @@ enum Command {
     /// Record one condition from a device over BLE (or a simulated one): the recording,
     /// its fit log (.fits.jsonl) and a capture of every value received (.capture).
     Record(record::Args),
+    /// Find where the model and the measurement disagree, name the missing effects,
+    /// and show the gap shrink as each is added (docs/discrepancy.md).
+    Discrepancy {
+        /// The recording CSV (rotation).
+        file: PathBuf,
+        /// Write the analysis as JSON (formats.md) here.
+        #[arg(long)]
+        json: Option<PathBuf>,
+        /// Write a report folder (Markdown, residual and spectrum plots) here.
+        #[arg(long)]
+        report: Option<PathBuf>,
+        /// Local gravity, m/s² (overrides `# g_loc=`).
+        #[arg(long)]
+        g_loc: Option<f64>,
+        /// Nominal rotation rate, Hz (overrides `# rate_hz=`).
+        #[arg(long)]
+        rate_hz: Option<f64>,
+        /// Significance of each effect's F-test.
+        #[arg(long, default_value_t = rotacal::discrepancy::ALPHA)]
+        alpha: f64,
+    },
     /// Rebuild a recording and its fit log from a capture (after a crash, or to re-decode).
     Decode {
         /// The capture.
@@ -186,6 +207,21 @@ fn main() -> ExitCode {
             json,
         } => crosscheck(&recording, &fit_log, threshold, json.as_deref()),
         Command::Record(args) => record::run(args),
+        Command::Discrepancy {
+            file,
+            json,
+            report,
+            g_loc,
+            rate_hz,
+            alpha,
+        } => discrepancy(
+            &file,
+            json.as_deref(),
+            report.as_deref(),
+            g_loc,
+            rate_hz,
+            alpha,
+        ),
         Command::Decode { capture, out } => record::decode(&capture, &out),
         Command::Demo { seed, out } => rotacal::demo::run(seed, &out)
             .and_then(|d| Ok(rotacal::output::emit(&rotacal::demo::render(&d))?)),
@@ -242,6 +278,37 @@ fn simulate(config: &str, out: &std::path::Path, seed: Option<u64>) -> anyhow::R
         .write_file(out)
         .map_err(|e| anyhow::anyhow!("{}: {e}", out.display()))?;
     rotacal::output::emit(&rotacal::simulate::render(&sim, &sum, out))?;
+    Ok(())
+}
+
+fn discrepancy(
+    file: &std::path::Path,
+    json: Option<&std::path::Path>,
+    report: Option<&std::path::Path>,
+    g_loc: Option<f64>,
+    rate_hz: Option<f64>,
+    alpha: f64,
+) -> anyhow::Result<()> {
+    if !(alpha > 0.0 && alpha < 1.0) {
+        anyhow::bail!("--alpha {alpha}: expected a probability between 0 and 1");
+    }
+    let rec = rotacal::recording::read(file)?;
+    let opts = rotacal::discrepancy::Options {
+        g_loc,
+        rate_hz,
+        alpha,
+    };
+    let a = rotacal::discrepancy::run(&rec, &opts).map_err(anyhow::Error::msg)?;
+    if let Some(path) = json {
+        std::fs::write(path, serde_json::to_string_pretty(&a)? + "\n")
+            .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+    }
+    rotacal::output::emit(&rotacal::discrepancy::report::render(&a))?;
+    if let Some(dir) = report {
+        let units = rec.meta.units.as_deref().unwrap_or("output units");
+        let path = rotacal::discrepancy::report::write(&a, dir, units)?;
+        rotacal::output::emit(&format!("report: {}\n", path.display()))?;
+    }
     Ok(())
 }
 

@@ -38,16 +38,16 @@ pub enum ReportError {
 }
 
 /// One group's data, model and residuals.
-struct Series {
-    title: String,
-    stem: String,
+pub(crate) struct Series {
+    pub(crate) title: String,
+    pub(crate) stem: String,
     /// Time (s from the group's first row) or angle (deg).
-    x: Vec<f64>,
-    x_label: &'static str,
-    alpha: Vec<f64>,
-    y: [Vec<f64>; 3],
-    model: [Vec<f64>; 3],
-    rotation: bool,
+    pub(crate) x: Vec<f64>,
+    pub(crate) x_label: &'static str,
+    pub(crate) alpha: Vec<f64>,
+    pub(crate) y: [Vec<f64>; 3],
+    pub(crate) model: [Vec<f64>; 3],
+    pub(crate) rotation: bool,
 }
 
 fn coef(fits: &[FitJson], cond: char, ch: &str) -> Option<[f64; 3]> {
@@ -117,7 +117,7 @@ fn series(rec: &Recording, g: &Group, entry: &RateJson) -> Result<Series, Report
     })
 }
 
-fn residuals(s: &Series, ch: usize) -> Vec<f64> {
+pub(crate) fn residuals(s: &Series, ch: usize) -> Vec<f64> {
     s.y[ch]
         .iter()
         .zip(&s.model[ch])
@@ -126,7 +126,7 @@ fn residuals(s: &Series, ch: usize) -> Vec<f64> {
 }
 
 /// Residual amplitude at harmonic k = 1..HARMONICS: LS fit of a·sin kα + b·cos kα + c.
-fn harmonic_amplitudes(alpha: &[f64], r: &[f64]) -> Vec<f64> {
+pub(crate) fn harmonic_amplitudes(alpha: &[f64], r: &[f64]) -> Vec<f64> {
     (1..=HARMONICS)
         .map(|k| {
             let k = k as f64;
@@ -262,7 +262,7 @@ fn plot_fit(s: &Series, path: &Path, units: &str) -> Result<(), ReportError> {
 }
 
 /// Residuals against time or angle, three channels.
-fn plot_residuals(s: &Series, path: &Path, units: &str) -> Result<(), ReportError> {
+pub(crate) fn plot_residuals(s: &Series, path: &Path, units: &str) -> Result<(), ReportError> {
     let r: Vec<Vec<f64>> = (0..3).map(|ch| residuals(s, ch)).collect();
     let root = SVGBackend::new(path, (900, 420)).into_drawing_area();
     root.fill(&WHITE).map_err(err(path))?;
@@ -297,7 +297,7 @@ fn plot_residuals(s: &Series, path: &Path, units: &str) -> Result<(), ReportErro
 }
 
 /// Residual amplitude at the harmonics of ω.
-fn plot_spectrum(
+pub(crate) fn plot_spectrum(
     s: &Series,
     amps: &[Vec<f64>],
     path: &Path,

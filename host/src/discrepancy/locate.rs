@@ -1,0 +1,150 @@
+//! Where a model's residuals disagree with the noise: per condition, rate and channel,
+//! the residual's 2nd and 3rd harmonics of ω, its trend in time, its correlation with
+//! temperature, readings at the rails; across rates, the offsets against ω².
+//! Each finding has a size (output units) and a z-score (size over its standard error
+//! under white noise of the floor σ); those beyond 5 are listed, largest first.
+
+use super::model::{Data, Fit};
+use serde::Serialize;
+
+/// z beyond which a finding is listed.
+pub const Z_LIST: f64 = 5.0;
+
+/// One place where the residuals are not noise.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Finding {
+    /// Condition, rate and channel.
+    pub at: String,
+    /// What: "harmonic 2", "trend", "temperature", "rails", "offset vs ω²".
+    pub what: String,
+    /// Size, output units (per s for a trend, per °C, per (rad/s)²).
+    pub size: f64,
+    /// Size over its standard error.
+    pub z: f64,
+}
+
+/// Least-squares amplitude of sin and cos of `k`ω over the residual, and its z.
+fn harmonic(r: &[f64], tau: &[f64], omega: f64, k: f64, sigma: f64) -> (f64, f64) {
+    let (mut ss, mut cc, mut sc, mut rs, mut rc) = (0.0, 0.0, 0.0, 0.0, 0.0);
+    for (x, t) in r.iter().zip(tau) {
+        let (s, c) = (k * omega * t).sin_cos();
+        ss += s * s;
+        cc += c * c;
+        sc += s * c;
+        rs += x * s;
+        rc += x * c;
+    }
+    let det = ss * cc - sc * sc;
+    if det <= 0.0 {
+        return (0.0, 0.0);
+    }
+    let a = (rs * cc - rc * sc) / det;
+    let b = (rc * ss - rs * sc) / det;
+    let amp = a.hypot(b);
+    // Each coefficient has variance ≈ σ²·2/n; the amplitude of pure noise is Rayleigh.
+    let se = sigma * (2.0 / r.len() as f64).sqrt();
+    (amp, amp / se)
+}
+
+fn slope(x: &[f64], y: &[f64], sigma: f64) -> (f64, f64) {
+    let n = x.len() as f64;
+    let mx = x.iter().sum::<f64>() / n;
+    let my = y.iter().sum::<f64>() / n;
+    let sxx: f64 = x.iter().map(|v| (v - mx).powi(2)).sum();
+    if sxx <= 0.0 {
+        return (0.0, 0.0);
+    }
+    let sxy: f64 = x.iter().zip(y).map(|(a, b)| (a - mx) * (b - my)).sum();
+    let b = sxy / sxx;
+    (b, b / (sigma / sxx.sqrt()))
+}
+
+/// The findings for `fit`'s residuals.
+pub fn locate(data: &Data, fit: &Fit) -> Vec<Finding> {
+    let mut out = Vec::new();
+    let names = ['u', 'v', 'w'];
+    for (gi, g) in data.groups.iter().enumerate() {
+        for (j, name) in names.iter().enumerate() {
+            let r = &fit.residuals[gi][j];
+            let sigma = data.sigma[j];
+            let at = format!(
+                "{} at {} Hz, channel {}",
+                g.condition.letter(),
+                g.rate_hz,
+                name
+            );
+            for k in [2.0, 3.0] {
+                let (amp, z) = harmonic(r, &g.tau, g.omega(), k, sigma);
+                out.push(Finding {
+                    at: at.clone(),
+                    what: format!("harmonic {k}"),
+                    size: amp,
+                    z,
+                });
+            }
+            let (b, z) = slope(&g.tau, r, sigma);
+            out.push(Finding {
+                at: at.clone(),
+                what: "trend (per s)".into(),
+                size: b,
+                z: z.abs(),
+            });
+            if data.temperature_varies() {
+                let (b, z) = slope(&g.temp, r, sigma);
+                out.push(Finding {
+                    at: at.clone(),
+                    what: "temperature (per °C)".into(),
+                    size: b,
+                    z: z.abs(),
+                });
+            }
+        }
+    }
+    let [lo, hi] = data.rails();
+    for (side, v) in [("low", lo), ("high", hi)] {
+        if let Some(v) = v {
+            let n = data
+                .groups
+                .iter()
+                .flat_map(|g| g.y.iter().flatten())
+                .filter(|&&x| x == v)
+                .count();
+            out.push(Finding {
+                at: "all channels".into(),
+                what: format!("{n} readings at the {side} rail {v}"),
+                size: v,
+                z: f64::INFINITY,
+            });
+        }
+    }
+    if data.rates().len() > 1 {
+        // Offsets against ω²: each group's mean residual (the baseline shares one offset
+        // across rates).
+        for c in rotacal_shared::Condition::ALL {
+            for (j, name) in names.iter().enumerate() {
+                let (mut w2, mut m) = (Vec::new(), Vec::new());
+                let mut n_min = usize::MAX;
+                for (gi, g) in data.groups.iter().enumerate() {
+                    if g.condition == c {
+                        let r = &fit.residuals[gi][j];
+                        w2.push(g.omega().powi(2));
+                        m.push(r.iter().sum::<f64>() / r.len() as f64);
+                        n_min = n_min.min(r.len());
+                    }
+                }
+                if w2.len() > 1 {
+                    let (b, z) = slope(&w2, &m, data.sigma[j] / (n_min as f64).sqrt());
+                    out.push(Finding {
+                        at: format!("{} across rates, channel {name}", c.letter()),
+                        what: "offset vs ω² (per (rad/s)²)".into(),
+                        size: b,
+                        z: z.abs(),
+                    });
+                }
+            }
+        }
+    }
+    out.retain(|f| f.z > Z_LIST);
+    out.sort_by(|a, b| b.z.total_cmp(&a.z));
+    out
+}

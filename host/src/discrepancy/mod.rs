@@ -1,0 +1,474 @@
+//! `rotacal discrepancy`: find where the model and the measurement disagree, name the
+//! missing effect, add it, and show the gap shrink (docs/discrepancy.md).
+//!
+//! 1. Fit the current model and predict the recording with it at the measured timestamps
+//!    ([`model`]: the simulator's equations, docs/simulator.md); the gap is measurement
+//!    minus prediction.
+//! 2. Measure the gap against the noise floor ([`noise`]).
+//! 3. Locate it ([`locate`]): harmonics of ω, trends, temperature, rails, rates.
+//! 4. Test every applicable effect by a nested F-test; name the most significant one that
+//!    passes, add it, refit, and repeat until none passes.
+
+pub mod locate;
+pub mod model;
+pub mod noise;
+pub mod report;
+pub mod trials;
+
+use crate::calibration_file::Quantity;
+use crate::recording::{Method, Recording};
+use model::{Data, Effect, Fit, GroupData};
+use rotacal_shared::intrinsic::{self, ConditionFit};
+use serde::Serialize;
+use statrs::distribution::{ContinuousCDF, FisherSnedecor};
+use std::collections::BTreeMap;
+
+/// Significance of each F-test. With up to seven candidates per step, the chance that a
+/// step names an effect that isn't there is at most 7·α = 0.7 % (Bonferroni).
+pub const ALPHA: f64 = 1e-3;
+
+/// How to run.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Options {
+    /// Local gravity, m/s² (else the file's).
+    pub g_loc: Option<f64>,
+    /// Nominal rate for a single-rate file without one, Hz.
+    pub rate_hz: Option<f64>,
+    /// Significance of each test.
+    pub alpha: f64,
+}
+
+impl Default for Options {
+    fn default() -> Self {
+        Options {
+            g_loc: None,
+            rate_hz: None,
+            alpha: ALPHA,
+        }
+    }
+}
+
+/// The noise floor and where it came from.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct NoiseSigma {
+    /// σ of u, output units.
+    pub u: f64,
+    /// σ of v.
+    pub v: f64,
+    /// σ of w.
+    pub w: f64,
+    /// `metadata` or `estimated: <how>`.
+    pub source: String,
+}
+
+/// χ²/dof and residual RMS of a model.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct Goodness {
+    /// χ²/dof.
+    pub chi2_dof: f64,
+    /// Residual RMS over all channels, output units.
+    pub rms_residual: f64,
+    /// Degrees of freedom.
+    pub dof: f64,
+}
+
+impl Goodness {
+    fn of(f: &Fit) -> Self {
+        Goodness {
+            chi2_dof: f.chi2_dof(),
+            rms_residual: f.rms_all(),
+            dof: f.dof,
+        }
+    }
+}
+
+/// The test of one effect against the current model.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Criterion {
+    /// The effect.
+    pub effect: String,
+    /// "nested F-test".
+    pub test: &'static str,
+    /// F statistic.
+    pub f: f64,
+    /// Parameters added.
+    pub k: usize,
+    /// Residual degrees of freedom with the effect.
+    pub dof: f64,
+    /// P(F ≥ f) under "no such effect".
+    pub p_value: f64,
+    /// The significance it must beat.
+    pub alpha: f64,
+    /// ΔBIC = Δχ² − k ln N (ranks the effects that pass).
+    pub delta_bic: f64,
+    /// p < α.
+    pub passed: bool,
+}
+
+/// Intrinsic properties at one rate.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct RateIntrinsic {
+    /// Nominal rate, Hz.
+    pub rate_hz: f64,
+    /// s_u, s_v, s_w; output units per m/s².
+    pub sensitivity: [Quantity; 3],
+    /// φ_uv, φ_vw, φ_wu; degrees.
+    pub angle_deg: [Quantity; 3],
+}
+
+/// One step: the effect named, its parameters and what it did.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Step {
+    /// The effect's name.
+    pub effect: String,
+    /// Its parameters (names as in the simulator's configuration).
+    pub parameters: BTreeMap<String, serde_json::Value>,
+    /// The test that named it.
+    pub criterion: Criterion,
+    /// χ²/dof with it.
+    pub chi2_dof: f64,
+    /// Residual RMS with it.
+    pub rms_residual: f64,
+    /// Every candidate's test at this step.
+    pub candidates: Vec<Criterion>,
+    /// Intrinsic properties before and after, per rate.
+    pub intrinsic_before: Vec<RateIntrinsic>,
+    /// See `intrinsic_before`.
+    pub intrinsic_after: Vec<RateIntrinsic>,
+}
+
+/// The whole analysis (formats.md `rotacal discrepancy --json`, with added keys).
+#[derive(Clone, Debug, Serialize)]
+pub struct Analysis {
+    /// The noise floor.
+    pub noise_sigma: NoiseSigma,
+    /// The papers' model.
+    pub baseline: Goodness,
+    /// Where the baseline's gap lies, largest first.
+    pub findings: Vec<locate::Finding>,
+    /// Effects added, in order.
+    pub steps: Vec<Step>,
+    /// Their names.
+    pub named_effects: Vec<String>,
+    /// Each named effect's parameters in the final model (with all the others).
+    pub final_parameters: BTreeMap<String, BTreeMap<String, serde_json::Value>>,
+    /// Intrinsic properties per rate: the baseline's and the final model's.
+    pub intrinsic_baseline: Vec<RateIntrinsic>,
+    /// See `intrinsic_baseline`.
+    pub intrinsic_final: Vec<RateIntrinsic>,
+    /// The last model.
+    #[serde(rename = "final")]
+    pub final_: Goodness,
+    /// Every candidate's test once nothing more passed.
+    pub last_candidates: Vec<Criterion>,
+    /// The effects that could not be tested on this file, and why.
+    pub untestable: Vec<(String, String)>,
+    /// The fits, for plots (not serialised).
+    #[serde(skip)]
+    pub fits: Vec<Fit>,
+    /// The data.
+    #[serde(skip)]
+    pub data: Data,
+}
+
+/// The recording as the model's data, and the noise floor.
+pub fn data_from(rec: &Recording, opts: &Options) -> Result<(Data, NoiseSigma), String> {
+    if rec.method != Method::Rotation {
+        return Err(format!(
+            "{}: the discrepancy workflow needs a rotation recording (t_s)",
+            rec.source
+        ));
+    }
+    let g_loc = opts
+        .g_loc
+        .or(rec.meta.g_loc)
+        .ok_or_else(|| format!("{}: local gravity unknown: give --g-loc", rec.source))?;
+    let t_mean = {
+        let (s, n) = rec
+            .groups
+            .iter()
+            .flat_map(|g| &g.t_s)
+            .fold((0.0, 0usize), |(s, n), t| (s + t, n + 1));
+        s / n.max(1) as f64
+    };
+    let temps: Vec<f64> = rec
+        .groups
+        .iter()
+        .filter_map(|g| g.temp_c.as_ref())
+        .flatten()
+        .copied()
+        .collect();
+    let temp_mean = if temps.is_empty() {
+        0.0
+    } else {
+        temps.iter().sum::<f64>() / temps.len() as f64
+    };
+    let mut groups = Vec::new();
+    for g in &rec.groups {
+        let rate = rec
+            .nominal_rate(g)
+            .or(opts.rate_hz)
+            .ok_or_else(|| format!("{}: rotation rate unknown: give --rate-hz", rec.source))?;
+        let t0 = g.t_s.first().copied().unwrap_or(0.0);
+        groups.push(GroupData {
+            condition: g.condition,
+            rate_hz: rate,
+            tau: g.t_s.iter().map(|t| t - t0).collect(),
+            t: g.t_s.iter().map(|t| t - t_mean).collect(),
+            temp: match &g.temp_c {
+                Some(t) => t.iter().map(|x| x - temp_mean).collect(),
+                None => vec![0.0; g.len()],
+            },
+            y: [g.u.clone(), g.v.clone(), g.w.clone()],
+        });
+    }
+    let mut data = Data {
+        groups,
+        g_loc,
+        sigma: [1.0; 3],
+    };
+    let noise = match rec.meta.noise_sigma {
+        Some(s) if s > 0.0 => NoiseSigma {
+            u: s,
+            v: s,
+            w: s,
+            source: "metadata".into(),
+        },
+        _ => {
+            let s = noise::estimate(&data)?;
+            NoiseSigma {
+                u: s[0],
+                v: s[1],
+                w: s[2],
+                source: format!("estimated: {}", noise::HOW),
+            }
+        }
+    };
+    data.sigma = [noise.u, noise.v, noise.w];
+    Ok((data, noise))
+}
+
+/// The effects this file can test, and why the others can't be.
+pub fn applicable(data: &Data) -> (Vec<Effect>, Vec<(String, String)>) {
+    let mut yes = Vec::new();
+    let mut no = Vec::new();
+    for e in Effect::ALL {
+        let why = match e {
+            Effect::Centripetal if data.rates().len() < 2 => {
+                Some("needs several rates (it moves the offsets with ω²)")
+            }
+            Effect::TemperatureOffset if !data.temperature_varies() => {
+                Some("the temperature does not vary (no temp_c, or within 0.05 °C)")
+            }
+            Effect::Saturation if data.rails() == [None, None] => {
+                Some("no readings repeat at the extremes of the file (no rails)")
+            }
+            _ => None,
+        };
+        match why {
+            Some(w) => no.push((e.name().to_string(), w.to_string())),
+            None => yes.push(e),
+        }
+    }
+    (yes, no)
+}
+
+fn criterion(e: Effect, base: &Fit, with: &Fit, n: f64, alpha: f64) -> Criterion {
+    let k = with.n_params.saturating_sub(base.n_params).max(1);
+    let d_chi2 = (base.chi2 - with.chi2).max(0.0);
+    let f = (d_chi2 / k as f64) / (with.chi2 / with.dof);
+    let p_value = FisherSnedecor::new(k as f64, with.dof)
+        .map(|d| d.sf(f))
+        .unwrap_or(1.0);
+    Criterion {
+        effect: e.name().to_string(),
+        test: "nested F-test",
+        f,
+        k,
+        dof: with.dof,
+        p_value,
+        alpha,
+        delta_bic: d_chi2 - k as f64 * n.ln(),
+        passed: p_value < alpha,
+    }
+}
+
+/// Intrinsic properties per rate from a fit's A, B (all effects taken out).
+pub fn intrinsic_per_rate(data: &Data, fit: &Fit) -> Vec<RateIntrinsic> {
+    let mut out = Vec::new();
+    for rate in data.rates() {
+        let mut cf: [Option<ConditionFit>; 3] = [None; 3];
+        for (gi, g) in data.groups.iter().enumerate() {
+            if g.rate_hz == rate {
+                let ab = &fit.params.ab[gi];
+                cf[g.condition.index()] = Some(ConditionFit {
+                    a: [ab[0][0], ab[1][0], ab[2][0]],
+                    b: [ab[0][1], ab[1][1], ab[2][1]],
+                    cov: fit.ab_cov[gi],
+                });
+            }
+        }
+        if let [Some(x), Some(y), Some(z)] = cf {
+            if let Ok(i) = intrinsic::from_gram(&[x, y, z], data.g_loc, 0.0) {
+                out.push(RateIntrinsic {
+                    rate_hz: rate,
+                    sensitivity: i.sensitivity.map(Quantity::from),
+                    angle_deg: i.angle_deg.map(Quantity::from),
+                });
+            }
+        }
+    }
+    out
+}
+
+fn q(value: f64, u: f64) -> serde_json::Value {
+    serde_json::to_value(Quantity::from(rotacal_shared::intrinsic::Estimate {
+        value,
+        std_unc: u,
+    }))
+    .unwrap_or(serde_json::Value::Null)
+}
+
+fn uvw(v: Option<[f64; 3]>, u: Option<[f64; 3]>) -> serde_json::Value {
+    match (v, u) {
+        (Some(v), Some(u)) => {
+            serde_json::json!({"u": q(v[0], u[0]), "v": q(v[1], u[1]), "w": q(v[2], u[2])})
+        }
+        _ => serde_json::Value::Null,
+    }
+}
+
+/// An effect's parameters from a fit, named as in the simulator's configuration.
+pub fn parameters(e: Effect, f: &Fit, data: &Data) -> BTreeMap<String, serde_json::Value> {
+    let (p, u) = (&f.params, &f.unc);
+    let mut m = BTreeMap::new();
+    match e {
+        Effect::RateError => {
+            m.insert(
+                "relative".into(),
+                q(p.delta.unwrap_or(0.0), u.delta.unwrap_or(0.0)),
+            );
+        }
+        Effect::OffsetDrift => {
+            m.insert("per_s".into(), uvw(p.drift, u.drift));
+        }
+        Effect::TemperatureOffset => {
+            m.insert("per_c".into(), uvw(p.temp, u.temp));
+        }
+        Effect::Nonlinearity2nd => {
+            m.insert("k2".into(), uvw(p.k2, u.k2));
+        }
+        Effect::Nonlinearity3rd => {
+            m.insert("k3".into(), uvw(p.k3, u.k3));
+        }
+        Effect::Saturation => {
+            let r = p.rails.unwrap_or([f64::NEG_INFINITY, f64::INFINITY]);
+            let side = |x: f64| {
+                if x.is_finite() {
+                    serde_json::json!(x)
+                } else {
+                    serde_json::Value::Null
+                }
+            };
+            m.insert("rails".into(), serde_json::json!([side(r[0]), side(r[1])]));
+        }
+        Effect::Centripetal => {
+            let s = p.sensitivity(data);
+            if let (Some(b), Some(ub)) = (p.centripetal, u.centripetal) {
+                // Per condition: the centripetal acceleration per ω² is r·d̂ seen through
+                // S, so |b_c/s| is the radius (axes near orthogonal).
+                let mut radii = Vec::new();
+                for c in 0..3 {
+                    let v: Vec<f64> = (0..3).map(|j| b[c][j] / s[j]).collect();
+                    let r = v.iter().map(|x| x * x).sum::<f64>().sqrt();
+                    let ur = if r > 0.0 {
+                        ((0..3)
+                            .map(|j| (v[j] / r * ub[c][j] / s[j]).powi(2))
+                            .sum::<f64>())
+                        .sqrt()
+                    } else {
+                        0.0
+                    };
+                    radii.push(q(r, ur));
+                }
+                m.insert(
+                    "radius_m".into(),
+                    serde_json::json!({"x": radii[0], "y": radii[1], "z": radii[2]}),
+                );
+            }
+        }
+    }
+    m
+}
+
+/// Run the workflow on prepared data.
+pub fn analyse(data: Data, noise: NoiseSigma, alpha: f64) -> Result<Analysis, String> {
+    let n = (data.rows() * 3) as f64;
+    let (candidates, untestable) = applicable(&data);
+    let baseline = model::fit(&data, &[], None)?;
+    let findings = locate::locate(&data, &baseline);
+    let mut current = baseline.clone();
+    let mut fits = vec![baseline.clone()];
+    let mut steps = Vec::new();
+    let last_candidates = loop {
+        let mut tests = Vec::new();
+        let mut best: Option<(Criterion, Fit, Effect)> = None;
+        for &e in candidates.iter().filter(|e| !current.effects.contains(e)) {
+            let mut effects = current.effects.clone();
+            effects.push(e);
+            let Ok(with) = model::fit(&data, &effects, Some(&current.params)) else {
+                continue;
+            };
+            let c = criterion(e, &current, &with, n, alpha);
+            if c.passed
+                && best
+                    .as_ref()
+                    .is_none_or(|(b, _, _)| c.delta_bic > b.delta_bic)
+            {
+                best = Some((c.clone(), with, e));
+            }
+            tests.push(c);
+        }
+        let Some((c, with, e)) = best else {
+            break tests;
+        };
+        steps.push(Step {
+            effect: e.name().to_string(),
+            parameters: parameters(e, &with, &data),
+            criterion: c,
+            chi2_dof: with.chi2_dof(),
+            rms_residual: with.rms_all(),
+            candidates: tests,
+            intrinsic_before: intrinsic_per_rate(&data, &current),
+            intrinsic_after: intrinsic_per_rate(&data, &with),
+        });
+        fits.push(with.clone());
+        current = with;
+    };
+    let final_parameters = current
+        .effects
+        .iter()
+        .map(|&e| (e.name().to_string(), parameters(e, &current, &data)))
+        .collect();
+    Ok(Analysis {
+        final_parameters,
+        intrinsic_baseline: intrinsic_per_rate(&data, &baseline),
+        intrinsic_final: intrinsic_per_rate(&data, &current),
+        noise_sigma: noise,
+        baseline: Goodness::of(&baseline),
+        findings,
+        named_effects: steps.iter().map(|s| s.effect.clone()).collect(),
+        steps,
+        final_: Goodness::of(&current),
+        last_candidates,
+        untestable,
+        fits,
+        data,
+    })
+}
+
+/// Read, prepare and analyse a recording.
+pub fn run(rec: &Recording, opts: &Options) -> Result<Analysis, String> {
+    let (data, noise) = data_from(rec, opts)?;
+    analyse(data, noise, opts.alpha)
+}

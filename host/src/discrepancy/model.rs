@@ -1,0 +1,595 @@
+//! The model the discrepancy workflow fits to a rotation recording, and its fit.
+//!
+//! Channel j in group g (condition c at nominal rate f, ω = 2πf), τ seconds into the group,
+//! at session time t and temperature T (docs/discrepancy.md, the same physics as
+//! docs/simulator.md):
+//!
+//! ```text
+//! φ = ω(1 + δ)τ
+//! a = (A_gj sin φ + B_gj cos φ)/s_j + b_cj ω²/s_j                acceleration along the axis
+//! y = s_j (a + K2_j a² + K3_j a³) + O_cj + D_j (t − t̄) + c_j (T − T̄), clipped to the rails
+//! ```
+//!
+//! A and B are the amplitudes the linear sensitivity sees, so the intrinsic properties come
+//! from them with every modelled effect taken out. s_j = √(Σ_c (A²+B²)_cj / 2g²) is the
+//! channel's sensitivity from the current A, B (its Gram-form value). The baseline has
+//! δ = b = K2 = K3 = D = c = 0 and no rails; each effect switches its parameters on.
+//! O is per condition, shared by all rates (the baseline's "constant offsets").
+//!
+//! The fit is Gauss–Newton, channel by channel (QR of each channel's Jacobian), with the
+//! one parameter shared by all channels, δ, solved through the Schur complement.
+
+use nalgebra::{DMatrix, DVector};
+use rotacal_shared::Condition;
+use std::f64::consts::TAU;
+
+/// The effects the workflow can add (formats.md names).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum Effect {
+    /// δ: the true rate is (1 + δ) times nominal (table or device clock).
+    RateError,
+    /// D_j: offsets change linearly in time.
+    OffsetDrift,
+    /// c_j: offsets change with temperature.
+    TemperatureOffset,
+    /// K2_j: y = s(a + K2 a²).
+    Nonlinearity2nd,
+    /// K3_j: y = s(a + K3 a³).
+    Nonlinearity3rd,
+    /// Readings clip at rails [low, high].
+    Saturation,
+    /// b_cj ω²: a constant centripetal acceleration at each rate (several rates only).
+    Centripetal,
+}
+
+impl Effect {
+    /// Every effect, in the order formats.md lists them.
+    pub const ALL: [Effect; 7] = [
+        Effect::RateError,
+        Effect::OffsetDrift,
+        Effect::TemperatureOffset,
+        Effect::Nonlinearity2nd,
+        Effect::Nonlinearity3rd,
+        Effect::Saturation,
+        Effect::Centripetal,
+    ];
+
+    /// The formats.md name.
+    pub fn name(self) -> &'static str {
+        match self {
+            Effect::RateError => "rate_error",
+            Effect::OffsetDrift => "offset_drift",
+            Effect::TemperatureOffset => "temperature_offset",
+            Effect::Nonlinearity2nd => "nonlinearity_2nd",
+            Effect::Nonlinearity3rd => "nonlinearity_3rd",
+            Effect::Saturation => "saturation",
+            Effect::Centripetal => "centripetal",
+        }
+    }
+}
+
+/// One group's rows.
+#[derive(Clone, Debug)]
+pub struct GroupData {
+    /// The platter axis.
+    pub condition: Condition,
+    /// Nominal rate, Hz.
+    pub rate_hz: f64,
+    /// Seconds into the group.
+    pub tau: Vec<f64>,
+    /// Session time minus the session's mean time, s.
+    pub t: Vec<f64>,
+    /// Temperature minus its mean, °C (zeros without a temp_c column).
+    pub temp: Vec<f64>,
+    /// Readings u, v, w.
+    pub y: [Vec<f64>; 3],
+}
+
+impl GroupData {
+    /// ω = 2πf, rad/s.
+    pub fn omega(&self) -> f64 {
+        TAU * self.rate_hz
+    }
+}
+
+/// A recording as the model sees it.
+#[derive(Clone, Debug)]
+pub struct Data {
+    /// Groups in file order.
+    pub groups: Vec<GroupData>,
+    /// Local gravity, m/s².
+    pub g_loc: f64,
+    /// Noise σ per channel, output units.
+    pub sigma: [f64; 3],
+}
+
+impl Data {
+    /// Rows over all groups.
+    pub fn rows(&self) -> usize {
+        self.groups.iter().map(|g| g.tau.len()).sum()
+    }
+
+    /// Distinct nominal rates, ascending.
+    pub fn rates(&self) -> Vec<f64> {
+        let mut r: Vec<f64> = self.groups.iter().map(|g| g.rate_hz).collect();
+        r.sort_by(f64::total_cmp);
+        r.dedup();
+        r
+    }
+
+    /// The temperature varies (its spread is more than 0.05 °C).
+    pub fn temperature_varies(&self) -> bool {
+        let (lo, hi) = self
+            .groups
+            .iter()
+            .flat_map(|g| g.temp.iter())
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &x| {
+                (lo.min(x), hi.max(x))
+            });
+        hi - lo > 0.05
+    }
+
+    /// Readings sitting exactly at the lowest (highest) value of the file, if at least
+    /// three do: the rails a saturating sensor clips to.
+    pub fn rails(&self) -> [Option<f64>; 2] {
+        let all = || self.groups.iter().flat_map(|g| g.y.iter().flatten());
+        let lo = all().copied().fold(f64::INFINITY, f64::min);
+        let hi = all().copied().fold(f64::NEG_INFINITY, f64::max);
+        let count = |v: f64| all().filter(|&&x| x == v).count();
+        [
+            (count(lo) >= 3).then_some(lo),
+            (count(hi) >= 3).then_some(hi),
+        ]
+    }
+}
+
+/// Parameter values.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Params {
+    /// (A, B) per group and channel.
+    pub ab: Vec<[[f64; 2]; 3]>,
+    /// O per condition (x, y, z) and channel.
+    pub offset: [[f64; 3]; 3],
+    /// b per condition and channel, output units per (rad/s)².
+    pub centripetal: Option<[[f64; 3]; 3]>,
+    /// K2 per channel, 1/(m/s²).
+    pub k2: Option<[f64; 3]>,
+    /// K3 per channel, 1/(m/s²)².
+    pub k3: Option<[f64; 3]>,
+    /// D per channel, output units per s.
+    pub drift: Option<[f64; 3]>,
+    /// c per channel, output units per °C.
+    pub temp: Option<[f64; 3]>,
+    /// δ.
+    pub delta: Option<f64>,
+    /// Rails [low, high] (±∞ where none).
+    pub rails: Option<[f64; 2]>,
+}
+
+impl Params {
+    /// The baseline with these effects switched on, at zero (rails from the data).
+    fn new(data: &Data, effects: &[Effect]) -> Self {
+        let on = |e| effects.contains(&e);
+        let [lo, hi] = data.rails();
+        Params {
+            ab: vec![[[0.0; 2]; 3]; data.groups.len()],
+            offset: [[0.0; 3]; 3],
+            centripetal: on(Effect::Centripetal).then_some([[0.0; 3]; 3]),
+            k2: on(Effect::Nonlinearity2nd).then_some([0.0; 3]),
+            k3: on(Effect::Nonlinearity3rd).then_some([0.0; 3]),
+            drift: on(Effect::OffsetDrift).then_some([0.0; 3]),
+            temp: on(Effect::TemperatureOffset).then_some([0.0; 3]),
+            delta: on(Effect::RateError).then_some(0.0),
+            rails: on(Effect::Saturation)
+                .then_some([lo.unwrap_or(f64::NEG_INFINITY), hi.unwrap_or(f64::INFINITY)]),
+        }
+    }
+
+    /// The channel sensitivities s_j from A, B (Gram form; with several rates, the mean
+    /// over rates).
+    pub fn sensitivity(&self, data: &Data) -> [f64; 3] {
+        let mut sum = [0.0; 3];
+        for ab in &self.ab {
+            for (sj, abj) in sum.iter_mut().zip(ab) {
+                *sj += abj[0].powi(2) + abj[1].powi(2);
+            }
+        }
+        let per_rate = data.rates().len().max(1) as f64;
+        let g2 = data.g_loc * data.g_loc;
+        [0, 1, 2].map(|j| {
+            (sum[j] / per_rate / (2.0 * g2))
+                .sqrt()
+                .max(f64::MIN_POSITIVE)
+        })
+    }
+}
+
+/// What one row of one channel predicts, and its derivatives.
+struct Eval {
+    y: f64,
+    /// dy/da (per unit of a in m/s², times s).
+    dyda: f64,
+    a: f64,
+    sin: f64,
+    cos: f64,
+    clipped: bool,
+}
+
+fn eval(p: &Params, s: f64, gi: usize, g: &GroupData, j: usize, k: usize) -> Eval {
+    let omega = g.omega();
+    let phi = omega * (1.0 + p.delta.unwrap_or(0.0)) * g.tau[k];
+    let (sin, cos) = phi.sin_cos();
+    let [a_amp, b_amp] = p.ab[gi][j];
+    let ci = g.condition.index();
+    let a0 = p.centripetal.map_or(0.0, |b| b[ci][j] * omega * omega / s);
+    let a = (a_amp * sin + b_amp * cos) / s + a0;
+    let k2 = p.k2.map_or(0.0, |k| k[j]);
+    let k3 = p.k3.map_or(0.0, |k| k[j]);
+    let mut y = s * (a + k2 * a * a + k3 * a * a * a) + p.offset[ci][j];
+    y += p.drift.map_or(0.0, |d| d[j] * g.t[k]);
+    y += p.temp.map_or(0.0, |c| c[j] * g.temp[k]);
+    let mut clipped = false;
+    if let Some([lo, hi]) = p.rails {
+        if y <= lo || y >= hi {
+            clipped = true;
+            y = y.clamp(lo, hi);
+        }
+    }
+    Eval {
+        y,
+        dyda: s * (1.0 + 2.0 * k2 * a + 3.0 * k3 * a * a),
+        a,
+        sin,
+        cos,
+        clipped,
+    }
+}
+
+/// Where each of a channel's local parameters sits in its Jacobian.
+struct Layout {
+    groups: usize,
+    conditions: [Option<usize>; 3],
+    centripetal: Option<usize>,
+    k2: Option<usize>,
+    k3: Option<usize>,
+    drift: Option<usize>,
+    temp: Option<usize>,
+    n: usize,
+}
+
+impl Layout {
+    fn new(p: &Params, data: &Data) -> Self {
+        let mut n = 2 * data.groups.len();
+        let mut conditions = [None; 3];
+        for g in &data.groups {
+            let c = g.condition.index();
+            if conditions[c].is_none() {
+                conditions[c] = Some(n);
+                n += 1;
+            }
+        }
+        let mut take = |on: bool, w: usize| {
+            on.then(|| {
+                n += w;
+                n - w
+            })
+        };
+        let centripetal = take(p.centripetal.is_some(), 3);
+        let k2 = take(p.k2.is_some(), 1);
+        let k3 = take(p.k3.is_some(), 1);
+        let drift = take(p.drift.is_some(), 1);
+        let temp = take(p.temp.is_some(), 1);
+        Layout {
+            groups: data.groups.len(),
+            conditions,
+            centripetal,
+            k2,
+            k3,
+            drift,
+            temp,
+            n,
+        }
+    }
+}
+
+/// A fitted model.
+#[derive(Clone, Debug)]
+pub struct Fit {
+    /// The effects on.
+    pub effects: Vec<Effect>,
+    /// Values.
+    pub params: Params,
+    /// Standard uncertainties in the same shape (A, B, O, … and δ).
+    pub unc: Params,
+    /// Covariance of (A, B) per group and channel (for the intrinsic properties).
+    pub ab_cov: Vec<[[[f64; 2]; 2]; 3]>,
+    /// Σ (r/σ)² over all rows and channels.
+    pub chi2: f64,
+    /// Rows × 3 − parameters.
+    pub dof: f64,
+    /// Parameters fitted.
+    pub n_params: usize,
+    /// Residual RMS per channel, output units.
+    pub rms: [f64; 3],
+    /// Residuals per group and channel.
+    pub residuals: Vec<[Vec<f64>; 3]>,
+}
+
+impl Fit {
+    /// χ²/dof.
+    pub fn chi2_dof(&self) -> f64 {
+        self.chi2 / self.dof
+    }
+
+    /// Residual RMS over all channels.
+    pub fn rms_all(&self) -> f64 {
+        (self.rms.iter().map(|r| r * r).sum::<f64>() / 3.0).sqrt()
+    }
+}
+
+/// Fit the model with `effects` on, starting from `start` where given.
+pub fn fit(data: &Data, effects: &[Effect], start: Option<&Params>) -> Result<Fit, String> {
+    // The effects' derivatives vanish at A = B = 0: start them from the baseline's A, B.
+    let base;
+    let start = match start {
+        None if !effects.is_empty() => {
+            base = fit(data, &[], None)?;
+            Some(&base.params)
+        }
+        s => s,
+    };
+    let mut p = Params::new(data, effects);
+    if let Some(s) = start {
+        p.ab.clone_from(&s.ab);
+        p.offset = s.offset;
+        let keep = |mine: &mut Option<[f64; 3]>, theirs: Option<[f64; 3]>| {
+            if let (Some(m), Some(t)) = (mine.as_mut(), theirs) {
+                *m = t;
+            }
+        };
+        keep(&mut p.k2, s.k2);
+        keep(&mut p.k3, s.k3);
+        keep(&mut p.drift, s.drift);
+        keep(&mut p.temp, s.temp);
+        if let (Some(m), Some(t)) = (p.centripetal.as_mut(), s.centripetal) {
+            *m = t;
+        }
+        if let (Some(m), Some(t)) = (p.delta.as_mut(), s.delta) {
+            *m = t;
+        }
+    }
+    let layout = Layout::new(&p, data);
+    let n_rows = data.rows();
+    if n_rows * 3 <= layout.n * 3 + 1 {
+        return Err("too few rows for the model".into());
+    }
+    let mut last_chi2 = f64::INFINITY;
+    let mut result = None;
+    for iter in 0..30 {
+        let s = if iter == 0 && start.is_none() {
+            [1.0; 3] // A, B start at 0: any scale gives the same linear solution
+        } else {
+            p.sensitivity(data)
+        };
+        let step = gauss_newton_step(data, &p, &layout, s)?;
+        apply(&mut p, &layout, &step);
+        let chi2 = step.chi2_after_hint;
+        let done = iter > 0 && (last_chi2 - chi2).abs() <= 1e-9 * chi2.max(1.0);
+        last_chi2 = chi2;
+        result = Some(step);
+        if done && iter >= 2 {
+            break;
+        }
+    }
+    let step = result.ok_or("no iteration")?;
+    let s = p.sensitivity(data);
+    // Residuals and χ² at the final parameters.
+    let mut chi2 = 0.0;
+    let mut ss = [0.0; 3];
+    // Readings the model puts at a rail are fixed by the rail, not fitted: no residual
+    // degree of freedom.
+    let mut clipped = 0usize;
+    let mut residuals = Vec::with_capacity(data.groups.len());
+    for (gi, g) in data.groups.iter().enumerate() {
+        let mut r: [Vec<f64>; 3] = Default::default();
+        for (j, rj) in r.iter_mut().enumerate() {
+            for k in 0..g.tau.len() {
+                let e = eval(&p, s[j], gi, g, j, k);
+                clipped += usize::from(e.clipped);
+                let res = g.y[j][k] - e.y;
+                chi2 += (res / data.sigma[j]).powi(2);
+                ss[j] += res * res;
+                rj.push(res);
+            }
+        }
+        residuals.push(r);
+    }
+    let n_params = layout.n * 3 + usize::from(p.delta.is_some());
+    let dof = (n_rows * 3 - clipped) as f64 - n_params as f64;
+    let mut unc = Params::new(data, effects);
+    let mut ab_cov = vec![[[[0.0; 2]; 2]; 3]; data.groups.len()];
+    for j in 0..3 {
+        let cov = &step.cov[j];
+        let sd = |i: usize| cov[(i, i)].max(0.0).sqrt();
+        for gi in 0..layout.groups {
+            unc.ab[gi][j] = [sd(2 * gi), sd(2 * gi + 1)];
+            ab_cov[gi][j] = [
+                [cov[(2 * gi, 2 * gi)], cov[(2 * gi, 2 * gi + 1)]],
+                [cov[(2 * gi + 1, 2 * gi)], cov[(2 * gi + 1, 2 * gi + 1)]],
+            ];
+        }
+        for (c, col) in layout.conditions.iter().enumerate() {
+            if let Some(i) = col {
+                unc.offset[c][j] = sd(*i);
+            }
+        }
+        if let (Some(i), Some(b)) = (layout.centripetal, unc.centripetal.as_mut()) {
+            for (c, row) in b.iter_mut().enumerate() {
+                row[j] = sd(i + c);
+            }
+        }
+        let put = |col: Option<usize>, x: &mut Option<[f64; 3]>| {
+            if let (Some(i), Some(x)) = (col, x.as_mut()) {
+                x[j] = sd(i);
+            }
+        };
+        put(layout.k2, &mut unc.k2);
+        put(layout.k3, &mut unc.k3);
+        put(layout.drift, &mut unc.drift);
+        put(layout.temp, &mut unc.temp);
+    }
+    unc.delta = step.delta_var.map(|v| v.max(0.0).sqrt());
+    Ok(Fit {
+        effects: effects.to_vec(),
+        params: p,
+        unc,
+        ab_cov,
+        chi2,
+        dof,
+        n_params,
+        rms: [0, 1, 2].map(|j| (ss[j] / n_rows as f64).sqrt()),
+        residuals,
+    })
+}
+
+/// One Gauss–Newton increment and the covariance at the current point.
+struct Step {
+    local: [DVector<f64>; 3],
+    delta: Option<f64>,
+    cov: [DMatrix<f64>; 3],
+    delta_var: Option<f64>,
+    chi2_after_hint: f64,
+}
+
+fn gauss_newton_step(data: &Data, p: &Params, l: &Layout, s: [f64; 3]) -> Result<Step, String> {
+    let n_rows = data.rows();
+    let with_delta = p.delta.is_some();
+    // Per channel: QR of the weighted Jacobian; projections for the Schur complement.
+    struct Chan {
+        qr: nalgebra::linalg::QR<f64, nalgebra::Dyn, nalgebra::Dyn>,
+        r: DVector<f64>,
+        z: DVector<f64>,
+    }
+    let mut chans = Vec::with_capacity(3);
+    let mut zz = 0.0;
+    let mut zr = 0.0;
+    let mut chi2 = 0.0;
+    for (j, (sigma, sj)) in data.sigma.iter().zip(s).enumerate() {
+        let w = 1.0 / sigma;
+        let mut x = DMatrix::<f64>::zeros(n_rows, l.n);
+        let mut r = DVector::<f64>::zeros(n_rows);
+        let mut z = DVector::<f64>::zeros(n_rows);
+        let mut row = 0;
+        for (gi, g) in data.groups.iter().enumerate() {
+            let omega = g.omega();
+            let ci = g.condition.index();
+            let [a_amp, b_amp] = p.ab[gi][j];
+            for k in 0..g.tau.len() {
+                let e = eval(p, sj, gi, g, j, k);
+                r[row] = w * (g.y[j][k] - e.y);
+                chi2 += r[row] * r[row];
+                if !e.clipped {
+                    let h = e.dyda / sj; // dy/d(amplitude in output units)
+                    x[(row, 2 * gi)] = w * h * e.sin;
+                    x[(row, 2 * gi + 1)] = w * h * e.cos;
+                    if let Some(c) = l.conditions[ci] {
+                        x[(row, c)] = w;
+                    }
+                    if let Some(c) = l.centripetal {
+                        x[(row, c + ci)] = w * h * omega * omega;
+                    }
+                    if let Some(c) = l.k2 {
+                        x[(row, c)] = w * sj * e.a * e.a;
+                    }
+                    if let Some(c) = l.k3 {
+                        x[(row, c)] = w * sj * e.a * e.a * e.a;
+                    }
+                    if let Some(c) = l.drift {
+                        x[(row, c)] = w * g.t[k];
+                    }
+                    if let Some(c) = l.temp {
+                        x[(row, c)] = w * g.temp[k];
+                    }
+                    if with_delta {
+                        z[row] = w * h * (a_amp * e.cos - b_amp * e.sin) * omega * g.tau[k];
+                    }
+                }
+                row += 1;
+            }
+        }
+        let qr = x.qr();
+        if with_delta {
+            let q = qr.q();
+            let zp = &z - &q * (q.transpose() * &z);
+            let rp = &r - &q * (q.transpose() * &r);
+            zz += zp.dot(&zp);
+            zr += zp.dot(&rp);
+        }
+        chans.push(Chan { qr, r, z });
+    }
+    let delta = with_delta.then(|| if zz > 0.0 { zr / zz } else { 0.0 });
+    let delta_var = with_delta.then(|| if zz > 0.0 { 1.0 / zz } else { f64::INFINITY });
+    let mut local: [DVector<f64>; 3] = Default::default();
+    let mut cov: [DMatrix<f64>; 3] = Default::default();
+    for (j, c) in chans.into_iter().enumerate() {
+        let rhs = match delta {
+            Some(d) => &c.r - &c.z * d,
+            None => c.r.clone(),
+        };
+        let rr = c.qr.r();
+        let qt = c.qr.q().transpose();
+        let beta = rr
+            .solve_upper_triangular(&(&qt * &rhs))
+            .ok_or("the model's parameters are not all determined by the data")?;
+        let rinv = rr
+            .clone()
+            .try_inverse()
+            .ok_or("the model's parameters are not all determined by the data")?;
+        let mut cj = &rinv * rinv.transpose();
+        if let Some(v) = delta_var {
+            let wv = rr.solve_upper_triangular(&(&qt * &c.z)).ok_or("singular")?;
+            cj += &wv * wv.transpose() * v;
+        }
+        local[j] = beta;
+        cov[j] = cj;
+    }
+    Ok(Step {
+        local,
+        delta,
+        cov,
+        delta_var,
+        chi2_after_hint: chi2,
+    })
+}
+
+fn apply(p: &mut Params, l: &Layout, st: &Step) {
+    for j in 0..3 {
+        let b = &st.local[j];
+        for gi in 0..l.groups {
+            p.ab[gi][j][0] += b[2 * gi];
+            p.ab[gi][j][1] += b[2 * gi + 1];
+        }
+        for (c, col) in l.conditions.iter().enumerate() {
+            if let Some(i) = col {
+                p.offset[c][j] += b[*i];
+            }
+        }
+        if let (Some(i), Some(cp)) = (l.centripetal, p.centripetal.as_mut()) {
+            for (c, row) in cp.iter_mut().enumerate() {
+                row[j] += b[i + c];
+            }
+        }
+        let add = |col: Option<usize>, x: &mut Option<[f64; 3]>| {
+            if let (Some(i), Some(x)) = (col, x.as_mut()) {
+                x[j] += b[i];
+            }
+        };
+        add(l.k2, &mut p.k2);
+        add(l.k3, &mut p.k3);
+        add(l.drift, &mut p.drift);
+        add(l.temp, &mut p.temp);
+    }
+    if let (Some(d), Some(x)) = (st.delta, p.delta.as_mut()) {
+        *x += d;
+    }
+}

@@ -1,0 +1,201 @@
+//! The discrepancy workflow's terminal summary and its report folder (Markdown and SVG:
+//! residuals and their spectrum at k·ω before and after the named effects).
+
+use super::{Analysis, Criterion, RateIntrinsic};
+use crate::report::{self, ReportError, Series};
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+fn value(v: &serde_json::Value) -> String {
+    match (v.get("value"), v.get("expanded_unc")) {
+        (Some(x), Some(u)) => format!(
+            "{:.4e} ± {:.1e}",
+            x.as_f64().unwrap_or(f64::NAN),
+            u.as_f64().unwrap_or(f64::NAN)
+        ),
+        _ => match v {
+            serde_json::Value::Object(m) => m
+                .iter()
+                .map(|(k, v)| format!("{k} {}", value(v)))
+                .collect::<Vec<_>>()
+                .join(", "),
+            other => other.to_string(),
+        },
+    }
+}
+
+fn params(p: &std::collections::BTreeMap<String, serde_json::Value>) -> String {
+    p.iter()
+        .map(|(k, v)| format!("{k}: {}", value(v)))
+        .collect::<Vec<_>>()
+        .join("; ")
+}
+
+fn test(c: &Criterion) -> String {
+    format!(
+        "F = {:.1} (k = {}, p = {:.1e}, ΔBIC = {:.0})",
+        c.f, c.k, c.p_value, c.delta_bic
+    )
+}
+
+fn moved(before: &[RateIntrinsic], after: &[RateIntrinsic], o: &mut String) {
+    let names = ["s_u", "s_v", "s_w", "φ_uv", "φ_vw", "φ_wu"];
+    for (b, a) in before.iter().zip(after) {
+        let _ = writeln!(o, "  at {} Hz:", b.rate_hz);
+        let bq = b.sensitivity.iter().chain(&b.angle_deg);
+        let aq = a.sensitivity.iter().chain(&a.angle_deg);
+        for ((name, x), y) in names.iter().zip(bq).zip(aq) {
+            let shift = y.value - x.value;
+            let _ = writeln!(
+                o,
+                "    {name:<5} {:>14.5} → {:>14.5} ± {:.5} (moved {:+.5}, {:+.1} U)",
+                x.value,
+                y.value,
+                y.expanded_unc,
+                shift,
+                shift / y.expanded_unc
+            );
+        }
+    }
+}
+
+/// The terminal summary.
+pub fn render(a: &Analysis) -> String {
+    let mut o = String::new();
+    let n = &a.noise_sigma;
+    let _ = writeln!(
+        o,
+        "Noise floor σ: u {:.3}, v {:.3}, w {:.3} ({})",
+        n.u, n.v, n.w, n.source
+    );
+    let _ = writeln!(
+        o,
+        "Baseline (3-parameter sines at the nominal rate, constant offsets): χ²/dof {:.3}, \
+         residual RMS {:.3}",
+        a.baseline.chi2_dof, a.baseline.rms_residual
+    );
+    if !a.findings.is_empty() {
+        let _ = writeln!(o, "Where the baseline disagrees (z > 5, largest first):");
+        for f in a.findings.iter().take(10) {
+            let _ = writeln!(o, "  {}: {} {:.4} (z = {:.0})", f.at, f.what, f.size, f.z);
+        }
+    }
+    for (i, s) in a.steps.iter().enumerate() {
+        let _ = writeln!(
+            o,
+            "Step {}: {} named, {}; χ²/dof {:.3}, RMS {:.3}",
+            i + 1,
+            s.effect,
+            test(&s.criterion),
+            s.chi2_dof,
+            s.rms_residual
+        );
+    }
+    if a.steps.is_empty() {
+        let _ = writeln!(o, "No effect beyond the baseline is demanded by the data.");
+    }
+    let _ = writeln!(
+        o,
+        "Not demanded (p ≥ {}): {}",
+        super::ALPHA,
+        a.last_candidates
+            .iter()
+            .map(|c| format!("{} p = {:.2}", c.effect, c.p_value))
+            .collect::<Vec<_>>()
+            .join(", ")
+    );
+    for (e, why) in &a.untestable {
+        let _ = writeln!(o, "Not testable here: {e}: {why}");
+    }
+    for (e, p) in &a.final_parameters {
+        let _ = writeln!(o, "{e} (final model, ± U k = 2): {}", params(p));
+    }
+    let _ = writeln!(
+        o,
+        "Final: χ²/dof {:.3} (expected 1 ± {:.3}), residual RMS {:.3}",
+        a.final_.chi2_dof,
+        3.0 * (2.0 / a.final_.dof).sqrt(),
+        a.final_.rms_residual
+    );
+    if !a.steps.is_empty() {
+        let _ = writeln!(
+            o,
+            "Intrinsic properties, baseline → final model (± U, k = 2):"
+        );
+        moved(&a.intrinsic_baseline, &a.intrinsic_final, &mut o);
+    }
+    o
+}
+
+fn series(a: &Analysis, gi: usize, fit: usize, label: &str) -> Option<Series> {
+    let g = a.data.groups.get(gi)?;
+    let f = a.fits.get(fit)?;
+    let r = f.residuals.get(gi)?;
+    let model = [0, 1, 2].map(|j| g.y[j].iter().zip(&r[j]).map(|(y, e)| y - e).collect());
+    Some(Series {
+        title: format!("{} at {} Hz, {label}", g.condition.letter(), g.rate_hz),
+        stem: format!(
+            "{}_{}mhz_{label}",
+            g.condition.letter(),
+            (g.rate_hz * 1e3).round()
+        ),
+        x: g.tau.clone(),
+        x_label: "time in condition (s)",
+        alpha: g.tau.iter().map(|t| g.omega() * t).collect(),
+        y: g.y.clone(),
+        model,
+        rotation: true,
+    })
+}
+
+/// Write `dir/discrepancy.md` and its plots; returns the Markdown's path.
+pub fn write(a: &Analysis, dir: &Path, units: &str) -> Result<PathBuf, ReportError> {
+    let io = |e: std::io::Error| ReportError::Write(format!("{}: {e}", dir.display()));
+    std::fs::create_dir_all(dir).map_err(io)?;
+    let mut md = String::from("# Model discrepancy\n\n```text\n");
+    md.push_str(&render(a));
+    md.push_str("```\n\n## Residuals before and after\n\n");
+    let last = a.fits.len().saturating_sub(1);
+    // The three groups where the baseline misses most.
+    let mut order: Vec<usize> = (0..a.data.groups.len()).collect();
+    let worst = |gi: &usize| -> f64 {
+        a.fits.first().map_or(0.0, |f| {
+            f.residuals[*gi]
+                .iter()
+                .flatten()
+                .map(|r| r * r)
+                .sum::<f64>()
+                / f.residuals[*gi][0].len().max(1) as f64
+        })
+    };
+    order.sort_by(|x, y| worst(y).total_cmp(&worst(x)));
+    for gi in order.into_iter().take(3) {
+        for (fit, label) in [(0, "baseline"), (last, "final")] {
+            let Some(s) = series(a, gi, fit, label) else {
+                continue;
+            };
+            let res = dir.join(format!("residuals_{}.svg", s.stem));
+            report::plot_residuals(&s, &res, units)?;
+            let amps: Vec<Vec<f64>> = (0..3)
+                .map(|ch| report::harmonic_amplitudes(&s.alpha, &report::residuals(&s, ch)))
+                .collect();
+            let spec = dir.join(format!("spectrum_{}.svg", s.stem));
+            report::plot_spectrum(&s, &amps, &spec, units)?;
+            let name = |p: &Path| {
+                p.file_name()
+                    .map_or(String::new(), |n| n.to_string_lossy().into_owned())
+            };
+            let _ = writeln!(
+                md,
+                "![{}]({})\n![{}]({})\n",
+                s.title,
+                name(&res),
+                s.title,
+                name(&spec)
+            );
+        }
+    }
+    let path = dir.join("discrepancy.md");
+    std::fs::write(&path, md).map_err(io)?;
+    Ok(path)
+}

@@ -1,0 +1,112 @@
+//! Simulated trials for the workflow's proof (host/tests/discrepancy.rs) and its
+//! detection-limit benchmark (`scripts/bench-discrepancy`): the data, with one effect of a
+//! given magnitude hidden in it, and the analysis of each seed.
+
+use super::model::Effect;
+use super::{Analysis, Options};
+use crate::simulate::{Config, Simulation};
+
+/// Single-rate trials: seed 000's 10 mHz run, with the lab's temperature swinging ±1 °C
+/// over 10 minutes (so that a temperature coefficient can be told from a drift).
+pub const SINGLE_RATE: &str = "preset = \"paper-10mhz\"\n\
+    [temperature]\nswing_c = 1.0\nperiod_s = 600.0\n";
+
+/// Multi-rate trials (for centripetal): 0.1 and 0.5 Hz, 2000 samples per condition, on
+/// the axis unless the effect moves it.
+pub const MULTI_RATE: &str = "preset = \"paper-multirate\"\n\
+    [table]\nrates_hz = [0.1, 0.5]\nsamples_per_condition = 2000\n\
+    [effects.centripetal]\nradius_m = 0.0\n";
+
+/// Where an effect of magnitude `m` goes, and its unit.
+pub fn injection(e: Effect, m: f64) -> (String, &'static str, &'static str) {
+    match e {
+        Effect::RateError => (
+            format!("[effects.rate_error]\nrelative = {m:e}\n"),
+            "relative",
+            "1",
+        ),
+        Effect::OffsetDrift => (
+            format!("[effects.offset_drift]\nper_s = [{m:e}, 0.0, 0.0]\n"),
+            "D_u",
+            "counts/s",
+        ),
+        Effect::TemperatureOffset => (
+            format!("[effects.temperature_offset]\nper_c = [{m:e}, 0.0, 0.0]\n"),
+            "c_u",
+            "counts/°C",
+        ),
+        Effect::Nonlinearity2nd => (
+            format!("[effects.nonlinearity_2nd]\nk2 = [0.0, 0.0, {m:e}]\n"),
+            "K2_w",
+            "1/(m/s²)",
+        ),
+        Effect::Nonlinearity3rd => (
+            format!("[effects.nonlinearity_3rd]\nk3 = [0.0, {m:e}, 0.0]\n"),
+            "K3_v",
+            "1/(m/s²)²",
+        ),
+        // The high rail m counts below u's peak reading (O_u + s_u·g = 16886.3 counts).
+        Effect::Saturation => (
+            format!(
+                "[effects.saturation]\nrails = [-32768.0, {:.1}]\n",
+                (16886.3 - m).round()
+            ),
+            "depth below u's peak",
+            "counts",
+        ),
+        Effect::Centripetal => (
+            format!("[effects.centripetal]\nradius_m = {m:e}\n"),
+            "radius",
+            "m",
+        ),
+    }
+}
+
+/// The base configuration an effect is tried on.
+pub fn base(e: Effect) -> &'static str {
+    match e {
+        Effect::Centripetal => MULTI_RATE,
+        _ => SINGLE_RATE,
+    }
+}
+
+/// Simulate `toml` with `seed` and analyse it.
+pub fn analyse(toml: &str, seed: u64) -> Result<Analysis, String> {
+    let mut cfg = Config::from_toml(toml).map_err(|e| e.to_string())?;
+    cfg.seed = seed;
+    let sim = Simulation::new(cfg).map_err(|e| e.to_string())?;
+    let rec = sim.recording().map_err(|e| e.to_string())?;
+    super::run(&rec, &Options::default())
+}
+
+/// One trial: `effects` at their magnitudes, hidden in their base.
+pub fn trial(effects: &[(Effect, f64)], seed: u64) -> Result<Analysis, String> {
+    let multi = effects.iter().any(|(e, _)| *e == Effect::Centripetal);
+    let mut toml = String::from(if multi { MULTI_RATE } else { SINGLE_RATE });
+    for &(e, m) in effects {
+        toml.push_str(&injection(e, m).0);
+    }
+    // A later [effects.centripetal] table replaces the base's.
+    if multi {
+        toml = toml.replacen("[effects.centripetal]\nradius_m = 0.0\n", "", 1);
+    }
+    analyse(&toml, seed)
+}
+
+/// The injected parameter's estimate and standard uncertainty in the final model.
+pub fn estimate(a: &Analysis, e: Effect) -> Option<(f64, f64)> {
+    let p = a.final_parameters.get(e.name())?;
+    let pick = |v: &serde_json::Value| -> Option<(f64, f64)> {
+        Some((v.get("value")?.as_f64()?, v.get("std_unc")?.as_f64()?))
+    };
+    match e {
+        Effect::RateError => pick(p.get("relative")?),
+        Effect::OffsetDrift => pick(p.get("per_s")?.get("u")?),
+        Effect::TemperatureOffset => pick(p.get("per_c")?.get("u")?),
+        Effect::Nonlinearity2nd => pick(p.get("k2")?.get("w")?),
+        Effect::Nonlinearity3rd => pick(p.get("k3")?.get("v")?),
+        // The rails are read off the data, not estimated with an uncertainty.
+        Effect::Saturation => None,
+        Effect::Centripetal => pick(p.get("radius_m")?.get("y")?),
+    }
+}
