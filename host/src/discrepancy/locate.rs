@@ -1,10 +1,12 @@
 //! Where a model's residuals disagree with the noise: per condition, rate and channel,
 //! the residual's 2nd and 3rd harmonics of ω, its trend in time, its correlation with
-//! temperature, readings at the rails; across rates, the offsets against ω².
+//! temperature, readings at the rails; across rates, the offsets against ω² and the angles
+//! against ω.
 //! Each finding has a size (output units) and a z-score (size over its standard error
 //! under white noise of the floor σ); those beyond 5 are listed, largest first.
 
 use super::model::{Data, Fit};
+use super::RateIntrinsic;
 use serde::Serialize;
 
 /// z beyond which a finding is listed.
@@ -146,5 +148,40 @@ pub fn locate(data: &Data, fit: &Fit) -> Vec<Finding> {
     }
     out.retain(|f| f.z > Z_LIST);
     out.sort_by(|a, b| b.z.total_cmp(&a.z));
+    out
+}
+
+/// Across rates: each angle's weighted slope against ω (an axis time skew shows so).
+pub fn angles_against_rate(per_rate: &[RateIntrinsic]) -> Vec<Finding> {
+    let mut out = Vec::new();
+    if per_rate.len() < 2 {
+        return out;
+    }
+    for (i, name) in ["φ_uv", "φ_vw", "φ_wu"].iter().enumerate() {
+        let (mut sw, mut swx, mut swy, mut swxx, mut swxy) = (0.0, 0.0, 0.0, 0.0, 0.0);
+        for r in per_rate {
+            let q = &r.angle_deg[i];
+            let w = 1.0 / q.std_unc.powi(2);
+            let x = std::f64::consts::TAU * r.rate_hz;
+            sw += w;
+            swx += w * x;
+            swy += w * q.value;
+            swxx += w * x * x;
+            swxy += w * x * q.value;
+        }
+        let det = sw * swxx - swx * swx;
+        if det > 0.0 {
+            let b = (sw * swxy - swx * swy) / det;
+            let z = b / (sw / det).sqrt();
+            if z.abs() > Z_LIST {
+                out.push(Finding {
+                    at: "across rates".into(),
+                    what: format!("{name} vs ω (° per rad/s)"),
+                    size: b,
+                    z: z.abs(),
+                });
+            }
+        }
+    }
     out
 }

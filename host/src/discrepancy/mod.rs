@@ -406,7 +406,11 @@ pub fn analyse(data: Data, noise: NoiseSigma, alpha: f64) -> Result<Analysis, St
     let n = (data.rows() * 3) as f64;
     let (candidates, untestable) = applicable(&data);
     let baseline = model::fit(&data, &[], None)?;
-    let findings = locate::locate(&data, &baseline);
+    let mut findings = locate::locate(&data, &baseline);
+    findings.extend(locate::angles_against_rate(&intrinsic_per_rate(
+        &data, &baseline,
+    )));
+    findings.sort_by(|a, b| b.z.total_cmp(&a.z));
     let mut current = baseline.clone();
     let mut fits = vec![baseline.clone()];
     let mut steps = Vec::new();
