@@ -13,7 +13,7 @@ use crate::acquire::{RecordSummary, Recorder};
 use crate::capture::{CaptureWriter, Entry};
 use crate::link::{Channel, Link, LinkError};
 use rotacal_shared::packet::{
-    Command, CommandError, DeviceInfo, Packet, RunState, Status, MAX_PACKET, VERSION,
+    Command, CommandError, DeviceInfo, Packet, RunState, SensorStatus, Status, MAX_PACKET, VERSION,
 };
 use rotacal_shared::Condition;
 use std::fs::File;
@@ -254,6 +254,8 @@ struct Session<'a, L: Link, W: Durable, F: Durable, C: Durable, O: Observer> {
     link_drops: u32,
     connected: bool,
     last_status: Option<Status>,
+    /// The sensor was OK at the last status (to report a change once).
+    sensor_ok: bool,
     final_fit: bool,
     condition: Condition,
     /// The backfill asked for: (first, last, when, how many times).
@@ -319,14 +321,7 @@ impl<L: Link, W: Durable, F: Durable, C: Durable, O: Observer> Session<'_, L, W,
                 self.handle(ch, &bytes)?;
             }
             Ok(None) => {}
-            Err(LinkError::Disconnected(why)) => {
-                self.connected = false;
-                self.link_drops += 1;
-                self.files.capture.entry(&Entry::Down)?;
-                self.obs
-                    .message(&format!("link lost ({why}); reconnecting"));
-                self.reconnect().await?;
-            }
+            Err(LinkError::Disconnected(why)) => self.link_lost(&why).await?,
             Err(e) => return Err(e.into()),
         }
         self.tick().await?;
@@ -354,6 +349,13 @@ impl<L: Link, W: Durable, F: Durable, C: Durable, O: Observer> Session<'_, L, W,
         self.files.recorder.packet(&p)?;
         match p {
             Packet::Status(s) => {
+                if s.sensor != SensorStatus::Ok && self.sensor_ok {
+                    self.obs.message(&format!(
+                        "the device reports its accelerometer {:?}: no samples until it recovers",
+                        s.sensor
+                    ));
+                }
+                self.sensor_ok = s.sensor == SensorStatus::Ok;
                 if s.last_error == Some(CommandError::NotInRing) {
                     self.files.recorder.give_up_before(s.ring_oldest)?;
                 }
@@ -367,35 +369,59 @@ impl<L: Link, W: Durable, F: Durable, C: Durable, O: Observer> Session<'_, L, W,
         Ok(())
     }
 
-    /// Write a command and wait for the status that answers it.
+    /// Write a command and wait for the status that answers it. If the link drops before
+    /// the answer, the command is written again after reconnecting; a repeat that the
+    /// device refuses only because the first one took effect (Start: busy running this
+    /// condition; Stop: not running) counts as answered.
     async fn command(&mut self, cmd: Command) -> Result<Status, RecordError> {
         let bytes = encode(cmd);
-        self.files.capture.entry(&Entry::Written(bytes.clone()))?;
-        self.last_status = None;
-        loop {
-            match self.link.write(&bytes).await {
-                Ok(()) => break,
-                Err(LinkError::Disconnected(why)) => {
-                    self.connected = false;
-                    self.link_drops += 1;
-                    self.obs
-                        .message(&format!("link lost ({why}); reconnecting"));
-                    self.reconnect().await?;
+        let mut repeated = false;
+        'send: loop {
+            self.files.capture.entry(&Entry::Written(bytes.clone()))?;
+            self.last_status = None;
+            loop {
+                match self.link.write(&bytes).await {
+                    Ok(()) => break,
+                    Err(LinkError::Disconnected(why)) => self.link_lost(&why).await?,
+                    Err(e) => return Err(e.into()),
                 }
-                Err(e) => return Err(e.into()),
             }
-        }
-        let deadline = Instant::now() + self.opts.reply_wait;
-        while Instant::now() < deadline {
-            self.receive(Duration::from_millis(200)).await?;
-            if let Some(s) = self.last_status {
-                return Ok(s);
+            let drops = self.link_drops;
+            let deadline = Instant::now() + self.opts.reply_wait;
+            while Instant::now() < deadline {
+                self.receive(Duration::from_millis(200)).await?;
+                if self.link_drops != drops {
+                    repeated = true;
+                    continue 'send;
+                }
+                if let Some(mut st) = self.last_status {
+                    let took_effect = match (cmd, st.last_error) {
+                        (Command::Start { condition, .. }, Some(CommandError::Busy)) => {
+                            st.state == RunState::Running && st.condition == Some(condition)
+                        }
+                        (Command::Stop, Some(CommandError::NotRunning)) => true,
+                        _ => false,
+                    };
+                    if repeated && took_effect {
+                        st.last_error = None;
+                    }
+                    return Ok(st);
+                }
             }
+            return Err(RecordError::Device(format!(
+                "no status reply to {cmd:?} within {:.0} s",
+                self.opts.reply_wait.as_secs_f64()
+            )));
         }
-        Err(RecordError::Device(format!(
-            "no status reply to {cmd:?} within {:.0} s",
-            self.opts.reply_wait.as_secs_f64()
-        )))
+    }
+
+    async fn link_lost(&mut self, why: &str) -> Result<(), RecordError> {
+        self.connected = false;
+        self.link_drops += 1;
+        self.files.capture.entry(&Entry::Down)?;
+        self.obs
+            .message(&format!("link lost ({why}); reconnecting"));
+        self.reconnect().await
     }
 
     async fn reconnect(&mut self) -> Result<(), RecordError> {
@@ -507,6 +533,7 @@ pub async fn record<L: Link, W: Durable, F: Durable, C: Durable, O: Observer>(
         link_drops: 0,
         connected: true,
         last_status: None,
+        sensor_ok: true,
         final_fit: false,
         condition: plan.condition,
         asked: None,

@@ -291,3 +291,19 @@ fn a_killed_recording_is_valid_up_to_its_last_line() {
     ]);
     assert!(!ok && err.contains("already holds condition x"), "{err}");
 }
+
+#[test]
+fn a_stop_during_an_outage_waits_for_the_link() {
+    // The link is down from 261 s to 266 s: the stop at 262.5 s is written after the
+    // reconnection, and the samples of the outage come back from the ring.
+    let r = run("stop-outage", "outage=261:5");
+    let o = r.result.as_ref().unwrap();
+    assert_eq!(o.link_drops, 1, "{:?}", r.messages);
+    assert!(o.final_fit);
+    assert!(o.summary.lost.is_empty(), "{:?}", o.summary.lost);
+    // Sampling went on until the stop arrived, 3.5 s late: more rows, none missing.
+    let q = seqs(&r.paths.recording);
+    assert!(q.len() as u64 >= N, "{}", q.len());
+    assert_eq!(q, (0..q.len() as u64).collect::<Vec<_>>());
+    crosscheck_passes(&r);
+}
