@@ -332,6 +332,23 @@ impl<W: Write, F: Write> Recorder<W, F> {
         (self.rows.get_ref(), &self.fits)
     }
 
+    /// A new run of the device starts (a Start command): what is still missing is given
+    /// up, and sequence numbers are followed afresh (a device that restarted counts from 0).
+    pub fn restart_sequence(&mut self) -> io::Result<()> {
+        self.give_up_before(u32::MAX)?;
+        self.next_seq = None;
+        self.expected_through = None;
+        Ok(())
+    }
+
+    /// Samples missing now.
+    pub fn missing_samples(&self) -> u64 {
+        self.missing()
+            .iter()
+            .map(|&(a, b)| u64::from(b.wrapping_sub(a)) + 1)
+            .sum()
+    }
+
     /// Give up whatever is still missing, flush everything and say what was recorded.
     /// Rows still waiting for their first temperature are an error: the device sent
     /// none, and none is invented.
@@ -376,6 +393,26 @@ impl FitLine {
         }
         Ok(())
     }
+}
+
+/// A packet's bytes on the wire.
+pub fn encode(p: &Packet) -> Vec<u8> {
+    let mut buf = [0u8; rotacal_shared::packet::MAX_PACKET];
+    match p.encode(&mut buf) {
+        Ok(n) => buf.get(..n).unwrap_or(&[]).to_vec(),
+        Err(_) => Vec::new(),
+    }
+}
+
+/// Bytes from hex digits (two per byte), None if any pair isn't hex.
+pub fn from_hex(s: &str) -> Option<Vec<u8>> {
+    if s.len() % 2 != 0 {
+        return None;
+    }
+    (0..s.len())
+        .step_by(2)
+        .map(|i| u8::from_str_radix(s.get(i..i + 2)?, 16).ok())
+        .collect()
 }
 
 /// Read a fit log: one JSON object per line; errors name the line.

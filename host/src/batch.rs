@@ -77,7 +77,7 @@ pub fn least_squares(h: DMatrix<f64>, ys: &[DVector<f64>]) -> Result<BatchFit, B
 }
 
 /// (HᵀH)⁻¹ = R⁻¹R⁻ᵀ from the triangular factor, refusing a (numerically) singular R.
-fn unscaled_cov(r: &DMatrix<f64>) -> Result<DMatrix<f64>, BatchError> {
+pub(crate) fn unscaled_cov(r: &DMatrix<f64>) -> Result<DMatrix<f64>, BatchError> {
     let rmax = r.diagonal().amax();
     if r.diagonal().iter().any(|d| d.abs() <= 1e-13 * rmax) {
         return Err(BatchError::Singular);

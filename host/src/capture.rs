@@ -1,5 +1,6 @@
 //! The raw capture: every value received from the device and every command written to it,
-//! in arrival order, with the host time in milliseconds. The recorder appends to it before
+//! in arrival order, with milliseconds since the recording (or the appended condition)
+//! started. The recorder appends to it before
 //! it decodes anything, and syncs it with the recording, so what was received is on disk
 //! even when the recording itself still holds rows back (waiting for a gap to be filled)
 //! or the host crashes. `rotacal decode` rebuilds the recording and the fit log from it.
@@ -116,16 +117,6 @@ pub struct Capture {
     pub truncated: bool,
 }
 
-fn hex(s: &str) -> Option<Vec<u8>> {
-    if s.len() % 2 != 0 {
-        return None;
-    }
-    (0..s.len())
-        .step_by(2)
-        .map(|i| u8::from_str_radix(s.get(i..i + 2)?, 16).ok())
-        .collect()
-}
-
 /// Read a capture; errors name `source`, the line and the problem.
 pub fn read(text: &str, source: &str) -> Result<Capture, String> {
     let truncated = !text.is_empty() && !text.ends_with('\n');
@@ -148,10 +139,8 @@ pub fn read(text: &str, source: &str) -> Result<Capture, String> {
         .take_while(|l| l.starts_with('#'))
         .map(|l| format!("{l}\n"))
         .collect();
-    let meta = recording::read_preamble(&pre, source).map_err(|e| {
-        // Preamble line numbers count from the line after the magic line.
-        e.to_string()
-    })?;
+    // The preamble starts on line 2, after the magic line.
+    let meta = recording::read_preamble(&pre, source, 1).map_err(|e| e.to_string())?;
     let mut entries = Vec::new();
     for (i, l) in lines {
         if l.starts_with('#') || l.trim().is_empty() {
@@ -169,7 +158,7 @@ pub fn read(text: &str, source: &str) -> Result<Capture, String> {
             return Err(at("more than three fields"));
         }
         let bytes = || {
-            data.and_then(hex)
+            data.and_then(crate::acquire::from_hex)
                 .filter(|b| !b.is_empty())
                 .ok_or_else(|| at("bad or missing hex bytes"))
         };
@@ -221,11 +210,21 @@ pub fn rebuild<W: Write, F: Write>(cap: &Capture, rows: W, fits: F) -> Result<Re
         Recorder::new(rows, fits, &cap.meta, tick_hz).map_err(|e| format!("writing: {e}"))?;
     let mut undecodable = Vec::new();
     for (line, _, e) in &cap.entries {
-        if let Entry::Value(Channel::Stream | Channel::Results, b) = e {
-            match Packet::decode(b) {
+        match e {
+            Entry::Value(Channel::Stream | Channel::Results, b) => match Packet::decode(b) {
                 Ok(p) => rec.packet(&p).map_err(|e| format!("writing: {e}"))?,
                 Err(e) => undecodable.push((*line, e.to_string())),
+            },
+            // Each condition recorded (appended) starts with a Start.
+            Entry::Written(b) => {
+                if let Ok(Packet::Command(rotacal_shared::packet::Command::Start { .. })) =
+                    Packet::decode(b)
+                {
+                    rec.restart_sequence()
+                        .map_err(|e| format!("writing: {e}"))?;
+                }
             }
+            _ => {}
         }
     }
     let summary = rec.finish().map_err(|e| format!("writing: {e}"))?;

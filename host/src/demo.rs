@@ -10,18 +10,15 @@
 //!
 //! The session runs on a paused tokio clock: 13 minutes of device time in seconds.
 
-use crate::acquire::Recorder;
 use crate::calibration_file::CalibrationJson;
-use crate::capture::CaptureWriter;
 use crate::crosscheck::CrosscheckReport;
 use crate::link::simulated::{Faults, SimulatedDevice};
-use crate::record::{self, Files, Options, Outcome, Plan, Quiet};
+use crate::record::{self, Options, Outcome, Paths, Plan, Quiet};
 use crate::recording::{Metadata, Method};
 use crate::simulate::{Config, Simulation};
 use rotacal_shared::synth::{self, crosscheck, SynthSpec};
 use rotacal_shared::{Condition, PhaseStep, TickRate};
 use std::fmt::Write as _;
-use std::fs::{File, OpenOptions};
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
@@ -86,7 +83,7 @@ pub struct Demo {
     pub dir: PathBuf,
     /// The simulated truth: s_u, s_v, s_w (counts per m/s²), φ_uv, φ_vw, φ_wu (°).
     pub truth: [f64; 6],
-    /// Sensor conversions per condition (104 Hz) and samples streamed (16 Hz).
+    /// Sensor conversions per condition (at 104 Hz).
     pub conversions: usize,
     /// What recording each condition gave.
     pub recorded: Vec<(Condition, Outcome)>,
@@ -191,28 +188,24 @@ pub fn session_config(seed: u64) -> anyhow::Result<Config> {
     Ok(cfg)
 }
 
-fn open_append(p: &Path) -> anyhow::Result<File> {
-    OpenOptions::new()
-        .append(true)
-        .open(p)
-        .map_err(|e| anyhow::anyhow!("{}: {e}", p.display()))
-}
-
-fn create(p: &Path) -> anyhow::Result<File> {
-    File::create(p).map_err(|e| anyhow::anyhow!("{}: {e}", p.display()))
-}
-
 /// Run the chain, writing into `dir` (created if missing).
 pub fn run(seed: u64, dir: &Path) -> anyhow::Result<Demo> {
     std::fs::create_dir_all(dir).map_err(|e| anyhow::anyhow!("{}: {e}", dir.display()))?;
     let sim = Simulation::new(session_config(seed)?)?;
+    let conversions = sim.config().samples_per_condition();
+    let sensor_hz = sim.config().timing.sample_rate_hz;
     let truth = sim.truth().properties();
     let mut device = SimulatedDevice::new(&sim, Faults::default())?;
-    let paths = [
-        dir.join("recording.csv"),
-        dir.join("recording.fits.jsonl"),
-        dir.join("recording.capture"),
-    ];
+    let paths = Paths::beside(&dir.join("recording.csv"));
+    // The demo's own folder: a previous run's recording is replaced.
+    for p in [&paths.recording, &paths.fits, &paths.capture] {
+        match std::fs::remove_file(p) {
+            Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+                anyhow::bail!("{}: {e}", p.display())
+            }
+            _ => {}
+        }
+    }
     let meta = Metadata {
         method: Some(Method::Rotation),
         rate_hz: Some(0.01),
@@ -236,31 +229,12 @@ pub fn run(seed: u64, dir: &Path) -> anyhow::Result<Demo> {
         let (info, info_bytes) = record::connect(&mut device, &opts, &mut obs).await?;
         let mut recorded = Vec::new();
         for (i, condition) in Condition::ALL.into_iter().enumerate() {
-            let [rec, fits, cap] = &paths;
-            let files = if i == 0 {
-                let mut capture = CaptureWriter::new(create(cap)?, &meta)?;
-                capture.entry(&crate::capture::Entry::Value(
-                    crate::link::Channel::Info,
-                    info_bytes.clone(),
-                ))?;
-                Files {
-                    recorder: Recorder::new(create(rec)?, create(fits)?, &meta, info.tick_hz)?,
-                    capture,
-                }
-            } else {
-                Files {
-                    recorder: Recorder::append(
-                        open_append(rec)?,
-                        open_append(fits)?,
-                        info.tick_hz,
-                    )?,
-                    capture: CaptureWriter::append(open_append(cap)?),
-                }
-            };
+            let files =
+                record::open_files(&paths, &meta, &info_bytes, info.tick_hz, condition, i > 0)?;
             let plan = Plan {
                 condition,
                 rate_uhz: 10_000,
-                duration: Duration::from_secs_f64(262.5),
+                duration: Duration::from_secs_f64(conversions as f64 / sensor_hz),
                 sample_rate_mhz: Some(16_000),
                 restart: false,
             };
@@ -271,7 +245,7 @@ pub fn run(seed: u64, dir: &Path) -> anyhow::Result<Demo> {
         }
         anyhow::Ok(recorded)
     })?;
-    let [rec_path, fits_path, _] = &paths;
+    let (rec_path, fits_path) = (&paths.recording, &paths.fits);
     let rec = crate::recording::read(rec_path)?;
     let calibration = crate::calibrate_recording::calibrate(&rec, &Default::default())?;
     let log_text = std::fs::read_to_string(fits_path)?;
@@ -294,7 +268,7 @@ pub fn run(seed: u64, dir: &Path) -> anyhow::Result<Demo> {
     Ok(Demo {
         dir: dir.to_path_buf(),
         truth: [s0, s1, s2, a0, a1, a2],
-        conversions: 27_300,
+        conversions: conversions as usize,
         recorded,
         calibration,
         crosscheck,

@@ -13,7 +13,7 @@ use crate::acquire::{RecordSummary, Recorder};
 use crate::capture::{CaptureWriter, Entry};
 use crate::link::{Channel, Link, LinkError};
 use rotacal_shared::packet::{
-    Command, CommandError, DeviceInfo, Packet, RunState, SensorStatus, Status, MAX_PACKET, VERSION,
+    Command, CommandError, DeviceInfo, Packet, RunState, SensorStatus, Status, VERSION,
 };
 use rotacal_shared::Condition;
 use std::fs::File;
@@ -84,8 +84,6 @@ impl Durable for Vec<u8> {
 /// The link as the progress display shows it.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum LinkState {
-    /// Connecting for the first time.
-    Connecting,
     /// Up.
     Connected,
     /// Down; reconnecting (attempt number).
@@ -140,8 +138,6 @@ impl Observer for Quiet {
 pub struct Outcome {
     /// The recorder's summary.
     pub summary: RecordSummary,
-    /// The device.
-    pub info: DeviceInfo,
     /// Values that did not decode.
     pub undecodable: u64,
     /// Times the link was lost.
@@ -232,9 +228,7 @@ pub fn check_info(bytes: &[u8]) -> Result<DeviceInfo, RecordError> {
 }
 
 fn encode(cmd: Command) -> Vec<u8> {
-    let mut buf = [0u8; MAX_PACKET];
-    let n = Packet::Command(cmd).encode(&mut buf).unwrap_or(0);
-    buf.get(..n).unwrap_or(&[]).to_vec()
+    crate::acquire::encode(&Packet::Command(cmd))
 }
 
 /// The files a recording writes.
@@ -257,37 +251,29 @@ struct Session<'a, L: Link, W: Durable, F: Durable, C: Durable, O: Observer> {
     /// The sensor was OK at the last status (to report a change once).
     sensor_ok: bool,
     final_fit: bool,
-    condition: Condition,
+    plan: Plan,
+    /// The device at the first connection (a reconnection must find the same).
+    info: DeviceInfo,
+    /// The device acknowledged our Start: from then on its samples are this recording's.
+    started: bool,
     /// The backfill asked for: (first, last, when, how many times).
     asked: Option<(u32, u32, Instant, u32)>,
     last_flush: Instant,
-    started: Instant,
-    duration: Duration,
+    start_time: Instant,
 }
 
 impl<L: Link, W: Durable, F: Durable, C: Durable, O: Observer> Session<'_, L, W, F, C, O> {
-    fn progress(&mut self) {
+    fn progress(&mut self, link: LinkState) {
         let s = self.files.recorder.summary();
-        let missing = self
-            .files
-            .recorder
-            .missing()
-            .iter()
-            .map(|&(a, b)| u64::from(b - a) + 1)
-            .sum();
         let p = Progress {
-            elapsed: self.started.elapsed(),
-            duration: self.duration,
+            elapsed: self.start_time.elapsed(),
+            duration: self.plan.duration,
             rows: s.rows,
-            missing,
+            missing: self.files.recorder.missing_samples(),
             recovered: s.recovered,
             lost: s.lost_samples(),
             undecodable: self.undecodable,
-            link: if self.connected {
-                LinkState::Connected
-            } else {
-                LinkState::Reconnecting(0)
-            },
+            link,
         };
         self.obs.progress(&p);
     }
@@ -305,10 +291,10 @@ impl<L: Link, W: Durable, F: Durable, C: Durable, O: Observer> Session<'_, L, W,
         Ok(())
     }
 
-    async fn tick(&mut self) -> io::Result<()> {
+    fn tick(&mut self) -> io::Result<()> {
         if self.last_flush.elapsed() >= Duration::from_secs(1) {
             self.flush()?;
-            self.progress();
+            self.progress(LinkState::Connected);
         }
         Ok(())
     }
@@ -324,7 +310,7 @@ impl<L: Link, W: Durable, F: Durable, C: Durable, O: Observer> Session<'_, L, W,
             Err(LinkError::Disconnected(why)) => self.link_lost(&why).await?,
             Err(e) => return Err(e.into()),
         }
-        self.tick().await?;
+        self.tick()?;
         Ok(())
     }
 
@@ -346,7 +332,18 @@ impl<L: Link, W: Durable, F: Durable, C: Durable, O: Observer> Session<'_, L, W,
                 return Ok(());
             }
         };
-        self.files.recorder.packet(&p)?;
+        // Before our Start is acknowledged (e.g. the tail of a condition stopped with
+        // --restart), or of another condition, data are not this recording's; they stay in
+        // the capture.
+        let ours = match &p {
+            Packet::Samples(b) => self.started && b.condition == self.plan.condition,
+            Packet::Fit(f) => self.started && f.condition == self.plan.condition,
+            Packet::Temperature(_) | Packet::QuickLook(_) => self.started,
+            Packet::Info(_) | Packet::Status(_) | Packet::Command(_) => true,
+        };
+        if ours {
+            self.files.recorder.packet(&p)?;
+        }
         match p {
             Packet::Status(s) => {
                 if s.sensor != SensorStatus::Ok && self.sensor_ok {
@@ -361,7 +358,7 @@ impl<L: Link, W: Durable, F: Durable, C: Durable, O: Observer> Session<'_, L, W,
                 }
                 self.last_status = Some(s);
             }
-            Packet::Fit(f) if f.is_final && f.condition == self.condition => {
+            Packet::Fit(f) if f.is_final && f.condition == self.plan.condition => {
                 self.final_fit = true;
             }
             _ => {}
@@ -379,12 +376,15 @@ impl<L: Link, W: Durable, F: Durable, C: Durable, O: Observer> Session<'_, L, W,
         'send: loop {
             self.files.capture.entry(&Entry::Written(bytes.clone()))?;
             self.last_status = None;
-            loop {
-                match self.link.write(&bytes).await {
-                    Ok(()) => break,
-                    Err(LinkError::Disconnected(why)) => self.link_lost(&why).await?,
-                    Err(e) => return Err(e.into()),
+            match self.link.write(&bytes).await {
+                Ok(()) => {}
+                // A write can fail after the device acted on it: write it again, as a repeat.
+                Err(LinkError::Disconnected(why)) => {
+                    self.link_lost(&why).await?;
+                    repeated = true;
+                    continue 'send;
                 }
+                Err(e) => return Err(e.into()),
             }
             let drops = self.link_drops;
             let deadline = Instant::now() + self.opts.reply_wait;
@@ -429,19 +429,24 @@ impl<L: Link, W: Durable, F: Durable, C: Durable, O: Observer> Session<'_, L, W,
         let mut attempt = 0u32;
         loop {
             attempt += 1;
-            self.obs.progress(&Progress {
-                elapsed: self.started.elapsed(),
-                duration: self.duration,
-                rows: self.files.recorder.summary().rows,
-                missing: 0,
-                recovered: self.files.recorder.summary().recovered,
-                lost: self.files.recorder.summary().lost_samples(),
-                undecodable: self.undecodable,
-                link: LinkState::Reconnecting(attempt),
-            });
+            self.progress(LinkState::Reconnecting(attempt));
             match self.link.connect().await {
                 Ok(info) => {
-                    check_info(&info)?;
+                    let again = check_info(&info)?;
+                    if (again.chip, again.firmware, again.tick_hz, again.clock)
+                        != (
+                            self.info.chip,
+                            self.info.firmware,
+                            self.info.tick_hz,
+                            self.info.clock,
+                        )
+                    {
+                        return Err(RecordError::Device(
+                            "reconnected to a different device (chip, firmware or clock \
+                             differ): use --device with its address"
+                                .into(),
+                        ));
+                    }
                     self.files
                         .capture
                         .entry(&Entry::Value(Channel::Info, info))?;
@@ -472,7 +477,7 @@ impl<L: Link, W: Durable, F: Durable, C: Durable, O: Observer> Session<'_, L, W,
     /// Ask for the first missing range again; ask once more when the replay is overdue
     /// (replays can be lost too), and give the range up after [`BACKFILL_TRIES`].
     async fn backfill(&mut self) -> Result<(), RecordError> {
-        let Some(&(a, b)) = self.files.recorder.missing().first() else {
+        let Some((a, b)) = self.files.recorder.missing().into_iter().next() else {
             self.asked = None;
             return Ok(());
         };
@@ -535,11 +540,12 @@ pub async fn record<L: Link, W: Durable, F: Durable, C: Durable, O: Observer>(
         last_status: None,
         sensor_ok: true,
         final_fit: false,
-        condition: plan.condition,
+        plan,
+        info,
+        started: false,
         asked: None,
         last_flush: Instant::now(),
-        started: Instant::now(),
-        duration: plan.duration,
+        start_time: Instant::now(),
     };
     let result = run(&mut s, plan).await;
     let undecodable = s.undecodable;
@@ -550,7 +556,6 @@ pub async fn record<L: Link, W: Durable, F: Durable, C: Durable, O: Observer>(
     match (result, summary) {
         (Ok(()), Ok(summary)) => Ok(Outcome {
             summary,
-            info,
             undecodable,
             link_drops,
             final_fit,
@@ -586,13 +591,14 @@ async fn run<L: Link, W: Durable, F: Durable, C: Durable, O: Observer>(
         })
         .await?;
     check("start", st)?;
-    s.started = Instant::now();
+    s.started = true;
+    s.start_time = Instant::now();
     s.obs.message(&format!(
         "recording condition {} for {:.0} s",
         plan.condition.letter(),
         plan.duration.as_secs_f64()
     ));
-    while s.started.elapsed() < plan.duration {
+    while s.start_time.elapsed() < plan.duration {
         s.receive(Duration::from_millis(200)).await?;
         if let Some(st) = s.last_status.take() {
             if st.state != RunState::Running {
@@ -609,7 +615,7 @@ async fn run<L: Link, W: Durable, F: Durable, C: Durable, O: Observer>(
     }
     let st = s.command(Command::Stop).await?;
     let fit_failed = st.last_error == Some(CommandError::FitFailed);
-    if st.last_error == Some(CommandError::FitFailed) {
+    if fit_failed {
         // Stopped all the same; the samples are recorded, only the device's own fit is
         // missing (the host fits them in `calibrate`).
         s.obs.message(
@@ -708,11 +714,51 @@ pub fn open_files(
 ) -> Result<Files<File, File, File>, RecordError> {
     use std::fs::OpenOptions;
     if append {
+        // Nothing is cut before the files are known to be a recording and its capture.
+        for (p, magic) in [
+            (&paths.recording, "# rotacal recording v1"),
+            (&paths.capture, crate::capture::MAGIC),
+        ] {
+            let text = std::fs::read(p).map_err(|e| named(p, e))?;
+            if !text.starts_with(magic.as_bytes()) {
+                return Err(RecordError::Device(format!(
+                    "cannot append: {} does not start with '{magic}'",
+                    p.display()
+                )));
+            }
+        }
         for p in [&paths.recording, &paths.fits, &paths.capture] {
             truncate_partial_line(p)?;
         }
         let rec = crate::recording::read_in_progress(&paths.recording)
             .map_err(|e| RecordError::Device(format!("cannot append: {e}")))?;
+        let ours = rec.groups.iter().all(|g| {
+            g.seq.is_some() && g.temp_c.is_some() && !g.t_s.is_empty() && g.rate_hz.is_none()
+        });
+        if !ours {
+            return Err(RecordError::Device(format!(
+                "cannot append: {} does not have the recorder's columns \
+                 (condition, seq, t_s, u, v, w, temp_c)",
+                paths.recording.display()
+            )));
+        }
+        let same = [
+            ("rate_hz", rec.meta.rate_hz, meta.rate_hz),
+            (
+                "sample_rate_hz",
+                rec.meta.sample_rate_hz,
+                meta.sample_rate_hz,
+            ),
+        ];
+        for (key, was, now) in same {
+            if was != now {
+                return Err(RecordError::Device(format!(
+                    "cannot append: {} has {key}={was:?}, this recording {now:?}; record \
+                     another rate or sample rate into a new file",
+                    paths.recording.display()
+                )));
+            }
+        }
         if rec.groups.iter().any(|g| g.condition == condition) {
             return Err(RecordError::Device(format!(
                 "cannot append: {} already holds condition {}; record it into a new file",
@@ -785,7 +831,7 @@ pub fn parse_duration(s: &str) -> Result<Duration, String> {
         .parse()
         .map_err(|_| format!("'{s}': not a number of seconds, minutes or hours"))?;
     if !(x.is_finite() && x > 0.0 && x * scale < 1e9) {
-        return Err(format!("'{s}': must be positive"));
+        return Err(format!("'{s}': must be positive and below 10⁹ s"));
     }
     Ok(Duration::from_secs_f64(x * scale))
 }

@@ -422,9 +422,18 @@ pub const COLUMN_NAMES: [&str; 9] = [
 
 /// Read the recording at `path`.
 pub fn read(path: &Path) -> Result<Recording, RecordingError> {
+    read_path(path, true)
+}
+
+fn read_path(path: &Path, complete: bool) -> Result<Recording, RecordingError> {
     let source = path.display().to_string();
     match File::open(path) {
-        Ok(f) => read_from(f, &source),
+        Ok(f) => Parser {
+            source: &source,
+            complete,
+            line_offset: 0,
+        }
+        .run(f),
         Err(e) => Err(RecordingError {
             source_name: source,
             line: None,
@@ -446,27 +455,21 @@ pub fn read_from<R: Read>(reader: R, source: &str) -> Result<Recording, Recordin
 /// Read a recording in progress (`rotacal record` adds one condition at a time): every
 /// check of [`read`] except that all three conditions be present.
 pub fn read_in_progress(path: &Path) -> Result<Recording, RecordingError> {
-    let source = path.display().to_string();
-    let f = File::open(path).map_err(|e| RecordingError {
-        source_name: source.clone(),
-        line: None,
-        kind: RecordingErrorKind::Io(e),
-    })?;
-    Parser {
-        source: &source,
-        complete: false,
-        line_offset: 0,
-    }
-    .run(f)
+    read_path(path, false)
 }
 
 /// Parse only the `#` lines at the start of `text` (the preamble) into metadata, with the
 /// reader's checks; used to carry a recording's metadata in other files (the capture).
-pub fn read_preamble(text: &str, source: &str) -> Result<Metadata, RecordingError> {
+/// `lines_before` counts the lines of the enclosing file before `text`, for messages.
+pub fn read_preamble(
+    text: &str,
+    source: &str,
+    lines_before: u64,
+) -> Result<Metadata, RecordingError> {
     let mut p = Parser {
         source,
         complete: false,
-        line_offset: 0,
+        line_offset: lines_before,
     };
     p.preamble(&mut BufReader::new(text.as_bytes()))
 }

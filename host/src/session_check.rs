@@ -46,11 +46,8 @@ pub fn parse_log(text: &str, source_name: &str) -> Result<Vec<Vec<u8>>, LogError
                     format!("{} hex digits is not a packet", hex.len()),
                 ));
             }
-            let bytes = (0..hex.len())
-                .step_by(2)
-                .map(|k| u8::from_str_radix(hex.get(k..k + 2).unwrap_or("zz"), 16))
-                .collect::<Result<Vec<u8>, _>>()
-                .map_err(|e| err(i + 1, format!("not hex: {e}")))?;
+            let bytes =
+                crate::acquire::from_hex(hex).ok_or_else(|| err(i + 1, "not hex".into()))?;
             out.push(bytes);
         } else if line.starts_with("session done") {
             done = true;
@@ -70,10 +67,7 @@ pub fn host_packets() -> Vec<Vec<u8>> {
     let mut dev = Device::<RING>::new(Config::FEATHER);
     let mut out = Vec::new();
     SessionSpec::PAPER.run(&mut dev, &mut |p: Packet| {
-        let mut buf = [0u8; MAX_PACKET];
-        if let Ok(n) = p.encode(&mut buf) {
-            out.push(buf[..n].to_vec());
-        }
+        out.push(crate::acquire::encode(&p))
     });
     out
 }

@@ -75,7 +75,6 @@ struct Bar(ProgressBar);
 impl Observer for Bar {
     fn progress(&mut self, p: &Progress) {
         let link = match p.link {
-            LinkState::Connecting => "connecting".to_string(),
             LinkState::Connected => "connected".to_string(),
             LinkState::Reconnecting(n) => format!("RECONNECTING (attempt {n})"),
         };
@@ -192,11 +191,13 @@ async fn session<L: Link>(link: &mut L, a: &Args, plan: Plan, opts: Options) -> 
         Ok(o) => {
             let s = &o.summary;
             println!(
-                "recorded condition {}: {} samples ({} recovered by replay, {} lost{}), {} \
-                 fit-log lines, {} link drop(s), {} undecodable value(s){}\nfiles: {files}",
+                "recorded condition {}: {} samples ({} recovered by replay, {} received twice, \
+                 {} lost{}), {} fit-log lines, {} link drop(s), {} undecodable value(s){}\n\
+                 files: {files}",
                 plan.condition.letter(),
                 s.rows,
                 s.recovered,
+                s.duplicates,
                 s.lost_samples(),
                 if s.lost.is_empty() {
                     String::new()

@@ -25,29 +25,6 @@ pub struct Finding {
     pub z: f64,
 }
 
-/// Least-squares amplitude of sin and cos of `k`ω over the residual, and its z.
-fn harmonic(r: &[f64], tau: &[f64], omega: f64, k: f64, sigma: f64) -> (f64, f64) {
-    let (mut ss, mut cc, mut sc, mut rs, mut rc) = (0.0, 0.0, 0.0, 0.0, 0.0);
-    for (x, t) in r.iter().zip(tau) {
-        let (s, c) = (k * omega * t).sin_cos();
-        ss += s * s;
-        cc += c * c;
-        sc += s * c;
-        rs += x * s;
-        rc += x * c;
-    }
-    let det = ss * cc - sc * sc;
-    if det <= 0.0 {
-        return (0.0, 0.0);
-    }
-    let a = (rs * cc - rc * sc) / det;
-    let b = (rc * ss - rs * sc) / det;
-    let amp = a.hypot(b);
-    // Each coefficient has variance ≈ σ²·2/n; the amplitude of pure noise is Rayleigh.
-    let se = sigma * (2.0 / r.len() as f64).sqrt();
-    (amp, amp / se)
-}
-
 fn slope(x: &[f64], y: &[f64], sigma: f64) -> (f64, f64) {
     let n = x.len() as f64;
     let mx = x.iter().sum::<f64>() / n;
@@ -65,7 +42,9 @@ fn slope(x: &[f64], y: &[f64], sigma: f64) -> (f64, f64) {
 pub fn locate(data: &Data, fit: &Fit) -> Vec<Finding> {
     let mut out = Vec::new();
     let names = ['u', 'v', 'w'];
+    let temperature = data.temperature_varies();
     for (gi, g) in data.groups.iter().enumerate() {
+        let alpha: Vec<f64> = g.tau.iter().map(|t| g.omega() * t).collect();
         for (j, name) in names.iter().enumerate() {
             let r = &fit.residuals[gi][j];
             let sigma = data.sigma[j];
@@ -75,13 +54,16 @@ pub fn locate(data: &Data, fit: &Fit) -> Vec<Finding> {
                 g.rate_hz,
                 name
             );
-            for k in [2.0, 3.0] {
-                let (amp, z) = harmonic(r, &g.tau, g.omega(), k, sigma);
+            // Amplitudes at k·ω; a coefficient's variance is ≈ 2σ²/n under white noise.
+            let amps = crate::report::harmonic_amplitudes(&alpha, r);
+            let se = sigma * (2.0 / r.len() as f64).sqrt();
+            for k in [2, 3] {
+                let amp = amps.get(k - 1).copied().unwrap_or(f64::NAN);
                 out.push(Finding {
                     at: at.clone(),
                     what: format!("harmonic {k}"),
                     size: amp,
-                    z,
+                    z: amp / se,
                 });
             }
             let (b, z) = slope(&g.tau, r, sigma);
@@ -91,7 +73,7 @@ pub fn locate(data: &Data, fit: &Fit) -> Vec<Finding> {
                 size: b,
                 z: z.abs(),
             });
-            if data.temperature_varies() {
+            if temperature {
                 let (b, z) = slope(&g.temp, r, sigma);
                 out.push(Finding {
                     at: at.clone(),

@@ -142,6 +142,8 @@ pub struct Step {
 pub struct Analysis {
     /// The noise floor.
     pub noise_sigma: NoiseSigma,
+    /// The significance each test had to beat.
+    pub alpha: f64,
     /// The papers' model.
     pub baseline: Goodness,
     /// Where the baseline's gap lies, largest first.
@@ -406,14 +408,14 @@ pub fn analyse(data: Data, noise: NoiseSigma, alpha: f64) -> Result<Analysis, St
     let n = (data.rows() * 3) as f64;
     let (candidates, untestable) = applicable(&data);
     let baseline = model::fit(&data, &[], None)?;
+    let intrinsic_baseline = intrinsic_per_rate(&data, &baseline);
     let mut findings = locate::locate(&data, &baseline);
-    findings.extend(locate::angles_against_rate(&intrinsic_per_rate(
-        &data, &baseline,
-    )));
+    findings.extend(locate::angles_against_rate(&intrinsic_baseline));
     findings.sort_by(|a, b| b.z.total_cmp(&a.z));
     let mut current = baseline.clone();
     let mut fits = vec![baseline.clone()];
     let mut steps = Vec::new();
+    let mut intrinsic_now = intrinsic_baseline.clone();
     let last_candidates = loop {
         let mut tests = Vec::new();
         let mut best: Option<(Criterion, Fit, Effect)> = None;
@@ -443,9 +445,13 @@ pub fn analyse(data: Data, noise: NoiseSigma, alpha: f64) -> Result<Analysis, St
             chi2_dof: with.chi2_dof(),
             rms_residual: with.rms_all(),
             candidates: tests,
-            intrinsic_before: intrinsic_per_rate(&data, &current),
+            intrinsic_before: std::mem::take(&mut intrinsic_now),
             intrinsic_after: intrinsic_per_rate(&data, &with),
         });
+        intrinsic_now = steps
+            .last()
+            .map(|s| s.intrinsic_after.clone())
+            .unwrap_or_default();
         fits.push(with.clone());
         current = with;
     };
@@ -456,8 +462,9 @@ pub fn analyse(data: Data, noise: NoiseSigma, alpha: f64) -> Result<Analysis, St
         .collect();
     Ok(Analysis {
         final_parameters,
-        intrinsic_baseline: intrinsic_per_rate(&data, &baseline),
-        intrinsic_final: intrinsic_per_rate(&data, &current),
+        alpha,
+        intrinsic_baseline,
+        intrinsic_final: intrinsic_now,
         noise_sigma: noise,
         baseline: Goodness::of(&baseline),
         findings,

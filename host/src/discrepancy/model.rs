@@ -373,7 +373,7 @@ pub fn fit(data: &Data, effects: &[Effect], start: Option<&Params>) -> Result<Fi
         };
         let step = gauss_newton_step(data, &p, &layout, s)?;
         apply(&mut p, &layout, &step);
-        let chi2 = step.chi2_after_hint;
+        let chi2 = step.chi2_before;
         let done = iter > 0 && (last_chi2 - chi2).abs() <= 1e-9 * chi2.max(1.0);
         last_chi2 = chi2;
         result = Some(step);
@@ -458,7 +458,7 @@ struct Step {
     delta: Option<f64>,
     cov: [DMatrix<f64>; 3],
     delta_var: Option<f64>,
-    chi2_after_hint: f64,
+    chi2_before: f64,
 }
 
 fn gauss_newton_step(data: &Data, p: &Params, l: &Layout, s: [f64; 3]) -> Result<Step, String> {
@@ -466,7 +466,8 @@ fn gauss_newton_step(data: &Data, p: &Params, l: &Layout, s: [f64; 3]) -> Result
     let with_delta = p.delta.is_some();
     // Per channel: QR of the weighted Jacobian; projections for the Schur complement.
     struct Chan {
-        qr: nalgebra::linalg::QR<f64, nalgebra::Dyn, nalgebra::Dyn>,
+        q: DMatrix<f64>,
+        rr: DMatrix<f64>,
         r: DVector<f64>,
         z: DVector<f64>,
     }
@@ -518,14 +519,15 @@ fn gauss_newton_step(data: &Data, p: &Params, l: &Layout, s: [f64; 3]) -> Result
             }
         }
         let qr = x.qr();
+        let q = qr.q();
         if with_delta {
-            let q = qr.q();
             let zp = &z - &q * (q.transpose() * &z);
             let rp = &r - &q * (q.transpose() * &r);
             zz += zp.dot(&zp);
             zr += zp.dot(&rp);
         }
-        chans.push(Chan { qr, r, z });
+        let rr = qr.r();
+        chans.push(Chan { q, rr, r, z });
     }
     let delta = with_delta.then(|| if zz > 0.0 { zr / zz } else { 0.0 });
     let delta_var = with_delta.then(|| if zz > 0.0 { 1.0 / zz } else { f64::INFINITY });
@@ -536,16 +538,13 @@ fn gauss_newton_step(data: &Data, p: &Params, l: &Layout, s: [f64; 3]) -> Result
             Some(d) => &c.r - &c.z * d,
             None => c.r.clone(),
         };
-        let rr = c.qr.r();
-        let qt = c.qr.q().transpose();
+        let undetermined = "the model's parameters are not all determined by the data";
+        let qt = c.q.transpose();
+        let rr = &c.rr;
+        let mut cj = crate::batch::unscaled_cov(rr).map_err(|_| undetermined)?;
         let beta = rr
             .solve_upper_triangular(&(&qt * &rhs))
-            .ok_or("the model's parameters are not all determined by the data")?;
-        let rinv = rr
-            .clone()
-            .try_inverse()
-            .ok_or("the model's parameters are not all determined by the data")?;
-        let mut cj = &rinv * rinv.transpose();
+            .ok_or(undetermined)?;
         if let Some(v) = delta_var {
             let wv = rr.solve_upper_triangular(&(&qt * &c.z)).ok_or("singular")?;
             cj += &wv * wv.transpose() * v;
@@ -558,7 +557,7 @@ fn gauss_newton_step(data: &Data, p: &Params, l: &Layout, s: [f64; 3]) -> Result
         delta,
         cov,
         delta_var,
-        chi2_after_hint: chi2,
+        chi2_before: chi2,
     })
 }
 

@@ -75,7 +75,11 @@ pub fn render(a: &Analysis) -> String {
         a.baseline.chi2_dof, a.baseline.rms_residual
     );
     if !a.findings.is_empty() {
-        let _ = writeln!(o, "Where the baseline disagrees (z > 5, largest first):");
+        let _ = writeln!(
+            o,
+            "Where the baseline disagrees (z > {}, largest first):",
+            super::locate::Z_LIST
+        );
         for f in a.findings.iter().take(10) {
             let _ = writeln!(o, "  {}: {} {:.4} (z = {:.0})", f.at, f.what, f.size, f.z);
         }
@@ -97,7 +101,7 @@ pub fn render(a: &Analysis) -> String {
     let _ = writeln!(
         o,
         "Not demanded (p ≥ {}): {}",
-        super::ALPHA,
+        a.alpha,
         a.last_candidates
             .iter()
             .map(|c| format!("{} p = {:.2}", c.effect, c.p_value))
@@ -157,19 +161,25 @@ pub fn write(a: &Analysis, dir: &Path, units: &str) -> Result<PathBuf, ReportErr
     md.push_str("```\n\n## Residuals before and after\n\n");
     let last = a.fits.len().saturating_sub(1);
     // The three groups where the baseline misses most.
-    let mut order: Vec<usize> = (0..a.data.groups.len()).collect();
-    let worst = |gi: &usize| -> f64 {
-        a.fits.first().map_or(0.0, |f| {
-            f.residuals[*gi]
+    let mut order: Vec<(f64, usize)> = a
+        .fits
+        .first()
+        .map(|f| {
+            f.residuals
                 .iter()
-                .flatten()
-                .map(|r| r * r)
-                .sum::<f64>()
-                / f.residuals[*gi][0].len().max(1) as f64
+                .enumerate()
+                .map(|(gi, r)| {
+                    let n = r.iter().map(Vec::len).sum::<usize>().max(1);
+                    (
+                        r.iter().flatten().map(|x| x * x).sum::<f64>() / n as f64,
+                        gi,
+                    )
+                })
+                .collect()
         })
-    };
-    order.sort_by(|x, y| worst(y).total_cmp(&worst(x)));
-    for gi in order.into_iter().take(3) {
+        .unwrap_or_default();
+    order.sort_by(|x, y| y.0.total_cmp(&x.0));
+    for gi in order.into_iter().map(|(_, gi)| gi).take(3) {
         for (fit, label) in [(0, "baseline"), (last, "final")] {
             let Some(s) = series(a, gi, fit, label) else {
                 continue;

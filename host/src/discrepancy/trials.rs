@@ -82,7 +82,11 @@ pub fn analyse(toml: &str, seed: u64) -> Result<Analysis, String> {
 /// One trial: `effects` at their magnitudes, hidden in their base.
 pub fn trial(effects: &[(Effect, f64)], seed: u64) -> Result<Analysis, String> {
     let multi = effects.iter().any(|(e, _)| *e == Effect::Centripetal);
-    let mut toml = String::from(if multi { MULTI_RATE } else { SINGLE_RATE });
+    let mut toml = String::from(base(if multi {
+        Effect::Centripetal
+    } else {
+        Effect::RateError
+    }));
     for &(e, m) in effects {
         toml.push_str(&injection(e, m).0);
     }

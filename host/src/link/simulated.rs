@@ -13,7 +13,7 @@ use crate::simulate::Simulation;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rotacal_shared::device::{Config, Device, RING};
-use rotacal_shared::packet::{Chip, Packet, MAX_PACKET};
+use rotacal_shared::packet::{Chip, Packet};
 use rotacal_shared::Condition;
 use std::collections::VecDeque;
 use std::time::Duration;
@@ -169,9 +169,7 @@ impl SimulatedDevice {
     }
 
     fn encode(&self, p: &Packet) -> Vec<u8> {
-        let mut buf = [0u8; MAX_PACKET];
-        let n = p.encode(&mut buf).unwrap_or(0);
-        let mut v = buf.get(..n).unwrap_or(&[]).to_vec();
+        let mut v = crate::acquire::encode(p);
         if let (Some(b), Some(ver)) = (v.first_mut(), self.faults.protocol_version) {
             *b = ver;
         }
