@@ -82,6 +82,9 @@ pub struct IntrinsicJson {
     pub offset: Option<Uvw>,
 }
 
+/// Names of the six intrinsic properties, in [`IntrinsicJson::quantities`] order.
+pub const PROPERTY_NAMES: [&str; 6] = ["s_u", "s_v", "s_w", "φ_uv", "φ_vw", "φ_wu"];
+
 impl IntrinsicJson {
     /// s_u, s_v, s_w, φ_uv, φ_vw, φ_wu, then O_u, O_v, O_w when present.
     pub fn quantities(&self) -> Vec<&Quantity> {

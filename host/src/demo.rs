@@ -319,7 +319,7 @@ pub fn render(d: &Demo) -> String {
         "{:<5} {:>22} {:>9} {:>8} {:>20} {:>9} {:>20}",
         "", "rotacal", "truth", "|err|/U", "seed 000 (10 mHz)", "U ratio", "phase method"
     );
-    let names = ["s_u", "s_v", "s_w", "φ_uv", "φ_vw", "φ_wu"];
+    let names = crate::calibration_file::PROPERTY_NAMES;
     let phase = r
         .angle_deg_phase_method
         .as_ref()

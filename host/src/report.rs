@@ -437,7 +437,7 @@ pub fn write(rec: &Recording, opts: &Options, dir: &Path) -> Result<PathBuf, Rep
             .unwrap_or_else(|| "Static".into());
         let _ = writeln!(md, "## {heading}\n");
         let _ = writeln!(md, "| property | value ± U (k = 2) |\n| --- | --- |");
-        let names = ["s_u", "s_v", "s_w", "φ_uv", "φ_vw", "φ_wu"];
+        let names = crate::calibration_file::PROPERTY_NAMES;
         for (i, x) in props(entry).iter().enumerate() {
             let _ = writeln!(
                 md,

@@ -39,7 +39,7 @@ fn test(c: &Criterion) -> String {
 }
 
 fn moved(before: &[RateIntrinsic], after: &[RateIntrinsic], o: &mut String) {
-    let names = ["s_u", "s_v", "s_w", "φ_uv", "φ_vw", "φ_wu"];
+    let names = crate::calibration_file::PROPERTY_NAMES;
     for (b, a) in before.iter().zip(after) {
         let _ = writeln!(o, "  at {} Hz:", b.rate_hz);
         let bq = b.sensitivity.iter().chain(&b.angle_deg);
