@@ -134,13 +134,13 @@ pub struct Recorder<W: Write, F: Write> {
     fits: F,
     tick_hz: u32,
     /// Rows waiting for the first temperature (in seq order).
-    pending: Vec<Row>,
+    pending: Vec<Row<'static>>,
     /// Temperatures by the seq they were read with, °C.
     temps: BTreeMap<u32, f64>,
     /// The next seq to write; None before the first sample.
     next_seq: Option<u32>,
     /// Rows after a gap, waiting for it to be filled or given up.
-    held: BTreeMap<u32, Row>,
+    held: BTreeMap<u32, Row<'static>>,
     /// Samples known to exist up to this seq (from the device's status), so that a gap at
     /// the end of the stream shows in `missing`.
     expected_through: Option<u32>,
@@ -154,6 +154,9 @@ pub const COLUMNS: Columns = Columns {
     seq: true,
     temp_c: true,
     rate_hz: false,
+    gravity: false,
+    pose: false,
+    unc: false,
 };
 
 impl<W: Write, F: Write> Recorder<W, F> {
@@ -201,7 +204,7 @@ impl<W: Write, F: Write> Recorder<W, F> {
             .map(|(_, &t)| t)
     }
 
-    fn emit(&mut self, seq: u32, mut row: Row) -> io::Result<()> {
+    fn emit(&mut self, seq: u32, mut row: Row<'static>) -> io::Result<()> {
         match self.temp_for(seq) {
             Some(t) => {
                 row.temp_c = Some(t);
@@ -225,7 +228,7 @@ impl<W: Write, F: Write> Recorder<W, F> {
         Ok(())
     }
 
-    fn sample(&mut self, seq: u32, row: Row, replay: bool) -> io::Result<()> {
+    fn sample(&mut self, seq: u32, row: Row<'static>, replay: bool) -> io::Result<()> {
         let next = *self.next_seq.get_or_insert(seq);
         // Sequence numbers are u32 from the device's start: 8.5 years at 16 Hz, so
         // "before" is a plain comparison within one recording.

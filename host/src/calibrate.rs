@@ -6,6 +6,7 @@
 //! (`rotacal_shared::intrinsic`); and the static stepped method (seed 001).
 
 use crate::batch::{self, BatchError};
+use crate::orientation::{self, PoseError, PoseFit};
 use nalgebra::{DMatrix, DVector};
 use rotacal_shared::intrinsic::{self, ConditionFit, Estimate, Intrinsic, IntrinsicError};
 use rotacal_shared::{Condition, FitResult};
@@ -46,6 +47,8 @@ pub struct StaticCondition<'a> {
     pub angle_deg: &'a [f64],
     /// Readings u, v, w of each row.
     pub y: [&'a [f64]; 3],
+    /// 1-based file line of the first row (0: not from a file).
+    pub first_line: u64,
 }
 
 /// A fit `y = A sin α + B cos α + O` of one channel of one condition.
@@ -65,21 +68,26 @@ pub struct SineFit3 {
 #[derive(Clone, Debug)]
 pub struct StaticCalibration {
     /// Sensitivity matrix S (rows u, v, w; columns platter x, y, z), output units per
-    /// m/s², from the joint least-squares fit of S and O to all three conditions.
+    /// m/s², from the least-squares fit of S and O to the poses (`crate::orientation`).
     pub s: [[f64; 3]; 3],
     /// Standard uncertainties of S.
     pub s_std: [[f64; 3]; 3],
-    /// Offsets O_u, O_v, O_w (output units).
+    /// Offsets O_u, O_v, O_w (output units), of the chosen estimator.
     pub offsets: [Estimate; 3],
     /// Covariance of each row S_j.
     pub row_cov: [[[f64; 3]; 3]; 3],
     /// Intrinsic properties from the rows of S.
     pub intrinsic: Intrinsic,
     /// Seed 001's estimator (its eqs. 20–21): each element of S the mean of its two
-    /// duplicates, each offset the mean over the conditions. For comparison.
-    pub duplicate_average: DuplicateAverage,
-    /// Per condition (x, y, z) and channel, the sine fit of seed 001's Table 1.
-    pub fits: [[SineFit3; 3]; 3],
+    /// duplicates, each offset the mean over the conditions. For comparison; stepped
+    /// (condition, angle) records only.
+    pub duplicate_average: Option<DuplicateAverage>,
+    /// Per condition (x, y, z) and channel, the sine fit of seed 001's Table 1; stepped
+    /// records only.
+    pub fits: Option<[[SineFit3; 3]; 3]>,
+    /// The pose fit behind S and O: poses, residuals, τ, conditioning, both offset
+    /// estimators.
+    pub pose_fit: PoseFit,
 }
 
 /// Seed 001's duplicate-averaging estimator, with standard uncertainties from the fits'
@@ -104,9 +112,9 @@ pub enum StaticError {
     /// A least-squares problem failed.
     #[error("condition {0}: {1}")]
     Fit(char, BatchError),
-    /// The joint fit failed.
-    #[error("joint fit: {0}")]
-    Joint(BatchError),
+    /// The poses cannot be fitted.
+    #[error(transparent)]
+    Poses(#[from] PoseError),
     /// No intrinsic properties.
     #[error(transparent)]
     Intrinsic(#[from] IntrinsicError),
@@ -122,12 +130,14 @@ pub fn gravity_direction(condition: Condition, alpha_rad: f64) -> [f64; 3] {
     }
 }
 
-/// The static method: per channel, one least-squares fit of (S_j, O_j) to the rows of
-/// all three conditions, `y = g·S_j·ĝ(α) + O_j` (method.md §3); then intrinsic
-/// properties from the rows of S with the rows' covariances.
+/// The stepped static method (seed 001): the per-condition sine fits of its Table 1 and
+/// its duplicate-averaging estimator for comparison; the result is the fit of S and O to
+/// the poses (one per condition and table angle, `y = g·S_j·ĝ(α) + O_j`, method.md §3),
+/// then intrinsic properties from the rows of S with the rows' covariances.
 pub fn static_method(
     conds: &[StaticCondition<'_>],
     g: f64,
+    opts: orientation::Options,
 ) -> Result<StaticCalibration, StaticError> {
     let mut by_cond: [Option<&StaticCondition<'_>>; 3] = [None; 3];
     for c in conds {
@@ -171,47 +181,11 @@ pub fn static_method(
         }
     }
 
-    // Joint fit per channel: unknowns (S_jx, S_jy, S_jz, O_j).
-    let rows: usize = ordered.iter().map(|c| c.angle_deg.len()).sum();
-    let mut h = DMatrix::zeros(rows, 4);
-    let mut ys = vec![DVector::zeros(rows); 3];
-    let mut i = 0;
-    for c in ordered {
-        for (k, a) in c.angle_deg.iter().enumerate() {
-            let gd = gravity_direction(c.condition, a.to_radians());
-            for (col, v) in gd.iter().enumerate() {
-                h[(i, col)] = g * v;
-            }
-            h[(i, 3)] = 1.0;
-            for (y, col) in ys.iter_mut().zip(c.y) {
-                y[i] = col[k];
-            }
-            i += 1;
-        }
-    }
-    let joint = batch::least_squares(h, &ys).map_err(StaticError::Joint)?;
-    let mut s = [[0.0; 3]; 3];
-    let mut s_std = [[0.0; 3]; 3];
-    let mut row_cov = [[[0.0; 3]; 3]; 3];
-    let mut offsets = [Estimate {
-        value: 0.0,
-        std_unc: 0.0,
-    }; 3];
-    for (j, ch) in joint.channels.iter().enumerate() {
-        let var = ch.sigma * ch.sigma;
-        for a in 0..3 {
-            s[j][a] = ch.coef[a];
-            s_std[j][a] = ch.se[a];
-            for (b, cov) in row_cov[j][a].iter_mut().enumerate() {
-                *cov = var * joint.unscaled_cov[(a, b)];
-            }
-        }
-        offsets[j] = Estimate {
-            value: ch.coef[3],
-            std_unc: ch.se[3],
-        };
-    }
-    let intrinsic = intrinsic::from_matrix(&s, &row_cov)?;
+    let mut cal = from_poses(
+        orientation::poses_from_conditions(&ordered.map(|c| *c)),
+        g,
+        opts,
+    )?;
 
     // Seed 001 eqs. 20–21: S_jx from A of y and z, S_jy from A of x and B of z, S_jz
     // from B of x and y; offsets averaged over the three conditions.
@@ -236,17 +210,33 @@ pub fn static_method(
             std_unc: f.iter().map(|x| x.se[2].powi(2)).sum::<f64>().sqrt() / 3.0,
         }
     });
+    cal.duplicate_average = Some(DuplicateAverage {
+        s: dup_s,
+        offsets: dup_o,
+    });
+    cal.fits = Some(fits);
+    Ok(cal)
+}
+
+/// The static method from poses (any known orientations): the fit of S and O, and the
+/// intrinsic properties from the rows of S with their covariances.
+pub fn from_poses(
+    poses: Vec<orientation::Pose>,
+    g: f64,
+    opts: orientation::Options,
+) -> Result<StaticCalibration, StaticError> {
+    let fit = orientation::fit(poses, g, opts)?;
+    let (s, row_cov) = (fit.s(), fit.row_cov());
+    let intrinsic = intrinsic::from_matrix(&s, &row_cov)?;
     Ok(StaticCalibration {
         s,
-        s_std,
-        offsets,
+        s_std: fit.s_std(),
+        offsets: fit.offsets(),
         row_cov,
         intrinsic,
-        duplicate_average: DuplicateAverage {
-            s: dup_s,
-            offsets: dup_o,
-        },
-        fits,
+        duplicate_average: None,
+        fits: None,
+        pose_fit: fit,
     })
 }
 

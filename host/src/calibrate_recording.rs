@@ -9,8 +9,11 @@
 
 use crate::batch;
 use crate::calibrate::{self, StaticCondition};
-use crate::calibration_file::{self, CalibrationJson, FitJson};
+use crate::calibration_file::{self, CalibrationJson, CorrectionJson, FitJson};
+use crate::correction;
+use crate::orientation;
 use crate::recording::{Group, Method, Recording};
+use nalgebra::DMatrix;
 use rotacal_shared::{Condition, FitConfig, FitResult, Param, PhaseStep, SineFit, TickRate, Ticks};
 use std::fmt::Write as _;
 
@@ -25,6 +28,8 @@ pub struct Options {
     pub g_loc: Option<f64>,
     /// Also propagate by Monte Carlo (GUM Supplement 1) with this many trials.
     pub monte_carlo: Option<usize>,
+    /// Static data: pose weighting and offset estimator.
+    pub poses: orientation::Options,
 }
 
 /// A calibration failure, naming the file and, where it applies, the line.
@@ -190,6 +195,9 @@ pub fn calibrate(rec: &Recording, opts: &Options) -> Result<CalibrationJson, Cal
                 let cal = calibrate::rotation([fx, fy, fz], g, 0.0)
                     .map_err(|e| err(rec, None, format!("at {nominal} Hz: {e}")))?;
                 let mut entry = calibration_file::rotation_entry(nominal, &cal, json_fits);
+                let device = rotation_correction([fx, fy, fz], g)
+                    .map_err(|e| err(rec, None, format!("at {nominal} Hz: {e}")))?;
+                entry.correction = Some(CorrectionJson::new(&units, device, None));
                 if let Some(trials) = opts.monte_carlo {
                     let cf = [fx, fy, fz].map(calibrate::condition_fit);
                     let mc = calibrate::monte_carlo_rotation(&cf, g, trials, 1)
@@ -198,6 +206,24 @@ pub fn calibrate(rec: &Recording, opts: &Options) -> Result<CalibrationJson, Cal
                 }
                 by_rate.push(entry);
             }
+        }
+        Method::Static if rec.oriented.is_some() => {
+            let poses = rec
+                .oriented
+                .as_ref()
+                .map(orientation::poses_from_oriented)
+                .transpose()
+                .map_err(|e| {
+                    let line = match &e {
+                        orientation::PoseError::PoseDirection { line, .. } => Some(*line),
+                        _ => None,
+                    };
+                    err(rec, line, e.to_string())
+                })?
+                .unwrap_or_default();
+            let cal = calibrate::from_poses(poses, g, opts.poses)
+                .map_err(|e| err(rec, None, e.to_string()))?;
+            by_rate.push(static_json(rec, &cal, opts, &units)?);
         }
         Method::Static => {
             let mut conds = Vec::new();
@@ -213,17 +239,12 @@ pub fn calibrate(rec: &Recording, opts: &Options) -> Result<CalibrationJson, Cal
                     condition: grp.condition,
                     angle_deg: &grp.angle_deg,
                     y: [&grp.u, &grp.v, &grp.w],
+                    first_line: grp.first_line,
                 });
             }
-            let cal =
-                calibrate::static_method(&conds, g).map_err(|e| err(rec, None, e.to_string()))?;
-            let mut entry = calibration_file::static_entry(&cal);
-            if let Some(trials) = opts.monte_carlo {
-                let mc = calibrate::monte_carlo_static(&cal, trials, 1)
-                    .map_err(|e| err(rec, None, format!("Monte Carlo: {e}")))?;
-                entry.monte_carlo = Some(calibration_file::mc_map(mc));
-            }
-            by_rate.push(entry);
+            let cal = calibrate::static_method(&conds, g, opts.poses)
+                .map_err(|e| err(rec, None, e.to_string()))?;
+            by_rate.push(static_json(rec, &cal, opts, &units)?);
         }
     }
     Ok(CalibrationJson {
@@ -232,6 +253,162 @@ pub fn calibrate(rec: &Recording, opts: &Options) -> Result<CalibrationJson, Cal
         units,
         by_rate,
     })
+}
+
+fn static_json(
+    rec: &Recording,
+    cal: &calibrate::StaticCalibration,
+    opts: &Options,
+    units: &str,
+) -> Result<calibration_file::RateJson, CalibrateError> {
+    let mut entry = calibration_file::static_entry(cal);
+    if let Some(trials) = opts.monte_carlo {
+        let mc = calibrate::monte_carlo_static(cal, trials, 1)
+            .map_err(|e| err(rec, None, format!("Monte Carlo: {e}")))?;
+        entry.monte_carlo = Some(calibration_file::mc_map(mc));
+    }
+    let (device, platter) = static_correction(cal).map_err(|e| err(rec, None, e.to_string()))?;
+    entry.correction = Some(CorrectionJson::new(units, device, Some(platter)));
+    Ok(entry)
+}
+
+/// Both corrections of a static calibration. The covariance of (S, O) is the pose fit's,
+/// channel by channel; imucal's offsets are taken as uncorrelated with S (with balanced
+/// up/down poses their correlation is zero).
+pub fn static_correction(
+    cal: &calibrate::StaticCalibration,
+) -> Result<(correction::Correction, correction::Correction), correction::CorrectionError> {
+    let mut cov = DMatrix::zeros(correction::PARAMS, correction::PARAMS);
+    let joint = cal.pose_fit.options.offsets == orientation::OffsetEstimator::Joint;
+    for (j, ch) in cal.pose_fit.channels.iter().enumerate() {
+        let idx = |a: usize| if a < 3 { 3 * j + a } else { 9 + j };
+        for a in 0..4 {
+            for b in 0..4 {
+                if joint || (a < 3 && b < 3) {
+                    cov[(idx(a), idx(b))] = ch.cov[a][b];
+                }
+            }
+        }
+        if !joint {
+            cov[(9 + j, 9 + j)] = cal.offsets[j].std_unc.powi(2);
+        }
+    }
+    correction::from_matrix(&cal.s, cal.offsets.map(|o| o.value), &cov)
+}
+
+/// The device-frame correction of a rotation calibration: M from the Gram matrix of the
+/// three conditions' (A, B) (method.md §2) with their covariances; O_j the mean of the
+/// three conditions' C_j (over whole turns the mean of ĝ is zero, so C_j = O_j).
+pub fn rotation_correction(
+    fits: [&FitResult<f64>; 3],
+    g: f64,
+) -> Result<correction::Correction, correction::CorrectionError> {
+    let cf = fits.map(calibrate::condition_fit);
+    let mut theta = Vec::with_capacity(18);
+    let mut cov = DMatrix::zeros(18, 18);
+    for (c, f) in cf.iter().enumerate() {
+        for j in 0..3 {
+            let base = 6 * c + 2 * j;
+            theta.extend([f.a[j], f.b[j]]);
+            for a in 0..2 {
+                for b in 0..2 {
+                    cov[(base + a, base + b)] = f.cov[j][a][b];
+                }
+            }
+        }
+    }
+    let gram = move |t: &[f64]| -> Option<[[f64; 3]; 3]> {
+        let mut gm = [[0.0; 3]; 3];
+        for c in 0..3 {
+            for (j, row) in gm.iter_mut().enumerate() {
+                for (k, x) in row.iter_mut().enumerate() {
+                    let (aj, bj) = (t.get(6 * c + 2 * j)?, t.get(6 * c + 2 * j + 1)?);
+                    let (ak, bk) = (t.get(6 * c + 2 * k)?, t.get(6 * c + 2 * k + 1)?);
+                    *x += (aj * ak + bj * bk) / (2.0 * g * g);
+                }
+            }
+        }
+        Some(gm)
+    };
+    let mut offset = [0.0; 3];
+    let mut offset_std = [0.0; 3];
+    for j in 0..3 {
+        let cs: Vec<(f64, f64)> = fits
+            .iter()
+            .map(|r| {
+                (
+                    r.coef(j, Param::C).map(|v| v.to_f64()).unwrap_or(f64::NAN),
+                    r.se(j, Param::C).unwrap_or(f64::NAN),
+                )
+            })
+            .collect();
+        offset[j] = cs.iter().map(|c| c.0).sum::<f64>() / 3.0;
+        offset_std[j] = cs.iter().map(|c| c.1 * c.1).sum::<f64>().sqrt() / 3.0;
+    }
+    correction::from_gram(&gram, &theta, &cov, offset, offset_std)
+}
+
+fn render_poses(p: &calibration_file::PosesJson, units: &str) -> String {
+    let mut o = String::new();
+    let _ = writeln!(
+        o,
+        "  {} poses, condition number {:.2}; weights {}; between-pose scatter τ = {:.2e} {:.2e} {:.2e} {units}",
+        p.list.len(),
+        p.condition_number,
+        match p.weights {
+            orientation::Weights::RandomEffects => "1/(se² + τ²)",
+            orientation::Weights::Equal => "equal",
+        },
+        p.tau[0],
+        p.tau[1],
+        p.tau[2]
+    );
+    if let Some(s) = &p.suggestion {
+        let _ = writeln!(
+            o,
+            "  WARNING: poorly conditioned (> {}): add a pose with gravity along {s}",
+            orientation::WELL_CONDITIONED
+        );
+    }
+    if !p.not_still.is_empty() {
+        let _ = writeln!(
+            o,
+            "  WARNING: not still (std > {}× the median pose's): {}",
+            orientation::NOT_STILL_FACTOR,
+            p.not_still.join(", ")
+        );
+    }
+    let _ = writeln!(
+        o,
+        "    {:<12} {:>9} {:>6}  {:<26}  {:<29}",
+        "pose", "ĝ", "n", "std u v w (how still)", "residual u v w (mean − model)"
+    );
+    for q in &p.list {
+        let std = q
+            .std
+            .map(|s| format!("{:.2e} {:.2e} {:.2e}", s[0], s[1], s[2]))
+            .unwrap_or_else(|| "single reading".into());
+        let _ = writeln!(
+            o,
+            "    {:<12} {:>9} {:>6}  {:<26}  {:+.2e} {:+.2e} {:+.2e}",
+            q.name,
+            orientation::direction_name(&q.gravity),
+            q.n,
+            std,
+            q.residual[0],
+            q.residual[1],
+            q.residual[2]
+        );
+    }
+    if let (Some(d), Some(a)) = (p.offsets_difference, &p.offsets_axis_pairs) {
+        let _ = writeln!(
+            o,
+            "  offsets, joint fit − up/down pair of each axis (imucal's): {:+.6} {:+.6} {:+.6} {units} \
+             (axis pairs: {:.6} {:.6} {:.6})",
+            d[0], d[1], d[2], a.u.value, a.v.value, a.w.value
+        );
+    }
+    o
 }
 
 /// Decimal places that show `u` to two significant digits (at most 12).
@@ -248,7 +425,7 @@ pub fn render(c: &CalibrationJson) -> String {
     let su = format!("{} per m/s²", c.units);
     let _ = writeln!(
         o,
-        "method {}, g_loc = {} m/s²; ± is the expanded uncertainty U (k = 2)",
+        "method {}, g_loc = {} m/s²; ± is the expanded uncertainty U (95 %, k = 2 unless stated)",
         c.method, c.g_loc
     );
     for r in &c.by_rate {
@@ -257,6 +434,18 @@ pub fn render(c: &CalibrationJson) -> String {
             .map(|f| format!("rotation at {f} Hz"))
             .unwrap_or_else(|| "static".into());
         let _ = writeln!(o, "\n{rate}");
+        if let Some(p) = &r.poses {
+            if (p.k - calibration_file::K).abs() > 1e-12 {
+                let nu = p.nu.iter().fold(f64::INFINITY, |a, b| a.min(*b));
+                let _ = writeln!(
+                    o,
+                    "  k = {:.2}: Student's t for ν = {nu} (the poses' scatter about the model \
+                     is estimated from {} poses − 4)",
+                    p.k,
+                    p.list.len()
+                );
+            }
+        }
         let q = |name: &str, x: &calibration_file::Quantity, unit: &str| {
             let d = decimals(x.expanded_unc);
             format!(
@@ -276,6 +465,23 @@ pub fn render(c: &CalibrationJson) -> String {
             o += &q("O_u", &off.u, &c.units);
             o += &q("O_v", &off.v, &c.units);
             o += &q("O_w", &off.w, &c.units);
+        }
+        if let Some(p) = &r.poses {
+            o += &render_poses(p, &c.units);
+        }
+        if let Some(cj) = &r.correction {
+            let d = &cj.device_frame;
+            let _ = writeln!(
+                o,
+                "  correction a = M·(y − O) to m/s² (device frame; JSON 'correction'; rotacal apply/export):"
+            );
+            for (i, row) in d.matrix.iter().enumerate() {
+                let _ = writeln!(
+                    o,
+                    "    M[{i}] = [{:+.8} {:+.8} {:+.8}]  O[{i}] = {:+.6} {}",
+                    row[0], row[1], row[2], d.offset[i], cj.units_in
+                );
+            }
         }
         if let Some(p) = &r.angle_deg_phase_method {
             let _ = writeln!(o, "  phase-difference angles (seed 000 eqs. 12–16, for comparison; biased when tilted):");

@@ -3,6 +3,8 @@
 //! added, never renamed or removed).
 
 use crate::calibrate::{RotationCalibration, StaticCalibration};
+use crate::correction::Correction;
+use crate::orientation::{self, OffsetEstimator, Weights};
 use rotacal_shared::intrinsic::Estimate;
 use serde::Serialize;
 
@@ -55,19 +57,152 @@ pub struct Pairs {
     pub wu: Quantity,
 }
 
-fn uvw(e: [Estimate; 3]) -> Uvw {
-    Uvw {
-        u: e[0].into(),
-        v: e[1].into(),
-        w: e[2].into(),
+impl Quantity {
+    /// With coverage factor `k`.
+    pub fn with_k(e: Estimate, k: f64) -> Self {
+        Quantity {
+            value: e.value,
+            std_unc: e.std_unc,
+            expanded_unc: k * e.std_unc,
+            k,
+        }
     }
 }
 
+fn uvw(e: [Estimate; 3]) -> Uvw {
+    uvw_k(e, K)
+}
+
+fn uvw_k(e: [Estimate; 3], k: f64) -> Uvw {
+    let [u, v, w] = e.map(|e| Quantity::with_k(e, k));
+    Uvw { u, v, w }
+}
+
 fn pairs(e: [Estimate; 3]) -> Pairs {
-    Pairs {
-        uv: e[0].into(),
-        vw: e[1].into(),
-        wu: e[2].into(),
+    pairs_k(e, K)
+}
+
+fn pairs_k(e: [Estimate; 3], k: f64) -> Pairs {
+    let [uv, vw, wu] = e.map(|e| Quantity::with_k(e, k));
+    Pairs { uv, vw, wu }
+}
+
+/// `correction` (an extension of formats.md): how to turn readings into m/s².
+#[derive(Clone, Debug, Serialize, serde::Deserialize, PartialEq)]
+pub struct CorrectionJson {
+    /// [`crate::correction::CONVENTION`], in the file itself.
+    pub convention: String,
+    /// The readings' units.
+    pub units_in: String,
+    /// Always `m/s^2`.
+    pub units_out: String,
+    /// The device's orthonormal frame.
+    pub device_frame: Correction,
+    /// The platter frame (static data only).
+    pub platter_frame: Option<Correction>,
+}
+
+impl CorrectionJson {
+    /// Both frames with the convention stated.
+    pub fn new(units_in: &str, device: Correction, platter: Option<Correction>) -> Self {
+        CorrectionJson {
+            convention: crate::correction::CONVENTION.to_string(),
+            units_in: units_in.to_string(),
+            units_out: "m/s^2".to_string(),
+            device_frame: device,
+            platter_frame: platter,
+        }
+    }
+}
+
+/// One pose in `poses.list`.
+#[derive(Clone, Debug, Serialize)]
+pub struct PoseJson {
+    /// Name.
+    pub name: String,
+    /// ĝ in the platter frame.
+    pub gravity: [f64; 3],
+    /// Readings averaged.
+    pub n: usize,
+    /// Mean u, v, w.
+    pub mean: [f64; 3],
+    /// Standard deviation of the readings (how still); null for one reading.
+    pub std: Option<[f64; 3]>,
+    /// Standard error of the mean.
+    pub std_err: Option<[f64; 3]>,
+    /// Mean minus model.
+    pub residual: [f64; 3],
+    /// File line of its first reading (0: not from a file).
+    pub first_line: u64,
+}
+
+/// `poses` (static only; an extension of formats.md): the fit of S and O to the poses.
+#[derive(Clone, Debug, Serialize)]
+pub struct PosesJson {
+    /// `random-effects` or `equal`.
+    pub weights: Weights,
+    /// The offsets reported in `intrinsic.offset`: `joint` or `axis-pairs`.
+    pub offset_estimator: OffsetEstimator,
+    /// Poses − 4.
+    pub dof: usize,
+    /// Coverage factor of this entry's expanded uncertainties.
+    pub k: f64,
+    /// Degrees of freedom behind each channel's variance.
+    pub nu: [f64; 3],
+    /// Between-pose scatter per channel (output units).
+    pub tau: [f64; 3],
+    /// χ²/dof of the pose means with their own noise only, per channel.
+    pub chi2_dof_noise_only: [Option<f64>; 3],
+    /// Condition number of the design (ĝ, 1).
+    pub condition_number: f64,
+    /// When poorly conditioned, the orientation to add.
+    pub suggestion: Option<String>,
+    /// Poses much less still than the median.
+    pub not_still: Vec<String>,
+    /// Offsets of the joint fit.
+    pub offsets_joint: Uvw,
+    /// imucal's estimator (up/down pair of each channel's own axis), when the six axis
+    /// poses are there.
+    pub offsets_axis_pairs: Option<Uvw>,
+    /// joint − axis pairs: how far the real poses depart from the model.
+    pub offsets_difference: Option<[f64; 3]>,
+    /// The poses.
+    pub list: Vec<PoseJson>,
+}
+
+fn poses_json(f: &orientation::PoseFit) -> PosesJson {
+    let finite = |x: f64| x.is_finite().then_some(x);
+    PosesJson {
+        weights: f.options.weights,
+        offset_estimator: f.options.offsets,
+        dof: f.dof,
+        k: f.k,
+        nu: f.channels.map(|c| c.nu),
+        tau: f.channels.map(|c| c.tau),
+        chi2_dof_noise_only: f.channels.map(|c| finite(c.chi2_dof_noise_only)),
+        condition_number: f.conditioning.condition_number,
+        suggestion: f.conditioning.suggestion.clone(),
+        not_still: f.not_still.clone(),
+        offsets_joint: uvw_k(f.offsets_joint, f.k),
+        offsets_axis_pairs: f.offsets_axis_pairs.map(|o| uvw_k(o, f.k)),
+        offsets_difference: f
+            .offsets_axis_pairs
+            .map(|o| [0, 1, 2].map(|j| f.offsets_joint[j].value - o[j].value)),
+        list: f
+            .poses
+            .iter()
+            .zip(&f.residuals)
+            .map(|(q, r)| PoseJson {
+                name: q.name.clone(),
+                gravity: q.gravity,
+                n: q.n,
+                mean: q.mean,
+                std: q.std,
+                std_err: q.std.map(|_| q.se()),
+                residual: *r,
+                first_line: q.first_line,
+            })
+            .collect(),
     }
 }
 
@@ -156,6 +291,12 @@ pub struct RateJson {
     /// propagation of the same inputs, keyed s_u, s_v, s_w, phi_uv, phi_vw, phi_wu.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub monte_carlo: Option<std::collections::BTreeMap<String, crate::calibrate::McSummary>>,
+    /// An extension of formats.md: how to apply the calibration (`rotacal apply`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub correction: Option<CorrectionJson>,
+    /// An extension of formats.md, static only: the poses and their fit.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub poses: Option<PosesJson>,
 }
 
 /// Keys of the Monte Carlo summaries, in output order.
@@ -194,13 +335,15 @@ pub fn rotation_entry(rate_hz: f64, cal: &RotationCalibration, fits: Vec<FitJson
         sensitivity_matrix: None,
         fits,
         monte_carlo: None,
+        correction: None,
+        poses: None,
     }
 }
 
 /// The `by_rate` entry of a static calibration.
 pub fn static_entry(cal: &StaticCalibration) -> RateJson {
     let mut fits = Vec::new();
-    for (cond, per_ch) in ['x', 'y', 'z'].iter().zip(&cal.fits) {
+    for (cond, per_ch) in ['x', 'y', 'z'].iter().zip(cal.fits.iter().flatten()) {
         for (ch, f) in ['u', 'v', 'w'].iter().zip(per_ch) {
             fits.push(FitJson {
                 condition: cond.to_string(),
@@ -217,12 +360,13 @@ pub fn static_entry(cal: &StaticCalibration) -> RateJson {
             });
         }
     }
+    let k = cal.pose_fit.k;
     RateJson {
         rate_hz: None,
         intrinsic: IntrinsicJson {
-            sensitivity: uvw(cal.intrinsic.sensitivity),
-            angle_deg: pairs(cal.intrinsic.angle_deg),
-            offset: Some(uvw(cal.offsets)),
+            sensitivity: uvw_k(cal.intrinsic.sensitivity, k),
+            angle_deg: pairs_k(cal.intrinsic.angle_deg, k),
+            offset: Some(uvw_k(cal.offsets, k)),
         },
         angle_deg_phase_method: None,
         sensitivity_matrix: Some(MatrixJson {
@@ -231,5 +375,7 @@ pub fn static_entry(cal: &StaticCalibration) -> RateJson {
         }),
         fits,
         monte_carlo: None,
+        correction: None,
+        poses: Some(poses_json(&cal.pose_fit)),
     }
 }

@@ -6,6 +6,12 @@
 //! or runs of spaces (detected per line). Empty lines and lines starting with `#` are
 //! skipped, as are the first `skip` lines (headers). Lines are read and written one at a
 //! time. Every problem names the file and line.
+//!
+//! Static sessions from known orientations (six-position and the like) come with a section
+//! list (imucal's JSON: `{"x_p": {"start": 540, "end": 1271}, ...}`, data-row positions
+//! counted from 0 after the skipped lines, `start` inclusive and `end` exclusive) and a
+//! pose map that gives each section's gravity direction (`x_p=+x,x_a=-x,...`). Rows in
+//! mapped sections are written with `pose, gx, gy, gz`; other rows are left out.
 
 use crate::recording::{Columns, Metadata, Method, Row, Writer};
 use rotacal_shared::Condition;
@@ -93,6 +99,129 @@ pub struct ImportSpec {
     pub time_scale: f64,
     /// Metadata to write.
     pub meta: Metadata,
+    /// Sections and their gravity directions (static data from known orientations).
+    pub poses: Option<PoseSections>,
+}
+
+/// A section list with a pose map: which data rows belong to which pose, and the pose's
+/// gravity direction (of the reading, in the platter frame).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct PoseSections {
+    /// (name, first data row, one past the last), in file order of the list.
+    pub sections: Vec<(String, usize, usize)>,
+    /// (section name, ĝ) for the sections to import.
+    pub map: Vec<(String, [f64; 3])>,
+}
+
+impl PoseSections {
+    /// Read a section list (imucal's JSON) from `text`; `source` names it in messages.
+    pub fn sections_from_json(
+        text: &str,
+        source: &str,
+    ) -> Result<Vec<(String, usize, usize)>, ImportError> {
+        let bad = |message: String| ImportError {
+            source_name: source.to_string(),
+            line: None,
+            message,
+        };
+        let v: serde_json::Value = serde_json::from_str(text).map_err(|e| ImportError {
+            source_name: source.to_string(),
+            line: Some(e.line()),
+            message: format!("not a JSON section list: {e}"),
+        })?;
+        let obj = v.as_object().ok_or_else(|| {
+            bad(
+                "expected an object of sections: {\"name\": {\"start\": N, \"end\": M}, ...}"
+                    .into(),
+            )
+        })?;
+        let mut out = Vec::new();
+        for (name, sec) in obj {
+            let idx = |key: &str| -> Result<usize, ImportError> {
+                let x = sec
+                    .get(key)
+                    .ok_or_else(|| bad(format!("section '{name}': no '{key}'")))?;
+                x.as_u64()
+                    .and_then(|n| usize::try_from(n).ok())
+                    .ok_or_else(|| {
+                        bad(format!(
+                            "section '{name}': '{key}' {x} is not a row index (a whole number ≥ 0)"
+                        ))
+                    })
+            };
+            let (start, end) = (idx("start")?, idx("end")?);
+            if end <= start {
+                return Err(bad(format!(
+                    "section '{name}': end {end} is not after start {start}"
+                )));
+            }
+            out.push((name.clone(), start, end));
+        }
+        if out.is_empty() {
+            return Err(bad("no sections".into()));
+        }
+        let mut sorted = out.clone();
+        sorted.sort_by_key(|s| s.1);
+        for w in sorted.windows(2) {
+            if let [a, b] = w {
+                if b.1 < a.2 {
+                    return Err(bad(format!("sections '{}' and '{}' overlap", a.0, b.0)));
+                }
+            }
+        }
+        Ok(out)
+    }
+
+    /// Parse a pose map: `NAME=DIR,...` where DIR is `+x`, `-x`, `+y`, `-y`, `+z`, `-z`
+    /// (the axis that reads +g or −g) or a unit vector `gx:gy:gz`.
+    pub fn map_from_str(s: &str) -> Result<Vec<(String, [f64; 3])>, String> {
+        let mut out: Vec<(String, [f64; 3])> = Vec::new();
+        for part in s.split(',').map(str::trim).filter(|p| !p.is_empty()) {
+            let (name, dir) = part
+                .split_once('=')
+                .ok_or_else(|| format!("'{part}': expected NAME=DIRECTION, e.g. x_p=+x"))?;
+            let (name, dir) = (name.trim(), dir.trim());
+            let g = match dir {
+                "+x" | "x" => [1.0, 0.0, 0.0],
+                "-x" => [-1.0, 0.0, 0.0],
+                "+y" | "y" => [0.0, 1.0, 0.0],
+                "-y" => [0.0, -1.0, 0.0],
+                "+z" | "z" => [0.0, 0.0, 1.0],
+                "-z" => [0.0, 0.0, -1.0],
+                v => {
+                    let c: Vec<f64> = v
+                        .split(':')
+                        .map(|x| x.trim().parse::<f64>())
+                        .collect::<Result<_, _>>()
+                        .map_err(|_| {
+                            format!("'{part}': the direction must be ±x, ±y, ±z or gx:gy:gz")
+                        })?;
+                    let [x, y, z] = c.as_slice() else {
+                        return Err(format!(
+                            "'{part}': a vector direction has three components gx:gy:gz"
+                        ));
+                    };
+                    let norm = (x * x + y * y + z * z).sqrt();
+                    if (norm - 1.0).abs().is_nan()
+                        || (norm - 1.0).abs() > crate::recording::UNIT_TOLERANCE
+                    {
+                        return Err(format!(
+                            "'{part}': the direction must be a unit vector (length {norm})"
+                        ));
+                    }
+                    [x / norm, y / norm, z / norm]
+                }
+            };
+            if out.iter().any(|(n, _)| n == name) {
+                return Err(format!("pose '{name}' given twice"));
+            }
+            out.push((name.to_string(), g));
+        }
+        if out.is_empty() {
+            return Err("the pose map is empty".into());
+        }
+        Ok(out)
+    }
 }
 
 /// A problem, naming the place.
@@ -117,8 +246,16 @@ fn split(line: &str) -> Vec<&str> {
     }
 }
 
-/// Rows written per input.
-pub type Counts = Vec<usize>;
+/// What was written.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Counts {
+    /// Rows per input.
+    pub rows: Vec<usize>,
+    /// With a section list: rows per pose of the map, in map order.
+    pub poses: Vec<(String, usize)>,
+    /// With a section list: the sections left out (not in the pose map).
+    pub skipped_sections: Vec<String>,
+}
 
 /// Convert `inputs` (name, reader) into one recording written to `out`.
 pub fn import<W: Write>(
@@ -132,7 +269,7 @@ pub fn import<W: Write>(
         line: None,
         message,
     };
-    if c.condition.is_none() && spec.conditions.len() != inputs.len() {
+    if c.condition.is_none() && spec.poses.is_none() && spec.conditions.len() != inputs.len() {
         return Err(whole(format!(
             "{} input(s) but {} condition(s): give one --condition per input, or a condition column",
             inputs.len(),
@@ -142,22 +279,52 @@ pub fn import<W: Write>(
     if !(spec.time_scale.is_finite() && spec.time_scale > 0.0) {
         return Err(whole("--time-scale must be positive".into()));
     }
+    if let Some(p) = &spec.poses {
+        if inputs.len() != 1 {
+            return Err(whole(format!(
+                "a section list describes one input; {} given",
+                inputs.len()
+            )));
+        }
+        if c.condition.is_some() || c.angle.is_some() {
+            return Err(whole(
+                "with a section list, poses replace conditions and angles: map neither".into(),
+            ));
+        }
+        if let Some((name, _)) = p
+            .map
+            .iter()
+            .find(|(n, _)| !p.sections.iter().any(|s| &s.0 == n))
+        {
+            return Err(whole(format!(
+                "the pose map names '{name}', which the section list lacks"
+            )));
+        }
+    }
     let columns = Columns {
         t_s: c.t.is_some(),
         angle_deg: c.angle.is_some(),
         seq: c.seq.is_some(),
         temp_c: c.temp.is_some(),
         rate_hz: false,
+        gravity: spec.poses.is_some(),
+        pose: spec.poses.is_some(),
+        unc: false,
     };
     let mut meta = spec.meta.clone();
-    meta.method = meta.method.or(Some(if c.t.is_some() {
+    meta.method = meta.method.or(Some(if spec.poses.is_some() {
+        Method::Static
+    } else if c.t.is_some() {
         Method::Rotation
     } else {
         Method::Static
     }));
     let mut w = Writer::new(out, &meta, &columns).map_err(|e| whole(e.to_string()))?;
-    let mut counts = Vec::new();
+    let mut counts = Counts::default();
     let mut last_t: Vec<(Condition, f64)> = Vec::new();
+    // With a section list: rows per mapped section, and the data-row position.
+    let mut per_pose = vec![0usize; spec.poses.as_ref().map_or(0, |p| p.map.len())];
+    let mut data_row = 0usize;
     for (k, (name, reader)) in inputs.into_iter().enumerate() {
         let mut n = 0;
         for (i, line) in reader.lines().enumerate() {
@@ -171,6 +338,17 @@ pub fn import<W: Write>(
             let trimmed = line.trim();
             if i < spec.skip || trimmed.is_empty() || trimmed.starts_with('#') {
                 continue;
+            }
+            // The pose of this data row, if a section list is given.
+            let mut pose: Option<(&str, [f64; 3], usize)> = None;
+            if let Some(p) = &spec.poses {
+                let at = data_row;
+                data_row += 1;
+                let section = p.sections.iter().find(|s| (s.1..s.2).contains(&at));
+                match section.and_then(|s| p.map.iter().enumerate().find(|(_, m)| m.0 == s.0)) {
+                    Some((mi, (pname, g))) => pose = Some((pname.as_str(), *g, mi)),
+                    None => continue,
+                }
             }
             let fields = split(trimmed);
             let field = |idx: usize, what: &str| -> Result<&str, ImportError> {
@@ -191,6 +369,7 @@ pub fn import<W: Write>(
                 }
             };
             let condition = match c.condition {
+                _ if pose.is_some() => Condition::X,
                 Some(idx) => {
                     let f = field(idx, "condition")?;
                     let mut chars = f.chars();
@@ -232,8 +411,27 @@ pub fn import<W: Write>(
                         err(format!("seq (field {idx}) '{f}' is not a whole number"))
                     })?);
             }
+            if let Some((pname, g, mi)) = pose {
+                row.pose = Some(pname);
+                row.gravity = Some(g);
+                if let Some(c) = per_pose.get_mut(mi) {
+                    *c += 1;
+                }
+            }
             w.write_row(&row).map_err(|e| err(e.to_string()))?;
             n += 1;
+        }
+        if let Some(p) = &spec.poses {
+            if let Some(s) = p.sections.iter().find(|s| s.2 > data_row) {
+                return Err(ImportError {
+                    source_name: name,
+                    line: None,
+                    message: format!(
+                        "section '{}' ends at data row {} (exclusive), but the input has only {data_row} data rows",
+                        s.0, s.2
+                    ),
+                });
+            }
         }
         if n == 0 {
             return Err(ImportError {
@@ -242,8 +440,17 @@ pub fn import<W: Write>(
                 message: "no data lines".into(),
             });
         }
-        counts.push(n);
+        counts.rows.push(n);
     }
     w.flush().map_err(|e| whole(e.to_string()))?;
+    if let Some(p) = &spec.poses {
+        counts.poses = p.map.iter().map(|m| m.0.clone()).zip(per_pose).collect();
+        counts.skipped_sections = p
+            .sections
+            .iter()
+            .filter(|s| !p.map.iter().any(|m| m.0 == s.0))
+            .map(|s| s.0.clone())
+            .collect();
+    }
     Ok(counts)
 }

@@ -10,18 +10,22 @@
 //!   with gap backfill and reconnection; [`acquire`] turns its packets into files.
 //! - [`simulate`]: the forward model of the experiment that writes recordings.
 pub mod acquire;
+pub mod apply;
 pub mod batch;
 pub mod calibrate;
 pub mod calibrate_recording;
 pub mod calibration_file;
 pub mod capture;
+pub mod correction;
 pub mod crosscheck;
 pub mod demo;
 pub mod discrepancy;
+pub mod export;
 pub mod fitcheck;
 pub mod geometry;
 pub mod import;
 pub mod link;
+pub mod orientation;
 pub mod output;
 pub mod record;
 pub mod recording;

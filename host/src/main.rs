@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 mod cli;
-use cli::record;
+use cli::{import, record};
 
 #[derive(Parser)]
 #[command(name = "rotacal", version, about)]
@@ -18,6 +18,52 @@ struct Cli {
 enum MethodArg {
     Rotation,
     Static,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum WeightsArg {
+    /// 1/(se² + τ²), τ the poses' scatter beyond their noise (default).
+    RandomEffects,
+    /// Every pose equally (ordinary least squares on the pose means, as imucal).
+    Equal,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum OffsetsArg {
+    /// From the joint fit of all poses (default).
+    Joint,
+    /// imucal's: each channel's from the up/down pair of its own axis.
+    AxisPairs,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum FrameArg {
+    /// The device's orthonormal frame (x′ along u, y′ in the u-v plane).
+    Device,
+    /// The platter (pose) frame: static calibrations only.
+    Platter,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum FormatArg {
+    C,
+    Rust,
+    Json,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum PrecisionArg {
+    F32,
+    F64,
+}
+
+impl From<FrameArg> for rotacal::correction::Frame {
+    fn from(f: FrameArg) -> Self {
+        match f {
+            FrameArg::Device => Self::Device,
+            FrameArg::Platter => Self::Platter,
+        }
+    }
 }
 
 #[derive(Subcommand)]
@@ -42,6 +88,49 @@ enum Command {
         /// Check the uncertainties by Monte Carlo (GUM Supplement 1) with N trials.
         #[arg(long, value_name = "N")]
         monte_carlo: Option<usize>,
+        /// Static data: how to weight the pose means.
+        #[arg(long, value_enum, default_value = "random-effects")]
+        pose_weights: WeightsArg,
+        /// Static data: which offsets to report.
+        #[arg(long, value_enum, default_value = "joint")]
+        offsets: OffsetsArg,
+    },
+    /// Correct readings with a calibration: a = M·(y − O) in m/s², written as a recording
+    /// with each value's standard uncertainty from the calibration.
+    Apply {
+        /// The calibration JSON (`rotacal calibrate --json`).
+        calibration: PathBuf,
+        /// The recording to correct.
+        recording: PathBuf,
+        /// The corrected recording to write.
+        #[arg(long)]
+        out: PathBuf,
+        /// The frame of the result.
+        #[arg(long, value_enum, default_value = "device")]
+        frame: FrameArg,
+        /// Which calibration, when the file has several rates.
+        #[arg(long)]
+        rate_hz: Option<f64>,
+    },
+    /// The correction as constants to embed (C header, Rust module or JSON).
+    Export {
+        /// The calibration JSON (`rotacal calibrate --json`).
+        calibration: PathBuf,
+        /// Output language.
+        #[arg(long, value_enum)]
+        format: FormatArg,
+        /// The frame.
+        #[arg(long, value_enum, default_value = "device")]
+        frame: FrameArg,
+        /// Floating-point type of the constants (C and Rust).
+        #[arg(long, value_enum, default_value = "f32")]
+        precision: PrecisionArg,
+        /// Which calibration, when the file has several rates.
+        #[arg(long)]
+        rate_hz: Option<f64>,
+        /// Write here instead of standard output.
+        #[arg(long)]
+        out: Option<PathBuf>,
     },
     /// A Markdown report with SVG plots: data and fits, residuals, residual spectrum,
     /// the intrinsic properties with U (k = 2), properties against rate.
@@ -72,36 +161,9 @@ enum Command {
         #[arg(long)]
         json: Option<PathBuf>,
     },
-    /// Convert text logs (delimited columns) into a recording.
-    Import {
-        /// The logs, one per condition unless a condition column is mapped.
-        #[arg(required = true)]
-        inputs: Vec<PathBuf>,
-        /// Which field holds what, 0-based: t=0,u=1,v=2,w=3[,condition=N][,angle=N][,temp=N][,seq=N].
-        #[arg(long)]
-        columns: rotacal::import::ColumnMap,
-        /// The condition of each input, in order (x, y, z), e.g. --condition x,y,z.
-        #[arg(long, value_delimiter = ',')]
-        condition: Vec<char>,
-        /// Header lines to skip at the top of each input.
-        #[arg(long, default_value_t = 0)]
-        skip: usize,
-        /// Seconds per unit of the time column (e.g. 0.001 for milliseconds).
-        #[arg(long, default_value_t = 1.0)]
-        time_scale: f64,
-        /// Nominal rotation rate, Hz (metadata).
-        #[arg(long)]
-        rate_hz: Option<f64>,
-        /// Local gravity, m/s² (metadata).
-        #[arg(long)]
-        g_loc: Option<f64>,
-        /// Output units (metadata), e.g. counts or V.
-        #[arg(long)]
-        units: Option<String>,
-        /// The recording to write.
-        #[arg(long)]
-        out: PathBuf,
-    },
+    /// Convert text logs (delimited columns) into a recording; with a section list and a
+    /// pose map, static poses with their gravity directions.
+    Import(import::Args),
     /// Record one condition from a device over BLE (or a simulated one): the recording,
     /// its fit log (.fits.jsonl) and a capture of every value received (.capture).
     Record(record::Args),
@@ -168,7 +230,62 @@ fn main() -> ExitCode {
             g_loc,
             json,
             monte_carlo,
-        } => calibrate(file, method, rate_hz, g_loc, json, monte_carlo),
+            pose_weights,
+            offsets,
+        } => calibrate(
+            file,
+            method,
+            rate_hz,
+            g_loc,
+            json,
+            monte_carlo,
+            rotacal::orientation::Options {
+                weights: match pose_weights {
+                    WeightsArg::RandomEffects => rotacal::orientation::Weights::RandomEffects,
+                    WeightsArg::Equal => rotacal::orientation::Weights::Equal,
+                },
+                offsets: match offsets {
+                    OffsetsArg::Joint => rotacal::orientation::OffsetEstimator::Joint,
+                    OffsetsArg::AxisPairs => rotacal::orientation::OffsetEstimator::AxisPairs,
+                },
+            },
+        ),
+        Command::Apply {
+            calibration,
+            recording,
+            out,
+            frame,
+            rate_hz,
+        } => rotacal::apply::run(&calibration, &recording, &out, frame.into(), rate_hz).and_then(
+            |(_, text)| {
+                Ok(rotacal::output::emit(&format!(
+                    "wrote {}\n{text}",
+                    out.display()
+                ))?)
+            },
+        ),
+        Command::Export {
+            calibration,
+            format,
+            frame,
+            precision,
+            rate_hz,
+            out,
+        } => export(
+            &calibration,
+            match format {
+                FormatArg::C => rotacal::export::Format::C,
+                FormatArg::Rust => rotacal::export::Format::Rust,
+                FormatArg::Json => rotacal::export::Format::Json,
+            },
+            frame.into(),
+            match precision {
+                PrecisionArg::F32 => rotacal::export::Precision::F32,
+                PrecisionArg::F64 => rotacal::export::Precision::F64,
+            },
+            rate_hz,
+            out.as_deref(),
+        ),
         Command::Simulate { config, out, seed } => simulate(&config, &out, seed),
         Command::Report {
             file,
@@ -176,30 +293,7 @@ fn main() -> ExitCode {
             rate_hz,
             g_loc,
         } => report(&file, &out, rate_hz, g_loc),
-        Command::Import {
-            inputs,
-            columns,
-            condition,
-            skip,
-            time_scale,
-            rate_hz,
-            g_loc,
-            units,
-            out,
-        } => import(
-            &inputs,
-            columns,
-            &condition,
-            skip,
-            time_scale,
-            rotacal::recording::Metadata {
-                rate_hz,
-                g_loc,
-                units,
-                ..Default::default()
-            },
-            &out,
-        ),
+        Command::Import(args) => import::run(args),
         Command::Crosscheck {
             recording,
             fit_log,
@@ -246,6 +340,7 @@ fn calibrate(
     g_loc: Option<f64>,
     json: Option<PathBuf>,
     monte_carlo: Option<usize>,
+    poses: rotacal::orientation::Options,
 ) -> anyhow::Result<()> {
     use rotacal::recording::Method;
     let rec = rotacal::recording::read(&file)?;
@@ -257,6 +352,7 @@ fn calibrate(
         rate_hz,
         g_loc,
         monte_carlo,
+        poses,
     };
     let cal = rotacal::calibrate_recording::calibrate(&rec, &opts)?;
     if let Some(path) = json {
@@ -337,51 +433,23 @@ fn crosscheck(
     Ok(())
 }
 
-fn import(
-    inputs: &[PathBuf],
-    columns: rotacal::import::ColumnMap,
-    condition: &[char],
-    skip: usize,
-    time_scale: f64,
-    meta: rotacal::recording::Metadata,
-    out: &std::path::Path,
+fn export(
+    cal: &std::path::Path,
+    format: rotacal::export::Format,
+    frame: rotacal::correction::Frame,
+    precision: rotacal::export::Precision,
+    rate_hz: Option<f64>,
+    out: Option<&std::path::Path>,
 ) -> anyhow::Result<()> {
-    use rotacal_shared::Condition;
-    let conditions = condition
-        .iter()
-        .map(|c| {
-            Condition::from_letter(*c)
-                .ok_or_else(|| anyhow::anyhow!("--condition '{c}': expected x, y or z"))
-        })
-        .collect::<anyhow::Result<Vec<_>>>()?;
-    let mut readers: Vec<(String, Box<dyn std::io::BufRead>)> = Vec::new();
-    for p in inputs {
-        let f = std::fs::File::open(p).map_err(|e| anyhow::anyhow!("{}: {e}", p.display()))?;
-        readers.push((
-            p.display().to_string(),
-            Box::new(std::io::BufReader::new(f)),
-        ));
+    let name = cal.display().to_string();
+    let text = std::fs::read_to_string(cal).map_err(|e| anyhow::anyhow!("{name}: {e}"))?;
+    let all = rotacal::apply::read_corrections(&text, &name)?;
+    let (json, c) = rotacal::apply::choose(&all, rate_hz, frame, &name)?;
+    let body = rotacal::export::render(&json, &c, &name, format, precision);
+    match out {
+        Some(p) => std::fs::write(p, body).map_err(|e| anyhow::anyhow!("{}: {e}", p.display()))?,
+        None => rotacal::output::emit(&body)?,
     }
-    let spec = rotacal::import::ImportSpec {
-        columns,
-        conditions,
-        skip,
-        time_scale,
-        meta,
-    };
-    let file = std::fs::File::create(out).map_err(|e| anyhow::anyhow!("{}: {e}", out.display()))?;
-    let counts = rotacal::import::import(readers, &spec, file)?;
-    let total: usize = counts.iter().sum();
-    rotacal::output::emit(&format!(
-        "wrote {}: {total} rows ({})\n",
-        out.display(),
-        counts
-            .iter()
-            .zip(inputs)
-            .map(|(n, p)| format!("{n} from {}", p.display()))
-            .collect::<Vec<_>>()
-            .join(", ")
-    ))?;
     Ok(())
 }
 

@@ -116,6 +116,23 @@ pub const KNOWN_KEYS: [&str; 7] = [
     "device",
 ];
 
+/// The rows of a file with `gx, gy, gz` columns (static data from any known orientations):
+/// each row carries the direction of gravity's reading in the platter frame, and no
+/// condition is needed. Poses are named by the `pose` column, or else by their direction.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Oriented {
+    /// ĝ of each row: a unit vector in the platter frame (normalised when read).
+    pub gravity: Vec<[f64; 3]>,
+    /// The `pose` column, if the file has one.
+    pub pose: Option<Vec<String>>,
+    /// Readings u, v, w of each row, output units.
+    pub y: Vec<[f64; 3]>,
+    /// `t_s` of each row, if the file has that column.
+    pub t_s: Option<Vec<f64>>,
+    /// 1-based file line of each row (for messages).
+    pub line: Vec<u64>,
+}
+
 /// All rows of one condition (and, for rotation, one nominal rate), in file order.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Group {
@@ -178,8 +195,11 @@ pub struct Recording {
     pub meta: Metadata,
     /// The method: the metadata's, else rotation if there is a `t_s` column, else static.
     pub method: Method,
-    /// The groups, in order of first appearance in the file.
+    /// The groups, in order of first appearance in the file (empty when the file has
+    /// `gx, gy, gz` columns: then its rows are in `oriented`).
     pub groups: Vec<Group>,
+    /// The rows of a file with `gx, gy, gz` columns.
+    pub oriented: Option<Oriented>,
 }
 
 impl Recording {
@@ -210,7 +230,21 @@ impl Recording {
 
     /// Total number of data rows.
     pub fn rows(&self) -> usize {
-        self.groups.iter().map(Group::len).sum()
+        self.groups.iter().map(Group::len).sum::<usize>()
+            + self.oriented.as_ref().map_or(0, |o| o.y.len())
+    }
+
+    /// An error unless the file has conditions (rotation, or static with `angle_deg`):
+    /// for the commands that need them. `what` names the command.
+    pub fn require_conditions(&self, what: &str) -> Result<(), RecordingError> {
+        match self.oriented {
+            Some(_) => Err(RecordingError {
+                source_name: self.source.clone(),
+                line: None,
+                kind: RecordingErrorKind::NeedsConditions(what.to_string()),
+            }),
+            None => Ok(()),
+        }
     }
 }
 
@@ -314,6 +348,15 @@ pub enum RecordingErrorKind {
         /// This row's time.
         got: f64,
     },
+    /// `gx, gy, gz` that are not a unit vector.
+    NotUnitVector {
+        /// Their length.
+        norm: f64,
+    },
+    /// A `pose` field that is empty or not UTF-8 text.
+    BadPose(&'static str),
+    /// The file has `gx, gy, gz` columns, which only static calibration and `apply` use.
+    NeedsConditions(String),
     /// A condition has no rows (at some rate, for a multi-rate file).
     MissingCondition {
         /// The missing condition.
@@ -397,6 +440,17 @@ impl fmt::Display for RecordingErrorKind {
                 condition.letter(),
                 rate_suffix(*rate_hz)
             ),
+            K::NotUnitVector { norm } => write!(
+                f,
+                "gx, gy, gz must be a unit vector (the direction of gravity's reading); its \
+                 length is {norm}"
+            ),
+            K::BadPose(why) => write!(f, "column pose: {why}"),
+            K::NeedsConditions(what) => write!(
+                f,
+                "{what} needs conditions x, y, z; this file gives gravity directions (gx, gy, \
+                 gz columns), which only static calibration and apply use"
+            ),
             K::MissingCondition { condition, rate_hz } => write!(
                 f,
                 "condition {} missing: no rows for it{} (need all of x, y, z)",
@@ -408,7 +462,7 @@ impl fmt::Display for RecordingErrorKind {
 }
 
 /// The column names formats.md defines.
-pub const COLUMN_NAMES: [&str; 9] = [
+pub const COLUMN_NAMES: [&str; 13] = [
     "condition",
     "t_s",
     "angle_deg",
@@ -418,7 +472,14 @@ pub const COLUMN_NAMES: [&str; 9] = [
     "seq",
     "temp_c",
     "rate_hz",
+    "gx",
+    "gy",
+    "gz",
+    "pose",
 ];
+
+/// How far |(gx, gy, gz)| may be from 1 (rounding of written unit vectors).
+pub const UNIT_TOLERANCE: f64 = 1e-3;
 
 /// Read the recording at `path`.
 pub fn read(path: &Path) -> Result<Recording, RecordingError> {
@@ -512,7 +573,11 @@ impl<R: Read> Read for FinalNewline<R> {
 #[derive(Debug)]
 struct ColumnIndex {
     n: usize,
-    condition: usize,
+    /// Absent only in files with `gx, gy, gz`.
+    condition: Option<usize>,
+    /// `gx, gy, gz`: all three or none.
+    gravity: Option<[usize; 3]>,
+    pose: Option<usize>,
     u: usize,
     v: usize,
     w: usize,
@@ -586,6 +651,13 @@ impl Parser<'_> {
         let (cols, method) = self.header(&rec, header_line, &meta)?;
 
         let mut groups: Vec<Group> = Vec::new();
+        let mut oriented = cols.gravity.map(|_| Oriented {
+            gravity: Vec::new(),
+            pose: cols.pose.map(|_| Vec::new()),
+            y: Vec::new(),
+            t_s: cols.t_s.map(|_| Vec::new()),
+            line: Vec::new(),
+        });
         // (condition, rate bits) of the group the previous row went to, and its index.
         let mut last: Option<(Condition, Option<u64>, usize)> = None;
         let rotation = method == Method::Rotation;
@@ -608,6 +680,18 @@ impl Parser<'_> {
                 Ok(row) => row,
                 Err(kind) => return Err(self.err(Some(self.line_of(&rdr, &rec)), kind)),
             };
+            if let (Some(o), Some(g)) = (oriented.as_mut(), row.gravity) {
+                o.gravity.push(g);
+                o.y.push([row.u, row.v, row.w]);
+                o.line.push(self.line_of(&rdr, &rec));
+                if let (Some(v), Some(p)) = (o.pose.as_mut(), row.pose) {
+                    v.push(p.to_string());
+                }
+                if let (Some(v), Some(t)) = (o.t_s.as_mut(), row.t_s) {
+                    v.push(t);
+                }
+                continue;
+            }
             let rate = if rotation { row.rate_hz } else { None };
             let key = rate.map(f64::to_bits);
             let gi = match last {
@@ -661,6 +745,18 @@ impl Parser<'_> {
             }
         }
 
+        if let Some(o) = oriented {
+            if o.y.is_empty() {
+                return Err(self.err(None, RecordingErrorKind::NoData));
+            }
+            return Ok(Recording {
+                source: self.source.to_string(),
+                meta,
+                method,
+                groups,
+                oriented: Some(o),
+            });
+        }
         if groups.is_empty() {
             return Err(self.err(None, RecordingErrorKind::NoData));
         }
@@ -699,6 +795,7 @@ impl Parser<'_> {
             meta,
             method,
             groups,
+            oriented: None,
         })
     }
 
@@ -859,28 +956,47 @@ impl Parser<'_> {
                 },
             )
         };
-        let condition = require("condition")?;
+        // Gravity directions: all three columns or none.
+        let gravity = if ["gx", "gy", "gz"].iter().any(|n| idx(n).is_some()) {
+            Some([require("gx")?, require("gy")?, require("gz")?])
+        } else {
+            None
+        };
+        let condition = match gravity {
+            Some(_) => idx("condition"),
+            None => Some(require("condition")?),
+        };
         let u = require("u")?;
         let v = require("v")?;
         let w = require("w")?;
         let t_s = idx("t_s");
-        let method = meta.method.unwrap_or(if t_s.is_some() {
+        let method = meta.method.unwrap_or(if gravity.is_some() {
+            Method::Static
+        } else if t_s.is_some() {
             Method::Rotation
         } else {
             Method::Static
         });
         match method {
+            Method::Rotation if gravity.is_some() => {
+                return Err(at(RecordingErrorKind::BadMetadata(
+                    "method rotation, but the file has gx, gy, gz columns (static poses)".into(),
+                )));
+            }
             Method::Rotation => {
                 require("t_s")?;
             }
-            Method::Static => {
+            Method::Static if gravity.is_none() => {
                 require("angle_deg")?;
             }
+            Method::Static => {}
         }
         Ok((
             ColumnIndex {
                 n: names.len(),
                 condition,
+                gravity,
+                pose: idx("pose"),
                 u,
                 v,
                 w,
@@ -962,13 +1078,49 @@ fn parse_opt(
     i.map(|i| parse_f64(rec, i, column)).transpose()
 }
 
-fn parse_row(rec: &csv::ByteRecord, cols: &ColumnIndex) -> Result<Row, RecordingErrorKind> {
-    let c = field(rec, cols.condition);
-    let condition = match c {
-        [b] => Condition::from_letter(char::from(*b)),
-        _ => None,
-    }
-    .ok_or_else(|| RecordingErrorKind::UnknownCondition(snippet(c)))?;
+fn parse_row<'r>(
+    rec: &'r csv::ByteRecord,
+    cols: &ColumnIndex,
+) -> Result<Row<'r>, RecordingErrorKind> {
+    // Files with gravity directions need no condition; one that is there is ignored.
+    let condition = match (cols.condition, cols.gravity) {
+        (Some(i), None) => {
+            let c = field(rec, i);
+            match c {
+                [b] => Condition::from_letter(char::from(*b)),
+                _ => None,
+            }
+            .ok_or_else(|| RecordingErrorKind::UnknownCondition(snippet(c)))?
+        }
+        _ => Condition::X,
+    };
+    let gravity = match cols.gravity {
+        Some([x, y, z]) => {
+            let g = [
+                parse_f64(rec, x, "gx")?,
+                parse_f64(rec, y, "gy")?,
+                parse_f64(rec, z, "gz")?,
+            ];
+            let norm = g.iter().map(|c| c * c).sum::<f64>().sqrt();
+            if (norm - 1.0).abs() > UNIT_TOLERANCE {
+                return Err(RecordingErrorKind::NotUnitVector { norm });
+            }
+            Some(g.map(|c| c / norm))
+        }
+        None => None,
+    };
+    let pose = match cols.pose {
+        Some(i) => {
+            let f = field(rec, i);
+            let text = std::str::from_utf8(f)
+                .map_err(|_| RecordingErrorKind::BadPose("not UTF-8 text"))?;
+            if text.is_empty() {
+                return Err(RecordingErrorKind::BadPose("empty pose name"));
+            }
+            Some(text)
+        }
+        None => None,
+    };
     let t_s = parse_opt(rec, cols.t_s, "t_s")?;
     let angle_deg = parse_opt(rec, cols.angle_deg, "angle_deg")?;
     let u = parse_f64(rec, cols.u, "u")?;
@@ -1008,13 +1160,17 @@ fn parse_row(rec: &csv::ByteRecord, cols: &ColumnIndex) -> Result<Row, Recording
         seq,
         temp_c,
         rate_hz,
+        gravity,
+        pose,
+        unc: None,
     })
 }
 
 // ---------------------------------------------------------------------------------------
 // Writer
 
-/// Which optional columns a written file has (`condition`, `u`, `v`, `w` always).
+/// Which optional columns a written file has (`u`, `v`, `w` always; `condition` unless
+/// the file has gravity directions).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
 pub struct Columns {
     /// `t_s` (rotation needs it).
@@ -1027,6 +1183,13 @@ pub struct Columns {
     pub temp_c: bool,
     /// `rate_hz` (multi-rate files).
     pub rate_hz: bool,
+    /// `gx, gy, gz` instead of `condition` (static data from any known orientations).
+    pub gravity: bool,
+    /// `pose` (with `gravity`).
+    pub pose: bool,
+    /// `u_unc, v_unc, w_unc` after `w`: standard uncertainties of calibrated readings
+    /// (`rotacal apply`; other readers ignore them).
+    pub unc: bool,
 }
 
 impl Columns {
@@ -1037,6 +1200,9 @@ impl Columns {
         seq: false,
         temp_c: false,
         rate_hz: false,
+        gravity: false,
+        pose: false,
+        unc: false,
     };
     /// A plain static file: `condition,angle_deg,u,v,w`.
     pub const STATIC: Columns = Columns {
@@ -1045,19 +1211,33 @@ impl Columns {
         seq: false,
         temp_c: false,
         rate_hz: false,
+        gravity: false,
+        pose: false,
+        unc: false,
     };
 
     /// The header line's names, in the order the writer puts them.
     pub fn names(&self) -> Vec<&'static str> {
-        let mut out = vec!["condition"];
+        let mut out = if self.gravity {
+            vec![]
+        } else {
+            vec!["condition"]
+        };
         let opt = [
+            (self.gravity && self.pose, "pose"),
             (self.rate_hz, "rate_hz"),
             (self.seq, "seq"),
             (self.t_s, "t_s"),
             (self.angle_deg, "angle_deg"),
+            (self.gravity, "gx"),
+            (self.gravity, "gy"),
+            (self.gravity, "gz"),
         ];
         out.extend(opt.iter().filter(|(on, _)| *on).map(|(_, n)| *n));
         out.extend(["u", "v", "w"]);
+        if self.unc {
+            out.extend(["u_unc", "v_unc", "w_unc"]);
+        }
         if self.temp_c {
             out.push("temp_c");
         }
@@ -1067,8 +1247,8 @@ impl Columns {
 
 /// One row to write.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Row {
-    /// The condition.
+pub struct Row<'a> {
+    /// The condition (not written in files with gravity directions).
     pub condition: Condition,
     /// Device time, s (the file must have the `t_s` column exactly when this is `Some`).
     pub t_s: Option<f64>,
@@ -1086,9 +1266,15 @@ pub struct Row {
     pub temp_c: Option<f64>,
     /// Nominal rate of this row, Hz.
     pub rate_hz: Option<f64>,
+    /// ĝ, the direction of gravity's reading in the platter frame (a unit vector).
+    pub gravity: Option<[f64; 3]>,
+    /// The pose's name.
+    pub pose: Option<&'a str>,
+    /// Standard uncertainties of u, v, w (calibrated readings).
+    pub unc: Option<[f64; 3]>,
 }
 
-impl Row {
+impl Row<'static> {
     /// A row with only the channels; set the optional fields as needed.
     pub fn new(condition: Condition, u: f64, v: f64, w: f64) -> Self {
         Row {
@@ -1101,6 +1287,9 @@ impl Row {
             seq: None,
             temp_c: None,
             rate_hz: None,
+            gravity: None,
+            pose: None,
+            unc: None,
         }
     }
 }
@@ -1146,7 +1335,7 @@ impl<W: Write> Writer<W> {
     /// Write the preamble (`# rotacal recording v1`, then `# key=value` for every metadata
     /// value set, known keys first, values trimmed) and the header to `w`.
     pub fn new(w: W, meta: &Metadata, columns: &Columns) -> io::Result<Self> {
-        let method = meta.method.unwrap_or(if columns.t_s {
+        let method = meta.method.unwrap_or(if columns.t_s && !columns.gravity {
             Method::Rotation
         } else {
             Method::Static
@@ -1155,7 +1344,12 @@ impl<W: Write> Writer<W> {
             Method::Rotation if !columns.t_s => {
                 return Err(invalid("method rotation needs the t_s column".into()))
             }
-            Method::Static if !columns.angle_deg => {
+            Method::Rotation if columns.gravity => {
+                return Err(invalid(
+                    "method rotation cannot have gx, gy, gz columns".into(),
+                ))
+            }
+            Method::Static if !columns.angle_deg && !columns.gravity => {
                 return Err(invalid("method static needs the angle_deg column".into()))
             }
             _ => {}
@@ -1230,14 +1424,17 @@ impl<W: Write> Writer<W> {
 
     /// Write one row. Its optional fields must be set exactly for the file's optional
     /// columns, and its numbers finite (`rate_hz` positive).
-    pub fn write_row(&mut self, row: &Row) -> io::Result<()> {
+    pub fn write_row(&mut self, row: &Row<'_>) -> io::Result<()> {
         use std::fmt::Write as _;
         let c = self.columns;
         fn num(line: &mut String, name: &str, x: f64) -> io::Result<()> {
             if !x.is_finite() {
                 return Err(invalid(format!("{name}={x} is not finite")));
             }
-            let _ = write!(line, ",{x:?}");
+            if !line.is_empty() {
+                line.push(',');
+            }
+            let _ = write!(line, "{x:?}");
             Ok(())
         }
         fn opt<T>(on: bool, name: &str, x: Option<T>) -> io::Result<Option<T>> {
@@ -1254,7 +1451,18 @@ impl<W: Write> Writer<W> {
         }
         let line = &mut self.line;
         line.clear();
-        line.push(row.condition.letter());
+        if !c.gravity {
+            line.push(row.condition.letter());
+        }
+        if let Some(p) = opt(c.gravity && c.pose, "pose", row.pose)? {
+            if p.is_empty() || p.contains([',', '"', '\n', '\r', '#']) || p.trim() != p {
+                return Err(invalid(format!(
+                    "pose name '{p}': use a non-empty name without commas, quotes, '#', line \
+                     breaks or surrounding spaces"
+                )));
+            }
+            line.push_str(p);
+        }
         if let Some(r) = opt(c.rate_hz, "rate_hz", row.rate_hz)? {
             if r.is_finite() && r <= 0.0 {
                 return Err(invalid(format!("rate_hz={r} is not positive")));
@@ -1262,7 +1470,10 @@ impl<W: Write> Writer<W> {
             num(line, "rate_hz", r)?;
         }
         if let Some(s) = opt(c.seq, "seq", row.seq)? {
-            let _ = write!(line, ",{s}");
+            if !line.is_empty() {
+                line.push(',');
+            }
+            let _ = write!(line, "{s}");
         }
         if let Some(t) = opt(c.t_s, "t_s", row.t_s)? {
             num(line, "t_s", t)?;
@@ -1270,9 +1481,23 @@ impl<W: Write> Writer<W> {
         if let Some(a) = opt(c.angle_deg, "angle_deg", row.angle_deg)? {
             num(line, "angle_deg", a)?;
         }
+        if let Some(g) = opt(c.gravity, "gx, gy, gz", row.gravity)? {
+            let norm = g.iter().map(|x| x * x).sum::<f64>().sqrt();
+            if (norm - 1.0).abs() > UNIT_TOLERANCE {
+                return Err(invalid(format!("gx, gy, gz: length {norm}, not 1")));
+            }
+            for (name, x) in ["gx", "gy", "gz"].iter().zip(g) {
+                num(line, name, x)?;
+            }
+        }
         num(line, "u", row.u)?;
         num(line, "v", row.v)?;
         num(line, "w", row.w)?;
+        if let Some(u) = opt(c.unc, "u_unc, v_unc, w_unc", row.unc)? {
+            for (name, x) in ["u_unc", "v_unc", "w_unc"].iter().zip(u) {
+                num(line, name, x)?;
+            }
+        }
         if let Some(t) = opt(c.temp_c, "temp_c", row.temp_c)? {
             num(line, "temp_c", t)?;
         }

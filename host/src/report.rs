@@ -424,7 +424,7 @@ pub fn write(rec: &Recording, opts: &Options, dir: &Path) -> Result<PathBuf, Rep
     let _ = writeln!(md, "# rotacal report: {}\n", rec.source);
     let _ = writeln!(
         md,
-        "Method {}, g_loc = {} m/s², units {units}, {} rows. Uncertainties are expanded, U (k = 2).\n",
+        "Method {}, g_loc = {} m/s², units {units}, {} rows. Uncertainties are expanded, U (95 %, coverage factor k as stated).\n",
         cal.method,
         cal.g_loc,
         rec.rows()
@@ -436,7 +436,11 @@ pub fn write(rec: &Recording, opts: &Options, dir: &Path) -> Result<PathBuf, Rep
             .map(|r| format!("Rotation at {r} Hz"))
             .unwrap_or_else(|| "Static".into());
         let _ = writeln!(md, "## {heading}\n");
-        let _ = writeln!(md, "| property | value ± U (k = 2) |\n| --- | --- |");
+        let k = entry
+            .poses
+            .as_ref()
+            .map_or(crate::calibration_file::K, |p| p.k);
+        let _ = writeln!(md, "| property | value ± U (k = {k:.2}) |\n| --- | --- |");
         let names = crate::calibration_file::PROPERTY_NAMES;
         for (i, x) in props(entry).iter().enumerate() {
             let _ = writeln!(
@@ -474,7 +478,74 @@ pub fn write(rec: &Recording, opts: &Options, dir: &Path) -> Result<PathBuf, Rep
                 let _ = writeln!(md, "| {} | {} |", CHANNELS[j], cells.join(" | "));
             }
         }
-        let _ = writeln!(md, "\nFits (A sin α + B cos α + C, {units}):\n\n| condition | channel | A ± se | B ± se | C ± se | rms residual | n |\n| --- | --- | --- | --- | --- | --- | --- |");
+        if let Some(p) = &entry.poses {
+            let _ = writeln!(
+                md,
+                "\nPoses ({}; condition number {:.2}; between-pose scatter τ = {:.2e}, {:.2e}, {:.2e} {units}; k = {:.2} from ν = {}):\n\n\
+                 | pose | ĝ | n | std u, v, w (how still) | residual u, v, w (mean − model) |\n| --- | --- | --- | --- | --- |",
+                p.list.len(),
+                p.condition_number,
+                p.tau[0],
+                p.tau[1],
+                p.tau[2],
+                p.k,
+                p.nu.iter().fold(f64::INFINITY, |a, b| a.min(*b))
+            );
+            for q in &p.list {
+                let std = q
+                    .std
+                    .map(|s| format!("{:.2e}, {:.2e}, {:.2e}", s[0], s[1], s[2]))
+                    .unwrap_or_else(|| "single reading".into());
+                let _ = writeln!(
+                    md,
+                    "| {} | {} | {} | {std} | {:+.2e}, {:+.2e}, {:+.2e} |",
+                    q.name,
+                    crate::orientation::direction_name(&q.gravity),
+                    q.n,
+                    q.residual[0],
+                    q.residual[1],
+                    q.residual[2]
+                );
+            }
+            if let Some(s) = &p.suggestion {
+                let _ = writeln!(
+                    md,
+                    "\n**Poorly conditioned**: add a pose with gravity along {s}."
+                );
+            }
+            if !p.not_still.is_empty() {
+                let _ = writeln!(md, "\n**Not still**: {}.", p.not_still.join(", "));
+            }
+            if let Some(d) = p.offsets_difference {
+                let _ = writeln!(
+                    md,
+                    "\nOffsets of the joint fit minus those of each axis's up/down pair (imucal's estimator): {:+.6}, {:+.6}, {:+.6} {units}.",
+                    d[0], d[1], d[2]
+                );
+            }
+        }
+        if let Some(c) = &entry.correction {
+            let d = &c.device_frame;
+            let _ = writeln!(
+                md,
+                "\nCorrection to m/s², a = M·(y − O), device frame (`rotacal apply`, `rotacal export`):\n\n| | M (m/s² per {units}) | O ± u ({units}) |\n| --- | --- | --- |"
+            );
+            for (j, row) in d.matrix.iter().enumerate() {
+                let _ = writeln!(
+                    md,
+                    "| {} | {:.9}, {:.9}, {:.9} | {:.6} ± {:.1e} |",
+                    ["x′", "y′", "z′"][j],
+                    row[0],
+                    row[1],
+                    row[2],
+                    d.offset[j],
+                    d.offset_std_unc[j]
+                );
+            }
+        }
+        if !entry.fits.is_empty() {
+            let _ = writeln!(md, "\nFits (A sin α + B cos α + C, {units}):\n\n| condition | channel | A ± se | B ± se | C ± se | rms residual | n |\n| --- | --- | --- | --- | --- | --- | --- |");
+        }
         for f in &entry.fits {
             let _ = writeln!(
                 md,

@@ -263,6 +263,14 @@ fn every_good_file_reads() {
 /// (file in `bad/`, expected line (None: the message names the file only), a substring
 /// of the message).
 const BAD_CASES: &[(&str, Option<u64>, &str)] = &[
+    ("gravity_not_unit.csv", Some(5), "must be a unit vector"),
+    ("gravity_missing_gz.csv", Some(3), "missing column 'gz'"),
+    (
+        "gravity_with_method_rotation.csv",
+        Some(4),
+        "method rotation, but the file has gx, gy, gz",
+    ),
+    ("pose_empty.csv", Some(4), "empty pose name"),
     ("bad_metadata_duplicate.csv", Some(4), "rate_hz given twice"),
     (
         "bad_metadata_method.csv",
@@ -604,6 +612,7 @@ fn writer_output_matches_formats_md() {
         seq: true,
         temp_c: true,
         rate_hz: true,
+        ..Columns::default()
     };
     assert_eq!(
         all.names().join(","),
@@ -894,7 +903,7 @@ struct Case {
     meta: Metadata,
     columns: Columns,
     method: Method,
-    rows: Vec<Row>,
+    rows: Vec<Row<'static>>,
 }
 
 fn case() -> impl Strategy<Value = Case> {
@@ -906,6 +915,7 @@ fn case() -> impl Strategy<Value = Case> {
                 seq,
                 temp_c,
                 rate_hz,
+                ..Columns::default()
             };
             let method = match m {
                 1 if columns.t_s => Some(Method::Rotation),
@@ -977,6 +987,9 @@ fn case() -> impl Strategy<Value = Case> {
                         seq: columns.seq.then_some(s),
                         temp_c: columns.temp_c.then_some(temp),
                         rate_hz: columns.rate_hz.then_some(rate),
+                        gravity: None,
+                        pose: None,
+                        unc: None,
                     }
                 })
                 .collect();

@@ -216,6 +216,9 @@ impl Simulation {
             seq: true,
             temp_c: true,
             rate_hz: self.multi_rate(),
+            gravity: false,
+            pose: false,
+            unc: false,
         }
     }
 

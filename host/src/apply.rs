@@ -1,0 +1,349 @@
+//! `rotacal apply CAL.json RECORDING --out OUT.csv`: readings to acceleration in m/s².
+//!
+//! The output is a recording (formats.md) with the input's rows and columns, u, v, w
+//! replaced by the corrected acceleration along the chosen frame's axes (x′ y′ z′, or the
+//! platter's x y z), `# units=m/s^2`, `# frame=` and `# calibration=` lines, and the
+//! columns `u_unc, v_unc, w_unc`: each value's standard uncertainty from the calibration.
+//! So `rotacal calibrate OUT.csv` checks the result: sensitivities 1 and angles 90°.
+
+use crate::calibration_file::CorrectionJson;
+use crate::correction::{Correction, Frame};
+use crate::recording::{Columns, Metadata, Recording, Row, Writer};
+use std::fmt::Write as _;
+use std::io::Write;
+use std::path::Path;
+
+/// A problem reading a calibration file or applying it.
+#[derive(Debug, thiserror::Error)]
+#[error("{source_name}: {message}")]
+pub struct ApplyError {
+    /// The file concerned.
+    pub source_name: String,
+    /// What is wrong.
+    pub message: String,
+}
+
+fn bad(source: &str, message: impl Into<String>) -> ApplyError {
+    ApplyError {
+        source_name: source.to_string(),
+        message: message.into(),
+    }
+}
+
+/// The corrections of a calibration file: one per `by_rate` entry, with its rate.
+pub fn read_corrections(
+    text: &str,
+    source: &str,
+) -> Result<Vec<(Option<f64>, CorrectionJson)>, ApplyError> {
+    let v: serde_json::Value = serde_json::from_str(text)
+        .map_err(|e| bad(source, format!("line {}: not JSON: {e}", e.line())))?;
+    let entries = v
+        .get("by_rate")
+        .and_then(|b| b.as_array())
+        .ok_or_else(|| bad(source, "not a calibration file: no 'by_rate' list"))?;
+    let mut out = Vec::new();
+    for (i, e) in entries.iter().enumerate() {
+        let rate = e.get("rate_hz").and_then(serde_json::Value::as_f64);
+        let c = e.get("correction").ok_or_else(|| {
+            bad(
+                source,
+                format!(
+                    "by_rate[{i}] has no 'correction': calibrate again with this version of rotacal"
+                ),
+            )
+        })?;
+        let c: CorrectionJson = serde_json::from_value(c.clone())
+            .map_err(|e| bad(source, format!("by_rate[{i}].correction: {e}")))?;
+        for f in std::iter::once(&c.device_frame).chain(c.platter_frame.as_ref()) {
+            check(f).map_err(|m| bad(source, format!("by_rate[{i}].correction: {m}")))?;
+        }
+        out.push((rate, c));
+    }
+    if out.is_empty() {
+        return Err(bad(source, "'by_rate' is empty"));
+    }
+    Ok(out)
+}
+
+fn check(c: &Correction) -> Result<(), String> {
+    let finite = c
+        .matrix
+        .iter()
+        .flatten()
+        .chain(&c.offset)
+        .all(|x| x.is_finite());
+    if !finite {
+        return Err(format!(
+            "{} frame: a matrix or offset value is not finite",
+            c.frame.as_str()
+        ));
+    }
+    if c.covariance.len() != crate::correction::PARAMS
+        || c.covariance
+            .iter()
+            .any(|r| r.len() != crate::correction::PARAMS)
+    {
+        return Err(format!(
+            "{} frame: the covariance must be 12×12",
+            c.frame.as_str()
+        ));
+    }
+    Ok(())
+}
+
+/// Pick the correction for `rate_hz` (needed when the file has several) and `frame`.
+pub fn choose(
+    all: &[(Option<f64>, CorrectionJson)],
+    rate_hz: Option<f64>,
+    frame: Frame,
+    source: &str,
+) -> Result<(CorrectionJson, Correction), ApplyError> {
+    let entry = match (rate_hz, all) {
+        (None, [one]) => one,
+        (None, _) => {
+            let rates: Vec<String> = all
+                .iter()
+                .map(|(r, _)| r.map_or("static".into(), |r| format!("{r}")))
+                .collect();
+            return Err(bad(
+                source,
+                format!(
+                    "{} calibrations (rates {}): choose one with --rate-hz",
+                    all.len(),
+                    rates.join(", ")
+                ),
+            ));
+        }
+        (Some(r), _) => all
+            .iter()
+            .find(|(x, _)| x.is_some_and(|x| (x - r).abs() <= 1e-12 * r.abs()))
+            .ok_or_else(|| bad(source, format!("no calibration at rate {r} Hz")))?,
+    };
+    let c = match frame {
+        Frame::Device => entry.1.device_frame.clone(),
+        Frame::Platter => entry.1.platter_frame.clone().ok_or_else(|| {
+            bad(
+                source,
+                "no platter-frame correction: the rotation method does not fix how the device \
+                 sat on the platter; use --frame device",
+            )
+        })?,
+    };
+    Ok((entry.1.clone(), c))
+}
+
+/// Per pose (static data): |a| against g.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct PoseNorm {
+    /// The pose.
+    pub name: String,
+    /// Readings.
+    pub n: usize,
+    /// Mean of |y| − g over the raw readings (file units: meaningful when they are m/s²).
+    pub before: f64,
+    /// Mean of |a| − g after correction, m/s².
+    pub after: f64,
+    /// Standard deviation of |a| within the pose, m/s².
+    pub std_after: f64,
+}
+
+/// What `apply` did.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct Summary {
+    /// Rows written.
+    pub rows: usize,
+    /// The frame.
+    pub frame: Frame,
+    /// g used for |a| − g, m/s².
+    pub g_loc: Option<f64>,
+    /// RMS over rows of |y| − g, in the input's units.
+    pub rms_before: Option<f64>,
+    /// RMS over rows of |a| − g, m/s².
+    pub rms_after: Option<f64>,
+    /// Static data: per pose.
+    pub poses: Vec<PoseNorm>,
+}
+
+fn norm(x: &[f64; 3]) -> f64 {
+    x.iter().map(|v| v * v).sum::<f64>().sqrt()
+}
+
+/// Correct every row of `rec` and write the result to `out`.
+pub fn apply<W: Write>(
+    rec: &Recording,
+    corr: &Correction,
+    cal_name: &str,
+    g_loc: Option<f64>,
+    out: W,
+) -> Result<Summary, ApplyError> {
+    let io = |e: std::io::Error| bad("output", e.to_string());
+    let mut meta: Metadata = rec.meta.clone();
+    meta.units = Some("m/s^2".into());
+    meta.noise_sigma = None;
+    meta.g_loc = g_loc.or(meta.g_loc);
+    meta.other
+        .insert("frame".into(), corr.frame.as_str().into());
+    meta.other
+        .insert("calibration".into(), cal_name.replace(['\n', '\r'], " "));
+    meta.method = Some(rec.method);
+    let g = meta.g_loc;
+    let mut ss_before = 0.0;
+    let mut ss_after = 0.0;
+    let mut rows = 0usize;
+    let mut poses: Vec<(String, Vec<f64>, Vec<f64>)> = Vec::new();
+    let mut tally = |pose: Option<String>, y: &[f64; 3], a: &[f64; 3]| {
+        if let Some(g) = g {
+            let (b, c) = (norm(y) - g, norm(a) - g);
+            ss_before += b * b;
+            ss_after += c * c;
+            if let Some(name) = pose {
+                match poses.iter_mut().find(|p| p.0 == name) {
+                    Some(p) => {
+                        p.1.push(b);
+                        p.2.push(c);
+                    }
+                    None => poses.push((name, vec![b], vec![c])),
+                }
+            }
+        }
+    };
+    if let Some(o) = &rec.oriented {
+        let cols = Columns {
+            t_s: o.t_s.is_some(),
+            gravity: true,
+            pose: o.pose.is_some(),
+            unc: true,
+            ..Columns::default()
+        };
+        let mut w = Writer::new(out, &meta, &cols).map_err(io)?;
+        for (i, (y, gdir)) in o.y.iter().zip(&o.gravity).enumerate() {
+            let (a, u) = corr.apply(*y);
+            let mut row = Row::new(rotacal_shared::Condition::X, a[0], a[1], a[2]);
+            row.gravity = Some(*gdir);
+            row.unc = Some(u);
+            row.t_s = o.t_s.as_ref().and_then(|t| t.get(i).copied());
+            let name = o.pose.as_ref().and_then(|p| p.get(i)).cloned();
+            row.pose = name.as_deref();
+            w.write_row(&row).map_err(io)?;
+            let key = name.unwrap_or_else(|| crate::orientation::direction_name(gdir));
+            tally(Some(key), y, &a);
+            rows += 1;
+        }
+        w.flush().map_err(io)?;
+    } else {
+        let first = rec.groups.first();
+        let cols = Columns {
+            t_s: first.is_some_and(|g| !g.t_s.is_empty()),
+            angle_deg: first.is_some_and(|g| !g.angle_deg.is_empty()),
+            seq: first.is_some_and(|g| g.seq.is_some()),
+            temp_c: first.is_some_and(|g| g.temp_c.is_some()),
+            rate_hz: rec.groups.iter().any(|g| g.rate_hz.is_some()),
+            unc: true,
+            ..Columns::default()
+        };
+        let mut w = Writer::new(out, &meta, &cols).map_err(io)?;
+        let stat = rec.method == crate::recording::Method::Static;
+        for grp in &rec.groups {
+            for i in 0..grp.len() {
+                let y = [grp.u[i], grp.v[i], grp.w[i]];
+                let (a, u) = corr.apply(y);
+                let mut row = Row::new(grp.condition, a[0], a[1], a[2]);
+                row.unc = Some(u);
+                row.t_s = grp.t_s.get(i).copied().filter(|_| cols.t_s);
+                row.angle_deg = grp.angle_deg.get(i).copied().filter(|_| cols.angle_deg);
+                row.seq = grp.seq.as_ref().and_then(|s| s.get(i).copied());
+                row.temp_c = grp.temp_c.as_ref().and_then(|s| s.get(i).copied());
+                row.rate_hz = grp.rate_hz.filter(|_| cols.rate_hz);
+                w.write_row(&row)
+                    .map_err(|e| bad(&rec.source, format!("line {}…: {e}", grp.first_line)))?;
+                let key = stat.then(|| {
+                    format!(
+                        "{} {}°",
+                        grp.condition.letter(),
+                        grp.angle_deg.get(i).copied().unwrap_or(f64::NAN)
+                    )
+                });
+                tally(key, &y, &a);
+                rows += 1;
+            }
+        }
+        w.flush().map_err(io)?;
+    }
+    let rms = |ss: f64| (rows > 0 && g.is_some()).then(|| (ss / rows as f64).sqrt());
+    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
+    Ok(Summary {
+        rows,
+        frame: corr.frame,
+        g_loc: g,
+        rms_before: rms(ss_before),
+        rms_after: rms(ss_after),
+        poses: poses
+            .into_iter()
+            .map(|(name, b, a)| {
+                let m = mean(&a);
+                let sd = if a.len() > 1 {
+                    (a.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (a.len() - 1) as f64).sqrt()
+                } else {
+                    f64::NAN
+                };
+                PoseNorm {
+                    name,
+                    n: a.len(),
+                    before: mean(&b),
+                    after: m,
+                    std_after: sd,
+                }
+            })
+            .collect(),
+    })
+}
+
+/// Read `cal` and `recording`, correct, write `out`.
+pub fn run(
+    cal: &Path,
+    recording: &Path,
+    out: &Path,
+    frame: Frame,
+    rate_hz: Option<f64>,
+) -> anyhow::Result<(Summary, String)> {
+    let text =
+        std::fs::read_to_string(cal).map_err(|e| bad(&cal.display().to_string(), e.to_string()))?;
+    let all = read_corrections(&text, &cal.display().to_string())?;
+    let (json, corr) = choose(&all, rate_hz, frame, &cal.display().to_string())?;
+    let rec = crate::recording::read(recording)?;
+    let g = serde_json::from_str::<serde_json::Value>(&text)
+        .ok()
+        .and_then(|v| v.get("g_loc").and_then(serde_json::Value::as_f64));
+    let file =
+        std::fs::File::create(out).map_err(|e| bad(&out.display().to_string(), e.to_string()))?;
+    let s = apply(&rec, &corr, &cal.display().to_string(), g, file)?;
+    Ok((s.clone(), render(&s, &json.units_in)))
+}
+
+/// The terminal summary.
+pub fn render(s: &Summary, units_in: &str) -> String {
+    let mut o = String::new();
+    let _ = writeln!(
+        o,
+        "{} rows corrected to m/s² in the {} frame",
+        s.rows,
+        s.frame.as_str()
+    );
+    if let (Some(g), Some(b), Some(a)) = (s.g_loc, s.rms_before, s.rms_after) {
+        let _ = writeln!(o, "RMS of |a| − g (g = {g} m/s²): before {b:.3e} {units_in} (raw readings), after {a:.3e} m/s²");
+    }
+    if !s.poses.is_empty() {
+        let _ = writeln!(
+            o,
+            "per pose: mean |y| − g before ({units_in}), mean |a| − g after and std of |a| (m/s²)"
+        );
+        for p in &s.poses {
+            let _ = writeln!(
+                o,
+                "  {:<12} n {:>6}  before {:+.4e}  after {:+.4e}  std {:.2e}",
+                p.name, p.n, p.before, p.after, p.std_after
+            );
+        }
+    }
+    o
+}

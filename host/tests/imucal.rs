@@ -1,0 +1,378 @@
+//! Parity with a peer on real data nobody here recorded: imucal 2.6.0's Ferraris
+//! calibration of its own example session (tests/data/imucal-ferraris, MIT licence).
+//!
+//! How the imucal numbers below were obtained: `scripts/imucal-reference.py` (imucal
+//! 2.6.0 from PyPI, numpy 2.4.6, pandas 3.1.1, Python 3.11.7, 2026-11-22). It loads the
+//! session as imucal's examples do, cuts the sections with `data.iloc[start:end]` (as
+//! imucal does: positions, end exclusive) and runs `FerrarisCalibration(grav=9.81)
+//! .compute(..., sampling_rate_hz=102.4)`. imucal's model is raw = K_a·R_a·a + b_a, so
+//! rotacal's S is K_a·R_a and O is b_a. The values are its printout, 17 digits.
+//!
+//! rotacal runs through the binary with exactly the README's worked example.
+// imucal's printout is kept digit for digit (17 significant digits).
+#![allow(clippy::excessive_precision)]
+mod common;
+use common::run;
+use serde_json::Value;
+use std::path::{Path, PathBuf};
+
+const G: f64 = 9.81;
+
+/// imucal's pose means (acc_x, acc_y, acc_z), m/s², and their sample counts.
+const POSE_MEANS: [(&str, usize, [f64; 3]); 6] = [
+    (
+        "x_p",
+        731,
+        [
+            10.313845271620638,
+            -0.54652969631711701,
+            0.50754755899452808,
+        ],
+    ),
+    (
+        "x_a",
+        741,
+        [
+            -9.2396104227289975,
+            -0.71521553564650808,
+            0.23987041766826922,
+        ],
+    ),
+    (
+        "y_p",
+        484,
+        [0.39384215804170974, 9.2173316337648501, 0.40447129430849693],
+    ),
+    (
+        "y_a",
+        412,
+        [
+            0.68387108663910801,
+            -10.449737619937043,
+            0.36424061599287011,
+        ],
+    ),
+    (
+        "z_p",
+        453,
+        [
+            0.50428643030836096,
+            -0.59397541778766572,
+            10.437463395074502,
+        ],
+    ),
+    (
+        "z_a",
+        607,
+        [
+            0.65060093988107504,
+            -0.63023340969934105,
+            -9.6397287102939657,
+        ],
+    ),
+];
+
+/// imucal's K_a (diagonal).
+const K_A: [f64; 3] = [0.99674586508870033, 1.0024376185894108, 1.0233953475452096];
+
+/// imucal's R_a (rows of unit length).
+const R_A: [[f64; 3]; 3] = [
+    [
+        0.99986202917464351,
+        -0.014830571004926794,
+        -0.0074817630564065138,
+    ],
+    [
+        0.0085767404425556321,
+        0.99996151974196856,
+        0.0018435180263559792,
+    ],
+    [
+        0.01333118773067902,
+        0.002003617949970859,
+        0.99990912834557111,
+    ],
+];
+
+/// imucal's K_a·R_a.
+const KR: [[f64; 3]; 3] = [
+    [
+        0.99660834323902336,
+        -0.014782310326065154,
+        -0.0074574163900465893,
+    ],
+    [
+        0.0085976472644949571,
+        1.002399044531187,
+        0.0018480118201669386,
+    ],
+    [
+        0.01364307550082869,
+        0.0020504932882582476,
+        1.0233023499168432,
+    ],
+];
+
+/// imucal's b_a, m/s².
+const B_A: [f64; 3] = [
+    0.53711742444582011,
+    -0.61620299308609638,
+    0.39886734239026822,
+];
+
+fn data() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/imucal-ferraris")
+}
+
+fn tmp(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("rotacal-imucal-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    dir.join(name)
+}
+
+/// The README's worked example: import with the section list and the pose map.
+fn import() -> PathBuf {
+    let out = tmp("ferraris.csv");
+    let d = data();
+    let (ok, stdout, stderr) = run(&[
+        "import".as_ref(),
+        d.join("example_ferraris_session.csv").as_os_str(),
+        "--columns".as_ref(),
+        "t=0,u=4,v=5,w=6".as_ref(),
+        "--skip".as_ref(),
+        "1".as_ref(),
+        "--time-scale".as_ref(),
+        "0.009765625".as_ref(),
+        "--sample-rate-hz".as_ref(),
+        "102.4".as_ref(),
+        "--g-loc".as_ref(),
+        "9.81".as_ref(),
+        "--units".as_ref(),
+        "m/s^2".as_ref(),
+        "--sections".as_ref(),
+        d.join("example_ferraris_session_list.json").as_os_str(),
+        "--poses".as_ref(),
+        "x_p=+x,x_a=-x,y_p=+y,y_a=-y,z_p=+z,z_a=-z".as_ref(),
+        "--out".as_ref(),
+        out.as_os_str(),
+    ]);
+    assert!(ok, "{stderr}");
+    assert!(
+        stdout.contains("poses: x_p 731, x_a 741, y_p 484, y_a 412, z_p 453, z_a 607"),
+        "{stdout}"
+    );
+    assert!(
+        stdout.contains("left out (not in the pose map): x_rot, y_rot, z_rot"),
+        "{stdout}"
+    );
+    out
+}
+
+fn calibrate(rec: &Path, name: &str, extra: &[&str]) -> Value {
+    let json = tmp(name);
+    let mut args: Vec<&std::ffi::OsStr> = vec!["calibrate".as_ref(), rec.as_os_str()];
+    args.extend(extra.iter().map(std::ffi::OsStr::new));
+    args.extend(["--json".as_ref(), json.as_os_str()]);
+    let (ok, stdout, stderr) = run(&args);
+    assert!(ok, "{stderr}");
+    println!("{stdout}");
+    let v: Value = serde_json::from_str(&std::fs::read_to_string(json).unwrap()).unwrap();
+    v["by_rate"][0].clone()
+}
+
+fn f(v: &Value) -> f64 {
+    v.as_f64().unwrap_or_else(|| panic!("not a number: {v}"))
+}
+
+fn matrix(v: &Value) -> [[f64; 3]; 3] {
+    [0, 1, 2].map(|i| [0, 1, 2].map(|j| f(&v[i][j])))
+}
+
+fn row_norm(r: &[f64; 3]) -> f64 {
+    r.iter().map(|x| x * x).sum::<f64>().sqrt()
+}
+
+/// imucal's intrinsic properties: the row norms of K_a·R_a are K_a; its angles are those
+/// between the rows of R_a.
+fn imucal_angles() -> [f64; 3] {
+    [(0, 1), (1, 2), (2, 0)].map(|(j, k)| {
+        let d: f64 = (0..3).map(|a| R_A[j][a] * R_A[k][a]).sum();
+        (d / (row_norm(&R_A[j]) * row_norm(&R_A[k])))
+            .acos()
+            .to_degrees()
+    })
+}
+
+/// Largest |ΔS_jk| relative to row j's sensitivity, |Δs|/s and |Δφ|/φ.
+fn compare(r: &Value) -> (f64, f64, f64) {
+    let s = matrix(&r["sensitivity_matrix"]["value"]);
+    let ds = (0..3)
+        .flat_map(|j| (0..3).map(move |k| (j, k)))
+        .map(|(j, k)| (s[j][k] - KR[j][k]).abs() / row_norm(&KR[j]))
+        .fold(0.0, f64::max);
+    let sens = &r["intrinsic"]["sensitivity"];
+    let dsens = ["u", "v", "w"]
+        .iter()
+        .zip(K_A)
+        .map(|(c, k)| (f(&sens[c]["value"]) - k).abs() / k)
+        .fold(0.0, f64::max);
+    let ang = &r["intrinsic"]["angle_deg"];
+    let dang = ["uv", "vw", "wu"]
+        .iter()
+        .zip(imucal_angles())
+        .map(|(c, a)| (f(&ang[c]["value"]) - a).abs() / a)
+        .fold(0.0, f64::max);
+    (ds, dsens, dang)
+}
+
+#[test]
+fn ferraris_session_agrees_with_imucal() {
+    let rec = import();
+
+    // The same pose means as imucal's (to rounding).
+    let r = calibrate(&rec, "default.json", &[]);
+    let poses = r["poses"]["list"].as_array().unwrap();
+    assert_eq!(poses.len(), 6);
+    for (p, (name, n, mean)) in poses.iter().zip(POSE_MEANS) {
+        assert_eq!(p["name"], name);
+        assert_eq!(p["n"].as_u64(), Some(n as u64));
+        for (k, m) in mean.iter().enumerate() {
+            let ours = f(&p["mean"][k]);
+            assert!(
+                (ours - m).abs() <= 1e-13 * m.abs().max(1.0),
+                "{name}[{k}]: {ours} vs {m}"
+            );
+        }
+    }
+
+    // Default (weights 1/(se² + τ²)): S, sensitivities and angles to 1e-6 relative.
+    let (ds, dsens, dang) = compare(&r);
+    println!("default weights: |ΔS|/s ≤ {ds:.2e}, |Δs|/s ≤ {dsens:.2e}, |Δφ|/φ ≤ {dang:.2e}");
+    assert!(ds <= 1e-6 && dsens <= 1e-6 && dang <= 1e-6);
+
+    // Equal weights, imucal's estimator on the same means: to rounding.
+    let eq = calibrate(
+        &rec,
+        "equal.json",
+        &["--pose-weights", "equal", "--offsets", "axis-pairs"],
+    );
+    let (ds, dsens, dang) = compare(&eq);
+    println!("equal weights:   |ΔS|/s ≤ {ds:.2e}, |Δs|/s ≤ {dsens:.2e}, |Δφ|/φ ≤ {dang:.2e}");
+    assert!(ds <= 1e-12 && dsens <= 1e-12 && dang <= 1e-12);
+
+    // imucal's offsets as an option: to 1e-6 relative (in fact to rounding).
+    for (c, b) in ["u", "v", "w"].iter().zip(B_A) {
+        let o = f(&eq["intrinsic"]["offset"][c]["value"]);
+        assert!((o - b).abs() <= 1e-6 * b.abs(), "O_{c}: {o} vs imucal {b}");
+        // With the default weights too: the pair estimator does not depend on them.
+        let o = f(&r["poses"]["offsets_axis_pairs"][c]["value"]);
+        assert!(
+            (o - b).abs() <= 1e-6 * b.abs(),
+            "O_{c} (pairs): {o} vs imucal {b}"
+        );
+    }
+
+    // The joint fit's offsets differ by construction: on x by about 0.014 m/s², which is
+    // how far these real poses depart from the model.
+    let diff = &r["poses"]["offsets_difference"];
+    let d = [0, 1, 2].map(|j| f(&diff[j]));
+    println!("offsets, joint − imucal: {d:?} m/s²");
+    assert!((0.0135..0.0145).contains(&d[0]), "{d:?}");
+    let joint = &r["intrinsic"]["offset"];
+    for (j, (c, b)) in ["u", "v", "w"].iter().zip(B_A).enumerate() {
+        assert!((f(&joint[c]["value"]) - b - d[j]).abs() < 1e-12);
+    }
+
+    // rotacal's uncertainties beside them (imucal gives none): positive, with Student's t
+    // for the 2 degrees of freedom of six poses.
+    assert!((f(&r["poses"]["k"]) - 4.302652729749464).abs() < 1e-9);
+    for q in ["sensitivity", "angle_deg", "offset"] {
+        for (_, x) in r["intrinsic"][q].as_object().unwrap() {
+            assert!(f(&x["std_unc"]) > 0.0 && f(&x["expanded_unc"]) > 4.0 * f(&x["std_unc"]));
+        }
+    }
+    // The six axis poses are as well conditioned as poses can be: √3.
+    assert!((f(&r["poses"]["condition_number"]) - 3f64.sqrt()).abs() < 1e-12);
+    assert!(r["poses"]["suggestion"].is_null());
+}
+
+#[test]
+fn applying_it_makes_every_pose_read_g() {
+    let rec = import();
+    let cal = tmp("apply-cal.json");
+    let (ok, _, stderr) = run(&[
+        "calibrate".as_ref(),
+        rec.as_os_str(),
+        "--json".as_ref(),
+        cal.as_os_str(),
+    ]);
+    assert!(ok, "{stderr}");
+    for frame in ["device", "platter"] {
+        let out = tmp(&format!("applied-{frame}.csv"));
+        let (ok, stdout, stderr) = run(&[
+            "apply".as_ref(),
+            cal.as_os_str(),
+            rec.as_os_str(),
+            "--out".as_ref(),
+            out.as_os_str(),
+            "--frame".as_ref(),
+            frame.as_ref(),
+        ]);
+        assert!(ok, "{stderr}");
+        println!("{frame}:\n{stdout}");
+        // Read back: |a| per row against g.
+        let recd = rotacal::recording::read(&out).unwrap();
+        let o = recd.oriented.as_ref().unwrap();
+        let mut by_pose: Vec<(String, Vec<f64>)> = Vec::new();
+        for (name, y) in o.pose.as_ref().unwrap().iter().zip(&o.y) {
+            let d = row_norm(y) - G;
+            match by_pose.iter_mut().find(|p| &p.0 == name) {
+                Some(p) => p.1.push(d),
+                None => by_pose.push((name.clone(), vec![d])),
+            }
+        }
+        let raw = rotacal::recording::read(&rec).unwrap();
+        let before: f64 = raw
+            .oriented
+            .as_ref()
+            .unwrap()
+            .y
+            .iter()
+            .map(|y| (row_norm(y) - G).powi(2))
+            .sum::<f64>();
+        let before = (before / o.y.len() as f64).sqrt();
+        let all: Vec<f64> = by_pose.iter().flat_map(|p| p.1.iter().copied()).collect();
+        let after = (all.iter().map(|d| d * d).sum::<f64>() / all.len() as f64).sqrt();
+        println!("RMS |a| − g: before {before:.4} m/s², after {after:.4} m/s²");
+        assert!(before > 0.5 && after < 0.02, "{before} {after}");
+        // Every pose: mean |a| − g against the noise of one reading (the std of |a|) and
+        // against the calibration's own uncertainty of |a| there (from the correction's
+        // covariance, which carries the poses' scatter about the model).
+        let text = std::fs::read_to_string(&cal).unwrap();
+        let all_c = rotacal::apply::read_corrections(&text, "cal").unwrap();
+        let f = if frame == "device" {
+            rotacal::correction::Frame::Device
+        } else {
+            rotacal::correction::Frame::Platter
+        };
+        let (_, corr) = rotacal::apply::choose(&all_c, None, f, "cal").unwrap();
+        for ((name, d), (_, _, mean)) in by_pose.iter().zip(POSE_MEANS) {
+            let n = d.len() as f64;
+            let m = d.iter().sum::<f64>() / n;
+            let sd = (d.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (n - 1.0)).sqrt();
+            let (a, u) = corr.apply(mean);
+            let ua = (0..3)
+                .map(|i| (a[i] / row_norm(&a) * u[i]).powi(2))
+                .sum::<f64>()
+                .sqrt();
+            println!(
+                "  {name}: mean |a| − g {m:+.4} m/s², std of one reading {sd:.4}, u_cal(|a|) {ua:.4}"
+            );
+            assert!(
+                m.abs() < 0.015 && m.abs() <= 2.0 * ua,
+                "{name}: {m} vs u {ua}"
+            );
+            assert!(sd < 0.02, "{name}: std {sd}");
+        }
+    }
+}

@@ -1,0 +1,259 @@
+//! Static calibration from known orientations (`rotacal::orientation`): the fit's
+//! uncertainties checked by Monte Carlo coverage, and poses that leave S and O
+//! under-determined or badly conditioned named.
+use rand::{Rng, SeedableRng};
+use rand_distr::{Distribution, Normal, StandardNormal};
+use rotacal::calibrate::from_poses;
+use rotacal::orientation::{self, Options, Pose, PoseError};
+
+const G: f64 = 9.81;
+
+/// A device like imucal's example IMU (m/s² in, m/s² out), skewed by a few mrad.
+const S: [[f64; 3]; 3] = [
+    [0.9966, -0.0148, -0.0075],
+    [0.0086, 1.0024, 0.0018],
+    [0.0136, 0.0021, 1.0233],
+];
+const O: [f64; 3] = [0.54, -0.62, 0.39];
+
+fn axes() -> Vec<[f64; 3]> {
+    vec![
+        [1.0, 0.0, 0.0],
+        [-1.0, 0.0, 0.0],
+        [0.0, 1.0, 0.0],
+        [0.0, -1.0, 0.0],
+        [0.0, 0.0, 1.0],
+        [0.0, 0.0, -1.0],
+    ]
+}
+
+fn unit(v: [f64; 3]) -> [f64; 3] {
+    let n = v.iter().map(|x| x * x).sum::<f64>().sqrt();
+    v.map(|x| x / n)
+}
+
+/// Readings at `dirs`, each pose truly tilted by a normal angle of `tilt_deg` (per axis)
+/// off its nominal direction, with white noise `sigma` on `n` readings.
+fn session(
+    dirs: &[[f64; 3]],
+    n: usize,
+    sigma: f64,
+    tilt_deg: f64,
+    rng: &mut impl Rng,
+) -> Vec<Pose> {
+    let noise = Normal::new(0.0, sigma).unwrap();
+    dirs.iter()
+        .enumerate()
+        .map(|(p, nominal)| {
+            let t: [f64; 3] = std::array::from_fn(|_| {
+                tilt_deg.to_radians() * Distribution::<f64>::sample(&StandardNormal, &mut *rng)
+            });
+            // Small rotation: ĝ' = ĝ + t × ĝ.
+            let g = unit([
+                nominal[0] + t[1] * nominal[2] - t[2] * nominal[1],
+                nominal[1] + t[2] * nominal[0] - t[0] * nominal[2],
+                nominal[2] + t[0] * nominal[1] - t[1] * nominal[0],
+            ]);
+            let rows: Vec<[f64; 3]> = (0..n)
+                .map(|_| {
+                    std::array::from_fn(|j| {
+                        G * (0..3).map(|k| S[j][k] * g[k]).sum::<f64>()
+                            + O[j]
+                            + noise.sample(&mut *rng)
+                    })
+                })
+                .collect();
+            let mean: [f64; 3] =
+                std::array::from_fn(|j| rows.iter().map(|r| r[j]).sum::<f64>() / n as f64);
+            let std = (n > 1).then(|| {
+                std::array::from_fn(|j| {
+                    (rows.iter().map(|r| (r[j] - mean[j]).powi(2)).sum::<f64>() / (n as f64 - 1.0))
+                        .sqrt()
+                })
+            });
+            Pose {
+                name: format!("p{p}"),
+                gravity: *nominal,
+                n,
+                mean,
+                std,
+                first_line: 0,
+            }
+        })
+        .collect()
+}
+
+fn truth() -> Vec<f64> {
+    let (s, a) = rotacal::simulate::intrinsic_of(&S);
+    S.iter()
+        .flatten()
+        .copied()
+        .chain(O)
+        .chain(s)
+        .chain(a)
+        .collect()
+}
+
+/// Fraction of 95 % intervals (k from the fit) holding the truth, per quantity:
+/// S (9), O (3), s (3), φ (3).
+fn coverage(dirs: &[[f64; 3]], n: usize, sigma: f64, tilt_deg: f64, trials: usize) -> Vec<f64> {
+    let mut rng = rand::rngs::StdRng::seed_from_u64(0x5EED);
+    let truth = truth();
+    let mut hits = vec![0usize; truth.len()];
+    for _ in 0..trials {
+        let poses = session(dirs, n, sigma, tilt_deg, &mut rng);
+        let cal = from_poses(poses, G, Options::default()).unwrap();
+        let k = cal.pose_fit.k;
+        let est: Vec<(f64, f64)> = cal
+            .s
+            .iter()
+            .flatten()
+            .zip(cal.s_std.iter().flatten())
+            .map(|(v, u)| (*v, *u))
+            .chain(cal.offsets.iter().map(|e| (e.value, e.std_unc)))
+            .chain(
+                cal.intrinsic
+                    .sensitivity
+                    .iter()
+                    .map(|e| (e.value, e.std_unc)),
+            )
+            .chain(cal.intrinsic.angle_deg.iter().map(|e| (e.value, e.std_unc)))
+            .collect();
+        for ((h, (v, u)), t) in hits.iter_mut().zip(est).zip(&truth) {
+            if (v - t).abs() <= k * u {
+                *h += 1;
+            }
+        }
+    }
+    hits.iter().map(|h| *h as f64 / trials as f64).collect()
+}
+
+fn report(name: &str, c: &[f64]) {
+    let names = [
+        "S_ux", "S_uy", "S_uz", "S_vx", "S_vy", "S_vz", "S_wx", "S_wy", "S_wz", "O_u", "O_v",
+        "O_w", "s_u", "s_v", "s_w", "φ_uv", "φ_vw", "φ_wu",
+    ];
+    let line: Vec<String> = names
+        .iter()
+        .zip(c)
+        .map(|(n, f)| format!("{n} {f:.3}"))
+        .collect();
+    let mean = c.iter().sum::<f64>() / c.len() as f64;
+    println!("{name}: mean {mean:.3}; {}", line.join(", "));
+}
+
+#[test]
+fn six_position_coverage_with_pose_scatter() {
+    // Like imucal's session: noise 0.014 m/s², 500 readings a pose, and each pose placed
+    // off its nominal direction by 0.1° (normal, per axis).
+    let c = coverage(&axes(), 500, 0.014, 0.1, 2000);
+    report("six poses, tilt 0.1°", &c);
+    // The fit's between-pose scatter τ_j is one variance per channel. A tilted pose moves
+    // channel j by g·S_j·δ, large where gravity is across S_j and small along it, so the
+    // pooled τ_j is too small for the off-diagonal elements (each from one up/down pair
+    // across its channel) and too large for the rest. Measured: off-diagonal S 0.91–0.92
+    // (a shortfall stated in docs/calibration.md), everything else ≥ 0.97.
+    for (i, f) in c.iter().enumerate() {
+        let off_diagonal = i < 9 && i % 4 != 0;
+        let bound = if off_diagonal { 0.90 } else { 0.95 };
+        assert!(*f >= bound, "quantity {i}: coverage {f}");
+    }
+}
+
+#[test]
+fn six_position_coverage_without_pose_scatter() {
+    // Poses exactly on their directions: the uncertainty comes from the pose noise.
+    let c = coverage(&axes(), 500, 0.014, 0.0, 2000);
+    report("six poses, no tilt", &c);
+    // Conservative: when χ² of the means exceeds its 2 degrees of freedom by chance, τ > 0
+    // is estimated and k becomes t(2) = 4.30.
+    assert!(c.iter().all(|f| *f >= 0.95), "{c:?}");
+}
+
+#[test]
+fn many_single_readings_coverage() {
+    // 26 directions (cube faces, edges, corners), one reading each: ordinary least squares.
+    let mut dirs = Vec::new();
+    for x in [-1.0, 0.0, 1.0] {
+        for y in [-1.0, 0.0, 1.0] {
+            for z in [-1.0f64, 0.0, 1.0] {
+                if x != 0.0 || y != 0.0 || z != 0.0 {
+                    dirs.push(unit([x, y, z]));
+                }
+            }
+        }
+    }
+    let c = coverage(&dirs, 1, 0.014, 0.0, 2000);
+    report("26 single readings", &c);
+    assert!(c.iter().all(|f| (0.93..=0.97).contains(f)), "{c:?}");
+}
+
+fn names(dirs: &[[f64; 3]]) -> Vec<Pose> {
+    let mut rng = rand::rngs::StdRng::seed_from_u64(1);
+    session(dirs, 20, 0.014, 0.0, &mut rng)
+}
+
+#[test]
+fn missing_orientations_are_named() {
+    // No pose sees z: S_jz is unobservable.
+    let four = &axes()[..4];
+    match orientation::fit(names(four), G, Options::default()) {
+        Err(e @ PoseError::UnderDetermined { .. }) => {
+            let m = e.to_string();
+            println!("{m}");
+            assert!(m.contains("along +z") || m.contains("along -z"), "{m}");
+        }
+        other => panic!("{other:?}"),
+    }
+    // Only +x, +y, +z: three poses for four unknowns per channel.
+    let up = [axes()[0], axes()[2], axes()[4]];
+    assert!(matches!(
+        orientation::fit(names(&up), G, Options::default()),
+        Err(PoseError::UnderDetermined { poses: 3, .. })
+    ));
+    // Five of six: determined, one degree of freedom, well conditioned.
+    let five = &axes()[..5];
+    let f = orientation::fit(names(five), G, Options::default()).unwrap();
+    assert_eq!(f.dof, 1);
+    assert!(f.conditioning.suggestion.is_none());
+    // imucal's offsets need the sixth.
+    let opts = Options {
+        offsets: orientation::OffsetEstimator::AxisPairs,
+        ..Options::default()
+    };
+    let e = orientation::fit(names(five), G, opts).unwrap_err();
+    assert!(e.to_string().contains("along -z"), "{e}");
+    // Four poses that barely see z (one tilted 3° out of the x-y plane): flagged, and the
+    // suggestion is a z pose.
+    let mut weak = axes()[..4].to_vec();
+    weak.push(unit([1.0, 0.0, 3f64.to_radians().tan()]));
+    let f = orientation::fit(names(&weak), G, Options::default()).unwrap();
+    let s = f.conditioning.suggestion.clone().unwrap();
+    println!(
+        "condition number {:.1}: add {s}",
+        f.conditioning.condition_number
+    );
+    assert!(f.conditioning.condition_number > orientation::WELL_CONDITIONED);
+    assert!(s.contains('z'), "{s}");
+    // Four exact poses, one reading each: S and O exactly determined, no uncertainty.
+    let mut rng = rand::rngs::StdRng::seed_from_u64(2);
+    let tetra = [axes()[0], axes()[2], axes()[4], unit([-1.0, -1.0, -1.0])];
+    let e = orientation::fit(
+        session(&tetra, 1, 0.014, 0.0, &mut rng),
+        G,
+        Options::default(),
+    )
+    .unwrap_err();
+    assert_eq!(e, PoseError::NoUncertainty(4));
+}
+
+#[test]
+fn a_pose_that_moved_is_flagged() {
+    let mut rng = rand::rngs::StdRng::seed_from_u64(3);
+    let mut poses = session(&axes(), 200, 0.014, 0.0, &mut rng);
+    if let Some(s) = poses[2].std.as_mut() {
+        s[1] *= 5.0;
+    }
+    let f = orientation::fit(poses, G, Options::default()).unwrap();
+    assert_eq!(f.not_still, vec!["p2".to_string()]);
+}
