@@ -168,23 +168,55 @@ fn norm(x: &[f64; 3]) -> f64 {
     x.iter().map(|v| v * v).sum::<f64>().sqrt()
 }
 
+/// What to apply and how to label the output.
+#[derive(Clone, Debug)]
+pub struct Job<'a> {
+    /// The correction.
+    pub correction: &'a Correction,
+    /// The calibration's readings units (`units_in`): the recording's must match.
+    pub units_in: &'a str,
+    /// The calibration's coverage factor, written as `# coverage_factor=`.
+    pub k: f64,
+    /// The calibration file's name, written as `# calibration=`.
+    pub cal_name: &'a str,
+    /// g for |a| − g, m/s² (else the recording's).
+    pub g_loc: Option<f64>,
+    /// The output's name, for messages.
+    pub out_name: &'a str,
+}
+
+/// The recording's units must be the calibration's (a file already in m/s², or in other
+/// units, would be corrected into nonsense).
+pub fn check_units(rec: &Recording, job: &Job<'_>) -> Result<(), ApplyError> {
+    match &rec.meta.units {
+        Some(u) if u.trim() != job.units_in.trim() => Err(bad(
+            &rec.source,
+            format!(
+                "units '{u}', but the calibration {} is for readings in '{}'",
+                job.cal_name, job.units_in
+            ),
+        )),
+        _ => Ok(()),
+    }
+}
+
 /// Correct every row of `rec` and write the result to `out`.
-pub fn apply<W: Write>(
-    rec: &Recording,
-    corr: &Correction,
-    cal_name: &str,
-    g_loc: Option<f64>,
-    out: W,
-) -> Result<Summary, ApplyError> {
-    let io = |e: std::io::Error| bad("output", e.to_string());
+pub fn apply<W: Write>(rec: &Recording, job: &Job<'_>, out: W) -> Result<Summary, ApplyError> {
+    check_units(rec, job)?;
+    let corr = job.correction;
+    let io = |e: std::io::Error| bad(job.out_name, e.to_string());
     let mut meta: Metadata = rec.meta.clone();
     meta.units = Some("m/s^2".into());
     meta.noise_sigma = None;
-    meta.g_loc = g_loc.or(meta.g_loc);
+    meta.g_loc = job.g_loc.or(meta.g_loc);
     meta.other
         .insert("frame".into(), corr.frame.as_str().into());
+    meta.other.insert(
+        "calibration".into(),
+        job.cal_name.replace(['\n', '\r'], " "),
+    );
     meta.other
-        .insert("calibration".into(), cal_name.replace(['\n', '\r'], " "));
+        .insert("coverage_factor".into(), format!("{}", job.k));
     meta.method = Some(rec.method);
     let g = meta.g_loc;
     let mut ss_before = 0.0;
@@ -210,6 +242,8 @@ pub fn apply<W: Write>(
     if let Some(o) = &rec.oriented {
         let cols = Columns {
             t_s: o.t_s.is_some(),
+            seq: o.seq.is_some(),
+            temp_c: o.temp_c.is_some(),
             gravity: true,
             pose: o.pose.is_some(),
             unc: true,
@@ -222,6 +256,8 @@ pub fn apply<W: Write>(
             row.gravity = Some(*gdir);
             row.unc = Some(u);
             row.t_s = o.t_s.as_ref().and_then(|t| t.get(i).copied());
+            row.seq = o.seq.as_ref().and_then(|t| t.get(i).copied());
+            row.temp_c = o.temp_c.as_ref().and_then(|t| t.get(i).copied());
             let name = o.pose.as_ref().and_then(|p| p.get(i)).cloned();
             row.pose = name.as_deref();
             w.write_row(&row).map_err(io)?;
@@ -254,8 +290,7 @@ pub fn apply<W: Write>(
                 row.seq = grp.seq.as_ref().and_then(|s| s.get(i).copied());
                 row.temp_c = grp.temp_c.as_ref().and_then(|s| s.get(i).copied());
                 row.rate_hz = grp.rate_hz.filter(|_| cols.rate_hz);
-                w.write_row(&row)
-                    .map_err(|e| bad(&rec.source, format!("line {}…: {e}", grp.first_line)))?;
+                w.write_row(&row).map_err(io)?;
                 let key = stat.then(|| {
                     format!(
                         "{} {}°",
@@ -314,9 +349,19 @@ pub fn run(
     let g = serde_json::from_str::<serde_json::Value>(&text)
         .ok()
         .and_then(|v| v.get("g_loc").and_then(serde_json::Value::as_f64));
-    let file =
-        std::fs::File::create(out).map_err(|e| bad(&out.display().to_string(), e.to_string()))?;
-    let s = apply(&rec, &corr, &cal.display().to_string(), g, file)?;
+    let (out_name, cal_name) = (out.display().to_string(), cal.display().to_string());
+    let job = Job {
+        correction: &corr,
+        units_in: &json.units_in,
+        k: json.k,
+        cal_name: &cal_name,
+        g_loc: g,
+        out_name: &out_name,
+    };
+    // Checked before the output is created: a refused input leaves no file behind.
+    check_units(&rec, &job)?;
+    let file = std::fs::File::create(out).map_err(|e| bad(&out_name, e.to_string()))?;
+    let s = apply(&rec, &job, file)?;
     Ok((s.clone(), render(&s, &json.units_in)))
 }
 

@@ -163,6 +163,8 @@ pub fn calibrate(rec: &Recording, opts: &Options) -> Result<CalibrationJson, Cal
     let mut by_rate = Vec::new();
     match method {
         Method::Rotation => {
+            rec.require_conditions("rotation calibration")
+                .map_err(|e| err(rec, None, e.kind.to_string()))?;
             for rate in rec.rates() {
                 let nominal = rate
                     .or(opts.rate_hz)
@@ -197,7 +199,15 @@ pub fn calibrate(rec: &Recording, opts: &Options) -> Result<CalibrationJson, Cal
                 let mut entry = calibration_file::rotation_entry(nominal, &cal, json_fits);
                 let device = rotation_correction([fx, fy, fz], g)
                     .map_err(|e| err(rec, None, format!("at {nominal} Hz: {e}")))?;
-                entry.correction = Some(CorrectionJson::new(&units, device, None));
+                entry.correction = Some(CorrectionJson::new(
+                    &units,
+                    device,
+                    None,
+                    calibration_file::K,
+                    "the mean of the three conditions' C at this rate: it includes the \
+                     centripetal acceleration ω²·r of a sensor off the axis, which one rate \
+                     cannot separate",
+                ));
                 if let Some(trials) = opts.monte_carlo {
                     let cf = [fx, fy, fz].map(calibrate::condition_fit);
                     let mc = calibrate::monte_carlo_rotation(&cf, g, trials, 1)
@@ -205,6 +215,9 @@ pub fn calibrate(rec: &Recording, opts: &Options) -> Result<CalibrationJson, Cal
                     entry.monte_carlo = Some(calibration_file::mc_map(mc));
                 }
                 by_rate.push(entry);
+            }
+            if by_rate.len() >= 2 {
+                offsets_at_rest(&mut by_rate).map_err(|e| err(rec, None, e))?;
             }
         }
         Method::Static if rec.oriented.is_some() => {
@@ -255,6 +268,71 @@ pub fn calibrate(rec: &Recording, opts: &Options) -> Result<CalibrationJson, Cal
     })
 }
 
+/// Multi-rate rotation: each condition's C_j against ω² is a line whose intercept is the
+/// offset at rest (the centripetal term grows as ω²·r); O_j is the mean of the three
+/// conditions' intercepts, and every rate's correction gets it.
+fn offsets_at_rest(by_rate: &mut [calibration_file::RateJson]) -> Result<(), String> {
+    let mut offset = [0.0; 3];
+    let mut var = [0.0; 3];
+    for cond in ["x", "y", "z"] {
+        for (j, ch) in ["u", "v", "w"].iter().enumerate() {
+            // (ω², C, se_C) over the rates.
+            let pts: Vec<(f64, f64, f64)> = by_rate
+                .iter()
+                .filter_map(|r| {
+                    let f = r
+                        .fits
+                        .iter()
+                        .find(|f| f.condition == cond && f.channel == *ch)?;
+                    let hz = f.rate_hz_fitted.or(r.rate_hz)?;
+                    Some(((std::f64::consts::TAU * hz).powi(2), f.c, f.se_c))
+                })
+                .collect();
+            // Weighted line C = O + b·ω².
+            let (mut s, mut sx, mut sxx, mut sy, mut sxy) = (0.0, 0.0, 0.0, 0.0, 0.0);
+            for (x, y, se) in &pts {
+                let w = 1.0 / (se * se);
+                s += w;
+                sx += w * x;
+                sxx += w * x * x;
+                sy += w * y;
+                sxy += w * x * y;
+            }
+            let det = s * sxx - sx * sx;
+            if !(det.is_finite() && det > 0.0) {
+                return Err(format!(
+                    "condition {cond}, channel {ch}: the offsets against ω² cannot be fitted"
+                ));
+            }
+            offset[j] += (sxx * sy - sx * sxy) / det / 3.0;
+            var[j] += sxx / det / 9.0;
+        }
+    }
+    let source = format!(
+        "each condition's C at ω = 0 from a line C = O + b·ω² over {} rates (the \
+         centripetal term removed), averaged over the three conditions",
+        by_rate.len()
+    );
+    for r in by_rate.iter_mut() {
+        if let Some(c) = r.correction.as_mut() {
+            let d = &mut c.device_frame;
+            for j in 0..3 {
+                d.offset[j] = offset[j];
+                d.offset_std_unc[j] = var[j].sqrt();
+                for (k, row) in d.covariance.iter_mut().enumerate() {
+                    for (l, x) in row.iter_mut().enumerate() {
+                        if k == 9 + j || l == 9 + j {
+                            *x = if k == l { var[j] } else { 0.0 };
+                        }
+                    }
+                }
+            }
+            c.offset_source = source.clone();
+        }
+    }
+    Ok(())
+}
+
 fn static_json(
     rec: &Recording,
     cal: &calibrate::StaticCalibration,
@@ -268,7 +346,19 @@ fn static_json(
         entry.monte_carlo = Some(calibration_file::mc_map(mc));
     }
     let (device, platter) = static_correction(cal).map_err(|e| err(rec, None, e.to_string()))?;
-    entry.correction = Some(CorrectionJson::new(units, device, Some(platter)));
+    let source = match cal.pose_fit.options.offsets {
+        orientation::OffsetEstimator::Joint => "the joint fit of S and O to all poses",
+        orientation::OffsetEstimator::AxisPairs => {
+            "the up/down pair of each channel's own axis (imucal's estimator)"
+        }
+    };
+    entry.correction = Some(CorrectionJson::new(
+        units,
+        device,
+        Some(platter),
+        cal.pose_fit.k,
+        source,
+    ));
     Ok(entry)
 }
 
@@ -437,13 +527,15 @@ pub fn render(c: &CalibrationJson) -> String {
         if let Some(p) = &r.poses {
             if (p.k - calibration_file::K).abs() > 1e-12 {
                 let nu = p.nu.iter().fold(f64::INFINITY, |a, b| a.min(*b));
-                let _ = writeln!(
-                    o,
-                    "  k = {:.2}: Student's t for ν = {nu} (the poses' scatter about the model \
-                     is estimated from {} poses − 4)",
-                    p.k,
-                    p.list.len()
-                );
+                let why = if p.tau.iter().any(|t| *t > 0.0) {
+                    format!(
+                        "the poses' scatter about the model, estimated from {} poses − 4",
+                        p.list.len()
+                    )
+                } else {
+                    "the readings' scatter within the poses".to_string()
+                };
+                let _ = writeln!(o, "  k = {:.2}: Student's t for ν = {nu} ({why})", p.k);
             }
         }
         let q = |name: &str, x: &calibration_file::Quantity, unit: &str| {

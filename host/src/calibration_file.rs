@@ -100,17 +100,30 @@ pub struct CorrectionJson {
     pub device_frame: Correction,
     /// The platter frame (static data only).
     pub platter_frame: Option<Correction>,
+    /// Coverage factor for 95 % intervals from the standard uncertainties here (and from
+    /// `rotacal apply`'s `u_unc` columns): the calibration's.
+    pub k: f64,
+    /// Where the offsets come from.
+    pub offset_source: String,
 }
 
 impl CorrectionJson {
     /// Both frames with the convention stated.
-    pub fn new(units_in: &str, device: Correction, platter: Option<Correction>) -> Self {
+    pub fn new(
+        units_in: &str,
+        device: Correction,
+        platter: Option<Correction>,
+        k: f64,
+        offset_source: &str,
+    ) -> Self {
         CorrectionJson {
             convention: crate::correction::CONVENTION.to_string(),
             units_in: units_in.to_string(),
             units_out: "m/s^2".to_string(),
             device_frame: device,
             platter_frame: platter,
+            k,
+            offset_source: offset_source.to_string(),
         }
     }
 }
@@ -132,7 +145,8 @@ pub struct PoseJson {
     pub std_err: Option<[f64; 3]>,
     /// Mean minus model.
     pub residual: [f64; 3],
-    /// File line of its first reading (0: not from a file).
+    /// File line of its first reading; for stepped files, of its condition's first row
+    /// (0: not from a file).
     pub first_line: u64,
 }
 

@@ -104,16 +104,14 @@ pub fn gram_of(s: &[[f64; 3]; 3]) -> [[f64; 3]; 3] {
     from_m3(&(m * m.transpose()))
 }
 
-/// Covariance of `f(x)` by linear propagation, `J·Σ·Jᵀ`, with `J` by central differences.
-pub fn propagate(
-    f: &dyn Fn(&[f64]) -> Option<Vec<f64>>,
-    x: &[f64],
-    cov: &DMatrix<f64>,
-) -> Option<DMatrix<f64>> {
+/// The Jacobian of `f` at `x` by central differences. The step for x_k is 1e-6 of |x_k|,
+/// but not below 1e-9 of the largest |x| (so that an element near zero still moves).
+pub fn jacobian(f: &dyn Fn(&[f64]) -> Option<Vec<f64>>, x: &[f64]) -> Option<DMatrix<f64>> {
     let y0 = f(x)?;
+    let big = x.iter().fold(0.0f64, |a, v| a.max(v.abs())).max(1e-300);
     let mut j = DMatrix::zeros(y0.len(), x.len());
     for k in 0..x.len() {
-        let h = 1e-6 * x.get(k).map_or(1.0, |v| v.abs()).max(1e-6 * scale(x));
+        let h = 1e-6 * x.get(k).map_or(big, |v| v.abs()).max(1e-3 * big);
         let mut xp = x.to_vec();
         let mut xm = x.to_vec();
         if let (Some(p), Some(m)) = (xp.get_mut(k), xm.get_mut(k)) {
@@ -125,11 +123,17 @@ pub fn propagate(
             j[(i, k)] = (a - b) / (2.0 * h);
         }
     }
-    Some(&j * cov * j.transpose())
+    Some(j)
 }
 
-fn scale(x: &[f64]) -> f64 {
-    x.iter().fold(0.0f64, |a, v| a.max(v.abs())).max(1e-300)
+/// Covariance of `f(x)` by linear propagation, `J·Σ·Jᵀ`.
+pub fn propagate(
+    f: &dyn Fn(&[f64]) -> Option<Vec<f64>>,
+    x: &[f64],
+    cov: &DMatrix<f64>,
+) -> Option<DMatrix<f64>> {
+    let j = jacobian(f, x)?;
+    Some(&j * cov * j.transpose())
 }
 
 impl Correction {
@@ -187,31 +191,32 @@ impl Correction {
 }
 
 /// Device- and platter-frame corrections from S and O with the covariance of
-/// (S row-major, O) (static data).
+/// (S row-major, O) (static data). M depends on S alone, so the Jacobian of (M, O) is
+/// block-diagonal: numerical for M, the identity for O.
 pub fn from_matrix(
     s: &[[f64; 3]; 3],
     offset: [f64; 3],
     cov: &DMatrix<f64>,
 ) -> Result<(Correction, Correction), CorrectionError> {
-    let x: Vec<f64> = s.iter().flatten().copied().chain(offset).collect();
+    if cov.nrows() != PARAMS || cov.ncols() != PARAMS {
+        return Err(CorrectionError::Covariance);
+    }
+    let x: Vec<f64> = s.iter().flatten().copied().collect();
     let unpack = |x: &[f64]| -> [[f64; 3]; 3] {
         [0, 1, 2].map(|i| [0, 1, 2].map(|j| x.get(3 * i + j).copied().unwrap_or(f64::NAN)))
     };
-    let out = |m: Option<[[f64; 3]; 3]>, x: &[f64]| -> Option<Vec<f64>> {
-        Some(
-            m?.iter()
-                .flatten()
-                .copied()
-                .chain(x.iter().skip(9).copied())
-                .collect(),
-        )
-    };
-    let dev = |x: &[f64]| out(device_matrix(&gram_of(&unpack(x))), x);
-    let pla = |x: &[f64]| out(platter_matrix(&unpack(x)), x);
+    let flat = |m: Option<[[f64; 3]; 3]>| -> Option<Vec<f64>> { Some(m?.concat()) };
+    let dev = |x: &[f64]| flat(device_matrix(&gram_of(&unpack(x))));
+    let pla = |x: &[f64]| flat(platter_matrix(&unpack(x)));
     let build = |frame, f: &dyn Fn(&[f64]) -> Option<Vec<f64>>| {
         let m = f(&x).ok_or(CorrectionError::Singular)?;
-        let c = propagate(f, &x, cov).ok_or(CorrectionError::Singular)?;
-        Correction::new(frame, unpack(&m), offset, &c)
+        let jm = jacobian(f, &x).ok_or(CorrectionError::Singular)?;
+        let mut j = DMatrix::zeros(PARAMS, PARAMS);
+        j.view_mut((0, 0), (9, 9)).copy_from(&jm);
+        for k in 9..PARAMS {
+            j[(k, k)] = 1.0;
+        }
+        Correction::new(frame, unpack(&m), offset, &(&j * cov * j.transpose()))
     };
     Ok((build(Frame::Device, &dev)?, build(Frame::Platter, &pla)?))
 }

@@ -134,6 +134,8 @@ pub fn crosscheck(
     log: &[LogLine],
     threshold: f64,
 ) -> Result<CrosscheckReport, String> {
+    rec.require_conditions("the cross-check")
+        .map_err(|e| e.to_string())?;
     let fits = log
         .iter()
         .filter_map(|l| match l {

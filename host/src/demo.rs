@@ -93,6 +93,9 @@ pub struct Demo {
     pub crosscheck: CrosscheckReport,
     /// The report's Markdown file.
     pub report: PathBuf,
+    /// The calibration applied to the recording (device frame), written as
+    /// recording-ms2.csv.
+    pub applied: crate::apply::Summary,
     /// The paper's puzzle, worked by the discrepancy workflow.
     pub puzzle: Puzzle,
 }
@@ -263,6 +266,23 @@ pub fn run(seed: u64, dir: &Path) -> anyhow::Result<Demo> {
         serde_json::to_string_pretty(&crosscheck)? + "\n",
     )?;
     let report = crate::report::write(&rec, &Default::default(), &dir.join("report"))?;
+    let correction = calibration
+        .by_rate
+        .first()
+        .and_then(|r| r.correction.as_ref())
+        .ok_or_else(|| anyhow::anyhow!("the calibration has no correction"))?;
+    let applied = crate::apply::apply(
+        &rec,
+        &crate::apply::Job {
+            correction: &correction.device_frame,
+            units_in: &correction.units_in,
+            k: correction.k,
+            cal_name: "calibration.json",
+            g_loc: Some(PAPER_G_LOC),
+            out_name: "recording-ms2.csv",
+        },
+        std::fs::File::create(dir.join("recording-ms2.csv"))?,
+    )?;
     let puzzle = puzzle(seed, dir)?;
     let [s0, s1, s2, a0, a1, a2, ..] = truth;
     Ok(Demo {
@@ -273,6 +293,7 @@ pub fn run(seed: u64, dir: &Path) -> anyhow::Result<Demo> {
         calibration,
         crosscheck,
         report,
+        applied,
         puzzle,
     })
 }
@@ -357,6 +378,19 @@ pub fn render(d: &Demo) -> String {
         d.dir.display(),
         d.report.display()
     );
+    if let Some(after) = d.applied.rms_after {
+        // The fits' residual RMS in m/s²: the noise one reading carries.
+        let noise = r.fits.iter().map(|f| f.rms_residual).sum::<f64>()
+            / r.fits.len().max(1) as f64
+            / r.intrinsic.sensitivity.u.value;
+        let _ = writeln!(
+            o,
+            "\nApplied (rotacal apply, device frame, a = L⁻¹·(y − O) with G = L·Lᵀ): {} rows in m/s² with\n\
+             their uncertainties in recording-ms2.csv; RMS of |a| − g = {after:.2e} m/s², the noise of one\n\
+             reading (the fits' residual RMS: {noise:.2e} m/s²).",
+            d.applied.rows
+        );
+    }
     let p = &d.puzzle;
     let _ = writeln!(
         o,

@@ -30,6 +30,11 @@ pub enum Precision {
     F64,
 }
 
+/// Text made safe inside a C block comment and a Rust line comment.
+fn clean(s: &str) -> String {
+    s.replace(['\n', '\r'], " ").replace("*/", "* /")
+}
+
 fn lit(x: f64) -> String {
     format!("{x:.16e}")
 }
@@ -69,7 +74,11 @@ pub fn render(
     precision: Precision,
 ) -> String {
     let mut o = String::new();
-    let head = header_lines(json, c, source);
+    let head: Vec<String> = header_lines(json, c, source)
+        .iter()
+        .map(|l| clean(l))
+        .collect();
+    let units_in = clean(&json.units_in);
     match format {
         Format::Json => {
             let v = serde_json::json!({
@@ -94,10 +103,10 @@ pub fn render(
             let suffix = if precision == Precision::F32 { "f" } else { "" };
             o.push_str("/*\n");
             for l in &head {
-                let _ = writeln!(o, " * {}", l.replace("*/", "* /"));
+                let _ = writeln!(o, " * {l}");
             }
             o.push_str(" */\n#ifndef ROTACAL_CALIBRATION_H\n#define ROTACAL_CALIBRATION_H\n\n");
-            let _ = writeln!(o, "/* O, in {} */", json.units_in);
+            let _ = writeln!(o, "/* O, in {} */", units_in);
             let _ = writeln!(
                 o,
                 "static const {ty} ROTACAL_OFFSET[3] = {{{}}};",
@@ -106,7 +115,7 @@ pub fn render(
             let _ = writeln!(
                 o,
                 "/* M, m/s^2 per {}; a[i] = sum_k M[i][k] * (y[k] - O[k]) */",
-                json.units_in
+                units_in
             );
             let _ = writeln!(o, "static const {ty} ROTACAL_MATRIX[3][3] = {{");
             for row in &c.matrix {
@@ -135,7 +144,7 @@ pub fn render(
                 let _ = writeln!(o, "//! {l}");
             }
             o.push('\n');
-            let _ = writeln!(o, "/// O, in {}.", json.units_in);
+            let _ = writeln!(o, "/// O, in {}.", units_in);
             let _ = writeln!(
                 o,
                 "pub const OFFSET: [{ty}; 3] = [{}];",
@@ -144,7 +153,7 @@ pub fn render(
             let _ = writeln!(
                 o,
                 "/// M, m/s² per {}: `a[i] = Σ_k M[i][k]·(y[k] − O[k])`.",
-                json.units_in
+                units_in
             );
             let _ = writeln!(o, "pub const MATRIX: [[{ty}; 3]; 3] = [");
             for row in &c.matrix {

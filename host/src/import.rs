@@ -107,7 +107,7 @@ pub struct ImportSpec {
 /// gravity direction (of the reading, in the platter frame).
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct PoseSections {
-    /// (name, first data row, one past the last), in file order of the list.
+    /// (name, first data row, one past the last), sorted by name.
     pub sections: Vec<(String, usize, usize)>,
     /// (section name, ĝ) for the sections to import.
     pub map: Vec<(String, [f64; 3])>,
@@ -286,9 +286,11 @@ pub fn import<W: Write>(
                 inputs.len()
             )));
         }
-        if c.condition.is_some() || c.angle.is_some() {
+        if c.condition.is_some() || c.angle.is_some() || !spec.conditions.is_empty() {
             return Err(whole(
-                "with a section list, poses replace conditions and angles: map neither".into(),
+                "with a section list, poses replace conditions and angles: give neither a \
+                 condition nor an angle (column or --condition)"
+                    .into(),
             ));
         }
         if let Some((name, _)) = p
@@ -388,10 +390,13 @@ pub fn import<W: Write>(
                 let t = num(idx, "t")? * spec.time_scale;
                 match last_t.iter_mut().find(|(cd, _)| *cd == condition) {
                     Some((_, prev)) if t < *prev => {
-                        return Err(err(format!(
-                            "time went backwards in condition {}: {t} s after {prev} s",
-                            condition.letter()
-                        )))
+                        return Err(err(match pose {
+                            Some(_) => format!("time went backwards: {t} s after {prev} s"),
+                            None => format!(
+                                "time went backwards in condition {}: {t} s after {prev} s",
+                                condition.letter()
+                            ),
+                        }))
                     }
                     Some((_, prev)) => *prev = t,
                     None => last_t.push((condition, t)),

@@ -133,7 +133,7 @@ enum Command {
         out: Option<PathBuf>,
     },
     /// A Markdown report with SVG plots: data and fits, residuals, residual spectrum,
-    /// the intrinsic properties with U (k = 2), properties against rate.
+    /// the intrinsic properties with U (95 %), properties against rate.
     Report {
         /// The recording CSV.
         file: PathBuf,

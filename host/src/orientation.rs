@@ -31,7 +31,8 @@ pub struct Pose {
     /// Sample standard deviation of the readings (output units): how still the device
     /// was. `None` for a single reading.
     pub std: Option<[f64; 3]>,
-    /// 1-based file line of its first reading.
+    /// 1-based file line of its first reading (stepped files: of its condition's first
+    /// row; 0: not from a file).
     pub first_line: u64,
 }
 
@@ -148,6 +149,9 @@ pub struct ChannelFit {
     pub chi2_dof_noise_only: f64,
     /// Degrees of freedom behind the variance.
     pub nu: f64,
+    /// Equal weights: the variance of one pose mean, from the residuals (noise and scatter
+    /// together). `None` for random-effects weights (then it is se_p² + τ²).
+    pub pose_var: Option<f64>,
 }
 
 /// The result.
@@ -246,9 +250,10 @@ pub fn poses_from_oriented(o: &Oriented) -> Result<Vec<Pose>, PoseError> {
     let mut groups: Vec<(String, [f64; 3], Rows, u64)> = Vec::new();
     for (i, (g, y)) in o.gravity.iter().zip(&o.y).enumerate() {
         let line = o.line.get(i).copied().unwrap_or(0);
+        // Without names, a pose is one exact direction (named after grouping).
         let key = match &o.pose {
             Some(names) => names.get(i).cloned().unwrap_or_default(),
-            None => direction_name(g),
+            None => format!("{:?}", g.map(f64::to_bits)),
         };
         match groups.iter_mut().find(|p| p.0 == key) {
             Some(p) => {
@@ -264,10 +269,25 @@ pub fn poses_from_oriented(o: &Oriented) -> Result<Vec<Pose>, PoseError> {
             None => groups.push((key, *g, vec![*y], line)),
         }
     }
+    let named = o.pose.is_some();
+    let mut names: Vec<String> = Vec::new();
     Ok(groups
         .into_iter()
-        .map(|(name, gravity, rows, first_line)| {
+        .map(|(key, gravity, rows, first_line)| {
             let (mean, std) = mean_std(&rows);
+            let name = if named {
+                key
+            } else {
+                // Directions that print alike get the line of their first reading too.
+                let d = direction_name(&gravity);
+                let name = if names.contains(&d) {
+                    format!("{d} (line {first_line})")
+                } else {
+                    d
+                };
+                names.push(name.clone());
+                name
+            };
             Pose {
                 name,
                 gravity,
@@ -406,7 +426,7 @@ pub fn fit(poses: Vec<Pose>, g: f64, opts: Options) -> Result<PoseFit, PoseError
         .map(|q| [g * q.gravity[0], g * q.gravity[1], g * q.gravity[2], 1.0])
         .collect();
     let all_repeated = poses.iter().all(|q| q.std.is_some());
-    if dof == 0 && !all_repeated {
+    if dof == 0 && (!all_repeated || opts.weights == Weights::Equal) {
         return Err(PoseError::NoUncertainty(p));
     }
     let noise_dof: f64 = poses.iter().map(|q| q.n.saturating_sub(1) as f64).sum();
@@ -418,7 +438,21 @@ pub fn fit(poses: Vec<Pose>, g: f64, opts: Options) -> Result<PoseFit, PoseError
     let mut channels = Vec::with_capacity(3);
     for j in 0..3 {
         let y: Vec<f64> = poses.iter().map(|q| q.mean[j]).collect();
-        let se2: Vec<f64> = poses.iter().map(|q| q.se()[j].powi(2)).collect();
+        // A pose whose readings did not change at all in this channel (a quantised sensor
+        // held still) has se = 0, which is not a known variance: it gets the smallest
+        // standard error of the other poses.
+        let floor = poses
+            .iter()
+            .map(|q| q.se()[j].powi(2))
+            .filter(|v| *v > 0.0)
+            .fold(f64::INFINITY, f64::min);
+        let se2: Vec<f64> = poses
+            .iter()
+            .map(|q| match q.std {
+                Some(_) if floor.is_finite() => q.se()[j].powi(2).max(floor),
+                _ => 0.0,
+            })
+            .collect();
         let ones = vec![1.0; p];
         let (_, _, rss) = wls(&x, &y, &ones).ok_or_else(singular)?;
         let chi2_noise = if all_repeated && se2.iter().all(|v| *v > 0.0) && dof > 0 {
@@ -429,8 +463,10 @@ pub fn fit(poses: Vec<Pose>, g: f64, opts: Options) -> Result<PoseFit, PoseError
         let (coef, cov, tau2, nu) = match opts.weights {
             Weights::Equal => {
                 let (beta, inv, rss) = wls(&x, &y, &ones).ok_or_else(singular)?;
-                let s2 = if dof > 0 { rss / dof as f64 } else { 0.0 };
-                (beta, inv * s2, s2, dof as f64)
+                let s2 = rss / dof as f64;
+                // τ² here: what the scatter of the means has beyond their own noise.
+                let noise = se2.iter().sum::<f64>() / p as f64;
+                (beta, inv * s2, (s2 - noise).max(0.0), dof as f64)
             }
             Weights::RandomEffects => {
                 let var = |t2: f64| se2.iter().map(|s| s + t2).collect::<Vec<f64>>();
@@ -444,10 +480,13 @@ pub fn fit(poses: Vec<Pose>, g: f64, opts: Options) -> Result<PoseFit, PoseError
                     _ => {
                         // χ²(τ²) falls as τ² grows; at RSS/dof it is ≤ dof.
                         let (mut lo, mut hi) = (0.0f64, rss / dof as f64);
+                        let top = hi;
                         if hi > 0.0 {
                             for _ in 0..200 {
                                 let mid = 0.5 * (lo + hi);
-                                if mid <= lo || mid >= hi {
+                                // Below 1e-9 of the top, τ² no longer matters (and poses of
+                                // one reading would get weights without bound).
+                                if mid <= lo || mid >= hi || hi < 1e-9 * top {
                                     break;
                                 }
                                 let chi2 = wls(&x, &y, &var(mid)).map_or(0.0, |r| r.2);
@@ -480,6 +519,10 @@ pub fn fit(poses: Vec<Pose>, g: f64, opts: Options) -> Result<PoseFit, PoseError
             tau: tau2.sqrt(),
             chi2_dof_noise_only: chi2_noise,
             nu,
+            pose_var: match opts.weights {
+                Weights::Equal => Some(rss / dof as f64),
+                Weights::RandomEffects => None,
+            },
         });
     }
     let [cu, cv, cw] = channels.as_slice() else {
@@ -555,8 +598,10 @@ fn axis_pairs(poses: &[Pose], ch: &[ChannelFit; 3]) -> Result<[Estimate; 3], Pos
     }; 3];
     for (j, o) in out.iter_mut().enumerate() {
         let (up, down) = (find(j, 1.0)?, find(j, -1.0)?);
-        let t2 = ch[j].tau.powi(2);
-        let v = up.se()[j].powi(2) + down.se()[j].powi(2) + 2.0 * t2;
+        let v = match ch[j].pose_var {
+            Some(s2) => 2.0 * s2,
+            None => up.se()[j].powi(2) + down.se()[j].powi(2) + 2.0 * ch[j].tau.powi(2),
+        };
         *o = Estimate {
             value: 0.5 * (up.mean[j] + down.mean[j]),
             std_unc: 0.5 * v.sqrt(),

@@ -732,9 +732,10 @@ pub fn open_files(
         }
         let rec = crate::recording::read_in_progress(&paths.recording)
             .map_err(|e| RecordError::Device(format!("cannot append: {e}")))?;
-        let ours = rec.groups.iter().all(|g| {
-            g.seq.is_some() && g.temp_c.is_some() && !g.t_s.is_empty() && g.rate_hz.is_none()
-        });
+        let ours = rec.oriented.is_none()
+            && rec.groups.iter().all(|g| {
+                g.seq.is_some() && g.temp_c.is_some() && !g.t_s.is_empty() && g.rate_hz.is_none()
+            });
         if !ours {
             return Err(RecordError::Device(format!(
                 "cannot append: {} does not have the recorder's columns \

@@ -129,6 +129,12 @@ pub struct Oriented {
     pub y: Vec<[f64; 3]>,
     /// `t_s` of each row, if the file has that column.
     pub t_s: Option<Vec<f64>>,
+    /// `seq` of each row, if the file has that column.
+    pub seq: Option<Vec<u64>>,
+    /// `temp_c` of each row, if the file has that column.
+    pub temp_c: Option<Vec<f64>>,
+    /// `u_unc, v_unc, w_unc` of each row, if the file has them.
+    pub unc: Option<Vec<[f64; 3]>>,
     /// 1-based file line of each row (for messages).
     pub line: Vec<u64>,
 }
@@ -155,6 +161,8 @@ pub struct Group {
     pub seq: Option<Vec<u64>>,
     /// `temp_c` column, if the file has one.
     pub temp_c: Option<Vec<f64>>,
+    /// `u_unc, v_unc, w_unc` columns (written by `rotacal apply`), if the file has them.
+    pub unc: Option<Vec<[f64; 3]>>,
     /// 1-based file line of the group's first row (for messages).
     pub first_line: u64,
 }
@@ -171,6 +179,7 @@ impl Group {
             w: Vec::new(),
             seq: cols.seq.map(|_| Vec::new()),
             temp_c: cols.temp_c.map(|_| Vec::new()),
+            unc: cols.unc.map(|_| Vec::new()),
             first_line: line,
         }
     }
@@ -462,7 +471,7 @@ impl fmt::Display for RecordingErrorKind {
 }
 
 /// The column names formats.md defines.
-pub const COLUMN_NAMES: [&str; 13] = [
+pub const COLUMN_NAMES: [&str; 16] = [
     "condition",
     "t_s",
     "angle_deg",
@@ -476,6 +485,9 @@ pub const COLUMN_NAMES: [&str; 13] = [
     "gy",
     "gz",
     "pose",
+    "u_unc",
+    "v_unc",
+    "w_unc",
 ];
 
 /// How far |(gx, gy, gz)| may be from 1 (rounding of written unit vectors).
@@ -578,6 +590,8 @@ struct ColumnIndex {
     /// `gx, gy, gz`: all three or none.
     gravity: Option<[usize; 3]>,
     pose: Option<usize>,
+    /// `u_unc, v_unc, w_unc`: all three or none.
+    unc: Option<[usize; 3]>,
     u: usize,
     v: usize,
     w: usize,
@@ -656,6 +670,9 @@ impl Parser<'_> {
             pose: cols.pose.map(|_| Vec::new()),
             y: Vec::new(),
             t_s: cols.t_s.map(|_| Vec::new()),
+            seq: cols.seq.map(|_| Vec::new()),
+            temp_c: cols.temp_c.map(|_| Vec::new()),
+            unc: cols.unc.map(|_| Vec::new()),
             line: Vec::new(),
         });
         // (condition, rate bits) of the group the previous row went to, and its index.
@@ -689,6 +706,15 @@ impl Parser<'_> {
                 }
                 if let (Some(v), Some(t)) = (o.t_s.as_mut(), row.t_s) {
                     v.push(t);
+                }
+                if let (Some(v), Some(s)) = (o.seq.as_mut(), row.seq) {
+                    v.push(s);
+                }
+                if let (Some(v), Some(t)) = (o.temp_c.as_mut(), row.temp_c) {
+                    v.push(t);
+                }
+                if let (Some(v), Some(u)) = (o.unc.as_mut(), row.unc) {
+                    v.push(u);
                 }
                 continue;
             }
@@ -742,6 +768,9 @@ impl Parser<'_> {
             }
             if let (Some(t), Some(v)) = (row.temp_c, g.temp_c.as_mut()) {
                 v.push(t);
+            }
+            if let (Some(u), Some(v)) = (row.unc, g.unc.as_mut()) {
+                v.push(u);
             }
         }
 
@@ -966,6 +995,18 @@ impl Parser<'_> {
             Some(_) => idx("condition"),
             None => Some(require("condition")?),
         };
+        if gravity.is_some() {
+            if let Some(c) = ["angle_deg", "rate_hz"].iter().find(|c| idx(c).is_some()) {
+                return Err(at(RecordingErrorKind::BadMetadata(format!(
+                    "column {c} with gx, gy, gz: the gravity direction replaces it"
+                ))));
+            }
+        }
+        let unc = if ["u_unc", "v_unc", "w_unc"].iter().any(|n| idx(n).is_some()) {
+            Some([require("u_unc")?, require("v_unc")?, require("w_unc")?])
+        } else {
+            None
+        };
         let u = require("u")?;
         let v = require("v")?;
         let w = require("w")?;
@@ -996,7 +1037,9 @@ impl Parser<'_> {
                 n: names.len(),
                 condition,
                 gravity,
-                pose: idx("pose"),
+                // A pose name means something only with a gravity direction.
+                pose: gravity.and(idx("pose")),
+                unc,
                 u,
                 v,
                 w,
@@ -1117,6 +1160,11 @@ fn parse_row<'r>(
             if text.is_empty() {
                 return Err(RecordingErrorKind::BadPose("empty pose name"));
             }
+            if !pose_name_ok(text) {
+                return Err(RecordingErrorKind::BadPose(
+                    "a pose name may not hold commas, quotes, '#' or line breaks",
+                ));
+            }
             Some(text)
         }
         None => None,
@@ -1162,8 +1210,20 @@ fn parse_row<'r>(
         rate_hz,
         gravity,
         pose,
-        unc: None,
+        unc: match cols.unc {
+            Some([a, b, c]) => Some([
+                parse_f64(rec, a, "u_unc")?,
+                parse_f64(rec, b, "v_unc")?,
+                parse_f64(rec, c, "w_unc")?,
+            ]),
+            None => None,
+        },
     })
+}
+
+/// The names the writer can write and the reader reads back unchanged.
+fn pose_name_ok(p: &str) -> bool {
+    !p.is_empty() && !p.contains([',', '"', '\n', '\r', '#']) && p.trim() == p
 }
 
 // ---------------------------------------------------------------------------------------
@@ -1344,6 +1404,14 @@ impl<W: Write> Writer<W> {
             Method::Rotation if !columns.t_s => {
                 return Err(invalid("method rotation needs the t_s column".into()))
             }
+            _ if columns.pose && !columns.gravity => {
+                return Err(invalid("a pose column needs the gx, gy, gz columns".into()))
+            }
+            _ if columns.gravity && (columns.angle_deg || columns.rate_hz) => {
+                return Err(invalid(
+                    "angle_deg and rate_hz cannot go with gx, gy, gz columns".into(),
+                ))
+            }
             Method::Rotation if columns.gravity => {
                 return Err(invalid(
                     "method rotation cannot have gx, gy, gz columns".into(),
@@ -1455,7 +1523,7 @@ impl<W: Write> Writer<W> {
             line.push(row.condition.letter());
         }
         if let Some(p) = opt(c.gravity && c.pose, "pose", row.pose)? {
-            if p.is_empty() || p.contains([',', '"', '\n', '\r', '#']) || p.trim() != p {
+            if !pose_name_ok(p) {
                 return Err(invalid(format!(
                     "pose name '{p}': use a non-empty name without commas, quotes, '#', line \
                      breaks or surrounding spaces"
@@ -1486,8 +1554,9 @@ impl<W: Write> Writer<W> {
             if (norm - 1.0).abs() > UNIT_TOLERANCE {
                 return Err(invalid(format!("gx, gy, gz: length {norm}, not 1")));
             }
+            // Written normalised, as the reader would read it.
             for (name, x) in ["gx", "gy", "gz"].iter().zip(g) {
-                num(line, name, x)?;
+                num(line, name, x / norm)?;
             }
         }
         num(line, "u", row.u)?;

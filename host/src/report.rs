@@ -1,6 +1,6 @@
 //! `rotacal report FILE --out DIR`: a Markdown report with SVG plots (plotters).
 //!
-//! - the intrinsic-properties table with U (k = 2), the fits, and for static files the
+//! - the intrinsic-properties table with U (95 %; k = 2, or Student's t for few poses), the fits, and for static files the
 //!   sensitivity matrix and offsets;
 //! - per condition (and rate): the raw data with the fitted sines (like seed 000 Fig. 5),
 //!   the residuals against time or angle, and for rotation the residual amplitude at the

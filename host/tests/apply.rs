@@ -151,9 +151,40 @@ fn simulated_truth_round_trips_within_uncertainty() {
     }
 }
 
+/// Several rates: the correction's offsets are the conditions' C at ω = 0, free of the
+/// centripetal acceleration (22 cm off the axis in `paper-multirate`), and hold the truth.
+#[test]
+fn multirate_offsets_are_free_of_centripetal_acceleration() {
+    let sim = Simulation::new(Config::preset("paper-multirate").unwrap()).unwrap();
+    let rec = sim.recording().unwrap();
+    let cal = calibrate(&rec, &Options::default()).unwrap();
+    let truth = sim.truth().offsets;
+    for r in &cal.by_rate {
+        let c = r.correction.as_ref().unwrap();
+        assert!(c.offset_source.contains("ω = 0"), "{}", c.offset_source);
+        let d = &c.device_frame;
+        for (j, t) in truth.iter().enumerate() {
+            let z = (d.offset[j] - t) / d.offset_std_unc[j];
+            println!(
+                "{:?} Hz: O[{j}] = {:.3} ± {:.3} (truth {}), {z:+.2} u",
+                r.rate_hz, d.offset[j], d.offset_std_unc[j], truth[j]
+            );
+            assert!(z.abs() < 3.0);
+        }
+    }
+}
+
 fn apply_to(rec: &rotacal::recording::Recording, c: &Correction) -> rotacal::recording::Recording {
     let mut buf = Vec::new();
-    apply::apply(rec, c, "test", None, &mut buf).unwrap();
+    let job = apply::Job {
+        correction: c,
+        units_in: rec.meta.units.as_deref().unwrap_or("output units"),
+        k: 2.0,
+        cal_name: "test",
+        g_loc: None,
+        out_name: "buffer",
+    };
+    apply::apply(rec, &job, &mut buf).unwrap();
     rotacal::recording::read_from(buf.as_slice(), "applied").unwrap()
 }
 
@@ -394,6 +425,7 @@ fn exported_constants_compile_and_agree() {
                 .split_whitespace()
                 .map(|x| x.parse().unwrap())
                 .collect();
+            assert_eq!(got.len(), 3, "{}: printed {got:?}", src.display());
             for (g, w) in got.iter().zip(want) {
                 assert!(
                     (g - w).abs() <= tol * w.abs().max(1.0),

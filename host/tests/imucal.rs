@@ -356,7 +356,9 @@ fn applying_it_makes_every_pose_read_g() {
             rotacal::correction::Frame::Platter
         };
         let (_, corr) = rotacal::apply::choose(&all_c, None, f, "cal").unwrap();
-        for ((name, d), (_, _, mean)) in by_pose.iter().zip(POSE_MEANS) {
+        assert_eq!(by_pose.len(), POSE_MEANS.len());
+        for ((name, d), (pose, _, mean)) in by_pose.iter().zip(POSE_MEANS) {
+            assert_eq!(name, pose);
             let n = d.len() as f64;
             let m = d.iter().sum::<f64>() / n;
             let sd = (d.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (n - 1.0)).sqrt();

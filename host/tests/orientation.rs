@@ -257,3 +257,37 @@ fn a_pose_that_moved_is_flagged() {
     let f = orientation::fit(poses, G, Options::default()).unwrap();
     assert_eq!(f.not_still, vec!["p2".to_string()]);
 }
+
+#[test]
+fn exactly_determined_or_constant_poses() {
+    let mut rng = rand::rngs::StdRng::seed_from_u64(4);
+    let tetra = [axes()[0], axes()[2], axes()[4], unit([-1.0, -1.0, -1.0])];
+    // Four poses of repeated readings: S and O exact, the uncertainty from the pose noise
+    // (random-effects weights); equal weights have nothing to estimate it from.
+    let poses = session(&tetra, 50, 0.014, 0.0, &mut rng);
+    let f = orientation::fit(poses.clone(), G, Options::default()).unwrap();
+    assert_eq!(f.dof, 0);
+    assert!(f
+        .channels
+        .iter()
+        .all(|c| c.cov[0][0] > 0.0 && c.nu == 196.0));
+    let equal = Options {
+        weights: orientation::Weights::Equal,
+        ..Options::default()
+    };
+    assert_eq!(
+        orientation::fit(poses, G, equal).unwrap_err(),
+        PoseError::NoUncertainty(4)
+    );
+    // A channel that did not change at one pose (a quantised sensor held still): its
+    // standard error is 0, and the fit still stands, with a positive uncertainty.
+    let mut poses = session(&axes(), 50, 0.014, 0.0, &mut rng);
+    if let Some(s) = poses[0].std.as_mut() {
+        s[1] = 0.0;
+    }
+    let f = orientation::fit(poses, G, Options::default()).unwrap();
+    assert!(f
+        .channels
+        .iter()
+        .all(|c| c.cov[1][1] > 0.0 && c.cov[3][3] > 0.0));
+}

@@ -1027,6 +1027,7 @@ fn expected_groups(case: &Case, header_line: u64) -> Vec<Group> {
                     w: vec![],
                     seq: case.columns.seq.then(Vec::new),
                     temp_c: case.columns.temp_c.then(Vec::new),
+                    unc: None,
                     first_line: header_line + 1 + i as u64,
                 });
                 groups.last_mut().expect("just pushed")
@@ -1194,4 +1195,77 @@ proptest! {
             Err(e) => prop_assert!(e.to_string().starts_with("edit.csv")),
         }
     }
+}
+
+/// Files of static poses (gravity directions, pose names, apply's uncertainty columns)
+/// read back as written; the writer refuses what the reader would.
+#[test]
+fn oriented_files_round_trip() {
+    let meta = Metadata {
+        g_loc: Some(9.81),
+        units: Some("m/s^2".into()),
+        ..Metadata::default()
+    };
+    let cols = Columns {
+        t_s: true,
+        seq: true,
+        temp_c: true,
+        gravity: true,
+        pose: true,
+        unc: true,
+        ..Columns::default()
+    };
+    let mut w = Writer::new(Vec::new(), &meta, &cols).expect("header");
+    let s = 0.5f64.sqrt();
+    let rows: Vec<(&str, [f64; 3])> = vec![
+        ("up", [0.0, 0.0, 1.0]),
+        ("tilted 45°", [s, 0.0, s]),
+        ("slightly long", [0.0, 1.0005, 0.0]),
+    ];
+    for (i, (name, g)) in rows.iter().enumerate() {
+        let mut row = Row::new(Condition::X, 0.1 * i as f64, -9.81, 1e-3);
+        row.t_s = Some(i as f64 / 102.4);
+        row.seq = Some(i as u64);
+        row.temp_c = Some(24.5);
+        row.gravity = Some(*g);
+        row.pose = Some(name);
+        row.unc = Some([1e-4, 2e-4, 3e-4]);
+        w.write_row(&row).unwrap();
+    }
+    let text = String::from_utf8(w.into_inner().unwrap()).unwrap();
+    let rec = recording::read_from(text.as_bytes(), "poses.csv").unwrap();
+    assert!(rec.groups.is_empty());
+    assert_eq!(rec.method, Method::Static);
+    let o = rec.oriented.unwrap();
+    assert_eq!(o.pose.unwrap(), ["up", "tilted 45°", "slightly long"]);
+    assert_eq!(o.gravity[1], [s, 0.0, s]);
+    assert_eq!(o.gravity[2], [0.0, 1.0, 0.0]); // written normalised
+    assert_eq!(o.seq.unwrap(), [0, 1, 2]);
+    assert_eq!(o.temp_c.unwrap(), [24.5; 3]);
+    assert_eq!(o.unc.unwrap()[2], [1e-4, 2e-4, 3e-4]);
+    assert_eq!(o.t_s.unwrap()[2], 2.0 / 102.4);
+    assert_eq!(o.y[2], [0.2, -9.81, 1e-3]);
+    // What the reader refuses, the writer refuses.
+    let mut w = Writer::new(Vec::new(), &meta, &cols).expect("header");
+    let mut row = Row::new(Condition::X, 0.0, 0.0, 9.8);
+    row.t_s = Some(0.0);
+    row.seq = Some(0);
+    row.temp_c = Some(20.0);
+    row.unc = Some([0.0; 3]);
+    for (name, g) in [("a,b", [0.0, 0.0, 1.0]), ("ok", [0.0, 0.0, 0.5])] {
+        row.pose = Some(name);
+        row.gravity = Some(g);
+        assert!(w.write_row(&row).is_err(), "{name} {g:?}");
+    }
+    let angle = Columns {
+        angle_deg: true,
+        gravity: true,
+        ..Columns::default()
+    };
+    assert!(Writer::new(Vec::new(), &meta, &angle).is_err());
+    let pose_only = Columns {
+        pose: true,
+        ..Columns::STATIC
+    };
+    assert!(Writer::new(Vec::new(), &meta, &pose_only).is_err());
 }
