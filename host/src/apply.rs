@@ -185,9 +185,16 @@ pub struct Job<'a> {
     pub out_name: &'a str,
 }
 
-/// The recording's units must be the calibration's (a file already in m/s², or in other
-/// units, would be corrected into nonsense).
+/// The recording must hold raw readings (not `apply`'s output, which carries a
+/// `# calibration=` line) in the calibration's units: anything else would be corrected into
+/// nonsense.
 pub fn check_units(rec: &Recording, job: &Job<'_>) -> Result<(), ApplyError> {
+    if let Some(cal) = rec.meta.other.get("calibration") {
+        return Err(bad(
+            &rec.source,
+            format!("already corrected (by {cal}): apply a calibration to raw readings"),
+        ));
+    }
     match &rec.meta.units {
         Some(u) if u.trim() != job.units_in.trim() => Err(bad(
             &rec.source,
