@@ -35,8 +35,42 @@ pub fn read_corrections(
     text: &str,
     source: &str,
 ) -> Result<Vec<(Option<f64>, CorrectionJson)>, ApplyError> {
-    let v: serde_json::Value = serde_json::from_str(text)
-        .map_err(|e| bad(source, format!("line {}: not JSON: {e}", e.line())))?;
+    corrections_of(&parse(text, source)?, source)
+}
+
+fn parse(text: &str, source: &str) -> Result<serde_json::Value, ApplyError> {
+    serde_json::from_str(text).map_err(|e| bad(source, format!("line {}: not JSON: {e}", e.line())))
+}
+
+/// A calibration file's chosen correction, with the file's `g_loc`.
+#[derive(Clone, Debug)]
+pub struct Loaded {
+    /// The whole `correction` entry (convention, units, k, offset source).
+    pub json: CorrectionJson,
+    /// The chosen frame's correction.
+    pub correction: Correction,
+    /// `g_loc`, m/s².
+    pub g_loc: Option<f64>,
+}
+
+/// Read the calibration file at `cal` and choose its correction for `rate_hz` and
+/// `frame` (`rotacal apply` and `rotacal export`).
+pub fn load(cal: &Path, rate_hz: Option<f64>, frame: Frame) -> Result<Loaded, ApplyError> {
+    let name = cal.display().to_string();
+    let text = std::fs::read_to_string(cal).map_err(|e| bad(&name, e.to_string()))?;
+    let v = parse(&text, &name)?;
+    let (json, correction) = choose(&corrections_of(&v, &name)?, rate_hz, frame, &name)?;
+    Ok(Loaded {
+        json,
+        correction,
+        g_loc: v.get("g_loc").and_then(serde_json::Value::as_f64),
+    })
+}
+
+fn corrections_of(
+    v: &serde_json::Value,
+    source: &str,
+) -> Result<Vec<(Option<f64>, CorrectionJson)>, ApplyError> {
     let entries = v
         .get("by_rate")
         .and_then(|b| b.as_array())
@@ -348,14 +382,12 @@ pub fn run(
     frame: Frame,
     rate_hz: Option<f64>,
 ) -> anyhow::Result<(Summary, String)> {
-    let text =
-        std::fs::read_to_string(cal).map_err(|e| bad(&cal.display().to_string(), e.to_string()))?;
-    let all = read_corrections(&text, &cal.display().to_string())?;
-    let (json, corr) = choose(&all, rate_hz, frame, &cal.display().to_string())?;
+    let Loaded {
+        json,
+        correction: corr,
+        g_loc: g,
+    } = load(cal, rate_hz, frame)?;
     let rec = crate::recording::read(recording)?;
-    let g = serde_json::from_str::<serde_json::Value>(&text)
-        .ok()
-        .and_then(|v| v.get("g_loc").and_then(serde_json::Value::as_f64));
     let (out_name, cal_name) = (out.display().to_string(), cal.display().to_string());
     let job = Job {
         correction: &corr,

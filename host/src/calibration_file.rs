@@ -26,12 +26,7 @@ pub struct Quantity {
 
 impl From<Estimate> for Quantity {
     fn from(e: Estimate) -> Self {
-        Quantity {
-            value: e.value,
-            std_unc: e.std_unc,
-            expanded_unc: K * e.std_unc,
-            k: K,
-        }
+        Quantity::with_k(e, K)
     }
 }
 

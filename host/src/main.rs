@@ -441,11 +441,9 @@ fn export(
     rate_hz: Option<f64>,
     out: Option<&std::path::Path>,
 ) -> anyhow::Result<()> {
+    let l = rotacal::apply::load(cal, rate_hz, frame)?;
     let name = cal.display().to_string();
-    let text = std::fs::read_to_string(cal).map_err(|e| anyhow::anyhow!("{name}: {e}"))?;
-    let all = rotacal::apply::read_corrections(&text, &name)?;
-    let (json, c) = rotacal::apply::choose(&all, rate_hz, frame, &name)?;
-    let body = rotacal::export::render(&json, &c, &name, format, precision);
+    let body = rotacal::export::render(&l.json, &l.correction, &name, format, precision);
     match out {
         Some(p) => std::fs::write(p, body).map_err(|e| anyhow::anyhow!("{}: {e}", p.display()))?,
         None => rotacal::output::emit(&body)?,

@@ -454,7 +454,8 @@ pub fn fit(poses: Vec<Pose>, g: f64, opts: Options) -> Result<PoseFit, PoseError
             })
             .collect();
         let ones = vec![1.0; p];
-        let (_, _, rss) = wls(&x, &y, &ones).ok_or_else(singular)?;
+        // Ordinary least squares: the equal-weights result, and the top of τ²'s bracket.
+        let (ols_beta, ols_inv, rss) = wls(&x, &y, &ones).ok_or_else(singular)?;
         let chi2_noise = if all_repeated && se2.iter().all(|v| *v > 0.0) && dof > 0 {
             wls(&x, &y, &se2).map_or(f64::NAN, |r| r.2 / dof as f64)
         } else {
@@ -462,7 +463,7 @@ pub fn fit(poses: Vec<Pose>, g: f64, opts: Options) -> Result<PoseFit, PoseError
         };
         let (coef, cov, tau2, nu) = match opts.weights {
             Weights::Equal => {
-                let (beta, inv, rss) = wls(&x, &y, &ones).ok_or_else(singular)?;
+                let (beta, inv) = (ols_beta, ols_inv);
                 let s2 = rss / dof as f64;
                 // τ² here: what the scatter of the means has beyond their own noise.
                 let noise = se2.iter().sum::<f64>() / p as f64;
@@ -500,8 +501,7 @@ pub fn fit(poses: Vec<Pose>, g: f64, opts: Options) -> Result<PoseFit, PoseError
                             (beta, inv, hi, dof as f64)
                         } else {
                             // Noise-free single readings: an exact fit.
-                            let (beta, inv, _) = wls(&x, &y, &ones).ok_or_else(singular)?;
-                            (beta, inv * 0.0, 0.0, dof as f64)
+                            (ols_beta, ols_inv * 0.0, 0.0, dof as f64)
                         }
                     }
                 }
@@ -541,10 +541,10 @@ pub fn fit(poses: Vec<Pose>, g: f64, opts: Options) -> Result<PoseFit, PoseError
         value: c.coef[3],
         std_unc: c.cov[3][3].max(0.0).sqrt(),
     });
-    let offsets_axis_pairs = axis_pairs(&poses, &channels).ok();
-    if opts.offsets == OffsetEstimator::AxisPairs {
-        axis_pairs(&poses, &channels)?;
-    }
+    let offsets_axis_pairs = match (axis_pairs(&poses, &channels), opts.offsets) {
+        (Err(e), OffsetEstimator::AxisPairs) => return Err(e),
+        (r, _) => r.ok(),
+    };
     // Stillness: each channel's std against the median pose's.
     let mut not_still = Vec::new();
     for j in 0..3 {
