@@ -220,21 +220,35 @@ pub fn fit(
     model: Model,
     t_ref: Ticks,
 ) -> Result<BatchFit, BatchError> {
-    let p = model.n_params();
-    let mut h = DMatrix::zeros(samples.len(), p);
+    let h = design(samples, step, clock, model, t_ref);
     let mut ys = vec![DVector::zeros(samples.len()); 3];
-    for (i, (t, y)) in samples.iter().enumerate() {
-        let (s, c) = step.phase_at(*t).sin_cos::<f64>();
-        let (s, c) = (s.hi, c.hi);
-        let tau = seconds_between(*t, t_ref, clock);
-        for (j, v) in regressor_row(model, s, c, tau).into_iter().enumerate() {
-            h[(i, j)] = v;
-        }
+    for (i, (_, y)) in samples.iter().enumerate() {
         for (ch, v) in y.iter().enumerate() {
             ys[ch][i] = *v;
         }
     }
     solve_qr(h, &ys)
+}
+
+/// The regressor matrix of `model` at the sample times (the exact integer phase; τ terms
+/// about `t_ref`), one row per sample.
+pub fn design(
+    samples: &[(Ticks, [f64; 3])],
+    step: PhaseStep,
+    clock: TickRate,
+    model: Model,
+    t_ref: Ticks,
+) -> DMatrix<f64> {
+    let p = model.n_params();
+    let mut h = DMatrix::zeros(samples.len(), p);
+    for (i, (t, _)) in samples.iter().enumerate() {
+        let (s, c) = step.phase_at(*t).sin_cos::<f64>();
+        let tau = seconds_between(*t, t_ref, clock);
+        for (j, v) in regressor_row(model, s.hi, c.hi, tau).into_iter().enumerate() {
+            h[(i, j)] = v;
+        }
+    }
+    h
 }
 
 /// Result of the four-parameter fit.

@@ -9,12 +9,7 @@ use crate::batch::{self, BatchError};
 use crate::orientation::{self, PoseError, PoseFit};
 use nalgebra::{DMatrix, DVector};
 use rotacal_shared::intrinsic::{self, ConditionFit, Estimate, Intrinsic, IntrinsicError};
-use rotacal_shared::{Condition, FitResult};
-
-/// The (A, B) coefficients and their covariance per channel of one condition's fit.
-pub fn condition_fit(fit: &FitResult<f64>) -> ConditionFit {
-    ConditionFit::from_fit(fit)
-}
+use rotacal_shared::Condition;
 
 /// The rotation method's result for one rate.
 #[derive(Clone, Debug)]
@@ -25,16 +20,12 @@ pub struct RotationCalibration {
     pub phase_angles_deg: [Estimate; 3],
 }
 
-/// Intrinsic properties from the fits of conditions x, y, z, in gravity `g` ± `u_g`.
-pub fn rotation(
-    fits: [&FitResult<f64>; 3],
-    g: f64,
-    u_g: f64,
-) -> Result<RotationCalibration, IntrinsicError> {
-    let cf = fits.map(condition_fit);
+/// Intrinsic properties from the (A, B) of conditions x, y, z and their covariances, in
+/// gravity `g` (its uncertainty is a term of the budget, `crate::budget`).
+pub fn rotation(cf: &[ConditionFit; 3], g: f64) -> Result<RotationCalibration, IntrinsicError> {
     Ok(RotationCalibration {
-        intrinsic: intrinsic::from_gram(&cf, g, u_g)?,
-        phase_angles_deg: intrinsic::from_phase_differences(&cf)?,
+        intrinsic: intrinsic::from_gram(cf, g, 0.0)?,
+        phase_angles_deg: intrinsic::from_phase_differences(cf)?,
     })
 }
 

@@ -8,13 +8,17 @@
 //! every writer we know of).
 
 use crate::batch;
+use crate::budget::{Budget, Kind};
 use crate::calibrate::{self, StaticCondition};
-use crate::calibration_file::{self, CalibrationJson, CorrectionJson, FitJson};
+use crate::calibration_file::{self, CalibrationJson, CorrectionJson, FitJson, NoiseJson};
 use crate::correction;
+use crate::noise::{self, NoiseError, NoiseModel};
 use crate::orientation;
 use crate::recording::{Group, Method, Recording};
 use nalgebra::DMatrix;
+use rotacal_shared::intrinsic::{self, ConditionFit};
 use rotacal_shared::{Condition, FitConfig, FitResult, Param, PhaseStep, SineFit, TickRate, Ticks};
+use std::f64::consts::TAU;
 use std::fmt::Write as _;
 
 /// Command-line choices, which override the file's metadata.
@@ -30,6 +34,27 @@ pub struct Options {
     pub monte_carlo: Option<usize>,
     /// Static data: pose weighting and offset estimator.
     pub poses: orientation::Options,
+    /// Standard uncertainties of the type-B inputs (override the file's `u_*` keys).
+    pub inputs: TypeB,
+}
+
+/// Standard uncertainties of the inputs that are not in the data (type B).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct TypeB {
+    /// Local gravity, m/s² (`--u-g-loc`, `# u_g_loc=`).
+    pub u_g_loc: Option<f64>,
+    /// Each timestamp beyond its resolution (jitter), s (`--u-time-s`, `# u_time_s=`).
+    pub u_time_s: Option<f64>,
+}
+
+impl TypeB {
+    /// These, else the recording's metadata.
+    fn or_file(self, rec: &Recording) -> TypeB {
+        TypeB {
+            u_g_loc: self.u_g_loc.or(rec.meta.uncertainty("u_g_loc")),
+            u_time_s: self.u_time_s.or(rec.meta.uncertainty("u_time_s")),
+        }
+    }
 }
 
 /// A calibration failure, naming the file and, where it applies, the line.
@@ -72,13 +97,126 @@ pub fn samples(rec: &Recording, g: &Group) -> Result<Vec<(Ticks, [f64; 3])>, Cal
         .collect()
 }
 
+/// One condition's fit at one rate: the coefficients of the streaming fit in f64, and
+/// their covariance under the noise estimated from the fit's own residuals
+/// ([`crate::noise`]).
+#[derive(Clone, Debug)]
+pub struct GroupFit {
+    /// The platter axis.
+    pub condition: Condition,
+    /// The fit (its own standard errors assume white noise: use `cov`).
+    pub fit: FitResult<f64>,
+    /// The rotation rate the fit used, Hz.
+    pub rate_hz: f64,
+    /// That rate, when it was estimated from the data (IEEE 1057) rather than nominal.
+    pub rate_fitted: Option<f64>,
+    /// Standard uncertainty of the rate the fit used, Hz: the rate fit's standard error
+    /// (scaled for the noise), and, at the nominal rate, the distance to the fitted one too.
+    pub u_rate_hz: f64,
+    /// Covariance of (A, B, C) per channel under the noise model.
+    pub cov: [[[f64; 3]; 3]; 3],
+    /// The noise model per channel.
+    pub noise: [NoiseModel; 3],
+    /// The rotation's angle per sample, rad (mean over the group).
+    pub omega_per_sample: f64,
+}
+
+impl GroupFit {
+    /// (A, B) per channel and their covariance.
+    pub fn condition_fit(&self) -> ConditionFit {
+        let mut cf = ConditionFit::from_fit(&self.fit);
+        for (c, m) in cf.cov.iter_mut().zip(&self.cov) {
+            *c = [[m[0][0], m[0][1]], [m[1][0], m[1][1]]];
+        }
+        cf
+    }
+
+    /// Coefficient `p` (0 = A, 1 = B, 2 = C) of channel `ch`.
+    pub fn coef(&self, ch: usize, p: Param) -> f64 {
+        self.fit.coef(ch, p).map_or(f64::NAN, |v| v.to_f64())
+    }
+
+    /// Standard uncertainty of coefficient A, B or C of channel `ch` under the noise model.
+    pub fn std_unc(&self, ch: usize, i: usize) -> f64 {
+        self.cov
+            .get(ch)
+            .and_then(|m| m.get(i))
+            .and_then(|r| r.get(i))
+            .map_or(f64::NAN, |v| v.max(0.0).sqrt())
+    }
+}
+
+/// The streaming fit of (sin, cos, 1) at `step` in f64.
+fn fit_at(s: &[(Ticks, [f64; 3])], step: PhaseStep) -> Result<FitResult<f64>, String> {
+    let mut fit = SineFit::<f64>::new(FitConfig::sine(step, CLOCK));
+    for (t, y) in s {
+        fit.update(*t, *y).map_err(|e| e.to_string())?;
+    }
+    fit.solve().map_err(|e| e.to_string())
+}
+
+/// Regressors that take out of the residuals what a sine fit leaves that is not noise:
+/// a linear trend and harmonics 2 to 4 of the rotation (drift, nonlinearity, clipping).
+/// Left in, such a deterministic remainder would read as strongly correlated noise: a
+/// second harmonic of 16 counts on a 10 mHz run read as an AR process of variance factor
+/// 170 at ω.
+const CLEANING_HARMONICS: std::ops::RangeInclusive<u32> = 2..=4;
+
+/// Noise models and the sandwich covariance of (A, B, C) per channel, for coefficients
+/// `coef[ch]` at `step`: the noise is modelled on the residuals of the sine fit widened by
+/// [`CLEANING_HARMONICS`] and a trend, its level corrected for that wider fit.
+fn noise_and_cov(
+    s: &[(Ticks, [f64; 3])],
+    step: PhaseStep,
+) -> Result<([NoiseModel; 3], [[[f64; 3]; 3]; 3]), NoiseError> {
+    let h = batch::design(s, step, CLOCK, rotacal_shared::Model::SINE, Ticks(0));
+    let extra = 1 + 2 * CLEANING_HARMONICS.clone().count();
+    let t_end = s.last().map_or(1.0, |x| x.0 .0.max(1) as f64);
+    let wide = DMatrix::from_fn(s.len(), 3 + extra, |i, j| {
+        if j < 3 {
+            return h[(i, j)];
+        }
+        let t = s.get(i).map_or(0, |x| x.0 .0);
+        if j == 3 {
+            return t as f64 / t_end - 0.5;
+        }
+        let k = f64::from(*CLEANING_HARMONICS.start()) + ((j - 4) / 2) as f64;
+        let (sn, cs) = (k * step.phase_at(Ticks(t)).radians()).sin_cos();
+        if j % 2 == 0 {
+            sn
+        } else {
+            cs
+        }
+    });
+    let qr = wide.clone().qr();
+    let q = qr.q();
+    let mut models = Vec::with_capacity(3);
+    let mut covs = [[[0.0; 3]; 3]; 3];
+    for (ch, cov) in covs.iter_mut().enumerate() {
+        let y: Vec<f64> = s.iter().map(|(_, y)| y[ch]).collect();
+        let yv = nalgebra::DVector::from_column_slice(&y);
+        let resid = &yv - &q * (q.transpose() * &yv);
+        let model = NoiseModel::estimate(resid.as_slice(), &noise::clipped(&y))?.rescaled(&wide)?;
+        let c = model.sandwich(&h)?;
+        for (a, row) in cov.iter_mut().enumerate() {
+            for (b, x) in row.iter_mut().enumerate() {
+                *x = c[(a, b)];
+            }
+        }
+        models.push(model);
+    }
+    let [u, v, w]: [NoiseModel; 3] = models.try_into().map_err(|_| NoiseError::TooFew(0))?;
+    Ok(([u, v, w], covs))
+}
+
 fn fit_group(
     rec: &Recording,
     g: &Group,
+    s: &[(Ticks, [f64; 3])],
     nominal_hz: f64,
-) -> Result<(FitResult<f64>, Option<f64>), CalibrateError> {
+) -> Result<GroupFit, CalibrateError> {
     let cond = g.condition.letter();
-    let s = samples(rec, g)?;
+    let fail = |e: String| err(rec, Some(g.first_line), format!("condition {cond}: {e}"));
     let nominal = PhaseStep::from_hz(nominal_hz, CLOCK).ok_or_else(|| {
         err(
             rec,
@@ -86,55 +224,89 @@ fn fit_group(
             format!("rotation rate {nominal_hz} Hz is not usable"),
         )
     })?;
-    let streaming = |step| -> Result<FitResult<f64>, CalibrateError> {
-        let mut fit = SineFit::<f64>::new(FitConfig::sine(step, CLOCK));
-        for (t, y) in &s {
-            fit.update(*t, *y)
-                .map_err(|e| err(rec, Some(g.first_line), format!("condition {cond}: {e}")))?;
-        }
-        fit.solve()
-            .map_err(|e| err(rec, Some(g.first_line), format!("condition {cond}: {e}")))
-    };
     // Fitted first at the nominal rate: this also checks the span, so a short record gets
     // the plain 'too few periods' message rather than a failure of the rate fit.
-    let at_nominal = streaming(nominal)?;
-    let four = batch::fit_four_param(&s, nominal, CLOCK).map_err(|e| {
-        err(
-            rec,
-            Some(g.first_line),
-            format!("condition {cond}: rate fit: {e}"),
-        )
-    })?;
-    if (four.rate_hz - nominal_hz).abs() > 3.0 * four.se_rate_hz {
-        let step = PhaseStep::from_hz(four.rate_hz, CLOCK)
-            .ok_or_else(|| err(rec, Some(g.first_line), "fitted rate unusable"))?;
-        Ok((streaming(step)?, Some(four.rate_hz)))
-    } else {
-        Ok((at_nominal, None))
+    let at_nominal = fit_at(s, nominal).map_err(fail)?;
+    let four = batch::fit_four_param(s, nominal, CLOCK)
+        .map_err(|e| fail(format!("rate fit: {e}")))?;
+    let fitted_step = PhaseStep::from_hz(four.rate_hz, CLOCK)
+        .ok_or_else(|| err(rec, Some(g.first_line), "fitted rate unusable"))?;
+    let span_s = match (s.first(), s.last()) {
+        (Some(a), Some(b)) => batch::seconds_between(b.0, a.0, CLOCK),
+        _ => 0.0,
+    };
+    let omega_per_sample = TAU * four.rate_hz * span_s / (s.len().max(2) - 1) as f64;
+    // The rate's standard error assumes white noise; under the noise the residuals show,
+    // its variance grows by the variance factor at ω (weighted by each channel's share
+    // of the rate information, its amplitude²).
+    let coef_of = |f: &batch::BatchFit| {
+        [0, 1, 2].map(|ch| {
+            let c = |i: usize| {
+                f.channels
+                    .get(ch)
+                    .and_then(|x| x.coef.get(i))
+                    .copied()
+                    .unwrap_or(f64::NAN)
+            };
+            [c(0), c(1), c(2)]
+        })
+    };
+    let four_coef = coef_of(&four.fit);
+    let (four_noise, _) = noise_and_cov(s, fitted_step).map_err(|e| fail(e.to_string()))?;
+    let (mut num, mut den) = (0.0, 0.0);
+    for (m, c) in four_noise.iter().zip(&four_coef) {
+        let amp2 = c[0] * c[0] + c[1] * c[1];
+        num += m.variance_factor(omega_per_sample) * amp2;
+        den += amp2;
     }
+    let factor = if den > 0.0 { num / den } else { 1.0 };
+    let se_rate = four.se_rate_hz * factor.max(1e-6).sqrt();
+    let differs = (four.rate_hz - nominal_hz).abs() > 3.0 * se_rate;
+    let (step, fit, rate_hz, rate_fitted, u_rate_hz) = if differs {
+        let fit = fit_at(s, fitted_step).map_err(fail)?;
+        (fitted_step, fit, four.rate_hz, Some(four.rate_hz), se_rate)
+    } else {
+        let u = se_rate.hypot(four.rate_hz - nominal_hz);
+        (nominal, at_nominal, nominal_hz, None, u)
+    };
+    let (noise, cov) = noise_and_cov(s, step).map_err(|e| fail(e.to_string()))?;
+    Ok(GroupFit {
+        condition: g.condition,
+        fit,
+        rate_hz,
+        rate_fitted,
+        u_rate_hz,
+        cov,
+        noise,
+        omega_per_sample,
+    })
 }
 
-fn fit_json(cond: Condition, r: &FitResult<f64>, rate: Option<f64>) -> Vec<FitJson> {
+fn fit_json(f: &GroupFit) -> Vec<FitJson> {
     ['u', 'v', 'w']
         .iter()
         .enumerate()
-        .map(|(ch, name)| {
-            let c = |p| r.coef(ch, p).map(|v| v.to_f64()).unwrap_or(f64::NAN);
-            let se = |p| r.se(ch, p).unwrap_or(f64::NAN);
-            FitJson {
-                condition: cond.letter().to_string(),
-                channel: name.to_string(),
-                a: c(Param::A),
-                b: c(Param::B),
-                c: c(Param::C),
-                se_a: se(Param::A),
-                se_b: se(Param::B),
-                se_c: se(Param::C),
-                n: u64::from(r.n),
-                rms_residual: r.channels[ch].rms_residual,
-                rate_hz_fitted: rate,
-            }
+        .map(|(ch, name)| FitJson {
+            condition: f.condition.letter().to_string(),
+            channel: name.to_string(),
+            a: f.coef(ch, Param::A),
+            b: f.coef(ch, Param::B),
+            c: f.coef(ch, Param::C),
+            se_a: f.std_unc(ch, 0),
+            se_b: f.std_unc(ch, 1),
+            se_c: f.std_unc(ch, 2),
+            n: u64::from(f.fit.n),
+            rms_residual: f.fit.channels[ch].rms_residual,
+            rate_hz_fitted: f.rate_fitted,
         })
+        .collect()
+}
+
+fn noise_json(f: &GroupFit) -> Vec<NoiseJson> {
+    ['u', 'v', 'w']
+        .iter()
+        .zip(&f.noise)
+        .map(|(name, m)| NoiseJson::new(f.condition.letter(), *name, m, f.omega_per_sample))
         .collect()
 }
 
@@ -154,6 +326,20 @@ pub fn calibrate(rec: &Recording, opts: &Options) -> Result<CalibrationJson, Cal
             format!("g_loc {g} is not a positive number"),
         ));
     }
+    let inputs = opts.inputs.or_file(rec);
+    if let Some((name, u)) = [
+        ("--u-g-loc", inputs.u_g_loc),
+        ("--u-time-s", inputs.u_time_s),
+    ]
+    .into_iter()
+    .find_map(|(n, u)| u.filter(|u| !(u.is_finite() && *u >= 0.0)).map(|u| (n, u)))
+    {
+        return Err(err(
+            rec,
+            None,
+            format!("{name} {u} is not a standard uncertainty (a finite number ≥ 0)"),
+        ));
+    }
     let method = opts.method.unwrap_or(rec.method);
     let units = rec
         .meta
@@ -171,7 +357,7 @@ pub fn calibrate(rec: &Recording, opts: &Options) -> Result<CalibrationJson, Cal
                     .or(rec.meta.rate_hz)
                     .ok_or_else(|| err(rec, None, "rotation rate unknown: give --rate-hz, a '# rate_hz=' line or a rate_hz column"))?;
                 let mut fits = Vec::new();
-                let mut json_fits = Vec::new();
+                let mut group_samples = Vec::new();
                 for cond in Condition::ALL {
                     let grp = rec.group(cond, rate).ok_or_else(|| {
                         err(
@@ -187,18 +373,27 @@ pub fn calibrate(rec: &Recording, opts: &Options) -> Result<CalibrationJson, Cal
                             "rotation needs a t_s column",
                         ));
                     }
-                    let (fit, fitted) = fit_group(rec, grp, nominal)?;
-                    json_fits.extend(fit_json(cond, &fit, fitted));
-                    fits.push(fit);
+                    let s = samples(rec, grp)?;
+                    fits.push(fit_group(rec, grp, &s, nominal)?);
+                    group_samples.push(s);
                 }
-                let [fx, fy, fz] = fits.as_slice() else {
+                let (Ok(fits), Ok(group_samples)) = (
+                    <[GroupFit; 3]>::try_from(fits),
+                    <[Vec<(Ticks, [f64; 3])>; 3]>::try_from(group_samples),
+                ) else {
                     return Err(err(rec, None, "expected three conditions"));
                 };
-                let cal = calibrate::rotation([fx, fy, fz], g, 0.0)
-                    .map_err(|e| err(rec, None, format!("at {nominal} Hz: {e}")))?;
-                let mut entry = calibration_file::rotation_entry(nominal, &cal, json_fits);
-                let device = rotation_correction([fx, fy, fz], g)
-                    .map_err(|e| err(rec, None, format!("at {nominal} Hz: {e}")))?;
+                let cf = [0, 1, 2].map(|c| fits[c].condition_fit());
+                let at_rate = |e: String| err(rec, None, format!("at {nominal} Hz: {e}"));
+                let cal = calibrate::rotation(&cf, g).map_err(|e| at_rate(e.to_string()))?;
+                let budget = rotation_budget(&fits, &group_samples, &cal, g, &inputs, &units)
+                    .map_err(at_rate)?;
+                let json_fits = fits.iter().flat_map(fit_json).collect();
+                let mut entry =
+                    calibration_file::rotation_entry(nominal, &cal, &budget, json_fits);
+                entry.noise = Some(fits.iter().flat_map(noise_json).collect());
+                entry.uncertainty_budget = Some(budget);
+                let device = rotation_correction(&fits, g).map_err(|e| at_rate(e.to_string()))?;
                 entry.correction = Some(CorrectionJson::new(
                     &units,
                     device,
@@ -209,7 +404,6 @@ pub fn calibrate(rec: &Recording, opts: &Options) -> Result<CalibrationJson, Cal
                      cannot separate",
                 ));
                 if let Some(trials) = opts.monte_carlo {
-                    let cf = [fx, fy, fz].map(calibrate::condition_fit);
                     let mc = calibrate::monte_carlo_rotation(&cf, g, trials, 1)
                         .map_err(|e| err(rec, None, format!("Monte Carlo at {nominal} Hz: {e}")))?;
                     entry.monte_carlo = Some(calibration_file::mc_map(mc));
@@ -236,7 +430,7 @@ pub fn calibrate(rec: &Recording, opts: &Options) -> Result<CalibrationJson, Cal
                 .unwrap_or_default();
             let cal = calibrate::from_poses(poses, g, opts.poses)
                 .map_err(|e| err(rec, None, e.to_string()))?;
-            by_rate.push(static_json(rec, &cal, opts, &units)?);
+            by_rate.push(static_json(rec, &cal, opts, (g, &inputs), &units)?);
         }
         Method::Static => {
             let mut conds = Vec::new();
@@ -257,7 +451,7 @@ pub fn calibrate(rec: &Recording, opts: &Options) -> Result<CalibrationJson, Cal
             }
             let cal = calibrate::static_method(&conds, g, opts.poses)
                 .map_err(|e| err(rec, None, e.to_string()))?;
-            by_rate.push(static_json(rec, &cal, opts, &units)?);
+            by_rate.push(static_json(rec, &cal, opts, (g, &inputs), &units)?);
         }
     }
     Ok(CalibrationJson {
@@ -337,9 +531,12 @@ fn static_json(
     rec: &Recording,
     cal: &calibrate::StaticCalibration,
     opts: &Options,
+    (g, inputs): (f64, &TypeB),
     units: &str,
 ) -> Result<calibration_file::RateJson, CalibrateError> {
-    let mut entry = calibration_file::static_entry(cal);
+    let budget = static_budget(cal, g, inputs, units).map_err(|e| err(rec, None, e))?;
+    let mut entry = calibration_file::static_entry(cal, &budget);
+    entry.uncertainty_budget = Some(budget);
     if let Some(trials) = opts.monte_carlo {
         let mc = calibrate::monte_carlo_static(cal, trials, 1)
             .map_err(|e| err(rec, None, format!("Monte Carlo: {e}")))?;
@@ -390,13 +587,12 @@ pub fn static_correction(
 /// three conditions' (A, B) (method.md §2) with their covariances; O_j the mean of the
 /// three conditions' C_j (over whole turns the mean of ĝ is zero, so C_j = O_j).
 pub fn rotation_correction(
-    fits: [&FitResult<f64>; 3],
+    fits: &[GroupFit; 3],
     g: f64,
 ) -> Result<correction::Correction, correction::CorrectionError> {
-    let cf = fits.map(calibrate::condition_fit);
     let mut theta = Vec::with_capacity(18);
     let mut cov = DMatrix::zeros(18, 18);
-    for (c, f) in cf.iter().enumerate() {
+    for (c, f) in fits.iter().map(GroupFit::condition_fit).enumerate() {
         for j in 0..3 {
             let base = 6 * c + 2 * j;
             theta.extend([f.a[j], f.b[j]]);
@@ -423,19 +619,257 @@ pub fn rotation_correction(
     let mut offset = [0.0; 3];
     let mut offset_std = [0.0; 3];
     for j in 0..3 {
-        let cs: Vec<(f64, f64)> = fits
+        offset[j] = fits.iter().map(|f| f.coef(j, Param::C)).sum::<f64>() / 3.0;
+        offset_std[j] = fits
             .iter()
-            .map(|r| {
-                (
-                    r.coef(j, Param::C).map(|v| v.to_f64()).unwrap_or(f64::NAN),
-                    r.se(j, Param::C).unwrap_or(f64::NAN),
-                )
-            })
-            .collect();
-        offset[j] = cs.iter().map(|c| c.0).sum::<f64>() / 3.0;
-        offset_std[j] = cs.iter().map(|c| c.1 * c.1).sum::<f64>().sqrt() / 3.0;
+            .map(|f| f.std_unc(j, 2).powi(2))
+            .sum::<f64>()
+            .sqrt()
+            / 3.0;
     }
     correction::from_gram(&gram, &theta, &cov, offset, offset_std)
+}
+
+/// The six properties' values.
+fn values6(i: &intrinsic::Intrinsic) -> [f64; 6] {
+    let [s0, s1, s2] = i.sensitivity.map(|e| e.value);
+    let [a0, a1, a2] = i.angle_deg.map(|e| e.value);
+    [s0, s1, s2, a0, a1, a2]
+}
+
+/// The static methods' budget: the pose fit (type A, each row of S and each offset with its
+/// channel's degrees of freedom) and g_loc (S ∝ 1/g_loc; angles and offsets do not
+/// depend on it).
+fn static_budget(
+    cal: &calibrate::StaticCalibration,
+    g: f64,
+    inputs: &TypeB,
+    units: &str,
+) -> Result<Budget, String> {
+    let su = format!("{units} per m/s^2");
+    let deg = "deg".to_string();
+    let mut b = Budget::new(
+        &calibration_file::PROPERTY_NAMES_WITH_OFFSETS,
+        &[
+            su.clone(),
+            su.clone(),
+            su,
+            deg.clone(),
+            deg.clone(),
+            deg,
+            units.to_string(),
+            units.to_string(),
+            units.to_string(),
+        ],
+    );
+    let channels = &cal.pose_fit.channels;
+    let nu = channels.map(|c| c.nu);
+    let values = values6(&cal.intrinsic);
+    // Each row S_j comes from channel j's fit alone: its share of each property is the
+    // propagation with the other rows' covariance set to zero.
+    let mut share = [[0.0; 6]; 3];
+    for (j, sh) in share.iter_mut().enumerate() {
+        let mut only = cal.row_cov;
+        for (k, m) in only.iter_mut().enumerate() {
+            if k != j {
+                *m = [[0.0; 3]; 3];
+            }
+        }
+        let part = intrinsic::from_matrix(&cal.s, &only).map_err(|e| e.to_string())?;
+        for (q, x) in sh.iter_mut().enumerate() {
+            *x = part.cov[q][q].max(0.0);
+        }
+    }
+    let mut contribution = Vec::with_capacity(9);
+    let mut dof = Vec::with_capacity(9);
+    for q in 0..6 {
+        let var = cal.intrinsic.cov[q][q].max(0.0);
+        let denom: f64 = (0..3).map(|j| share[j][q].powi(2) / nu[j]).sum();
+        contribution.push(var.sqrt());
+        dof.push((denom > 0.0 && denom.is_finite()).then(|| var * var / denom));
+    }
+    for (j, o) in cal.offsets.iter().enumerate() {
+        contribution.push(o.std_unc);
+        dof.push(nu[j].is_finite().then_some(nu[j]));
+    }
+    b.vector(
+        "poses",
+        Kind::A,
+        "the least-squares fit of S and O to the pose means (JSON poses): each channel's \
+         covariance with its degrees of freedom",
+        &contribution,
+        &dof,
+    );
+    let mut cg = vec![0.0; 9];
+    for (c, v) in cg.iter_mut().zip(values.iter().take(3)) {
+        *c = -v / g;
+    }
+    gravity_source(&mut b, g, inputs.u_g_loc, &cg);
+    b.combine();
+    Ok(b)
+}
+
+/// The budget's g_loc line: a sensitivity of −s/g_loc per sensitivity, or, when its
+/// uncertainty is not given, a line that says so (and a note the terminal warns with).
+fn gravity_source(b: &mut Budget, g: f64, u_g_loc: Option<f64>, cg: &[f64]) {
+    match u_g_loc {
+        Some(u) => b.scalar(
+            "g_loc",
+            Kind::B,
+            format!("local gravity g_loc = {g} m/s²: every sensitivity is ∝ 1/g_loc, the angles and offsets do not depend on it"),
+            u,
+            "m/s^2",
+            cg,
+            None,
+        ),
+        None => {
+            b.scalar(
+                "g_loc",
+                Kind::B,
+                format!("local gravity g_loc = {g} m/s²: its uncertainty was NOT GIVEN (--u-g-loc or '# u_g_loc='), so it is taken as exact: a gravimeter gives about 1e-5 relative, a formula from latitude and height about 1e-4"),
+                0.0,
+                "m/s^2",
+                cg,
+                None,
+            );
+            b.notes.push(
+                "g_loc's uncertainty was not given: the budget has no term for it".into(),
+            );
+        }
+    }
+}
+
+/// The rotation method's budget at one rate (docs/uncertainty.md): the fits (type A, the
+/// noise model's covariance propagated whole), g_loc, each condition's rotation rate, and
+/// the timestamps.
+fn rotation_budget(
+    fits: &[GroupFit; 3],
+    samples: &[Vec<(Ticks, [f64; 3])>; 3],
+    cal: &calibrate::RotationCalibration,
+    g: f64,
+    inputs: &TypeB,
+    units: &str,
+) -> Result<Budget, String> {
+    let su = format!("{units} per m/s^2");
+    let deg = "deg".to_string();
+    let mut b = Budget::new(
+        &calibration_file::PROPERTY_NAMES,
+        &[su.clone(), su.clone(), su, deg.clone(), deg.clone(), deg],
+    );
+    let cf = fits.clone().map(|f| f.condition_fit());
+    let values = values6(&cal.intrinsic);
+    let diag = |c: &[[f64; 6]; 6]| [0, 1, 2, 3, 4, 5].map(|q| c[q][q].max(0.0));
+    // Type A. The nine channel fits are independent, so each one's share of the variance
+    // is the propagation with the others' covariance set to zero; their degrees of freedom
+    // combine by Welch–Satterthwaite.
+    let total = diag(&cal.intrinsic.cov);
+    let mut per_dof = [0.0; 6];
+    for c in 0..3 {
+        for j in 0..3 {
+            let mut only = cf;
+            for (oc, f) in only.iter_mut().enumerate() {
+                for (oj, m) in f.cov.iter_mut().enumerate() {
+                    if (oc, oj) != (c, j) {
+                        *m = [[0.0; 2]; 2];
+                    }
+                }
+            }
+            let part = diag(&intrinsic::from_gram(&only, g, 0.0).map_err(|e| e.to_string())?.cov);
+            let nu = fits[c].noise[j].dof(3);
+            for q in 0..6 {
+                per_dof[q] += part[q] * part[q] / nu;
+            }
+        }
+    }
+    let dof: Vec<Option<f64>> = (0..6)
+        .map(|q| (per_dof[q] > 0.0).then(|| total[q] * total[q] / per_dof[q]))
+        .collect();
+    b.vector(
+        "fits",
+        Kind::A,
+        "the sine fits of the three conditions: (A, B) with their covariance under the noise \
+         model estimated from the residuals (JSON noise), propagated through the Gram form",
+        &total.map(f64::sqrt),
+        &dof,
+    );
+    let cg = [
+        -values[0] / g,
+        -values[1] / g,
+        -values[2] / g,
+        0.0,
+        0.0,
+        0.0,
+    ];
+    gravity_source(&mut b, g, inputs.u_g_loc, &cg);
+    for (c, (f, s)) in fits.iter().zip(samples).enumerate() {
+        let u = f.u_rate_hz;
+        let at = |rate: f64| -> Result<[f64; 6], String> {
+            let step = PhaseStep::from_hz(rate, CLOCK)
+                .ok_or_else(|| format!("rate {rate} Hz unusable"))?;
+            let r = fit_at(s, step)?;
+            let mut moved = cf;
+            moved[c] = ConditionFit {
+                cov: cf[c].cov,
+                ..ConditionFit::from_fit(&r)
+            };
+            Ok(values6(
+                &intrinsic::from_gram(&moved, g, 0.0).map_err(|e| e.to_string())?,
+            ))
+        };
+        let sens: Vec<f64> = if u > 0.0 {
+            let (hi, lo) = (at(f.rate_hz + u)?, at(f.rate_hz - u)?);
+            (0..6).map(|q| (hi[q] - lo[q]) / (2.0 * u)).collect()
+        } else {
+            vec![0.0; 6]
+        };
+        let how = match f.rate_fitted {
+            Some(_) => "fitted (IEEE 1057): its standard error",
+            None => "nominal: the fitted rate's standard error and its distance from nominal",
+        };
+        let nu = f.noise.iter().map(|m| m.dof(4)).fold(f64::INFINITY, f64::min);
+        b.scalar(
+            &format!("rate_{}", f.condition.letter()),
+            Kind::A,
+            format!(
+                "the rotation rate of condition {} ({:.9} Hz, {how}); sensitivity by refitting at ±u",
+                f.condition.letter(),
+                f.rate_hz
+            ),
+            u,
+            "Hz",
+            &sens,
+            Some(nu),
+        );
+    }
+    // A timestamp error of standard deviation σ_t attenuates every amplitude by
+    // (ωσ_t)²/2 (method.md §7), the same for the three channels, so the angles keep.
+    let resolution = 1.0 / f64::from(CLOCK.hz());
+    let jitter = inputs.u_time_s.unwrap_or(0.0);
+    let sigma_t = (resolution * resolution / 12.0 + jitter * jitter).sqrt();
+    let omega = TAU * fits.iter().map(|f| f.rate_hz).fold(0.0, f64::max);
+    let ct: Vec<f64> = (0..6)
+        .map(|q| {
+            if q < 3 {
+                values[q] * omega * omega * sigma_t / 2.0
+            } else {
+                0.0
+            }
+        })
+        .collect();
+    b.scalar(
+        "timestamps",
+        Kind::B,
+        format!(
+            "each timestamp's error: resolution {resolution:e} s (uniform) and jitter {jitter:e} s{}; amplitude attenuation (ωσ_t)²/2 taken as the standard uncertainty",
+            if inputs.u_time_s.is_some() { "" } else { " (not given: --u-time-s or '# u_time_s=')" }
+        ),
+        sigma_t,
+        "s",
+        &ct,
+        None,
+    );
+    b.combine();
+    Ok(b)
 }
 
 fn render_poses(p: &calibration_file::PosesJson, units: &str) -> String {
@@ -501,6 +935,83 @@ fn render_poses(p: &calibration_file::PosesJson, units: &str) -> String {
     o
 }
 
+/// The budget as a table: each source's contribution (standard uncertainty) per property,
+/// then the combined u, ν_eff, k and the dominant source; and a warning for what it lacks.
+pub fn render_budget(b: &Budget) -> String {
+    let mut o = String::new();
+    let _ = writeln!(
+        o,
+        "  uncertainty budget: each source's standard uncertainty in each property (JSON uncertainty_budget)"
+    );
+    let mut head = format!("    {:<12} {:<4} {:>16}", "source", "type", "u(input)");
+    for name in &b.quantities {
+        let _ = write!(head, " {name:>9}");
+    }
+    let _ = writeln!(o, "{head}");
+    for s in &b.sources {
+        let input = match (&s.std_unc, &s.unit) {
+            (Some(u), Some(unit)) => format!("{u:.2e} {unit}"),
+            _ => "(covariance)".into(),
+        };
+        let kind = match s.kind {
+            Kind::A => "A",
+            Kind::B => "B",
+        };
+        let mut line = format!("    {:<12} {kind:<4} {input:>16}", s.source);
+        for c in &s.contribution {
+            let _ = write!(line, " {c:>9.2e}");
+        }
+        let _ = writeln!(o, "{line}");
+    }
+    let row = |label: &str, f: &dyn Fn(&crate::budget::Combined) -> String| {
+        let mut line = format!("    {label:<12} {:<4} {:>16}", "", "");
+        for c in &b.combined {
+            let _ = write!(line, " {:>9}", f(c));
+        }
+        line + "\n"
+    };
+    o += &row("combined u", &|c| format!("{:.2e}", c.std_unc));
+    o += &row("ν_eff", &|c| match c.nu_eff {
+        Some(n) if n < 1e6 => format!("{n:.0}"),
+        _ => "∞".into(),
+    });
+    o += &row("k", &|c| format!("{:.2}", c.k));
+    o += &row("dominant", &|c| c.dominant.clone());
+    for n in &b.notes {
+        let _ = writeln!(o, "  WARNING: {n}");
+    }
+    o
+}
+
+/// The noise models, one line per condition and channel.
+fn render_noise(n: &[NoiseJson]) -> String {
+    let mut o = String::new();
+    let _ = writeln!(
+        o,
+        "  noise from the fit residuals (AR model, JSON noise): sd, lag-1 autocorrelation, variance factor at ω, n_eff"
+    );
+    for x in n {
+        let _ = writeln!(
+            o,
+            "    {} {}: sd {:.3}, ρ₁ {:+.3}, AR({}), factor {:.2}, n_eff {:.0} of {}{}",
+            x.condition,
+            x.channel,
+            x.sd,
+            x.lag1_autocorrelation,
+            x.ar.len(),
+            x.variance_factor,
+            x.n_eff,
+            x.n,
+            if x.n_excluded > 0 {
+                format!(" ({} at a rail left out)", x.n_excluded)
+            } else {
+                String::new()
+            }
+        );
+    }
+    o
+}
+
 /// Decimal places that show `u` to two significant digits (at most 12).
 pub fn decimals(u: f64) -> usize {
     if !(u.is_finite() && u > 0.0) {
@@ -515,7 +1026,8 @@ pub fn render(c: &CalibrationJson) -> String {
     let su = format!("{} per m/s²", c.units);
     let _ = writeln!(
         o,
-        "method {}, g_loc = {} m/s²; ± is the expanded uncertainty U (95 %, k = 2 unless stated)",
+        "method {}, g_loc = {} m/s²; ± is the expanded uncertainty U (95 %, k = 2 unless stated; k from the\n\
+         budget's effective degrees of freedom)",
         c.method, c.g_loc
     );
     for r in &c.by_rate {
@@ -540,8 +1052,13 @@ pub fn render(c: &CalibrationJson) -> String {
         }
         let q = |name: &str, x: &calibration_file::Quantity, unit: &str| {
             let d = decimals(x.expanded_unc);
+            let k = if (x.k - calibration_file::K).abs() > 1e-12 {
+                format!(" (k = {:.2})", x.k)
+            } else {
+                String::new()
+            };
             format!(
-                "  {name:<7} {:>16.d$} ± {:<12.d$} {unit}\n",
+                "  {name:<7} {:>16.d$} ± {:<12.d$} {unit}{k}\n",
                 x.value, x.expanded_unc
             )
         };
@@ -557,6 +1074,12 @@ pub fn render(c: &CalibrationJson) -> String {
             o += &q("O_u", &off.u, &c.units);
             o += &q("O_v", &off.v, &c.units);
             o += &q("O_w", &off.w, &c.units);
+        }
+        if let Some(b) = &r.uncertainty_budget {
+            o += &render_budget(b);
+        }
+        if let Some(n) = &r.noise {
+            o += &render_noise(n);
         }
         if let Some(p) = &r.poses {
             o += &render_poses(p, &c.units);

@@ -64,10 +64,6 @@ impl Quantity {
     }
 }
 
-fn uvw(e: [Estimate; 3]) -> Uvw {
-    uvw_k(e, K)
-}
-
 fn uvw_k(e: [Estimate; 3], k: f64) -> Uvw {
     let [u, v, w] = e.map(|e| Quantity::with_k(e, k));
     Uvw { u, v, w }
@@ -136,8 +132,12 @@ pub struct PoseJson {
     pub mean: [f64; 3],
     /// Standard deviation of the readings (how still); null for one reading.
     pub std: Option<[f64; 3]>,
-    /// Standard error of the mean.
+    /// Standard error of the mean (under the readings' noise model where there is one).
     pub std_err: Option<[f64; 3]>,
+    /// The readings' noise per channel (lag-1 autocorrelation, AR order, standard error,
+    /// effective number of readings), with at least 20 readings.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub noise: Option<[crate::orientation::PoseNoise; 3]>,
     /// Mean minus model.
     pub residual: [f64; 3],
     /// File line of its first reading; for stepped files, of its condition's first row
@@ -208,6 +208,7 @@ fn poses_json(f: &orientation::PoseFit) -> PosesJson {
                 mean: q.mean,
                 std: q.std,
                 std_err: q.std.map(|_| q.se()),
+                noise: q.noise,
                 residual: *r,
                 first_line: q.first_line,
             })
@@ -228,6 +229,11 @@ pub struct IntrinsicJson {
 
 /// Names of the six intrinsic properties, in [`IntrinsicJson::quantities`] order.
 pub const PROPERTY_NAMES: [&str; 6] = ["s_u", "s_v", "s_w", "φ_uv", "φ_vw", "φ_wu"];
+
+/// The six and the offsets, as static results give them.
+pub const PROPERTY_NAMES_WITH_OFFSETS: [&str; 9] = [
+    "s_u", "s_v", "s_w", "φ_uv", "φ_vw", "φ_wu", "O_u", "O_v", "O_w",
+];
 
 impl IntrinsicJson {
     /// s_u, s_v, s_w, φ_uv, φ_vw, φ_wu, then O_u, O_v, O_w when present.
@@ -306,6 +312,72 @@ pub struct RateJson {
     /// An extension of formats.md, static only: the poses and their fit.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub poses: Option<PosesJson>,
+    /// An extension of formats.md: the noise model of each condition and channel,
+    /// estimated from the fit residuals (rotation).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub noise: Option<Vec<NoiseJson>>,
+    /// An extension of formats.md: the GUM budget behind every uncertainty of `intrinsic`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub uncertainty_budget: Option<crate::budget::Budget>,
+}
+
+/// One entry of `noise`: a channel's noise in one condition (docs/uncertainty.md).
+#[derive(Clone, Debug, Serialize)]
+pub struct NoiseJson {
+    /// x, y or z.
+    pub condition: String,
+    /// u, v or w.
+    pub channel: String,
+    /// How it was estimated.
+    pub model: String,
+    /// Standard deviation of one sample's noise, output units.
+    pub sd: f64,
+    /// Standard deviation of the AR model's innovations, output units.
+    pub innovation_sd: f64,
+    /// AR coefficients φ₁ … φ_p (empty: white).
+    pub ar: Vec<f64>,
+    /// The model's lag-1 autocorrelation.
+    pub lag1_autocorrelation: f64,
+    /// How many times the variance of the sine amplitudes exceeds what white noise of the
+    /// same level would give: 2πS(ω)/γ₀ at the rotation frequency.
+    pub variance_factor: f64,
+    /// Samples in the fit.
+    pub n: usize,
+    /// Samples left out of the noise estimate (at a rail).
+    pub n_excluded: usize,
+    /// Effective number of independent samples for the amplitudes: n / variance_factor.
+    pub n_eff: f64,
+    /// Degrees of freedom of the variance.
+    pub dof: f64,
+}
+
+impl NoiseJson {
+    /// From a model; `omega` is the rotation's angle per sample (rad).
+    pub fn new(
+        condition: char,
+        channel: char,
+        m: &crate::noise::NoiseModel,
+        omega: f64,
+    ) -> Self {
+        NoiseJson {
+            condition: condition.to_string(),
+            channel: channel.to_string(),
+            model: format!(
+                "AR({}) by Yule–Walker on the fit residuals, order by BIC (≤ {})",
+                m.order(),
+                crate::noise::MAX_ORDER
+            ),
+            sd: m.sd(),
+            innovation_sd: m.innovation_var.sqrt(),
+            ar: m.ar.clone(),
+            lag1_autocorrelation: m.autocorrelation(1),
+            variance_factor: m.variance_factor(omega),
+            n: m.n,
+            n_excluded: m.excluded,
+            n_eff: m.n_eff(omega),
+            dof: m.dof(3),
+        }
+    }
 }
 
 /// Keys of the Monte Carlo summaries, in output order.
@@ -331,13 +403,30 @@ pub struct CalibrationJson {
     pub by_rate: Vec<RateJson>,
 }
 
-/// The `by_rate` entry of a rotation calibration.
-pub fn rotation_entry(rate_hz: f64, cal: &RotationCalibration, fits: Vec<FitJson>) -> RateJson {
+/// The `by_rate` entry of a rotation calibration: the values, with the uncertainties of
+/// the budget.
+pub fn rotation_entry(
+    rate_hz: f64,
+    cal: &RotationCalibration,
+    budget: &crate::budget::Budget,
+    fits: Vec<FitJson>,
+) -> RateJson {
+    let q = |i: usize, e: &Estimate| budget.quantity(i, e.value);
+    let [su, sv, sw] = &cal.intrinsic.sensitivity;
+    let [uv, vw, wu] = &cal.intrinsic.angle_deg;
     RateJson {
         rate_hz: Some(rate_hz),
         intrinsic: IntrinsicJson {
-            sensitivity: uvw(cal.intrinsic.sensitivity),
-            angle_deg: pairs(cal.intrinsic.angle_deg),
+            sensitivity: Uvw {
+                u: q(0, su),
+                v: q(1, sv),
+                w: q(2, sw),
+            },
+            angle_deg: Pairs {
+                uv: q(3, uv),
+                vw: q(4, vw),
+                wu: q(5, wu),
+            },
             offset: None,
         },
         angle_deg_phase_method: Some(pairs(cal.phase_angles_deg)),
@@ -346,11 +435,18 @@ pub fn rotation_entry(rate_hz: f64, cal: &RotationCalibration, fits: Vec<FitJson
         monte_carlo: None,
         correction: None,
         poses: None,
+        noise: None,
+        uncertainty_budget: None,
     }
 }
 
-/// The `by_rate` entry of a static calibration.
-pub fn static_entry(cal: &StaticCalibration) -> RateJson {
+/// The `by_rate` entry of a static calibration: the values, with the uncertainties of the
+/// budget (properties s_u … φ_wu, O_u, O_v, O_w).
+pub fn static_entry(cal: &StaticCalibration, budget: &crate::budget::Budget) -> RateJson {
+    let q = |i: usize, e: &Estimate| budget.quantity(i, e.value);
+    let [su, sv, sw] = &cal.intrinsic.sensitivity;
+    let [uv, vw, wu] = &cal.intrinsic.angle_deg;
+    let [ou, ov, ow] = &cal.offsets;
     let mut fits = Vec::new();
     for (cond, per_ch) in ['x', 'y', 'z'].iter().zip(cal.fits.iter().flatten()) {
         for (ch, f) in ['u', 'v', 'w'].iter().zip(per_ch) {
@@ -369,13 +465,24 @@ pub fn static_entry(cal: &StaticCalibration) -> RateJson {
             });
         }
     }
-    let k = cal.pose_fit.k;
     RateJson {
         rate_hz: None,
         intrinsic: IntrinsicJson {
-            sensitivity: uvw_k(cal.intrinsic.sensitivity, k),
-            angle_deg: pairs_k(cal.intrinsic.angle_deg, k),
-            offset: Some(uvw_k(cal.offsets, k)),
+            sensitivity: Uvw {
+                u: q(0, su),
+                v: q(1, sv),
+                w: q(2, sw),
+            },
+            angle_deg: Pairs {
+                uv: q(3, uv),
+                vw: q(4, vw),
+                wu: q(5, wu),
+            },
+            offset: Some(Uvw {
+                u: q(6, ou),
+                v: q(7, ov),
+                w: q(8, ow),
+            }),
         },
         angle_deg_phase_method: None,
         sensitivity_matrix: Some(MatrixJson {
@@ -386,5 +493,7 @@ pub fn static_entry(cal: &StaticCalibration) -> RateJson {
         monte_carlo: None,
         correction: None,
         poses: Some(poses_json(&cal.pose_fit)),
+        noise: None,
+        uncertainty_budget: None,
     }
 }

@@ -12,6 +12,7 @@
 pub mod acquire;
 pub mod apply;
 pub mod batch;
+pub mod budget;
 pub mod calibrate;
 pub mod calibrate_recording;
 pub mod calibration_file;
@@ -25,6 +26,7 @@ pub mod fitcheck;
 pub mod geometry;
 pub mod import;
 pub mod link;
+pub mod noise;
 pub mod orientation;
 pub mod output;
 pub mod record;

@@ -82,6 +82,14 @@ enum Command {
         /// Local gravity, m/s² (overrides `# g_loc=`).
         #[arg(long)]
         g_loc: Option<f64>,
+        /// Standard uncertainty of g_loc, m/s² (overrides `# u_g_loc=`): about 1e-4 relative
+        /// from a latitude-and-height formula, 1e-5 from a gravimeter.
+        #[arg(long)]
+        u_g_loc: Option<f64>,
+        /// Rotation files: standard uncertainty of each timestamp beyond its resolution
+        /// (jitter), seconds (overrides `# u_time_s=`).
+        #[arg(long)]
+        u_time_s: Option<f64>,
         /// Write the result as JSON (formats.md) here.
         #[arg(long)]
         json: Option<PathBuf>,
@@ -228,6 +236,8 @@ fn main() -> ExitCode {
             method,
             rate_hz,
             g_loc,
+            u_g_loc,
+            u_time_s,
             json,
             monte_carlo,
             pose_weights,
@@ -239,6 +249,10 @@ fn main() -> ExitCode {
             g_loc,
             json,
             monte_carlo,
+            rotacal::calibrate_recording::TypeB {
+                u_g_loc,
+                u_time_s,
+            },
             rotacal::orientation::Options {
                 weights: match pose_weights {
                     WeightsArg::RandomEffects => rotacal::orientation::Weights::RandomEffects,
@@ -340,6 +354,7 @@ fn calibrate(
     g_loc: Option<f64>,
     json: Option<PathBuf>,
     monte_carlo: Option<usize>,
+    inputs: rotacal::calibrate_recording::TypeB,
     poses: rotacal::orientation::Options,
 ) -> anyhow::Result<()> {
     use rotacal::recording::Method;
@@ -353,6 +368,7 @@ fn calibrate(
         g_loc,
         monte_carlo,
         poses,
+        inputs,
     };
     let cal = rotacal::calibrate_recording::calibrate(&rec, &opts)?;
     if let Some(path) = json {

@@ -34,11 +34,36 @@ pub struct Pose {
     /// 1-based file line of its first reading (stepped files: of its condition's first
     /// row; 0: not from a file).
     pub first_line: u64,
+    /// The readings' noise per channel, estimated from them (at least
+    /// [`NOISE_MODEL_MIN`] readings): successive readings of a filtering sensor are
+    /// correlated, and the mean's standard error is then not std/√n.
+    pub noise: Option<[PoseNoise; 3]>,
 }
 
+/// One channel's noise at one pose, from an AR model of its readings about their mean
+/// ([`crate::noise`]).
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
+pub struct PoseNoise {
+    /// Lag-1 autocorrelation of the model.
+    pub lag1: f64,
+    /// AR order.
+    pub order: usize,
+    /// Standard error of the mean under the model.
+    pub se: f64,
+    /// Effective number of independent readings: std² / se².
+    pub n_eff: f64,
+}
+
+/// Readings a pose needs for its noise to be modelled; fewer use std/√n.
+pub const NOISE_MODEL_MIN: usize = 20;
+
 impl Pose {
-    /// Standard error of the mean, per channel (0 for a single reading: unknown).
+    /// Standard error of the mean, per channel: under the readings' noise model where
+    /// there is one, else std/√n (0 for a single reading: unknown).
     pub fn se(&self) -> [f64; 3] {
+        if let Some(m) = &self.noise {
+            return m.map(|c| c.se);
+        }
         self.std
             .map(|s| s.map(|x| x / (self.n as f64).sqrt()))
             .unwrap_or([0.0; 3])
@@ -214,6 +239,36 @@ impl PoseFit {
     }
 }
 
+/// Each channel's noise model at a pose, when it has enough readings: the mean's variance
+/// is the AR sandwich for a regressor of ones.
+fn pose_noise(rows: &[[f64; 3]], mean: &[f64; 3]) -> Option<[PoseNoise; 3]> {
+    if rows.len() < NOISE_MODEL_MIN {
+        return None;
+    }
+    let ones = nalgebra::DMatrix::from_element(rows.len(), 1, 1.0);
+    let mut out = [PoseNoise {
+        lag1: 0.0,
+        order: 0,
+        se: 0.0,
+        n_eff: 0.0,
+    }; 3];
+    for (j, o) in out.iter_mut().enumerate() {
+        let resid: Vec<f64> = rows.iter().map(|r| r[j] - mean[j]).collect();
+        let (m, cov) = crate::noise::NoiseModel::estimate(&resid, &[])
+            .ok()?
+            .regression_cov(&ones)
+            .ok()?;
+        let var = cov[(0, 0)];
+        *o = PoseNoise {
+            lag1: m.autocorrelation(1),
+            order: m.order(),
+            se: var.max(0.0).sqrt(),
+            n_eff: m.var / var,
+        };
+    }
+    Some(out)
+}
+
 fn mean_std(rows: &[[f64; 3]]) -> ([f64; 3], Option<[f64; 3]>) {
     let n = rows.len() as f64;
     let mean = [0, 1, 2].map(|c| rows.iter().map(|r| r[c]).sum::<f64>() / n);
@@ -275,6 +330,7 @@ pub fn poses_from_oriented(o: &Oriented) -> Result<Vec<Pose>, PoseError> {
         .into_iter()
         .map(|(key, gravity, rows, first_line)| {
             let (mean, std) = mean_std(&rows);
+            let noise = pose_noise(&rows, &mean);
             let name = if named {
                 key
             } else {
@@ -295,6 +351,7 @@ pub fn poses_from_oriented(o: &Oriented) -> Result<Vec<Pose>, PoseError> {
                 mean,
                 std,
                 first_line,
+                noise,
             }
         })
         .collect())
@@ -315,6 +372,7 @@ pub fn poses_from_conditions(conds: &[StaticCondition<'_>]) -> Vec<Pose> {
         for (bits, rows) in angles {
             let deg = f64::from_bits(bits);
             let (mean, std) = mean_std(&rows);
+            let noise = pose_noise(&rows, &mean);
             out.push(Pose {
                 name: format!("{} {deg}°", g.condition.letter()),
                 gravity: gravity_direction(g.condition, deg.to_radians()),
@@ -322,6 +380,7 @@ pub fn poses_from_conditions(conds: &[StaticCondition<'_>]) -> Vec<Pose> {
                 mean,
                 std,
                 first_line: g.first_line,
+                noise,
             });
         }
     }

@@ -30,7 +30,8 @@
 //!
 //! Checks beyond formats.md: the rate (`rate_hz` metadata or column), `g_loc` and
 //! `sample_rate_hz` must be positive, `noise_sigma` non-negative; a known metadata key given
-//! twice with different values is an error; `seq` must be a non-negative integer.
+//! twice with different values is an error; `seq` must be a non-negative integer; the
+//! uncertainty keys `u_g_loc` and `u_time_s` must be numbers ≥ 0.
 
 use std::collections::BTreeMap;
 use std::fmt;
@@ -115,6 +116,18 @@ pub const KNOWN_KEYS: [&str; 7] = [
     "noise_sigma",
     "device",
 ];
+
+/// Metadata keys rotacal adds (docs/formats.md): standard uncertainties of type-B inputs,
+/// checked when read (a finite number ≥ 0) and kept with the other keys.
+/// `u_g_loc` (m/s²), `u_time_s` (each timestamp, seconds, beyond its resolution: jitter).
+pub const UNCERTAINTY_KEYS: [&str; 2] = ["u_g_loc", "u_time_s"];
+
+impl Metadata {
+    /// One of [`UNCERTAINTY_KEYS`], as checked when read.
+    pub fn uncertainty(&self, key: &str) -> Option<f64> {
+        self.other.get(key).and_then(|v| v.parse().ok())
+    }
+}
 
 /// The rows of a file with `gx, gy, gz` columns (static data from any known orientations):
 /// each row carries the direction of gravity's reading in the platter frame, and no
@@ -896,11 +909,24 @@ impl Parser<'_> {
         if !is_key(key) {
             return Ok(()); // a plain comment that happens to hold '='
         }
+        let bad = |m: String| self.err(Some(lineno), RecordingErrorKind::BadMetadata(m));
         let Some(&known) = KNOWN_KEYS.iter().find(|k| **k == key) else {
+            if UNCERTAINTY_KEYS.contains(&key) {
+                let x: f64 = value.parse().map_err(|_| {
+                    bad(format!(
+                        "{key}: '{}' is not a number",
+                        snippet(value.as_bytes())
+                    ))
+                })?;
+                if !(x.is_finite() && x >= 0.0) {
+                    return Err(bad(format!(
+                        "{key}: {x} is not a standard uncertainty (a finite number ≥ 0)"
+                    )));
+                }
+            }
             meta.other.insert(key.to_string(), value.to_string());
             return Ok(());
         };
-        let bad = |m: String| self.err(Some(lineno), RecordingErrorKind::BadMetadata(m));
         let before = meta.clone();
         match known {
             "method" => {

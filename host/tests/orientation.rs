@@ -78,6 +78,7 @@ fn session(
                 mean,
                 std,
                 first_line: 0,
+                noise: None,
             }
         })
         .collect()

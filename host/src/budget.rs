@@ -1,0 +1,200 @@
+//! The uncertainty budget of a calibration result, GUM style (JCGM 100:2008 §5 and
+//! Annex G): for each source, its standard uncertainty, its sensitivity coefficient and its
+//! contribution to each property, with degrees of freedom; the sources combined in
+//! quadrature (they are independent), the effective degrees of freedom by Welch–
+//! Satterthwaite, and a coverage factor per property (docs/uncertainty.md).
+
+use crate::calibration_file::Quantity;
+use rotacal_shared::intrinsic::Estimate;
+use serde::Serialize;
+
+/// Type A (evaluated from the data) or type B (from other knowledge).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+pub enum Kind {
+    /// Evaluated from the data.
+    A,
+    /// From other knowledge (a certificate, a specification).
+    B,
+}
+
+/// One source of uncertainty.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Source {
+    /// Short name, e.g. `fits`, `g_loc`, `rate_x`, `timestamps`.
+    pub source: String,
+    /// A or B.
+    #[serde(rename = "type")]
+    pub kind: Kind,
+    /// What it is and where its value comes from.
+    pub description: String,
+    /// The input's standard uncertainty, when the source is one number (null for the fits,
+    /// a source of many inputs whose covariance is propagated whole).
+    pub std_unc: Option<f64>,
+    /// The unit of `std_unc`.
+    pub unit: Option<String>,
+    /// Per property: ∂property/∂input (null where the source is not one number).
+    pub sensitivity: Vec<Option<f64>>,
+    /// Per property: its standard uncertainty from this source, |c|·u, in the property's unit.
+    pub contribution: Vec<f64>,
+    /// Per property: degrees of freedom of the contribution (null: infinite).
+    pub dof: Vec<Option<f64>>,
+}
+
+/// One property's combined uncertainty.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Combined {
+    /// Its name.
+    pub quantity: String,
+    /// √(Σ contribution²).
+    pub std_unc: f64,
+    /// Welch–Satterthwaite effective degrees of freedom (null: infinite).
+    pub nu_eff: Option<f64>,
+    /// Coverage factor for 95 %: Student's t at ν_eff, at least 2.
+    pub k: f64,
+    /// k·std_unc.
+    pub expanded_unc: f64,
+    /// The source with the largest contribution.
+    pub dominant: String,
+}
+
+/// The budget of one result (`uncertainty_budget` in the calibration JSON).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Budget {
+    /// The properties, in the order of every per-property list.
+    pub quantities: Vec<String>,
+    /// Their units.
+    pub units: Vec<String>,
+    /// The sources.
+    pub sources: Vec<Source>,
+    /// Per property.
+    pub combined: Vec<Combined>,
+    /// What the budget leaves out or assumes, each in a sentence.
+    pub notes: Vec<String>,
+}
+
+impl Budget {
+    /// An empty budget for these properties.
+    pub fn new(quantities: &[&str], units: &[String]) -> Self {
+        Budget {
+            quantities: quantities.iter().map(|q| q.to_string()).collect(),
+            units: units.to_vec(),
+            sources: Vec::new(),
+            combined: Vec::new(),
+            notes: Vec::new(),
+        }
+    }
+
+    /// Add a source of one input of standard uncertainty `u` with sensitivity `c` per
+    /// property and infinitely many degrees of freedom (a type-B value taken as exact in
+    /// its own uncertainty) unless `dof` is given.
+    pub fn scalar(
+        &mut self,
+        name: &str,
+        kind: Kind,
+        description: impl Into<String>,
+        u: f64,
+        unit: &str,
+        c: &[f64],
+        dof: Option<f64>,
+    ) {
+        self.sources.push(Source {
+            source: name.to_string(),
+            kind,
+            description: description.into(),
+            std_unc: Some(u),
+            unit: Some(unit.to_string()),
+            sensitivity: c.iter().map(|c| Some(*c)).collect(),
+            contribution: c.iter().map(|c| (c * u).abs()).collect(),
+            dof: vec![dof; c.len()],
+        });
+    }
+
+    /// Add a source given by its contributions per property (a vector input whose
+    /// covariance was propagated whole).
+    pub fn vector(
+        &mut self,
+        name: &str,
+        kind: Kind,
+        description: impl Into<String>,
+        contribution: &[f64],
+        dof: &[Option<f64>],
+    ) {
+        self.sources.push(Source {
+            source: name.to_string(),
+            kind,
+            description: description.into(),
+            std_unc: None,
+            unit: None,
+            sensitivity: vec![None; contribution.len()],
+            contribution: contribution.to_vec(),
+            dof: dof.to_vec(),
+        });
+    }
+
+    /// Combine: u_c² = Σ u_i², ν_eff = u_c⁴ / Σ(u_i⁴/ν_i), k = t₉₇.₅(ν_eff) (at least 2).
+    pub fn combine(&mut self) {
+        self.combined = (0..self.quantities.len())
+            .map(|i| {
+                let terms: Vec<(f64, Option<f64>, &str)> = self
+                    .sources
+                    .iter()
+                    .map(|s| {
+                        (
+                            s.contribution.get(i).copied().unwrap_or(0.0),
+                            s.dof.get(i).copied().flatten(),
+                            s.source.as_str(),
+                        )
+                    })
+                    .collect();
+                let var: f64 = terms.iter().map(|t| t.0 * t.0).sum();
+                let denom: f64 = terms
+                    .iter()
+                    .filter_map(|(u, nu, _)| nu.map(|nu| u.powi(4) / nu))
+                    .sum();
+                let nu_eff = (denom > 0.0).then(|| var * var / denom);
+                let k = crate::orientation::coverage_factor(nu_eff.unwrap_or(f64::INFINITY));
+                let dominant = terms
+                    .iter()
+                    .fold((f64::NEG_INFINITY, ""), |best, t| {
+                        if t.0 > best.0 {
+                            (t.0, t.2)
+                        } else {
+                            best
+                        }
+                    })
+                    .1
+                    .to_string();
+                let std_unc = var.sqrt();
+                Combined {
+                    quantity: self.quantities.get(i).cloned().unwrap_or_default(),
+                    std_unc,
+                    nu_eff,
+                    k,
+                    expanded_unc: k * std_unc,
+                    dominant,
+                }
+            })
+            .collect();
+    }
+
+    /// Property `i` as a [`Quantity`] with `value` and the combined uncertainty.
+    pub fn quantity(&self, i: usize, value: f64) -> Quantity {
+        match self.combined.get(i) {
+            Some(c) => Quantity {
+                value,
+                std_unc: c.std_unc,
+                expanded_unc: c.expanded_unc,
+                k: c.k,
+            },
+            None => Quantity::from(Estimate {
+                value,
+                std_unc: f64::NAN,
+            }),
+        }
+    }
+
+    /// The source named `name`.
+    pub fn source(&self, name: &str) -> Option<&Source> {
+        self.sources.iter().find(|s| s.source == name)
+    }
+}

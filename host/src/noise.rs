@@ -1,0 +1,262 @@
+//! The noise of a record, estimated from the data: an autoregressive model AR(p) of a fit's
+//! residuals, per channel and group, and the covariance of the fit's coefficients under it
+//! (docs/uncertainty.md).
+//!
+//! Real sensors filter their output, so successive samples are correlated, and no real
+//! recording states its noise. σ̂²(HᵀH)⁻¹ then understates the variance of slowly varying
+//! coefficients by about (1+ρ)/(1−ρ) for AR(1) noise. Here:
+//!
+//! - the autocovariances of the residuals give an AR(p) model by Yule–Walker (Levinson–
+//!   Durbin), the order chosen by BIC (Schwarz) up to [`MAX_ORDER`]; samples flagged as clipped are
+//!   left out of every lagged product, so a channel at its rails does not bias the level;
+//! - the fit's coefficients keep their ordinary least-squares values (for sines and
+//!   polynomials OLS is asymptotically as efficient as GLS: Grenander 1954), and their
+//!   covariance is the sandwich (HᵀH)⁻¹ HᵀΣH (HᵀH)⁻¹ with Σ the AR model's, computed
+//!   exactly in O(N·p) as HᵀΣH = σ_ε²·ZᵀZ, Z = A⁻ᵀH (A the AR filter as a matrix);
+//! - the level is corrected for what the regression removed from the residuals
+//!   (E[RSS] = tr((I − P)Σ)), so white noise gives exactly RSS/(N − q) as before.
+
+use nalgebra::DMatrix;
+
+/// The largest AR order tried.
+pub const MAX_ORDER: usize = 32;
+
+/// Why no noise model could be estimated.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum NoiseError {
+    /// Too few usable samples.
+    #[error("too few samples to estimate the noise: {0} usable")]
+    TooFew(usize),
+    /// The residuals are all equal (no noise to measure).
+    #[error("the residuals are constant: no noise to estimate")]
+    Constant,
+    /// The regressors are linearly dependent.
+    #[error("singular fit: the regressors do not determine every coefficient")]
+    Singular,
+}
+
+/// An AR(p) noise model: e_t = φ₁e_{t−1} + … + φ_p e_{t−p} + ε_t, var ε = σ_ε².
+#[derive(Clone, Debug, PartialEq)]
+pub struct NoiseModel {
+    /// φ₁ … φ_p (empty: white noise).
+    pub ar: Vec<f64>,
+    /// σ_ε², output units².
+    pub innovation_var: f64,
+    /// The stationary variance γ₀ (output units²): the level of one sample's noise.
+    pub var: f64,
+    /// Autocorrelations ρ₀ … ρ_p of the model (equal to the sample ones up to lag p).
+    rho: Vec<f64>,
+    /// Samples in the record.
+    pub n: usize,
+    /// Samples left out of the estimate (flagged as clipped).
+    pub excluded: usize,
+}
+
+impl NoiseModel {
+    /// White noise of variance `var` over `n` samples.
+    pub fn white(var: f64, n: usize) -> Self {
+        NoiseModel {
+            ar: Vec::new(),
+            innovation_var: var,
+            var,
+            rho: vec![1.0],
+            n,
+            excluded: 0,
+        }
+    }
+
+    /// Estimate from residuals `e`; `flagged[t]` leaves sample t out (empty: none).
+    pub fn estimate(e: &[f64], flagged: &[bool]) -> Result<Self, NoiseError> {
+        let n = e.len();
+        let ok = |t: usize| !flagged.get(t).copied().unwrap_or(false);
+        let used = (0..n).filter(|&t| ok(t)).count();
+        if used < 20 {
+            return Err(NoiseError::TooFew(used));
+        }
+        let mean = (0..n).filter(|&t| ok(t)).map(|t| e[t]).sum::<f64>() / used as f64;
+        let x: Vec<f64> = e.iter().map(|v| v - mean).collect();
+        let max_p = MAX_ORDER.min(used / 10);
+        // Biased autocovariances (divided by the samples used), pairs with a flagged
+        // sample left out.
+        let gamma: Vec<f64> = (0..=max_p)
+            .map(|k| {
+                (0..n.saturating_sub(k))
+                    .filter(|&t| ok(t) && ok(t + k))
+                    .map(|t| x[t] * x[t + k])
+                    .sum::<f64>()
+                    / used as f64
+            })
+            .collect();
+        let g0 = gamma[0];
+        if !(g0.is_finite() && g0 > 0.0) {
+            return Err(NoiseError::Constant);
+        }
+        // Levinson–Durbin, keeping the order of least BIC: its penalty (ln N per
+        // coefficient) rarely takes white noise for correlated (AIC's 2 would, often).
+        let mut phi: Vec<f64> = Vec::new();
+        let mut v = g0;
+        let mut best = (used as f64 * v.ln(), Vec::new(), v);
+        for p in 1..=max_p {
+            let acc: f64 = phi
+                .iter()
+                .enumerate()
+                .map(|(j, f)| f * gamma[p - 1 - j])
+                .sum();
+            let kappa = (gamma[p] - acc) / v;
+            if !(kappa.is_finite() && kappa.abs() < 1.0) {
+                break;
+            }
+            let prev = phi.clone();
+            phi.push(kappa);
+            for j in 0..p - 1 {
+                phi[j] = prev[j] - kappa * prev[p - 2 - j];
+            }
+            v *= 1.0 - kappa * kappa;
+            let bic = used as f64 * v.ln() + p as f64 * (used as f64).ln();
+            if bic < best.0 {
+                best = (bic, phi.clone(), v);
+            }
+        }
+        let (_, ar, innovation_var) = best;
+        let p = ar.len();
+        Ok(NoiseModel {
+            rho: gamma.iter().take(p + 1).map(|g| g / g0).collect(),
+            ar,
+            innovation_var,
+            var: g0,
+            n,
+            excluded: n - used,
+        })
+    }
+
+    /// The AR order p.
+    pub fn order(&self) -> usize {
+        self.ar.len()
+    }
+
+    /// Standard deviation of one sample's noise.
+    pub fn sd(&self) -> f64 {
+        self.var.sqrt()
+    }
+
+    /// The model's autocorrelation at `lag` samples.
+    pub fn autocorrelation(&self, lag: usize) -> f64 {
+        let mut rho = self.rho.clone();
+        while rho.len() <= lag {
+            let k = rho.len();
+            let next = self
+                .ar
+                .iter()
+                .enumerate()
+                .map(|(i, f)| f * rho[k - 1 - i])
+                .sum();
+            rho.push(next);
+        }
+        rho[lag]
+    }
+
+    /// 2π·S(ω)/γ₀ = Σ_k ρ_k cos(kω) at `omega` radians per sample: how many times the
+    /// variance of a coefficient of a regressor at that frequency exceeds what white noise
+    /// of the same level gives (1 for white noise; (1+ρ)/(1−ρ) for AR(1) at ω → 0).
+    pub fn variance_factor(&self, omega: f64) -> f64 {
+        let (mut re, mut im) = (1.0, 0.0);
+        for (k, f) in self.ar.iter().enumerate() {
+            let a = (k + 1) as f64 * omega;
+            re -= f * a.cos();
+            im += f * a.sin();
+        }
+        self.innovation_var / self.var / (re * re + im * im)
+    }
+
+    /// The effective number of independent samples for a regressor at `omega` radians
+    /// per sample: N divided by the variance factor.
+    pub fn n_eff(&self, omega: f64) -> f64 {
+        self.n as f64 / self.variance_factor(omega)
+    }
+
+    /// Degrees of freedom of a variance taken from this model for a fit of `q`
+    /// coefficients: N − q for white noise; for AR(p), N/(2p), from the asymptotic
+    /// variance 2·(2p/N) of the AR spectral estimate near ω = 0 (Berk 1974).
+    pub fn dof(&self, q: usize) -> f64 {
+        let white = (self.n - self.excluded).saturating_sub(q).max(1) as f64;
+        match self.order() {
+            0 => white,
+            p => white.min(self.n as f64 / (2.0 * p as f64)).max(1.0),
+        }
+    }
+
+    /// Z = A⁻ᵀH, A the AR filter as a lower-triangular matrix ((Ae)_t = e_t − Σφ_k e_{t−k}
+    /// from t = p on): by the backward recursion z_t = h_t + Σ φ_k z_{t+k}.
+    fn filter_back(&self, h: &DMatrix<f64>) -> DMatrix<f64> {
+        let (n, q) = h.shape();
+        let p = self.order();
+        let mut z = h.clone();
+        for t in (0..n).rev() {
+            for (k, f) in self.ar.iter().enumerate() {
+                let s = t + k + 1;
+                if s < n && s >= p {
+                    for c in 0..q {
+                        z[(t, c)] += f * z[(s, c)];
+                    }
+                }
+            }
+        }
+        z
+    }
+
+    /// The covariance of the ordinary least-squares coefficients of regressors `h`
+    /// (N × q) under this noise, the sandwich (HᵀH)⁻¹HᵀΣH(HᵀH)⁻¹. The model, estimated from
+    /// that fit's residuals, is rescaled first for what the fit removed from them
+    /// ([`NoiseModel::rescaled`]); the rescaled model is returned with it.
+    pub fn regression_cov(
+        self,
+        h: &DMatrix<f64>,
+    ) -> Result<(NoiseModel, DMatrix<f64>), NoiseError> {
+        let m = self.rescaled(h)?;
+        let cov = m.sandwich(h)?;
+        Ok((m, cov))
+    }
+
+    /// The model rescaled for what a least-squares fit of regressors `h` removed from the
+    /// residuals it was estimated from: E[RSS] = tr((I − P)Σ), so the level is multiplied
+    /// by N/(N − tr(PΣ)/γ₀) (N/(N − q) for white noise: σ̂² = RSS/(N − q)).
+    pub fn rescaled(mut self, h: &DMatrix<f64>) -> Result<NoiseModel, NoiseError> {
+        let n = h.nrows();
+        let (inv, meat) = self.parts(h)?;
+        let removed = (&inv * &meat).trace() / self.var;
+        let scale = n as f64 / (n as f64 - removed).max(1.0);
+        self.var *= scale;
+        self.innovation_var *= scale;
+        Ok(self)
+    }
+
+    /// The sandwich (HᵀH)⁻¹HᵀΣH(HᵀH)⁻¹ under this model as it stands.
+    pub fn sandwich(&self, h: &DMatrix<f64>) -> Result<DMatrix<f64>, NoiseError> {
+        let (inv, meat) = self.parts(h)?;
+        Ok(&inv * meat * &inv)
+    }
+
+    /// (HᵀH)⁻¹ and HᵀΣH.
+    fn parts(&self, h: &DMatrix<f64>) -> Result<(DMatrix<f64>, DMatrix<f64>), NoiseError> {
+        let inv = (h.transpose() * h)
+            .try_inverse()
+            .ok_or(NoiseError::Singular)?;
+        if inv.iter().any(|v| !v.is_finite()) {
+            return Err(NoiseError::Singular);
+        }
+        let z = self.filter_back(h);
+        Ok((inv, z.transpose() * &z * self.innovation_var))
+    }
+}
+
+/// Readings at a channel's rails: the smallest (largest) value, when at least three
+/// readings sit exactly on it, as a clipping sensor leaves them.
+pub fn clipped(y: &[f64]) -> Vec<bool> {
+    let lo = y.iter().copied().fold(f64::INFINITY, f64::min);
+    let hi = y.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    let count = |v: f64| y.iter().filter(|&&x| x == v).count();
+    let (lo_rail, hi_rail) = (count(lo) >= 3, count(hi) >= 3);
+    y.iter()
+        .map(|&x| (lo_rail && x == lo) || (hi_rail && x == hi))
+        .collect()
+}
