@@ -325,7 +325,7 @@ fn butterworth(fc: f64, fs: f64) -> (Vec<f64>, Vec<f64>) {
 fn reflection_stable(a: &[f64]) -> bool {
     let mut c = a.to_vec();
     while let Some(&k) = c.last() {
-        if !(k.abs() < 1.0) {
+        if k.is_nan() || k.abs() >= 1.0 {
             return false;
         }
         let m = c.len() - 1;
