@@ -4,10 +4,14 @@
 // Matrix arithmetic on small fixed arrays reads more plainly with indices.
 #![allow(clippy::needless_range_loop)]
 
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use rand_distr::StandardNormal;
 use rotacal::calibrate_recording::{self, Options};
 use rotacal::recording::{Group, Recording};
 use rotacal::simulate::{Config, Simulation};
-use std::f64::consts::TAU;
+use statrs::distribution::{ChiSquared, ContinuousCDF};
+use std::f64::consts::{PI, SQRT_2, TAU};
 use std::process::Command;
 
 fn sim(toml: &str) -> Simulation {
@@ -520,6 +524,27 @@ fn bad_configurations_name_the_key() {
             "preset = \"paper-10mhz\"\n[mounting]\nangle_deg = 2.0\nmatrix = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]\n",
             "not both",
         ),
+        // [sensor.noise]: each refused naming its key(s).
+        ("preset = \"paper-10mhz\"\n[sensor.noise]\nar = [1.2]\n", "sensor.noise.ar: not stationary"),
+        // Poles 1 and 0.5 (z² − 1.5z + 0.5): one on the unit circle.
+        ("preset = \"paper-10mhz\"\n[sensor.noise]\nar = [1.5, -0.5]\n", "sensor.noise.ar: not stationary"),
+        ("preset = \"paper-10mhz\"\n[sensor.noise]\nar = [0.9999999]\n", "sensor.noise.ar: its memory is too long"),
+        ("preset = \"paper-10mhz\"\n[sensor.noise]\nar = []\n", "sensor.noise.ar"),
+        (
+            "preset = \"paper-10mhz\"\n[sensor.noise]\nar = [0.5]\nlowpass_hz = 2.0\n",
+            "sensor.noise.ar and sensor.noise.lowpass_hz",
+        ),
+        ("preset = \"paper-10mhz\"\n[sensor.noise]\nlowpass_hz = 8.0\n", "sensor.noise.lowpass_hz"),
+        ("preset = \"paper-10mhz\"\n[sensor.noise]\nlowpass_hz = 0.0\n", "sensor.noise.lowpass_hz"),
+        ("preset = \"paper-10mhz\"\n[sensor.noise]\nsd = -1.0\n", "sensor.noise.sd"),
+        ("preset = \"paper-10mhz\"\n[sensor.noise]\nsd = [1.0, -2.0, 3.0]\n", "sensor.noise.sd"),
+        ("preset = \"paper-10mhz\"\n[sensor.noise]\nsd = [1.0, 2.0]\n", "sensor.noise.sd"),
+        (
+            "preset = \"paper-10mhz\"\n[sensor]\nnoise_sigma = 3.0\n[sensor.noise]\nsd = 3.0\n",
+            "sensor.noise_sigma and sensor.noise.sd",
+        ),
+        ("preset = \"paper-10mhz\"\n[sensor.noise]\nlow_pass_hz = 2.0\n", "low_pass_hz"),
+        ("preset = \"paper-10mhz\"\nunits = \"V\"\n[sensor.noise]\nar = [0.5]\n", "sensor.noise.sd"),
     ];
     for (text, want) in cases {
         let err = Config::from_toml(text)
@@ -539,5 +564,392 @@ fn bad_configurations_name_the_key() {
     assert!(
         err.contains("no-such.toml") && err.contains("paper-10mhz"),
         "{err}"
+    );
+}
+
+// ---------------------------------------------------------------------------------------
+// [sensor.noise]: the page's noise written out again, and its statistics.
+
+/// The page's filter for a noise table: b, a (a_0 = 1 left out), V = Σ h_k², the burn-in
+/// n_b and ρ_k, each found here by other means than the library's.
+struct PageNoise {
+    b: Vec<f64>,
+    a: Vec<f64>,
+    v: f64,
+    burn: usize,
+    rho: Vec<f64>,
+}
+
+fn burn_in(r: f64) -> usize {
+    (1e-12f64.ln() / r.ln()).ceil() as usize
+}
+
+/// AR(2) e_t = φ1·e_{t−1} + φ2·e_{t−2} + w_t with complex roots: modulus √(−φ2), and γ_0
+/// and ρ_k in closed form (Yule–Walker).
+fn page_ar2(phi1: f64, phi2: f64) -> PageNoise {
+    assert!(phi1 * phi1 + 4.0 * phi2 < 0.0, "complex roots expected");
+    let v = (1.0 - phi2) / ((1.0 + phi2) * ((1.0 - phi2).powi(2) - phi1 * phi1));
+    let mut rho = vec![1.0, phi1 / (1.0 - phi2)];
+    for k in 2..50 {
+        rho.push(phi1 * rho[k - 1] + phi2 * rho[k - 2]);
+    }
+    PageNoise {
+        b: vec![1.0],
+        a: vec![-phi1, -phi2],
+        v,
+        burn: burn_in((-phi2).sqrt()),
+        rho,
+    }
+}
+
+/// The page's Butterworth: its complex pole pair has modulus √a_2; V and ρ_k from a long
+/// impulse response.
+fn page_butterworth(fc: f64, fs: f64) -> PageNoise {
+    let k = (PI * fc / fs).tan();
+    let d = 1.0 + SQRT_2 * k + k * k;
+    let b = vec![k * k / d, 2.0 * k * k / d, k * k / d];
+    let a = vec![2.0 * (k * k - 1.0) / d, (1.0 - SQRT_2 * k + k * k) / d];
+    let n = 5000;
+    let mut h = vec![0.0; n];
+    for t in 0..n {
+        let x = if t < 3 { b[t] } else { 0.0 };
+        let y1 = if t >= 1 { h[t - 1] } else { 0.0 };
+        let y2 = if t >= 2 { h[t - 2] } else { 0.0 };
+        h[t] = x - a[0] * y1 - a[1] * y2;
+    }
+    let v: f64 = h.iter().map(|x| x * x).sum();
+    let rho = (0..50)
+        .map(|lag| (0..n - lag).map(|i| h[i] * h[i + lag]).sum::<f64>() / v)
+        .collect();
+    PageNoise {
+        burn: burn_in(a[1].sqrt()),
+        b,
+        a,
+        v,
+        rho,
+    }
+}
+
+/// The page's noise for the first `samples` samples of a file whose only stream-0 draws
+/// are the noise's: n_b burn-in innovations per channel from stream 1 (u's, then v's, then
+/// w's), then three per sample from stream 0, all through the filter from rest.
+fn page_noise(p: &PageNoise, sd: [f64; 3], seed: u64, samples: usize) -> [Vec<f64>; 3] {
+    let mut s1 = ChaCha8Rng::seed_from_u64(seed);
+    s1.set_stream(1);
+    let mut w: [Vec<f64>; 3] = Default::default();
+    for wj in w.iter_mut() {
+        for _ in 0..p.burn {
+            wj.push(s1.sample(StandardNormal));
+        }
+    }
+    let mut s0 = ChaCha8Rng::seed_from_u64(seed);
+    for _ in 0..samples {
+        for wj in w.iter_mut() {
+            wj.push(s0.sample(StandardNormal));
+        }
+    }
+    let mut out: [Vec<f64>; 3] = Default::default();
+    for j in 0..3 {
+        let n = w[j].len();
+        let mut y = vec![0.0; n];
+        for t in 0..n {
+            let mut x = 0.0;
+            for (i, bi) in p.b.iter().enumerate() {
+                if t >= i {
+                    x += bi * w[j][t - i];
+                }
+            }
+            for (i, ai) in p.a.iter().enumerate() {
+                if t > i {
+                    x -= ai * y[t - i - 1];
+                }
+            }
+            y[t] = x;
+        }
+        out[j] = y[p.burn..].iter().map(|y| sd[j] / p.v.sqrt() * y).collect();
+    }
+    out
+}
+
+/// The file's noise per channel, in file order: the recording minus its noise-free twin
+/// (the configurations here have lsb = 0 and no clipping, so this is the noise to rounding).
+fn noise_of(s: &Simulation) -> [Vec<f64>; 3] {
+    let mut cfg = s.config().clone();
+    cfg.sensor.noise = None;
+    cfg.sensor.noise_sigma = Some(0.0);
+    let (noisy, twin) = (rec(s), Simulation::new(cfg).unwrap().recording().unwrap());
+    let mut e: [Vec<f64>; 3] = Default::default();
+    for (g, g0) in noisy.groups.iter().zip(&twin.groups) {
+        assert_eq!(g.len(), g0.len());
+        for (ej, (y, y0)) in e
+            .iter_mut()
+            .zip([(&g.u, &g0.u), (&g.v, &g0.v), (&g.w, &g0.w)])
+        {
+            ej.extend(y.iter().zip(y0.iter()).map(|(a, b)| a - b));
+        }
+    }
+    e
+}
+
+fn noise_config(preamble: &str, noise: &str) -> String {
+    format!(
+        "seed = 11\ng_loc = {G}\n{preamble}\n[device]\nmatrix = {s}\noffsets = [{}, {}, {}]\n\
+         [sensor]\nlsb = 0.0\nfull_scale = [-1e9, 1e9]\n[sensor.noise]\n{noise}\n",
+        O[0],
+        O[1],
+        O[2],
+        s = fmt_matrix(&S),
+    )
+}
+
+/// AR and low-pass files reproduced sample for sample from the page's equations and RNG
+/// stream rules, across rates, conditions and static angles; the truth's process agrees
+/// with the page's.
+#[test]
+fn correlated_noise_matches_an_independent_model() {
+    let cases = [
+        (
+            "AR(2) over two rates",
+            noise_config(
+                "[timing]\nsample_rate_hz = 16.0\n[table]\nrates_hz = [0.02, 0.3]\n\
+                 samples_per_condition = 200\nstart_angle_deg = [10.0, 200.0, 300.0]",
+                "sd = [3.0, 4.0, 5.0]\nar = [1.5, -0.7]",
+            ),
+            page_ar2(1.5, -0.7),
+            [3.0, 4.0, 5.0],
+        ),
+        (
+            "Butterworth, static",
+            noise_config(
+                "method = \"static\"\n[timing]\nsample_rate_hz = 104.0\n[table]\n\
+                 angles_deg = [0.0, 90.0, 180.0, 270.0]\nreadings_per_angle = 50\ndwell_s = 1.0",
+                "sd = 2.5\nlowpass_hz = 11.6",
+            ),
+            page_butterworth(11.6, 104.0),
+            [2.5; 3],
+        ),
+    ];
+    for (name, toml, page, sd) in cases {
+        let s = sim(&toml);
+        let t = s.truth();
+        let p = &t.noise_process;
+        assert_eq!(p.burn_in(), page.burn as u64, "{name}: burn-in");
+        assert!(
+            (p.variance_per_innovation() / page.v - 1.0).abs() < 1e-12,
+            "{name}: V"
+        );
+        for (x, y) in p.feedback().iter().zip(&page.a) {
+            assert!((x - y).abs() < 1e-15, "{name}: a");
+        }
+        for (x, y) in p.feedforward().iter().zip(&page.b) {
+            assert!((x - y).abs() < 1e-15, "{name}: b");
+        }
+        for (k, r) in page.rho.iter().enumerate() {
+            for j in 0..3 {
+                let got = t.noise_autocorrelation(j, k as u64);
+                assert!((got - r).abs() < 1e-12, "{name}: ρ_{k} {got} vs {r}");
+            }
+        }
+        assert!(t.noise_autocorrelation(3, 1).is_nan());
+        assert_eq!(t.noise_sd, sd);
+        // The long-run factor is Σρ over all lags, and the spectral shape integrates to 1.
+        let sum_rho = 1.0 + 2.0 * (1..2000).map(|k| p.autocorrelation(k)).sum::<f64>();
+        assert!(
+            (p.long_run_factor() / sum_rho - 1.0).abs() < 1e-9,
+            "{name}: Σρ"
+        );
+        let m = 4096;
+        let integral = (0..m)
+            .map(|i| p.spectral_shape((i as f64 + 0.5) / m as f64 - 0.5))
+            .sum::<f64>()
+            / m as f64;
+        assert!(
+            (integral - 1.0).abs() < 1e-9,
+            "{name}: ∫ shape = {integral}"
+        );
+
+        let e = noise_of(&s);
+        let want = page_noise(&page, sd, 11, e[0].len());
+        let mut worst = 0.0f64;
+        for j in 0..3 {
+            for (x, y) in e[j].iter().zip(&want[j]) {
+                worst = worst.max((x - y).abs());
+            }
+        }
+        println!(
+            "{name}: {} samples, burn-in {}, V = {:.6}, worst |file − page| {worst:.1e}",
+            e[0].len(),
+            page.burn,
+            page.v
+        );
+        assert!(worst < 1e-9, "{name}: worst difference {worst:e}");
+        assert_eq!(
+            rec(&s).meta.noise_sigma,
+            None,
+            "{name}: coloured noise is not stated"
+        );
+    }
+}
+
+/// Autocorrelation at `lag` (any sign) from the truth.
+fn rho_of(s: &Simulation, lag: i64) -> f64 {
+    s.truth().noise_autocorrelation(0, lag.unsigned_abs())
+}
+
+/// Bartlett's standard error of a lag-k sample autocorrelation from n samples of a
+/// process with autocorrelation ρ.
+fn bartlett_se(rho: &dyn Fn(i64) -> f64, k: i64, n: usize) -> f64 {
+    let l = 500;
+    let v: f64 = (-l..=l)
+        .map(|i| {
+            rho(i + k).powi(2) + rho(i - k) * rho(i + k) - 4.0 * rho(k) * rho(i) * rho(i + k)
+                + 2.0 * rho(i).powi(2) * rho(k).powi(2)
+        })
+        .sum();
+    (v / n as f64).sqrt()
+}
+
+/// Each channel's marginal sd and lag-1, lag-2 autocorrelations against the truth.
+/// Bounds from statistics: the mean square of n correlated Gaussian samples is taken as
+/// σ²·χ²(n_eff)/n_eff with n_eff = n / Σ_k ρ_k² (equal variance of the estimate), at
+/// probability 1e-6 each side; the autocorrelations within 4 of Bartlett's standard errors.
+fn check_noise_statistics(name: &str, s: &Simulation) {
+    let e = noise_of(s);
+    let t = s.truth();
+    let n = e[0].len();
+    let rho = |k: i64| rho_of(s, k);
+    let sum_sq: f64 = (-2000..=2000).map(|k| rho(k).powi(2)).sum();
+    let n_eff = n as f64 / sum_sq;
+    let chi = ChiSquared::new(n_eff).unwrap();
+    let (lo, hi) = (
+        (chi.inverse_cdf(1e-6) / n_eff).sqrt(),
+        (chi.inverse_cdf(1.0 - 1e-6) / n_eff).sqrt(),
+    );
+    for j in 0..3 {
+        let x = &e[j];
+        let ms = x.iter().map(|v| v * v).sum::<f64>() / n as f64;
+        let sd = ms.sqrt();
+        let want = t.noise_sd[j];
+        println!(
+            "{name} ch {j}: sd {sd:.4} vs {want} (bounds {:.4} … {:.4}, n = {n}, n_eff = {n_eff:.0})",
+            want * lo,
+            want * hi
+        );
+        assert!(
+            sd >= want * lo && sd <= want * hi,
+            "{name} channel {j}: sd {sd}"
+        );
+        for k in [1i64, 2] {
+            let m = n - k as usize;
+            let r = (0..m).map(|i| x[i] * x[i + k as usize]).sum::<f64>() / (ms * n as f64);
+            let se = bartlett_se(&rho, k, n);
+            println!(
+                "{name} ch {j}: r_{k} {r:.4} vs ρ_{k} {:.4} (se {se:.4}, z = {:+.2})",
+                rho(k),
+                (r - rho(k)) / se
+            );
+            assert!(
+                (r - rho(k)).abs() < 4.0 * se,
+                "{name} channel {j}: r_{k} {r} vs {}",
+                rho(k)
+            );
+        }
+    }
+    // The channels are independent: lag-0 cross-correlation within 4 standard errors,
+    // Var ≈ Σ_k ρ_k²/n for two independent series of the same shape.
+    for (a, b) in [(0, 1), (1, 2), (2, 0)] {
+        let c = e[a].iter().zip(&e[b]).map(|(x, y)| x * y).sum::<f64>();
+        let na: f64 = e[a].iter().map(|x| x * x).sum();
+        let nb: f64 = e[b].iter().map(|x| x * x).sum();
+        let r = c / (na * nb).sqrt();
+        let se = (sum_sq / n as f64).sqrt();
+        println!("{name} channels {a}, {b}: cross-correlation {r:+.4} (se {se:.4})");
+        assert!(
+            r.abs() < 4.0 * se,
+            "{name}: channels {a}, {b} correlate {r}"
+        );
+    }
+}
+
+fn long_noise(fs: f64, noise: &str) -> Simulation {
+    sim(&noise_config(
+        &format!(
+            "[timing]\nsample_rate_hz = {fs:?}\n[table]\nsamples_per_condition = 20000\n\
+             start_angle_deg = [0.0, 0.0, 0.0]"
+        ),
+        noise,
+    ))
+}
+
+#[test]
+fn ar_noise_has_the_stated_statistics() {
+    let s = long_noise(16.0, "sd = [3.0, 4.0, 5.0]\nar = [0.6]");
+    assert!((rho_of(&s, 1) - 0.6).abs() < 1e-12 && (rho_of(&s, 2) - 0.36).abs() < 1e-12);
+    check_noise_statistics("AR(1) 0.6", &s);
+}
+
+/// The LSM6DS33's LPF2 at ODR/9: 11.6 Hz at 104 Hz.
+#[test]
+fn lowpass_noise_has_the_stated_statistics() {
+    check_noise_statistics(
+        "low-pass 11.6 Hz at 104 Hz",
+        &long_noise(104.0, "sd = 4.0\nlowpass_hz = 11.6"),
+    );
+}
+
+/// Per-channel levels 3, 4, 5 of white noise.
+#[test]
+fn per_channel_white_levels_are_honoured() {
+    let s = long_noise(16.0, "sd = [3, 4, 5]");
+    assert_eq!(s.truth().noise_sd, [3.0, 4.0, 5.0]);
+    assert_eq!(rho_of(&s, 1), 0.0);
+    check_noise_statistics("white 3, 4, 5", &s);
+}
+
+/// `# noise_sigma=` is written only when it is true: white noise of one level, and not
+/// turned off. A white table of one level is byte for byte the `noise_sigma` file.
+#[test]
+fn noise_sigma_is_stated_only_when_true() {
+    let base = "preset = \"paper-10mhz\"\nseed = 3\n[table]\nsamples_per_condition = 50\n";
+    let bytes = |extra: &str| {
+        let s = sim(&format!("{base}{extra}"));
+        let (_, b) = s.write(Vec::new()).unwrap();
+        let text = String::from_utf8(b.clone()).unwrap();
+        let stated = rec(&s).meta.noise_sigma;
+        assert_eq!(
+            stated.is_some(),
+            text.lines().any(|l| l.starts_with("# noise_sigma=")),
+            "{extra}"
+        );
+        (b, stated, s.noise_floor())
+    };
+    let floor4 = (16.0f64 + 1.0 / 12.0).sqrt();
+    let (plain, stated, floor) = bytes("");
+    assert_eq!(stated, Some(floor));
+    let cases: &[(&str, Option<f64>)] = &[
+        ("[sensor.noise]\n", Some(floor)),
+        ("[sensor.noise]\nsd = 4.0\n", Some(floor4)),
+        ("[sensor.noise]\nsd = [4.0, 4.0, 4.0]\n", Some(floor4)),
+        ("[sensor.noise]\nsd = [3.0, 4.0, 5.0]\n", None),
+        ("[sensor.noise]\nsd = 4.0\nstate = false\n", None),
+        ("[sensor.noise]\nsd = 4.0\nar = [0.3]\n", None),
+        ("[sensor.noise]\nsd = 4.0\nlowpass_hz = 3.0\n", None),
+        ("[sensor.noise]\nar = [0.3]\nstate = true\n", None),
+    ];
+    for (extra, want) in cases {
+        assert_eq!(bytes(extra).1, *want, "{extra}");
+    }
+    // White noise through the table draws exactly what noise_sigma draws.
+    assert_eq!(bytes("[sensor.noise]\n").0, plain);
+    assert_eq!(
+        bytes("[sensor.noise]\nsd = 4.0\n").0,
+        bytes("[sensor]\nnoise_sigma = 4.0\n").0
+    );
+    // A file's noise.sd replaces a preset's noise_sigma (same level, same bytes).
+    let a = Simulation::new(Config::preset("metrologia-static").unwrap()).unwrap();
+    let b = sim("preset = \"metrologia-static\"\n[sensor.noise]\nsd = 100e-6\n");
+    assert_eq!(
+        a.write(Vec::new()).unwrap().1,
+        b.write(Vec::new()).unwrap().1
     );
 }

@@ -149,6 +149,46 @@ pub struct Sensor {
     /// The output register's range [low, high], output units: readings are clipped to it.
     #[serde(default = "default_full_scale")]
     pub full_scale: [f64; 2],
+    /// Serially correlated noise and per-channel levels, instead of `noise_sigma`'s white
+    /// noise (`[sensor.noise]`). Without it the noise is white at `noise_sigma`.
+    #[serde(default)]
+    pub noise: Option<Noise>,
+}
+
+/// `[sensor.noise]`: each channel's noise is an independent stationary process (white,
+/// autoregressive or low-passed) with a stated marginal standard deviation.
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct Noise {
+    /// The marginal standard deviation of each channel's noise, output units, before
+    /// quantisation: one for all channels or one per channel. Default: `noise_sigma`'s.
+    #[serde(default)]
+    pub sd: Option<NoiseSd>,
+    /// AR coefficients φ1…φp: e_t = φ1·e_{t−1} + … + φp·e_{t−p} + innovation.
+    #[serde(default)]
+    pub ar: Option<Vec<f64>>,
+    /// Instead of `ar`: white noise through a 2nd-order digital Butterworth low-pass of
+    /// this cutoff, Hz (below half the sample rate).
+    #[serde(default)]
+    pub lowpass_hz: Option<f64>,
+    /// Whether the file states `noise_sigma` (it does only when the noise is white and one
+    /// level for all channels).
+    #[serde(default = "default_true")]
+    pub state: bool,
+}
+
+fn default_true() -> bool {
+    true
+}
+
+/// `sensor.noise.sd`: one level, or u, v, w.
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(untagged, expecting = "expected one number, or three (u, v, w)")]
+pub enum NoiseSd {
+    /// The same for all channels.
+    All(f64),
+    /// Per channel u, v, w.
+    PerChannel([f64; 3]),
 }
 
 fn default_lsb() -> f64 {
@@ -164,6 +204,7 @@ impl Default for Sensor {
             noise_sigma: None,
             lsb: default_lsb(),
             full_scale: default_full_scale(),
+            noise: None,
         }
     }
 }
@@ -442,14 +483,39 @@ fn merge(base: &mut toml::Table, over: toml::Table) {
     }
 }
 
-/// Keys that say the same thing in different ways, per section: setting one in a file
-/// replaces the preset's other.
-const ALTERNATIVES: [(&str, &[&str], &[&str]); 4] = [
+/// Keys that say the same thing in different ways, per section (a dot reaches into a
+/// sub-table): setting one in a file replaces the preset's other.
+const ALTERNATIVES: [(&str, &[&str], &[&str]); 5] = [
     ("device", &["sensitivity", "angles_deg"], &["matrix"]),
     ("mounting", &["axis", "angle_deg"], &["matrix"]),
     ("table", &["samples_per_condition"], &["duration_s"]),
     ("table", &["angles_deg"], &["angle_step_deg"]),
+    ("sensor", &["noise_sigma"], &["noise.sd"]),
 ];
+
+/// The table holding `path`'s last key, and that key.
+fn parent<'a>(t: &'a toml::Table, path: &'a str) -> Option<(&'a toml::Table, &'a str)> {
+    match path.split_once('.') {
+        Some((head, rest)) => match t.get(head) {
+            Some(toml::Value::Table(sub)) => parent(sub, rest),
+            _ => None,
+        },
+        None => Some((t, path)),
+    }
+}
+
+fn remove_path(t: &mut toml::Table, path: &str) {
+    match path.split_once('.') {
+        Some((head, rest)) => {
+            if let Some(toml::Value::Table(sub)) = t.get_mut(head) {
+                remove_path(sub, rest);
+            }
+        }
+        None => {
+            t.remove(path);
+        }
+    }
+}
 
 /// Drop from `base` whatever `over` replaces by an alternative key.
 fn drop_replaced(base: &mut toml::Table, over: &toml::Table) {
@@ -460,9 +526,10 @@ fn drop_replaced(base: &mut toml::Table, over: &toml::Table) {
             continue;
         };
         for (mine, theirs) in [(one, other), (other, one)] {
-            if mine.iter().any(|k| o.contains_key(*k)) {
+            let given = |k: &&str| parent(o, k).is_some_and(|(t, key)| t.contains_key(key));
+            if mine.iter().any(given) {
                 for k in theirs.iter() {
-                    b.remove(*k);
+                    remove_path(b, k);
                 }
             }
         }
@@ -525,9 +592,24 @@ impl Config {
                 * (self.timing.sample_rate_hz / 2.0).sqrt()
                 / LSM6DS33_G_PER_COUNT),
             None => Err(ConfigError(format!(
-                "sensor.noise_sigma: give it (the LSM6DS33 default applies only to units = \"counts\", not \"{}\")",
+                "{}: give it (the LSM6DS33 default applies only to units = \"counts\", not \"{}\")",
+                if self.sensor.noise.is_some() {
+                    "sensor.noise.sd"
+                } else {
+                    "sensor.noise_sigma"
+                },
                 self.units
             ))),
+        }
+    }
+
+    /// The marginal standard deviation of each channel's noise (u, v, w), output units,
+    /// before quantisation: `sensor.noise.sd`, else `noise_sigma()` for all three.
+    pub fn noise_sd(&self) -> Result<[f64; 3], ConfigError> {
+        match self.sensor.noise.as_ref().and_then(|n| n.sd.as_ref()) {
+            Some(NoiseSd::All(s)) => Ok([*s; 3]),
+            Some(NoiseSd::PerChannel(s)) => Ok(*s),
+            None => self.noise_sigma().map(|s| [s; 3]),
         }
     }
 
@@ -611,7 +693,7 @@ impl Config {
                 return bad("sensor.noise_sigma", "must be ≥ 0");
             }
         }
-        self.noise_sigma()?;
+        self.noise_sd()?;
         if !(s.lsb.is_finite() && s.lsb >= 0.0) {
             return bad("sensor.lsb", "must be ≥ 0 (0: no quantisation)");
         }
@@ -640,6 +722,22 @@ impl Config {
         }
         if !(t.gap_s.is_finite() && t.gap_s >= 0.0) {
             return bad("timing.gap_s", "must be ≥ 0");
+        }
+        if let Some(nz) = &s.noise {
+            if s.noise_sigma.is_some() && nz.sd.is_some() {
+                return bad(
+                    "sensor.noise_sigma and sensor.noise.sd",
+                    "give one, not both (sd is the marginal level of [sensor.noise])",
+                );
+            }
+            if self
+                .noise_sd()?
+                .iter()
+                .any(|x| !(x.is_finite() && *x >= 0.0))
+            {
+                return bad("sensor.noise.sd", "must be ≥ 0");
+            }
+            super::NoiseProcess::new(nz, t.sample_rate_hz)?;
         }
         let tb = &self.table;
         match self.method {

@@ -9,14 +9,15 @@
 //! 3. specific force in the platter frame, f = g·ĝ(α) − ω²·r·d̂ (method.md §1 for ĝ);
 //! 4. along each sensitive axis a_j = Ŝ_j·f, output s_j·(a_j + K2·a_j² + K3·a_j³) + O_j
 //!    + drift + temperature term, with S the device's matrix turned by the mounting;
-//! 5. plus white noise, then saturation rails, quantisation and the register range;
+//! 5. plus sensor noise (white, or per `[sensor.noise]` an autoregressive or low-passed
+//!    process per channel), then saturation rails, quantisation and the register range;
 //! 6. the timestamp the device would write: (1 + ε)·t plus jitter, in whole ticks.
 //!
 //! Seeded (ChaCha8), so the same configuration and seed give the same file.
 
 pub mod config;
 
-pub use config::{Config, ConfigError, PRESETS};
+pub use config::{Config, ConfigError, Noise, NoiseSd, PRESETS};
 
 use crate::calibrate::gravity_direction;
 use crate::demo::sensitivity_from_intrinsic;
@@ -26,7 +27,7 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::StandardNormal;
 use rotacal_shared::Condition;
-use std::f64::consts::TAU;
+use std::f64::consts::{PI, SQRT_2, TAU};
 use std::io::{self, Write};
 use std::path::Path;
 
@@ -44,8 +45,14 @@ pub struct Truth {
     /// S as the platter sees it (after the mounting rotation): what the static method
     /// estimates.
     pub matrix_platter: [[f64; 3]; 3],
-    /// White noise per sample, output units (before quantisation).
+    /// The noise level, output units (before quantisation): the marginal standard
+    /// deviation shared by the channels, or the root mean square of the three when they
+    /// differ (`noise_sd` has each).
     pub noise_sigma: f64,
+    /// Each channel's marginal noise standard deviation (u, v, w), output units.
+    pub noise_sd: [f64; 3],
+    /// The noise process's shape, common to the channels (white without `[sensor.noise]`).
+    pub noise_process: NoiseProcess,
 }
 
 impl Truth {
@@ -54,6 +61,362 @@ impl Truth {
     pub fn properties(&self) -> [f64; 9] {
         let [s, a, o] = [self.sensitivity, self.angles_deg, self.offsets];
         [s[0], s[1], s[2], a[0], a[1], a[2], o[0], o[1], o[2]]
+    }
+
+    /// The theoretical autocorrelation of channel `channel`'s noise (0 = u, 1 = v, 2 = w)
+    /// at `lag` samples; NaN for a channel beyond w.
+    pub fn noise_autocorrelation(&self, channel: usize, lag: u64) -> f64 {
+        if channel < 3 {
+            self.noise_process.autocorrelation(lag)
+        } else {
+            f64::NAN
+        }
+    }
+}
+
+/// The shape of the sensor noise, common to the three channels (docs/simulator.md): unit
+/// white innovations w through the filter y_t = Σ_{i=0..q} b_i·w_{t−i} − Σ_{i=1..p} a_i·y_{t−i},
+/// scaled per channel to its marginal standard deviation.
+#[derive(Clone, Debug, PartialEq)]
+pub struct NoiseProcess {
+    /// b_0 … b_q.
+    b: Vec<f64>,
+    /// a_1 … a_p.
+    a: Vec<f64>,
+    /// Autocovariance per unit innovation variance at lags 0 ..= max(p, q).
+    acov: Vec<f64>,
+    /// The largest pole modulus.
+    radius: f64,
+    /// Innovations run before the first sample so that it starts stationary.
+    burn_in: u64,
+}
+
+/// The longest burn-in allowed, samples: a longer memory is refused.
+pub const MAX_NOISE_BURN_IN: u64 = 1_000_000;
+
+/// What the slowest pole must decay below during the burn-in.
+const BURN_IN_DECAY: f64 = 1e-12;
+
+impl NoiseProcess {
+    /// White noise.
+    pub fn white() -> NoiseProcess {
+        NoiseProcess {
+            b: vec![1.0],
+            a: Vec::new(),
+            acov: vec![1.0],
+            radius: 0.0,
+            burn_in: 0,
+        }
+    }
+
+    /// The process `[sensor.noise]` describes at sample rate `fs` (Hz); errors name the key.
+    pub fn new(noise: &Noise, fs: f64) -> Result<NoiseProcess, ConfigError> {
+        let err = |key: &str, why: String| ConfigError(format!("sensor.noise.{key}: {why}"));
+        let (key, b, a) = match (&noise.ar, noise.lowpass_hz) {
+            (Some(_), Some(_)) => {
+                return Err(ConfigError(
+                    "sensor.noise.ar and sensor.noise.lowpass_hz: give one, not both".into(),
+                ))
+            }
+            (None, None) => return Ok(NoiseProcess::white()),
+            (Some(phi), None) => {
+                if phi.is_empty() {
+                    return Err(err(
+                        "ar",
+                        "give at least one coefficient (leave ar out for white noise)".into(),
+                    ));
+                }
+                if phi.iter().any(|x| !x.is_finite()) {
+                    return Err(err("ar", "values must be finite".into()));
+                }
+                ("ar", vec![1.0], phi.iter().map(|x| -x).collect())
+            }
+            (None, Some(fc)) => {
+                if !(fc.is_finite() && fc > 0.0 && fc < fs / 2.0) {
+                    return Err(err(
+                        "lowpass_hz",
+                        format!(
+                            "must lie between 0 and half the sample rate ({} Hz)",
+                            fs / 2.0
+                        ),
+                    ));
+                }
+                let (b, a) = butterworth(fc, fs);
+                ("lowpass_hz", b, a)
+            }
+        };
+        NoiseProcess::from_filter(b, a).map_err(|why| err(key, why))
+    }
+
+    /// Check stationarity and memory, and compute the autocovariances.
+    fn from_filter(b: Vec<f64>, a: Vec<f64>) -> Result<NoiseProcess, String> {
+        let radius = pole_radius(&a);
+        if !reflection_stable(&a) {
+            return Err(match radius {
+                Some(r) => format!(
+                    "not stationary: its largest pole has modulus {r:.6} (it must be below 1)"
+                ),
+                None => "not stationary: a pole lies on or outside the unit circle".into(),
+            });
+        }
+        let radius = radius.ok_or("its poles could not be computed")?;
+        let burn_in = if radius == 0.0 {
+            0.0
+        } else {
+            (BURN_IN_DECAY.ln() / radius.ln()).ceil()
+        };
+        if !(radius < 1.0 && burn_in <= MAX_NOISE_BURN_IN as f64) {
+            return Err(format!(
+                "its memory is too long: the largest pole has modulus {radius:.9}, which needs more \
+                 than {MAX_NOISE_BURN_IN} samples to decay below {BURN_IN_DECAY:e}"
+            ));
+        }
+        let burn_in = burn_in as u64;
+        let lags = a.len().max(b.len().saturating_sub(1));
+        let mut p = NoiseProcess {
+            b,
+            a,
+            acov: vec![0.0; lags + 1],
+            radius,
+            burn_in,
+        };
+        // The impulse response beyond 2·burn-in has decayed as radius^k < 1e-24: summed
+        // up to there, the autocovariances are exact to rounding.
+        let terms = (2 * burn_in).max(lags as u64 + 1).max(p.b.len() as u64);
+        let mut state = p.state();
+        let mut recent = vec![0.0; lags + 1];
+        let mut acov = vec![0.0; lags + 1];
+        for k in 0..terms {
+            let h = p.step(&mut state, if k == 0 { 1.0 } else { 0.0 });
+            push_front(&mut recent, h);
+            for (g, r) in acov.iter_mut().zip(&recent) {
+                *g += h * r;
+            }
+        }
+        p.acov = acov;
+        Ok(p)
+    }
+
+    /// True for white noise (no filter).
+    pub fn is_white(&self) -> bool {
+        self.a.is_empty() && self.b == [1.0]
+    }
+
+    /// Feed-forward coefficients b_0 … b_q.
+    pub fn feedforward(&self) -> &[f64] {
+        &self.b
+    }
+
+    /// Feedback coefficients a_1 … a_p (for AR, a_i = −φ_i).
+    pub fn feedback(&self) -> &[f64] {
+        &self.a
+    }
+
+    /// The largest modulus of the filter's poles (0 for white noise).
+    pub fn pole_radius(&self) -> f64 {
+        self.radius
+    }
+
+    /// Innovations each channel runs before the file's first sample.
+    pub fn burn_in(&self) -> u64 {
+        self.burn_in
+    }
+
+    /// The stationary variance of y per unit innovation variance: Σ h_k².
+    pub fn variance_per_innovation(&self) -> f64 {
+        self.acov.first().copied().unwrap_or(1.0)
+    }
+
+    /// The autocorrelation at `lag` samples.
+    pub fn autocorrelation(&self, lag: u64) -> f64 {
+        let v = self.variance_per_innovation();
+        if let Some(g) = usize::try_from(lag).ok().and_then(|l| self.acov.get(l)) {
+            return g / v;
+        }
+        // Beyond max(p, q) the autocovariance follows the feedback recursion; past twice
+        // the burn-in it is below 1e-24 and taken as 0.
+        if lag >= 2 * self.burn_in {
+            return 0.0;
+        }
+        let mut g = self.acov.clone();
+        g.reverse(); // newest first: γ_{k−1}, γ_{k−2}, …
+        for _ in self.acov.len() as u64..=lag {
+            let next = -self.a.iter().zip(&g).map(|(a, x)| a * x).sum::<f64>();
+            push_front(&mut g, next);
+        }
+        g.first().map_or(0.0, |x| x / v)
+    }
+
+    /// The spectral density at `nu` cycles per sample, normalised so that it integrates
+    /// to 1 over −½ … ½: |H(e^{2πiν})|² / Σ h_k². A channel's two-sided density is
+    /// sd²·shape(f/fs)/fs.
+    pub fn spectral_shape(&self, nu: f64) -> f64 {
+        let theta = TAU * nu;
+        let gain = |c: &mut dyn Iterator<Item = (usize, f64)>| {
+            let (re, im) = c.fold((0.0, 0.0), |(re, im), (i, x)| {
+                let (s, co) = (theta * i as f64).sin_cos();
+                (re + x * co, im - x * s)
+            });
+            re * re + im * im
+        };
+        let num = gain(&mut self.b.iter().copied().enumerate());
+        let den = gain(
+            &mut std::iter::once(1.0)
+                .chain(self.a.iter().copied())
+                .enumerate(),
+        );
+        num / den / self.variance_per_innovation()
+    }
+
+    /// Σ_k ρ_k over all lags (−∞ … ∞): the variance of a long mean is sd²·this/n.
+    pub fn long_run_factor(&self) -> f64 {
+        self.spectral_shape(0.0)
+    }
+
+    fn state(&self) -> FilterState {
+        FilterState {
+            w: vec![0.0; self.b.len()],
+            y: vec![0.0; self.a.len()],
+        }
+    }
+
+    /// One step of the filter: innovation in, y out.
+    fn step(&self, st: &mut FilterState, w: f64) -> f64 {
+        push_front(&mut st.w, w);
+        let ff: f64 = self.b.iter().zip(&st.w).map(|(b, w)| b * w).sum();
+        let fb: f64 = self.a.iter().zip(&st.y).map(|(a, y)| a * y).sum();
+        let y = ff - fb;
+        push_front(&mut st.y, y);
+        y
+    }
+}
+
+/// A filter's memory: recent innovations and outputs, newest first.
+#[derive(Clone, Debug)]
+struct FilterState {
+    w: Vec<f64>,
+    y: Vec<f64>,
+}
+
+fn push_front(hist: &mut [f64], x: f64) {
+    if !hist.is_empty() {
+        hist.rotate_right(1);
+    }
+    if let Some(first) = hist.first_mut() {
+        *first = x;
+    }
+}
+
+/// The 2nd-order digital Butterworth low-pass (bilinear transform, cutoff pre-warped):
+/// (b, a) with a_0 = 1 left out.
+fn butterworth(fc: f64, fs: f64) -> (Vec<f64>, Vec<f64>) {
+    let k = (PI * fc / fs).tan();
+    let d = 1.0 + SQRT_2 * k + k * k;
+    let b0 = k * k / d;
+    (
+        vec![b0, 2.0 * b0, b0],
+        vec![2.0 * (k * k - 1.0) / d, (1.0 - SQRT_2 * k + k * k) / d],
+    )
+}
+
+/// Whether 1 + a_1·z⁻¹ + … + a_p·z⁻ᵖ has all its roots inside the unit circle, by the
+/// step-down (Schur–Cohn) recursion: every reflection coefficient below 1 in size. Exact
+/// at the boundary, where computed roots are not.
+fn reflection_stable(a: &[f64]) -> bool {
+    let mut c = a.to_vec();
+    while let Some(&k) = c.last() {
+        if k.is_nan() || k.abs() >= 1.0 {
+            return false;
+        }
+        let m = c.len() - 1;
+        let d = 1.0 - k * k;
+        c = c
+            .iter()
+            .zip(c.iter().rev().skip(1))
+            .take(m)
+            .map(|(x, y)| (x - k * y) / d)
+            .collect();
+    }
+    true
+}
+
+/// The largest modulus of the roots of z^p + a_1·z^{p−1} + … + a_p (the companion matrix's
+/// eigenvalues); None if they do not converge.
+fn pole_radius(a: &[f64]) -> Option<f64> {
+    let p = a.len();
+    if p == 0 {
+        return Some(0.0);
+    }
+    let companion = nalgebra::DMatrix::from_fn(p, p, |i, j| {
+        if i == 0 {
+            -a.get(j).copied().unwrap_or(0.0)
+        } else if i == j + 1 {
+            1.0
+        } else {
+            0.0
+        }
+    });
+    let schur = nalgebra::linalg::Schur::try_new(companion, f64::EPSILON, 10_000 * p)?;
+    Some(
+        schur
+            .complex_eigenvalues()
+            .iter()
+            .map(|z| z.norm())
+            .fold(0.0, f64::max),
+    )
+}
+
+/// The three channels' noise generators during a run.
+struct NoiseGen<'a> {
+    process: &'a NoiseProcess,
+    sd: [f64; 3],
+    /// sd / √(Σ h_k²): the innovation level giving each channel its marginal sd.
+    scale: [f64; 3],
+    state: [FilterState; 3],
+}
+
+/// The noise burn-in's random stream (ChaCha8 stream 1 of the seed; the main draws are
+/// stream 0), so that it shifts no other draw.
+const NOISE_STREAM: u64 = 1;
+
+impl<'a> NoiseGen<'a> {
+    /// Start each channel in its stationary distribution: from rest, u then v then w run
+    /// `burn_in` innovations of their own stream.
+    fn new(process: &'a NoiseProcess, sd: [f64; 3], seed: u64) -> NoiseGen<'a> {
+        let v = process.variance_per_innovation();
+        let mut state = [process.state(), process.state(), process.state()];
+        if !process.is_white() {
+            let mut rng = ChaCha8Rng::seed_from_u64(seed);
+            rng.set_stream(NOISE_STREAM);
+            for st in &mut state {
+                for _ in 0..process.burn_in {
+                    process.step(st, rng.sample(StandardNormal));
+                }
+            }
+        }
+        NoiseGen {
+            process,
+            sd,
+            scale: sd.map(|s| s / v.sqrt()),
+            state,
+        }
+    }
+
+    /// One sample's noise on u, v, w: one standard normal per channel from `rng`, in that
+    /// order (where white noise has always been drawn, so white files keep their bytes).
+    fn draw(&mut self, rng: &mut ChaCha8Rng) -> [f64; 3] {
+        let mut e = [0.0; 3];
+        let white = self.process.is_white();
+        let channels = self.sd.iter().zip(&self.scale).zip(&mut self.state);
+        for (ej, ((sd, scale), st)) in e.iter_mut().zip(channels) {
+            let n: f64 = rng.sample(StandardNormal);
+            *ej = if white {
+                sd * n
+            } else {
+                scale * self.process.step(st, n)
+            };
+        }
+        e
     }
 }
 
@@ -93,7 +456,6 @@ pub struct Simulation {
     s: [[f64; 3]; 3],
     /// Row norms of `s` (the sensitivities).
     norm: [f64; 3],
-    sigma: f64,
     truth: Truth,
     /// Centripetal outward directions per condition (unit, across the axis).
     outward: [[f64; 3]; 3],
@@ -129,7 +491,17 @@ impl Simulation {
         }
         let s = mounted(&device, &mount(&cfg));
         let norm = s.map(|r| r.iter().map(|v| v * v).sum::<f64>().sqrt());
-        let sigma = cfg.noise_sigma()?;
+        let noise_sd = cfg.noise_sd()?;
+        let noise_process = match &cfg.sensor.noise {
+            Some(n) => NoiseProcess::new(n, cfg.timing.sample_rate_hz)?,
+            None => NoiseProcess::white(),
+        };
+        let [su, sv, sw] = noise_sd;
+        let noise_sigma = if su == sv && sv == sw {
+            su
+        } else {
+            ((su * su + sv * sv + sw * sw) / 3.0).sqrt()
+        };
         let dirs = cfg
             .effects
             .centripetal
@@ -149,13 +521,14 @@ impl Simulation {
             offsets: cfg.device.offsets,
             matrix_device: device,
             matrix_platter: s,
-            noise_sigma: sigma,
+            noise_sigma,
+            noise_sd,
+            noise_process,
         };
         Ok(Simulation {
             cfg,
             s,
             norm,
-            sigma,
             truth,
             outward,
         })
@@ -176,9 +549,20 @@ impl Simulation {
     }
 
     /// The per-sample noise written as `noise_sigma`: white noise plus quantisation
-    /// (lsb²/12), which is what a correct model's residuals show.
+    /// (lsb²/12), which is what a correct model's residuals show. With levels that differ
+    /// per channel it uses `Truth::noise_sigma`, their root mean square.
     pub fn noise_floor(&self) -> f64 {
-        (self.sigma.powi(2) + self.cfg.sensor.lsb.powi(2) / 12.0).sqrt()
+        (self.truth.noise_sigma.powi(2) + self.cfg.sensor.lsb.powi(2) / 12.0).sqrt()
+    }
+
+    /// Whether the file states `noise_sigma`: only when it is true of the noise, white and
+    /// one level for all channels, and `sensor.noise.state` does not turn it off.
+    pub fn states_noise_sigma(&self) -> bool {
+        let [su, sv, sw] = self.truth.noise_sd;
+        self.cfg.sensor.noise.as_ref().is_none_or(|n| n.state)
+            && self.truth.noise_process.is_white()
+            && su == sv
+            && sv == sw
     }
 
     /// The file's metadata.
@@ -190,7 +574,7 @@ impl Simulation {
             g_loc: Some(c.g_loc),
             units: Some(c.units.clone()),
             sample_rate_hz: Some(c.timing.sample_rate_hz),
-            noise_sigma: Some(self.noise_floor()),
+            noise_sigma: self.states_noise_sigma().then(|| self.noise_floor()),
             device: c.device.name.clone(),
             other: Default::default(),
         };
@@ -251,10 +635,10 @@ impl Simulation {
         y
     }
 
-    /// Noise, rails, quantisation and range: the reading the device reports.
-    fn output(&self, analog: f64, rng: &mut ChaCha8Rng, clipped: &mut u64) -> f64 {
-        let n: f64 = rng.sample(StandardNormal);
-        let mut y = analog + self.sigma * n;
+    /// Rails, quantisation and range applied to the analog output plus its noise: the
+    /// reading the device reports.
+    fn output(&self, noisy: f64, clipped: &mut u64) -> f64 {
+        let mut y = noisy;
         if let Some(s) = &self.cfg.effects.saturation {
             if y < s.rails[0] || y > s.rails[1] {
                 *clipped += 1;
@@ -298,6 +682,7 @@ impl Simulation {
     pub fn run(&self, mut sink: impl FnMut(&Row) -> io::Result<()>) -> io::Result<Summary> {
         let c = &self.cfg;
         let mut rng = ChaCha8Rng::seed_from_u64(c.seed);
+        let mut noise = NoiseGen::new(&self.truth.noise_process, self.truth.noise_sd, c.seed);
         let mut sum = Summary::default();
         let fs = c.timing.sample_rate_hz;
         let mut seq: u64 = 0;
@@ -331,14 +716,11 @@ impl Simulation {
                             let tau = k as f64 / fs;
                             let t = t0 + tau;
                             let temp = self.temperature(t);
-                            let mut y = [0.0; 3];
+                            let mut y = noise.draw(&mut rng);
                             for (j, yj) in y.iter_mut().enumerate() {
                                 let f = self.specific_force(cond, omega, start, tau, j);
-                                *yj = self.output(
-                                    self.analog(j, f, t, temp),
-                                    &mut rng,
-                                    &mut sum.clipped,
-                                );
+                                *yj =
+                                    self.output(self.analog(j, f, t, temp) + *yj, &mut sum.clipped);
                             }
                             let mut row = Row::new(cond, y[0], y[1], y[2]);
                             row.rate_hz = multi.then_some(rate);
@@ -363,13 +745,10 @@ impl Simulation {
                         for r in 0..readings {
                             let t = t0 + k as f64 * dwell + f64::from(r) / fs;
                             let temp = self.temperature(t);
-                            let mut y = [0.0; 3];
+                            let mut y = noise.draw(&mut rng);
                             for (j, yj) in y.iter_mut().enumerate() {
-                                *yj = self.output(
-                                    self.analog(j, f, t, temp),
-                                    &mut rng,
-                                    &mut sum.clipped,
-                                );
+                                *yj =
+                                    self.output(self.analog(j, f, t, temp) + *yj, &mut sum.clipped);
                             }
                             let mut row = Row::new(cond, y[0], y[1], y[2]);
                             row.angle_deg = Some(*deg);
@@ -454,10 +833,29 @@ pub fn render(sim: &Simulation, sum: &Summary, out: &Path) -> String {
         t.angles_deg[0], t.angles_deg[1], t.angles_deg[2],
         t.offsets[0], t.offsets[1], t.offsets[2],
     );
+    if c.sensor.noise.is_none() {
+        o += &format!(
+            "noise σ = {:.6} {u} per sample (with quantisation {:.6})\n",
+            t.noise_sigma,
+            sim.noise_floor()
+        );
+        return o;
+    }
+    let p = &t.noise_process;
+    let kind = match c.sensor.noise.as_ref().and_then(|n| n.lowpass_hz) {
+        _ if p.is_white() => "white".to_string(),
+        Some(fc) => format!("white through a 2nd-order Butterworth low-pass at {fc} Hz"),
+        None => format!(
+            "AR({}) φ = {:?}",
+            p.feedback().len(),
+            p.feedback().iter().map(|a| -a).collect::<Vec<_>>()
+        ),
+    };
+    let [su, sv, sw] = t.noise_sd;
     o += &format!(
-        "noise σ = {:.6} {u} per sample (with quantisation {:.6})\n",
-        t.noise_sigma,
-        sim.noise_floor()
+        "noise: {kind}, marginal sd u, v, w = {su:.6}, {sv:.6}, {sw:.6} {u}, lag-1 autocorrelation {:.6}; noise_sigma {}\n",
+        p.autocorrelation(1),
+        if sim.states_noise_sigma() { "stated" } else { "not stated" }
     );
     o
 }
