@@ -162,13 +162,9 @@ fn fit_at(s: &[(Ticks, [f64; 3])], step: PhaseStep) -> Result<FitResult<f64>, St
 /// 170 at ω.
 const CLEANING_HARMONICS: std::ops::RangeInclusive<u32> = 2..=4;
 
-/// Noise models and the sandwich covariance of (A, B, C) per channel, for coefficients
-/// `coef[ch]` at `step`: the noise is modelled on the residuals of the sine fit widened by
+/// The noise model of each channel, from the residuals of the sine fit at `step` widened by
 /// [`CLEANING_HARMONICS`] and a trend, its level corrected for that wider fit.
-fn noise_and_cov(
-    s: &[(Ticks, [f64; 3])],
-    step: PhaseStep,
-) -> Result<([NoiseModel; 3], [[[f64; 3]; 3]; 3]), NoiseError> {
+fn noise_models(s: &[(Ticks, [f64; 3])], step: PhaseStep) -> Result<[NoiseModel; 3], NoiseError> {
     let h = batch::design(s, step, CLOCK, rotacal_shared::Model::SINE, Ticks(0));
     let extra = 1 + 2 * CLEANING_HARMONICS.clone().count();
     let t_end = s.last().map_or(1.0, |x| x.0 .0.max(1) as f64);
@@ -191,22 +187,32 @@ fn noise_and_cov(
     let qr = wide.clone().qr();
     let q = qr.q();
     let mut models = Vec::with_capacity(3);
-    let mut covs = [[[0.0; 3]; 3]; 3];
-    for (ch, cov) in covs.iter_mut().enumerate() {
+    for ch in 0..3 {
         let y: Vec<f64> = s.iter().map(|(_, y)| y[ch]).collect();
         let yv = nalgebra::DVector::from_column_slice(&y);
         let resid = &yv - &q * (q.transpose() * &yv);
-        let model = NoiseModel::estimate(resid.as_slice(), &noise::clipped(&y))?.rescaled(&wide)?;
-        let c = model.sandwich(&h)?;
+        models.push(NoiseModel::estimate(resid.as_slice(), &noise::clipped(&y))?.rescaled(&wide)?);
+    }
+    models.try_into().map_err(|_| NoiseError::TooFew(0))
+}
+
+/// The sandwich covariance of (A, B, C) per channel at `step` under `models`.
+fn sine_cov(
+    s: &[(Ticks, [f64; 3])],
+    step: PhaseStep,
+    models: &[NoiseModel; 3],
+) -> Result<[[[f64; 3]; 3]; 3], NoiseError> {
+    let h = batch::design(s, step, CLOCK, rotacal_shared::Model::SINE, Ticks(0));
+    let mut covs = [[[0.0; 3]; 3]; 3];
+    for (cov, m) in covs.iter_mut().zip(models) {
+        let c = m.sandwich(&h)?;
         for (a, row) in cov.iter_mut().enumerate() {
             for (b, x) in row.iter_mut().enumerate() {
                 *x = c[(a, b)];
             }
         }
-        models.push(model);
     }
-    let [u, v, w]: [NoiseModel; 3] = models.try_into().map_err(|_| NoiseError::TooFew(0))?;
-    Ok(([u, v, w], covs))
+    Ok(covs)
 }
 
 fn fit_group(
@@ -252,9 +258,11 @@ fn fit_group(
         })
     };
     let four_coef = coef_of(&four.fit);
-    let (four_noise, _) = noise_and_cov(s, fitted_step).map_err(|e| fail(e.to_string()))?;
+    // The noise is modelled once, about the fitted rate (the best description of the
+    // data): at the nominal rate a rate error's growing quadrature would read as noise.
+    let noise = noise_models(s, fitted_step).map_err(|e| fail(e.to_string()))?;
     let (mut num, mut den) = (0.0, 0.0);
-    for (m, c) in four_noise.iter().zip(&four_coef) {
+    for (m, c) in noise.iter().zip(&four_coef) {
         let amp2 = c[0] * c[0] + c[1] * c[1];
         num += m.variance_factor(omega_per_sample) * amp2;
         den += amp2;
@@ -269,7 +277,7 @@ fn fit_group(
         let u = se_rate.hypot(four.rate_hz - nominal_hz);
         (nominal, at_nominal, nominal_hz, None, u)
     };
-    let (noise, cov) = noise_and_cov(s, step).map_err(|e| fail(e.to_string()))?;
+    let cov = sine_cov(s, step, &noise).map_err(|e| fail(e.to_string()))?;
     Ok(GroupFit {
         condition: g.condition,
         fit,

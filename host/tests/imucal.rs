@@ -378,3 +378,114 @@ fn applying_it_makes_every_pose_read_g() {
         }
     }
 }
+
+/// The imported session split into halves: each pose's first half of readings in one
+/// recording, its second half in the other.
+fn halves(rec: &Path) -> (PathBuf, PathBuf) {
+    let text = std::fs::read_to_string(rec).unwrap();
+    let (mut head, mut rows) = (String::new(), Vec::<(String, String)>::new());
+    for line in text.lines() {
+        if line.starts_with('#') || line.starts_with("pose,") {
+            head += line;
+            head.push('\n');
+        } else {
+            let pose = line.split(',').next().unwrap().to_string();
+            rows.push((pose, line.to_string()));
+        }
+    }
+    let (mut a, mut b) = (head.clone(), head);
+    for (name, n, _) in POSE_MEANS {
+        let mine: Vec<&String> = rows.iter().filter(|r| r.0 == name).map(|r| &r.1).collect();
+        assert_eq!(mine.len(), n);
+        for (i, l) in mine.iter().enumerate() {
+            let out = if i < n / 2 { &mut a } else { &mut b };
+            *out += l;
+            out.push('\n');
+        }
+    }
+    let (pa, pb) = (tmp("first-half.csv"), tmp("second-half.csv"));
+    std::fs::write(&pa, a).unwrap();
+    std::fs::write(&pb, b).unwrap();
+    (pa, pb)
+}
+
+#[test]
+fn halves_of_each_pose_agree_within_their_combined_uncertainty() {
+    let rec = import();
+    let whole = calibrate(&rec, "whole.json", &[]);
+    // The noise model of every pose's readings (real data: a filtering sensor).
+    println!("pose   n    channel  sd (m/s²)  lag-1   AR   n_eff   se (m/s²)  se if white");
+    for p in whole["poses"]["list"].as_array().unwrap() {
+        let n = f(&p["n"]);
+        for (j, ch) in ["u", "v", "w"].iter().enumerate() {
+            let m = &p["noise"][j];
+            let sd = f(&p["std"][j]);
+            println!(
+                "{:<5} {n:>4}  {ch}        {sd:.5}   {:+.3}  {:>2}  {:>6.0}   {:.2e}   {:.2e}",
+                p["name"].as_str().unwrap(),
+                f(&m["lag1"]),
+                m["order"],
+                f(&m["n_eff"]),
+                f(&m["se"]),
+                sd / n.sqrt()
+            );
+            assert!((f(&m["se"]) - f(&p["std_err"][j])).abs() <= 1e-15);
+            assert!(f(&m["n_eff"]) > 0.0);
+        }
+    }
+    let (pa, pb) = halves(&rec);
+    let (a, b) = (
+        calibrate(&pa, "first.json", &[]),
+        calibrate(&pb, "second.json", &[]),
+    );
+    // Each property: the halves' difference against √(U_a² + U_b²).
+    let props = [
+        ("sensitivity", "u"),
+        ("sensitivity", "v"),
+        ("sensitivity", "w"),
+        ("angle_deg", "uv"),
+        ("angle_deg", "vw"),
+        ("angle_deg", "wu"),
+        ("offset", "u"),
+        ("offset", "v"),
+        ("offset", "w"),
+    ];
+    println!("property        first half              second half             |Δ|/√(U₁²+U₂²)");
+    let mut worst: f64 = 0.0;
+    for (group, key) in props {
+        let (qa, qb) = (&a["intrinsic"][group][key], &b["intrinsic"][group][key]);
+        let d = (f(&qa["value"]) - f(&qb["value"])).abs();
+        let u = f(&qa["expanded_unc"]).hypot(f(&qb["expanded_unc"]));
+        println!(
+            "{group:<11} {key:<2}  {:.6} ± {:.6}  {:.6} ± {:.6}  {:.3}",
+            f(&qa["value"]),
+            f(&qa["expanded_unc"]),
+            f(&qb["value"]),
+            f(&qb["expanded_unc"]),
+            d / u
+        );
+        worst = worst.max(d / u);
+    }
+    // Pose means of the two halves against their standard errors, under the noise model
+    // and as if the readings were independent: χ² over 6 poses × 3 channels.
+    let (la, lb) = (
+        a["poses"]["list"].as_array().unwrap(),
+        b["poses"]["list"].as_array().unwrap(),
+    );
+    let (mut chi2_model, mut chi2_white) = (0.0, 0.0);
+    for (pa, pb) in la.iter().zip(lb) {
+        for j in 0..3 {
+            let d = f(&pa["mean"][j]) - f(&pb["mean"][j]);
+            let se2 = |p: &Value| f(&p["std_err"][j]).powi(2);
+            let white2 = |p: &Value| f(&p["std"][j]).powi(2) / f(&p["n"]);
+            chi2_model += d * d / (se2(pa) + se2(pb));
+            chi2_white += d * d / (white2(pa) + white2(pb));
+        }
+    }
+    println!(
+        "pose means, first half − second half: χ²/18 = {:.2} under the noise model, {:.2} as if white",
+        chi2_model / 18.0,
+        chi2_white / 18.0
+    );
+    assert!(worst <= 1.0, "a property's halves differ by {worst} of their combined U");
+}
