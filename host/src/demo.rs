@@ -10,7 +10,7 @@
 //!
 //! The session runs on a paused tokio clock: 13 minutes of device time in seconds.
 
-use crate::calibration_file::CalibrationJson;
+use crate::calibration_file::{CalibrationJson, Quantity, PROPERTY_NAMES};
 use crate::crosscheck::CrosscheckReport;
 use crate::link::simulated::{Faults, SimulatedDevice};
 use crate::record::{self, Options, Outcome, Paths, Plan, Quiet};
@@ -83,7 +83,9 @@ pub struct Demo {
     pub dir: PathBuf,
     /// The simulated truth: s_u, s_v, s_w (counts per m/s²), φ_uv, φ_vw, φ_wu (°).
     pub truth: [f64; 6],
-    /// Sensor conversions per condition (at 104 Hz).
+    /// The sensor's output rate, Hz.
+    pub sensor_hz: f64,
+    /// Sensor conversions per condition (at `sensor_hz`).
     pub conversions: usize,
     /// What recording each condition gave.
     pub recorded: Vec<(Condition, Outcome)>,
@@ -104,15 +106,22 @@ pub struct Demo {
 /// (10, 50, 100, 500 mHz, 22 cm from the axis) with K2 = 2e-4 /(m/s²) on w.
 #[derive(Clone, Debug)]
 pub struct Puzzle {
+    /// The rates calibrated, Hz, in order.
+    pub rates_hz: Vec<f64>,
+    /// The simulated K2 of w, /(m/s²).
+    pub true_k2_w: f64,
+    /// The simulated distance from the axis, m.
+    pub true_radius_m: f64,
     /// The effects named, in order.
     pub named: Vec<String>,
     /// χ²/dof of the baseline and of the final model.
     pub chi2_dof: (f64, f64),
-    /// K2_w: value and U (k = 2).
+    /// K2_w: value and U.
     pub k2_w: (f64, f64),
     /// Radius per condition: value and U.
     pub radius: Vec<(f64, f64)>,
-    /// s_w(0.5 Hz) − s_w(10 mHz) and its U, from per-rate fits (the paper's analysis).
+    /// s_w(last rate) − s_w(first rate) and its U, from per-rate fits (the paper's
+    /// analysis).
     pub deviation_per_rate: (f64, f64),
     /// The same with the named effects modelled.
     pub deviation_modelled: (f64, f64),
@@ -128,6 +137,15 @@ fn puzzle(seed: u64, dir: &Path) -> anyhow::Result<Puzzle> {
     let mut cfg = Config::from_toml(PUZZLE)?;
     cfg.seed = seed;
     let sim = Simulation::new(cfg)?;
+    let effects = &sim.config().effects;
+    let true_k2_w = effects.nonlinearity_2nd.as_ref().map(|e| {
+        let [_, _, w] = e.k2;
+        w
+    });
+    let true_radius_m = effects.centripetal.as_ref().map(|e| e.radius_m);
+    let (Some(true_k2_w), Some(true_radius_m)) = (true_k2_w, true_radius_m) else {
+        anyhow::bail!("the puzzle's simulation has no K2 or no centripetal term");
+    };
     let csv = dir.join("puzzle.csv");
     sim.write_file(&csv)
         .map_err(|e| anyhow::anyhow!("{}: {e}", csv.display()))?;
@@ -162,6 +180,9 @@ fn puzzle(seed: u64, dir: &Path) -> anyhow::Result<Puzzle> {
     };
     let fp = &a.final_parameters;
     Ok(Puzzle {
+        rates_hz: cal.by_rate.iter().filter_map(|r| r.rate_hz).collect(),
+        true_k2_w,
+        true_radius_m,
         named: a.named_effects.clone(),
         chi2_dof: (a.baseline.chi2_dof, a.final_.chi2_dof),
         k2_w: fp
@@ -288,6 +309,7 @@ pub fn run(seed: u64, dir: &Path) -> anyhow::Result<Demo> {
     Ok(Demo {
         dir: dir.to_path_buf(),
         truth: [s0, s1, s2, a0, a1, a2],
+        sensor_hz,
         conversions: conversions as usize,
         recorded,
         calibration,
@@ -298,112 +320,267 @@ pub fn run(seed: u64, dir: &Path) -> anyhow::Result<Demo> {
     })
 }
 
+/// The calibration applied to the recording against the noise of one reading.
+struct Applied {
+    /// RMS of |a| − g, m/s².
+    after: f64,
+    /// The fits' pooled residual RMS, each channel through its own sensitivity, m/s².
+    noise: f64,
+    /// Three standard deviations of after / noise when only noise is left.
+    tolerance: f64,
+}
+
+fn applied(d: &Demo) -> Option<Applied> {
+    let after = d.applied.rms_after?;
+    let r = d.calibration.by_rate.first()?;
+    let s = &r.intrinsic.sensitivity;
+    let (mut ss, mut n) = (0.0, 0.0);
+    for f in &r.fits {
+        let sens = match f.channel.as_str() {
+            "u" => s.u.value,
+            "v" => s.v.value,
+            "w" => s.w.value,
+            _ => f64::NAN,
+        };
+        ss += f.n as f64 * (f.rms_residual / sens).powi(2);
+        n += f.n as f64;
+    }
+    // With only white noise left, |a| − g of a reading is its noise along g (the channels'
+    // noise is alike, so any direction has the pooled variance). An RMS of N such values
+    // has relative standard deviation 1/√(2N). Treating the two RMS as independent
+    // overstates the spread of their ratio, as both come from the same samples.
+    let rows = d.applied.rows as f64;
+    Some(Applied {
+        after,
+        noise: (ss / n).sqrt(),
+        tolerance: 3.0 * (0.5 / rows + 0.5 / n).sqrt(),
+    })
+}
+
+/// `x` with up to six decimals and no trailing zeros.
+fn short(x: f64) -> String {
+    let t = format!("{x:.6}");
+    t.trim_end_matches('0').trim_end_matches('.').to_string()
+}
+
+/// A U ratio as the table prints it.
+fn ratio(x: f64) -> String {
+    match x {
+        x if x >= 10.0 => format!("{x:.0}"),
+        x if x >= 1.0 => format!("{x:.1}"),
+        x => format!("{x:.2}"),
+    }
+}
+
+/// The sentence on the U ratio column (seed 000's over rotacal's), its comparison word
+/// chosen from the ratios.
+fn ratio_sentence(ratios: &[f64]) -> String {
+    if ratios.is_empty() || ratios.iter().any(|r| !r.is_finite()) {
+        return "the U ratios could not all be computed".into();
+    }
+    let lo = ratios.iter().copied().fold(f64::INFINITY, f64::min);
+    let hi = ratios.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    let range = match (ratio(lo), ratio(hi)) {
+        (a, b) if a == b => a,
+        (a, b) => format!("{a}–{b}"),
+    };
+    if lo > 1.0 {
+        format!("rotacal's U is {range} times smaller than seed 000's stated uncertainties")
+    } else if hi < 1.0 {
+        format!("rotacal's U is larger than seed 000's stated uncertainties ({range} times it)")
+    } else {
+        format!("seed 000's stated uncertainties are {range} times rotacal's U, not all above it")
+    }
+}
+
+/// "k = 2", or the range when the quantities' coverage factors differ.
+fn k_phrase(qs: &[&Quantity]) -> String {
+    let lo = qs.iter().map(|q| q.k).fold(f64::INFINITY, f64::min);
+    let hi = qs.iter().map(|q| q.k).fold(f64::NEG_INFINITY, f64::max);
+    match (short(lo), short(hi)) {
+        (a, b) if a == b => format!("k = {a}"),
+        (a, b) => format!("k = {a}–{b} by quantity"),
+    }
+}
+
+/// Whether a difference is within its U (|v| ≤ U), and by how much.
+fn against_u((v, u): (f64, f64)) -> String {
+    let r = v.abs() / u;
+    if v.abs() <= u {
+        format!("within its U ({r:.2} U)")
+    } else {
+        format!("not within its U ({r:.1} U)")
+    }
+}
+
+/// "0.5 Hz", "10 mHz".
+fn rate_label(hz: f64) -> String {
+    if hz < 0.1 {
+        format!("{} mHz", short(hz * 1e3))
+    } else {
+        format!("{} Hz", short(hz))
+    }
+}
+
+/// "s_w(0.5 Hz) − s_w(10 mHz)": the last rate's against the first's.
+fn deviation_label(rates_hz: &[f64]) -> String {
+    match (rates_hz.first(), rates_hz.last()) {
+        (Some(&lo), Some(&hi)) => format!("s_w({}) − s_w({})", rate_label(hi), rate_label(lo)),
+        _ => "s_w(last rate) − s_w(first rate)".into(),
+    }
+}
+
+/// The truth is seed 000 Table 1's DC column (as the first sentence says).
+fn truth_is_paper_dc(truth: &[f64; 6]) -> bool {
+    let paper = PAPER_DC_SENSITIVITY.iter().chain(&PAPER_DC_ANGLES_DEG);
+    truth
+        .iter()
+        .zip(paper)
+        .all(|(t, p)| (t - p).abs() <= 1e-9 * p.abs())
+}
+
+/// `f` summed over the conditions recorded.
+fn total(d: &Demo, f: fn(&Outcome) -> u64) -> u64 {
+    d.recorded.iter().map(|(_, o)| f(o)).sum()
+}
+
 /// The demo's terminal output.
 pub fn render(d: &Demo) -> String {
     let mut o = String::new();
-    let rows: u64 = d.recorded.iter().map(|(_, r)| r.summary.rows).sum();
-    let lost: u64 = d
-        .recorded
-        .iter()
-        .map(|(_, r)| r.summary.lost_samples())
-        .sum();
-    let fits: u64 = d.recorded.iter().map(|(_, r)| r.summary.fit_lines).sum();
+    let rows = total(d, |o| o.summary.rows);
+    let lost = total(d, |o| o.summary.lost_samples());
+    let fits = total(d, |o| o.summary.fit_lines);
     let _ = writeln!(
         o,
-        "Simulated seed 000 session: 10 mHz about x, y, z; LSM6DS33 at 104 Hz ({} conversions per\n\
-         condition), truth = seed 000 Table 1 DC, g = {} m/s².\n\
+        "Simulated seed 000 session: 10 mHz about x, y, z; LSM6DS33 at {} Hz ({} conversions per\n\
+         condition), truth {}, g = {} m/s².\n\
          Device logic (the firmware's, on this host) → BLE packets → decoded → recorded:\n\
          {rows} samples at 16 Hz, {lost} lost, {fits} fit-log lines (device fit reports and quick-look).",
-        d.conversions, PAPER_G_LOC
+        short(d.sensor_hz),
+        d.conversions,
+        if truth_is_paper_dc(&d.truth) {
+            "= seed 000 Table 1 DC"
+        } else {
+            "≠ seed 000 Table 1 DC"
+        },
+        d.calibration.g_loc
     );
     let x = &d.crosscheck;
     let _ = writeln!(
         o,
-        "Cross-check: {} device fits (f32, on board) against f64 re-fits of the same samples: \n\
-         max |Δ| = {:.1e} σ_CRLB (threshold {}): {}.",
+        "Cross-check: {} device fits (the firmware's f32 fit, run on this host) against f64 re-fits\n\
+         of the same samples: max |Δ| = {:.1e} σ_CRLB (threshold {}): {}.",
         x.fits.len(),
         x.max_delta_crlb,
         x.threshold,
         if x.passed { "pass" } else { "FAIL" }
     );
-    let Some(r) = d.calibration.by_rate.first() else {
-        return o;
-    };
+    if let Some(r) = d.calibration.by_rate.first() {
+        render_intrinsic(&mut o, d, r);
+    }
+    let _ = writeln!(
+        o,
+        "\nFiles in {}: recording.csv, recording.fits.jsonl (device fits), recording.capture (every\n\
+         value received), calibration.json, crosscheck.json.\nReport: {}",
+        d.dir.display(),
+        d.report.display()
+    );
+    if let Some(a) = applied(d) {
+        let _ = writeln!(
+            o,
+            "\nApplied (rotacal apply, device frame, a = L⁻¹·(y − O) with G = L·Lᵀ): {} rows in m/s² with\n\
+             their uncertainties in recording-ms2.csv; RMS of |a| − g = {:.2e} m/s², {:.3} times the\n\
+             noise of one reading (the fits' residual RMS, {:.2e} m/s²; 1 ± {:.3} expected, 3σ).",
+            d.applied.rows,
+            a.after,
+            a.after / a.noise,
+            a.noise,
+            a.tolerance
+        );
+    }
+    render_puzzle(&mut o, &d.puzzle);
+    o
+}
+
+/// The intrinsic properties' table and the sentence on its U ratio column.
+fn render_intrinsic(o: &mut String, d: &Demo, r: &crate::calibration_file::RateJson) {
     let ours = r.intrinsic.quantities();
     let _ = writeln!(
         o,
-        "\nIntrinsic properties (f64, exact Gram form, method.md §2; ± is U, k = 2;\n\
-         s in counts/(m/s²), φ in degrees):"
+        "\nIntrinsic properties (f64, exact Gram form, method.md §2; ± is U, {};\n\
+         s in counts/(m/s²), φ in degrees):",
+        k_phrase(&ours)
     );
     let _ = writeln!(
         o,
         "{:<5} {:>22} {:>9} {:>8} {:>20} {:>9} {:>20}",
         "", "rotacal", "truth", "|err|/U", "seed 000 (10 mHz)", "U ratio", "phase method"
     );
-    let names = crate::calibration_file::PROPERTY_NAMES;
     let phase = r
         .angle_deg_phase_method
         .as_ref()
         .map(|p| [&p.uv, &p.vw, &p.wu]);
-    for (k, name) in names.iter().enumerate() {
-        let Some(q) = ours.get(k) else { continue };
+    let mut ratios = Vec::new();
+    let rows = PROPERTY_NAMES
+        .iter()
+        .zip(&ours)
+        .zip(d.truth)
+        .zip(PAPER_10MHZ);
+    for (k, (((name, q), t), (pv, pu))) in rows.enumerate() {
         let (digits, pd) = if k < 3 { (4, 2) } else { (5, 3) };
-        let ph = match (k, phase) {
-            (3.., Some(p)) => p
-                .get(k - 3)
-                .map(|p| format!("{:.*} ± {:.*}", digits, p.value, digits, p.expanded_unc))
-                .unwrap_or_default(),
-            _ => "—".to_string(),
-        };
-        let (pv, pu) = PAPER_10MHZ[k];
+        let ph = k
+            .checked_sub(3)
+            .and_then(|i| phase.as_ref()?.get(i))
+            .map_or("—".to_string(), |p| {
+                format!("{:.*} ± {:.*}", digits, p.value, digits, p.expanded_unc)
+            });
+        let ur = pu / q.expanded_unc;
+        ratios.push(ur);
         let _ = writeln!(
             o,
-            "{:<5} {:>22} {:>9} {:>8.2} {:>20} {:>8.0}× {:>20}",
+            "{:<5} {:>22} {:>9} {:>8.2} {:>20} {:>8}× {:>20}",
             name,
             format!("{:.*} ± {:.*}", digits, q.value, digits, q.expanded_unc),
-            format!("{:.*}", pd, d.truth[k]),
-            (q.value - d.truth[k]).abs() / q.expanded_unc,
+            format!("{:.*}", pd, t),
+            (q.value - t).abs() / q.expanded_unc,
             format!("{:.*} ± {:.*}", pd, pv, pd, pu),
-            pu / q.expanded_unc,
+            ratio(ur),
             ph
         );
     }
     let _ = writeln!(
         o,
-        "U ratio: seed 000's stated uncertainty over rotacal's U. With sensor noise the only effect,\n\
-         the noise limit is ~50 times below the paper's figures (method.md §7); the missing effects\n\
-         are what the discrepancy workflow is for.\n\n\
-         Files in {}: recording.csv, recording.fits.jsonl (device fits), recording.capture (every\n\
-         value received), calibration.json, crosscheck.json.\nReport: {}",
-        d.dir.display(),
-        d.report.display()
+        "U ratio: seed 000's stated uncertainty over rotacal's U. With sensor noise the only\n\
+         simulated effect, {};\nthe missing effects are what the discrepancy workflow is for.",
+        ratio_sentence(&ratios)
     );
-    if let Some(after) = d.applied.rms_after {
-        // The fits' residual RMS in m/s²: the noise one reading carries.
-        let noise = r.fits.iter().map(|f| f.rms_residual).sum::<f64>()
-            / r.fits.len().max(1) as f64
-            / r.intrinsic.sensitivity.u.value;
-        let _ = writeln!(
-            o,
-            "\nApplied (rotacal apply, device frame, a = L⁻¹·(y − O) with G = L·Lᵀ): {} rows in m/s² with\n\
-             their uncertainties in recording-ms2.csv; RMS of |a| − g = {after:.2e} m/s², the noise of one\n\
-             reading (the fits' residual RMS: {noise:.2e} m/s²).",
-            d.applied.rows
-        );
-    }
-    let p = &d.puzzle;
+}
+
+/// The paper's puzzle, every comparison word from its numbers.
+fn render_puzzle(o: &mut String, p: &Puzzle) {
+    let label = deviation_label(&p.rates_hz);
+    let rates: Vec<String> = p.rates_hz.iter().map(|r| short(r * 1e3)).collect();
     let _ = writeln!(
         o,
         "\nThe paper's puzzle: seed 000 saw s_w deviate at 0.5 Hz and could not say why. Simulated:\n\
-         paper-multirate (10, 50, 100, 500 mHz; sensor 22 cm off the axis) with K2 = 2e-4 /(m/s²) on w.\n\
-         Fitting each rate on its own (the paper's analysis): s_w(0.5 Hz) − s_w(10 mHz) = {:+.4} ± {:.4}.\n\
-         rotacal discrepancy names {} (χ²/dof {:.0} → {:.3});\n\
-         K2_w = {:.3e} ± {:.1e} /(m/s²), radius {} m.\n\
-         With them modelled: s_w(0.5 Hz) − s_w(10 mHz) = {:+.4} ± {:.4}, within uncertainty.\n\
+         paper-multirate ({} mHz; sensor {} cm off the axis) with K2 = {:e} /(m/s²) on w.\n\
+         Fitting each rate on its own (the paper's analysis): {label} = {:+.4} ± {:.4},\n\
+         {}. rotacal discrepancy names {}\n\
+         (χ²/dof {:.0} → {:.3}): K2_w = {:.3e} ± {:.1e} /(m/s²),\n\
+         radius {} m.\n\
+         With them modelled: {label} = {:+.4} ± {:.4}, {}.\n\
          Report: {}",
+        rates.join(", "),
+        short(p.true_radius_m * 100.0),
+        p.true_k2_w,
         p.deviation_per_rate.0,
         p.deviation_per_rate.1,
-        p.named.join(" then "),
+        against_u(p.deviation_per_rate),
+        if p.named.is_empty() {
+            "no effect".to_string()
+        } else {
+            p.named.join(" then ")
+        },
         p.chi2_dof.0,
         p.chi2_dof.1,
         p.k2_w.0,
@@ -415,7 +592,7 @@ pub fn render(d: &Demo) -> String {
             .join(", "),
         p.deviation_modelled.0,
         p.deviation_modelled.1,
+        against_u(p.deviation_modelled),
         p.report.display()
     );
-    o
 }
