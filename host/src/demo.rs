@@ -7,6 +7,8 @@
 //! 3. Decode its packets and 4. record them with `rotacal record`'s code (one condition
 //!    at a time, appending, as at the table), into a recording, a fit log and a capture.
 //! 5. Calibrate in f64, 6. cross-check the device's fits, 7. write the report folder.
+//! 8. Check every statement it prints about its numbers ([`checks`]): `rotacal demo` prints
+//!    everything, then exits with status 1, naming each failed check, if any fails.
 //!
 //! The session runs on a paused tokio clock: 13 minutes of device time in seconds.
 
@@ -320,6 +322,20 @@ pub fn run(seed: u64, dir: &Path) -> anyhow::Result<Demo> {
     })
 }
 
+/// How many U a property may miss the simulated truth by before the demo fails.
+pub const TRUTH_LIMIT_U: f64 = 3.0;
+
+/// One statement the demo prints about its numbers, checked against them.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Check {
+    /// The statement, short enough to name it.
+    pub claim: String,
+    /// It holds.
+    pub passed: bool,
+    /// What was measured, against what limit.
+    pub measured: String,
+}
+
 /// The calibration applied to the recording against the noise of one reading.
 struct Applied {
     /// RMS of |a| − g, m/s².
@@ -444,7 +460,145 @@ fn total(d: &Demo, f: fn(&Outcome) -> u64) -> u64 {
     d.recorded.iter().map(|(_, o)| f(o)).sum()
 }
 
-/// The demo's terminal output.
+/// Everything the demo states about its numbers, as checks: `rotacal demo` prints them and
+/// fails if any does not hold.
+pub fn checks(d: &Demo) -> Vec<Check> {
+    let mut c = Vec::new();
+    let lost = total(d, |o| o.summary.lost_samples());
+    let undecodable = total(d, |o| o.undecodable);
+    let finals = d.recorded.iter().filter(|(_, o)| o.final_fit).count();
+    let conditions = Condition::ALL.len();
+    c.push(Check {
+        claim: "chain: nothing lost".into(),
+        passed: lost == 0 && undecodable == 0 && finals == conditions,
+        measured: format!(
+            "{lost} samples lost, {undecodable} values undecodable, final fit of \
+             {finals} of {conditions} conditions received"
+        ),
+    });
+    let x = &d.crosscheck;
+    c.push(Check {
+        claim: "cross-check: the device's fits match f64 re-fits".into(),
+        passed: x.passed,
+        measured: format!(
+            "{} of {} fits outside the threshold; max |Δ| = {:.1e} σ_CRLB, threshold {}",
+            x.fits.iter().filter(|f| !f.passed).count(),
+            x.fits.len(),
+            x.max_delta_crlb,
+            x.threshold
+        ),
+    });
+    match d.calibration.by_rate.first() {
+        Some(r) => {
+            let ours = r.intrinsic.quantities();
+            for (k, ((name, q), t)) in PROPERTY_NAMES.iter().zip(ours).zip(d.truth).enumerate() {
+                let digits = if k < 3 { 4 } else { 5 };
+                let err = (q.value - t).abs();
+                c.push(Check {
+                    claim: format!("{name} within {TRUTH_LIMIT_U} U of the truth"),
+                    passed: err <= TRUTH_LIMIT_U * q.expanded_unc,
+                    measured: format!(
+                        "|{:.*} − {}| = {:.2} U (U = {:.*}, k = {})",
+                        digits,
+                        q.value,
+                        short(t),
+                        err / q.expanded_unc,
+                        digits,
+                        q.expanded_unc,
+                        short(q.k)
+                    ),
+                });
+            }
+        }
+        None => c.push(Check {
+            claim: "calibration: a result".into(),
+            passed: false,
+            measured: "calibration.json has no rate".into(),
+        }),
+    }
+    let a = applied(d);
+    c.push(Check {
+        claim: "applied: RMS of |a| − g is the noise of one reading".into(),
+        passed: a
+            .as_ref()
+            .is_some_and(|a| (a.after / a.noise - 1.0).abs() <= a.tolerance),
+        measured: a.map_or("not computed".into(), |a| {
+            format!(
+                "{:.2e} / {:.2e} m/s² = {:.3}, 1 ± {:.3} expected (3σ)",
+                a.after,
+                a.noise,
+                a.after / a.noise,
+                a.tolerance
+            )
+        }),
+    });
+    let p = &d.puzzle;
+    let label = deviation_label(&p.rates_hz);
+    for (claim, (v, u), passed) in [
+        (
+            "puzzle: the deviation per rate is not within its U",
+            p.deviation_per_rate,
+            p.deviation_per_rate.0.abs() > p.deviation_per_rate.1,
+        ),
+        (
+            "puzzle: the deviation modelled is within its U",
+            p.deviation_modelled,
+            p.deviation_modelled.0.abs() <= p.deviation_modelled.1,
+        ),
+    ] {
+        c.push(Check {
+            claim: claim.into(),
+            passed,
+            measured: format!("{label} = {v:+.4} ± {u:.4}, {:.2} U", v.abs() / u),
+        });
+    }
+    let in_u = |(v, u): (f64, f64), t: f64| (v - t).abs() / u;
+    let k2 = in_u(p.k2_w, p.true_k2_w);
+    let radii: Vec<f64> = p.radius.iter().map(|&r| in_u(r, p.true_radius_m)).collect();
+    c.push(Check {
+        claim: format!("puzzle: the simulated effects recovered within {TRUTH_LIMIT_U} U"),
+        passed: !radii.is_empty() && [k2].iter().chain(&radii).all(|e| *e <= TRUTH_LIMIT_U),
+        measured: format!(
+            "K2_w {k2:.2} U from {:e}; radius {} U from {} m",
+            p.true_k2_w,
+            radii
+                .iter()
+                .map(|e| format!("{e:.2}"))
+                .collect::<Vec<_>>()
+                .join(", "),
+            short(p.true_radius_m)
+        ),
+    });
+    c
+}
+
+/// Ok when every check holds; otherwise what `rotacal demo` exits with: each failed check
+/// and its numbers.
+pub fn verdict(checks: &[Check]) -> Result<(), String> {
+    let failed: Vec<&Check> = checks.iter().filter(|c| !c.passed).collect();
+    if failed.is_empty() {
+        return Ok(());
+    }
+    let mut m = format!(
+        "the demo failed {} of {} checks:",
+        failed.len(),
+        checks.len()
+    );
+    for c in failed {
+        let _ = write!(m, "\n  {}: {}", c.claim, c.measured);
+    }
+    Err(m)
+}
+
+/// `rotacal demo`: run the chain and print everything, then fail, naming each failed
+/// check, if any failed (the numbers are on screen before the verdict).
+pub fn command(seed: u64, dir: &Path) -> anyhow::Result<()> {
+    let d = run(seed, dir)?;
+    crate::output::emit(&render(&d))?;
+    verdict(&checks(&d)).map_err(anyhow::Error::msg)
+}
+
+/// The demo's terminal output, its checks and verdict last.
 pub fn render(d: &Demo) -> String {
     let mut o = String::new();
     let rows = total(d, |o| o.summary.rows);
@@ -499,6 +653,31 @@ pub fn render(d: &Demo) -> String {
         );
     }
     render_puzzle(&mut o, &d.puzzle);
+    let checks = checks(d);
+    let _ = writeln!(
+        o,
+        "\nChecks (rotacal demo exits with status 1 if any fails):"
+    );
+    for c in &checks {
+        let mark = if c.passed { "ok  " } else { "FAIL" };
+        let _ = writeln!(o, "  {mark} {}: {}", c.claim, c.measured);
+    }
+    let failed: Vec<&str> = checks
+        .iter()
+        .filter(|c| !c.passed)
+        .map(|c| c.claim.as_str())
+        .collect();
+    let _ = if failed.is_empty() {
+        writeln!(o, "All {} checks passed.", checks.len())
+    } else {
+        writeln!(
+            o,
+            "FAILED {} of {} checks: {}.",
+            failed.len(),
+            checks.len(),
+            failed.join("; ")
+        )
+    };
     o
 }
 

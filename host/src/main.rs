@@ -209,7 +209,8 @@ enum Command {
         seed: Option<u64>,
     },
     /// The main job without hardware: simulate seed 000's 10 mHz session, run it through
-    /// the firmware's logic, record its packets, calibrate, cross-check, report.
+    /// the firmware's logic, record its packets, calibrate, cross-check, report; exits
+    /// with status 1 if any of its checks fails.
     Demo {
         /// Seed of the simulation.
         #[arg(long, default_value_t = 2022)]
@@ -317,8 +318,7 @@ fn main() -> ExitCode {
             alpha,
         ),
         Command::Decode { capture, out } => record::decode(&capture, &out),
-        Command::Demo { seed, out } => rotacal::demo::run(seed, &out)
-            .and_then(|d| Ok(rotacal::output::emit(&rotacal::demo::render(&d))?)),
+        Command::Demo { seed, out } => rotacal::demo::command(seed, &out),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
