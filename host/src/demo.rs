@@ -12,6 +12,7 @@
 //!
 //! The session runs on a paused tokio clock: 13 minutes of device time in seconds.
 
+use crate::acquire::LogLine;
 use crate::calibration_file::{CalibrationJson, Quantity, PROPERTY_NAMES};
 use crate::crosscheck::CrosscheckReport;
 use crate::link::simulated::{Faults, SimulatedDevice};
@@ -78,11 +79,44 @@ pub fn paper_run_spec(s: &[[f64; 3]; 3], axis: usize, step: PhaseStep, seed: u64
     }
 }
 
+/// A fault put into the demo's chain on purpose (`rotacal demo --inject NAME`, a hidden
+/// option). It exists only to prove that the demo can fail: its tests use it to see the
+/// cross-check, and so `rotacal demo`, fail.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Inject {
+    /// `corrupt-device-fit`: the first device fit report in the recorded fit log
+    /// (`recording.fits.jsonl`) gets its u channel's A shifted by one of its standard
+    /// errors, about 100 times the cross-check's threshold, before the cross-check reads it.
+    CorruptDeviceFit,
+}
+
+impl Inject {
+    /// Its name on the command line.
+    pub fn name(self) -> &'static str {
+        match self {
+            Inject::CorruptDeviceFit => "corrupt-device-fit",
+        }
+    }
+}
+
+impl std::str::FromStr for Inject {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Self, String> {
+        [Inject::CorruptDeviceFit]
+            .into_iter()
+            .find(|i| i.name() == s)
+            .ok_or_else(|| format!("'{s}': the only fault is corrupt-device-fit"))
+    }
+}
+
 /// The demo's results.
 #[derive(Clone, Debug)]
 pub struct Demo {
     /// Where the files are.
     pub dir: PathBuf,
+    /// The fault injected, if any.
+    pub injected: Option<Inject>,
     /// The simulated truth: s_u, s_v, s_w (counts per m/s²), φ_uv, φ_vw, φ_wu (°).
     pub truth: [f64; 6],
     /// The sensor's output rate, Hz.
@@ -214,8 +248,8 @@ pub fn session_config(seed: u64) -> anyhow::Result<Config> {
     Ok(cfg)
 }
 
-/// Run the chain, writing into `dir` (created if missing).
-pub fn run(seed: u64, dir: &Path) -> anyhow::Result<Demo> {
+/// Run the chain, writing into `dir` (created if missing), with `inject`'s fault if any.
+pub fn run(seed: u64, dir: &Path, inject: Option<Inject>) -> anyhow::Result<Demo> {
     std::fs::create_dir_all(dir).map_err(|e| anyhow::anyhow!("{}: {e}", dir.display()))?;
     let sim = Simulation::new(session_config(seed)?)?;
     let conversions = sim.config().samples_per_condition();
@@ -272,6 +306,9 @@ pub fn run(seed: u64, dir: &Path) -> anyhow::Result<Demo> {
         anyhow::Ok(recorded)
     })?;
     let (rec_path, fits_path) = (&paths.recording, &paths.fits);
+    if inject == Some(Inject::CorruptDeviceFit) {
+        corrupt_first_fit(fits_path)?;
+    }
     let rec = crate::recording::read(rec_path)?;
     let calibration = crate::calibrate_recording::calibrate(&rec, &Default::default())?;
     let log_text = std::fs::read_to_string(fits_path)?;
@@ -310,6 +347,7 @@ pub fn run(seed: u64, dir: &Path) -> anyhow::Result<Demo> {
     let [s0, s1, s2, a0, a1, a2, ..] = truth;
     Ok(Demo {
         dir: dir.to_path_buf(),
+        injected: inject,
         truth: [s0, s1, s2, a0, a1, a2],
         sensor_hz,
         conversions: conversions as usize,
@@ -320,6 +358,32 @@ pub fn run(seed: u64, dir: &Path) -> anyhow::Result<Demo> {
         applied,
         puzzle,
     })
+}
+
+/// [`Inject::CorruptDeviceFit`]: rewrite only the first fit report's line, so the rest of
+/// the log stays byte for byte what the recorder wrote.
+fn corrupt_first_fit(path: &Path) -> anyhow::Result<()> {
+    let at = |e: &dyn std::fmt::Display| anyhow::anyhow!("{}: {e}", path.display());
+    let text = std::fs::read_to_string(path).map_err(|e| at(&e))?;
+    let mut out = String::with_capacity(text.len());
+    let mut done = false;
+    for line in text.lines() {
+        match serde_json::from_str::<LogLine>(line) {
+            Ok(LogLine::Fit(mut f)) if !done => {
+                let [[a, ..], ..] = &mut f.coef;
+                let [[se, ..], ..] = f.se;
+                *a += se;
+                out += &serde_json::to_string(&LogLine::Fit(f)).map_err(|e| at(&e))?;
+                done = true;
+            }
+            _ => out += line,
+        }
+        out.push('\n');
+    }
+    if !done {
+        anyhow::bail!("{}: no device fit report to corrupt", path.display());
+    }
+    std::fs::write(path, out).map_err(|e| at(&e))
 }
 
 /// How many U a property may miss the simulated truth by before the demo fails.
@@ -592,8 +656,8 @@ pub fn verdict(checks: &[Check]) -> Result<(), String> {
 
 /// `rotacal demo`: run the chain and print everything, then fail, naming each failed
 /// check, if any failed (the numbers are on screen before the verdict).
-pub fn command(seed: u64, dir: &Path) -> anyhow::Result<()> {
-    let d = run(seed, dir)?;
+pub fn command(seed: u64, dir: &Path, inject: Option<Inject>) -> anyhow::Result<()> {
+    let d = run(seed, dir, inject)?;
     crate::output::emit(&render(&d))?;
     verdict(&checks(&d)).map_err(anyhow::Error::msg)
 }
@@ -601,6 +665,13 @@ pub fn command(seed: u64, dir: &Path) -> anyhow::Result<()> {
 /// The demo's terminal output, its checks and verdict last.
 pub fn render(d: &Demo) -> String {
     let mut o = String::new();
+    if let Some(i) = d.injected {
+        let _ = writeln!(
+            o,
+            "Fault injected on purpose: {} (to prove the demo can fail).\n",
+            i.name()
+        );
+    }
     let rows = total(d, |o| o.summary.rows);
     let lost = total(d, |o| o.summary.lost_samples());
     let fits = total(d, |o| o.summary.fit_lines);

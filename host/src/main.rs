@@ -218,6 +218,10 @@ enum Command {
         /// The folder to write (created if missing).
         #[arg(long, default_value = "rotacal-demo")]
         out: PathBuf,
+        /// A fault put into the chain on purpose (corrupt-device-fit): it exists only to
+        /// prove that the demo can fail (its tests use it).
+        #[arg(long, hide = true)]
+        inject: Option<rotacal::demo::Inject>,
     },
 }
 
@@ -318,7 +322,7 @@ fn main() -> ExitCode {
             alpha,
         ),
         Command::Decode { capture, out } => record::decode(&capture, &out),
-        Command::Demo { seed, out } => rotacal::demo::command(seed, &out),
+        Command::Demo { seed, out, inject } => rotacal::demo::command(seed, &out, inject),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
