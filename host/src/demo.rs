@@ -7,10 +7,13 @@
 //! 3. Decode its packets and 4. record them with `rotacal record`'s code (one condition
 //!    at a time, appending, as at the table), into a recording, a fit log and a capture.
 //! 5. Calibrate in f64, 6. cross-check the device's fits, 7. write the report folder.
+//! 8. Check every statement it prints about its numbers ([`checks`]): `rotacal demo` prints
+//!    everything, then exits with status 1, naming each failed check, if any fails.
 //!
 //! The session runs on a paused tokio clock: 13 minutes of device time in seconds.
 
-use crate::calibration_file::CalibrationJson;
+use crate::acquire::LogLine;
+use crate::calibration_file::{CalibrationJson, Quantity, PROPERTY_NAMES};
 use crate::crosscheck::CrosscheckReport;
 use crate::link::simulated::{Faults, SimulatedDevice};
 use crate::record::{self, Options, Outcome, Paths, Plan, Quiet};
@@ -76,14 +79,49 @@ pub fn paper_run_spec(s: &[[f64; 3]; 3], axis: usize, step: PhaseStep, seed: u64
     }
 }
 
+/// A fault put into the demo's chain on purpose (`rotacal demo --inject NAME`, a hidden
+/// option). It exists only to prove that the demo can fail: its tests use it to see the
+/// cross-check, and so `rotacal demo`, fail.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Inject {
+    /// `corrupt-device-fit`: the first device fit report in the recorded fit log
+    /// (`recording.fits.jsonl`) gets its u channel's A shifted by one of its standard
+    /// errors, about 100 times the cross-check's threshold, before the cross-check reads it.
+    CorruptDeviceFit,
+}
+
+impl Inject {
+    /// Its name on the command line.
+    pub fn name(self) -> &'static str {
+        match self {
+            Inject::CorruptDeviceFit => "corrupt-device-fit",
+        }
+    }
+}
+
+impl std::str::FromStr for Inject {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Self, String> {
+        [Inject::CorruptDeviceFit]
+            .into_iter()
+            .find(|i| i.name() == s)
+            .ok_or_else(|| format!("'{s}': the only fault is corrupt-device-fit"))
+    }
+}
+
 /// The demo's results.
 #[derive(Clone, Debug)]
 pub struct Demo {
     /// Where the files are.
     pub dir: PathBuf,
+    /// The fault injected, if any.
+    pub injected: Option<Inject>,
     /// The simulated truth: s_u, s_v, s_w (counts per m/s²), φ_uv, φ_vw, φ_wu (°).
     pub truth: [f64; 6],
-    /// Sensor conversions per condition (at 104 Hz).
+    /// The sensor's output rate, Hz.
+    pub sensor_hz: f64,
+    /// Sensor conversions per condition (at `sensor_hz`).
     pub conversions: usize,
     /// What recording each condition gave.
     pub recorded: Vec<(Condition, Outcome)>,
@@ -104,15 +142,22 @@ pub struct Demo {
 /// (10, 50, 100, 500 mHz, 22 cm from the axis) with K2 = 2e-4 /(m/s²) on w.
 #[derive(Clone, Debug)]
 pub struct Puzzle {
+    /// The rates calibrated, Hz, in order.
+    pub rates_hz: Vec<f64>,
+    /// The simulated K2 of w, /(m/s²).
+    pub true_k2_w: f64,
+    /// The simulated distance from the axis, m.
+    pub true_radius_m: f64,
     /// The effects named, in order.
     pub named: Vec<String>,
     /// χ²/dof of the baseline and of the final model.
     pub chi2_dof: (f64, f64),
-    /// K2_w: value and U (k = 2).
+    /// K2_w: value and U.
     pub k2_w: (f64, f64),
     /// Radius per condition: value and U.
     pub radius: Vec<(f64, f64)>,
-    /// s_w(0.5 Hz) − s_w(10 mHz) and its U, from per-rate fits (the paper's analysis).
+    /// s_w(last rate) − s_w(first rate) and its U, from per-rate fits (the paper's
+    /// analysis).
     pub deviation_per_rate: (f64, f64),
     /// The same with the named effects modelled.
     pub deviation_modelled: (f64, f64),
@@ -128,6 +173,15 @@ fn puzzle(seed: u64, dir: &Path) -> anyhow::Result<Puzzle> {
     let mut cfg = Config::from_toml(PUZZLE)?;
     cfg.seed = seed;
     let sim = Simulation::new(cfg)?;
+    let effects = &sim.config().effects;
+    let true_k2_w = effects.nonlinearity_2nd.as_ref().map(|e| {
+        let [_, _, w] = e.k2;
+        w
+    });
+    let true_radius_m = effects.centripetal.as_ref().map(|e| e.radius_m);
+    let (Some(true_k2_w), Some(true_radius_m)) = (true_k2_w, true_radius_m) else {
+        anyhow::bail!("the puzzle's simulation has no K2 or no centripetal term");
+    };
     let csv = dir.join("puzzle.csv");
     sim.write_file(&csv)
         .map_err(|e| anyhow::anyhow!("{}: {e}", csv.display()))?;
@@ -162,6 +216,9 @@ fn puzzle(seed: u64, dir: &Path) -> anyhow::Result<Puzzle> {
     };
     let fp = &a.final_parameters;
     Ok(Puzzle {
+        rates_hz: cal.by_rate.iter().filter_map(|r| r.rate_hz).collect(),
+        true_k2_w,
+        true_radius_m,
         named: a.named_effects.clone(),
         chi2_dof: (a.baseline.chi2_dof, a.final_.chi2_dof),
         k2_w: fp
@@ -191,8 +248,8 @@ pub fn session_config(seed: u64) -> anyhow::Result<Config> {
     Ok(cfg)
 }
 
-/// Run the chain, writing into `dir` (created if missing).
-pub fn run(seed: u64, dir: &Path) -> anyhow::Result<Demo> {
+/// Run the chain, writing into `dir` (created if missing), with `inject`'s fault if any.
+pub fn run(seed: u64, dir: &Path, inject: Option<Inject>) -> anyhow::Result<Demo> {
     std::fs::create_dir_all(dir).map_err(|e| anyhow::anyhow!("{}: {e}", dir.display()))?;
     let sim = Simulation::new(session_config(seed)?)?;
     let conversions = sim.config().samples_per_condition();
@@ -249,6 +306,9 @@ pub fn run(seed: u64, dir: &Path) -> anyhow::Result<Demo> {
         anyhow::Ok(recorded)
     })?;
     let (rec_path, fits_path) = (&paths.recording, &paths.fits);
+    if inject == Some(Inject::CorruptDeviceFit) {
+        corrupt_first_fit(fits_path)?;
+    }
     let rec = crate::recording::read(rec_path)?;
     let calibration = crate::calibrate_recording::calibrate(&rec, &Default::default())?;
     let log_text = std::fs::read_to_string(fits_path)?;
@@ -287,7 +347,9 @@ pub fn run(seed: u64, dir: &Path) -> anyhow::Result<Demo> {
     let [s0, s1, s2, a0, a1, a2, ..] = truth;
     Ok(Demo {
         dir: dir.to_path_buf(),
+        injected: inject,
         truth: [s0, s1, s2, a0, a1, a2],
+        sensor_hz,
         conversions: conversions as usize,
         recorded,
         calibration,
@@ -298,112 +360,477 @@ pub fn run(seed: u64, dir: &Path) -> anyhow::Result<Demo> {
     })
 }
 
-/// The demo's terminal output.
+/// [`Inject::CorruptDeviceFit`]: rewrite only the first fit report's line, so the rest of
+/// the log stays byte for byte what the recorder wrote.
+fn corrupt_first_fit(path: &Path) -> anyhow::Result<()> {
+    let at = |e: &dyn std::fmt::Display| anyhow::anyhow!("{}: {e}", path.display());
+    let text = std::fs::read_to_string(path).map_err(|e| at(&e))?;
+    let mut out = String::with_capacity(text.len());
+    let mut done = false;
+    for line in text.lines() {
+        match serde_json::from_str::<LogLine>(line) {
+            Ok(LogLine::Fit(mut f)) if !done => {
+                let [[a, ..], ..] = &mut f.coef;
+                let [[se, ..], ..] = f.se;
+                *a += se;
+                out += &serde_json::to_string(&LogLine::Fit(f)).map_err(|e| at(&e))?;
+                done = true;
+            }
+            _ => out += line,
+        }
+        out.push('\n');
+    }
+    if !done {
+        anyhow::bail!("{}: no device fit report to corrupt", path.display());
+    }
+    std::fs::write(path, out).map_err(|e| at(&e))
+}
+
+/// How many U a property may miss the simulated truth by before the demo fails.
+pub const TRUTH_LIMIT_U: f64 = 3.0;
+
+/// One statement the demo prints about its numbers, checked against them.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Check {
+    /// The statement, short enough to name it.
+    pub claim: String,
+    /// It holds.
+    pub passed: bool,
+    /// What was measured, against what limit.
+    pub measured: String,
+}
+
+/// The calibration applied to the recording against the noise of one reading.
+struct Applied {
+    /// RMS of |a| − g, m/s².
+    after: f64,
+    /// The fits' pooled residual RMS, each channel through its own sensitivity, m/s².
+    noise: f64,
+    /// Three standard deviations of after / noise when only noise is left.
+    tolerance: f64,
+}
+
+fn applied(d: &Demo) -> Option<Applied> {
+    let after = d.applied.rms_after?;
+    let r = d.calibration.by_rate.first()?;
+    let s = &r.intrinsic.sensitivity;
+    let (mut ss, mut n) = (0.0, 0.0);
+    for f in &r.fits {
+        let sens = match f.channel.as_str() {
+            "u" => s.u.value,
+            "v" => s.v.value,
+            "w" => s.w.value,
+            _ => f64::NAN,
+        };
+        ss += f.n as f64 * (f.rms_residual / sens).powi(2);
+        n += f.n as f64;
+    }
+    // With only white noise left, |a| − g of a reading is its noise along g (the channels'
+    // noise is alike, so any direction has the pooled variance). An RMS of N such values
+    // has relative standard deviation 1/√(2N). Treating the two RMS as independent
+    // overstates the spread of their ratio, as both come from the same samples.
+    let rows = d.applied.rows as f64;
+    Some(Applied {
+        after,
+        noise: (ss / n).sqrt(),
+        tolerance: 3.0 * (0.5 / rows + 0.5 / n).sqrt(),
+    })
+}
+
+/// `x` with up to six decimals and no trailing zeros.
+fn short(x: f64) -> String {
+    let t = format!("{x:.6}");
+    t.trim_end_matches('0').trim_end_matches('.').to_string()
+}
+
+/// A U ratio as the table prints it.
+fn ratio(x: f64) -> String {
+    match x {
+        x if x >= 10.0 => format!("{x:.0}"),
+        x if x >= 1.0 => format!("{x:.1}"),
+        x => format!("{x:.2}"),
+    }
+}
+
+/// The sentence on the U ratio column (seed 000's over rotacal's), its comparison word
+/// chosen from the ratios.
+fn ratio_sentence(ratios: &[f64]) -> String {
+    if ratios.is_empty() || ratios.iter().any(|r| !r.is_finite()) {
+        return "the U ratios could not all be computed".into();
+    }
+    let lo = ratios.iter().copied().fold(f64::INFINITY, f64::min);
+    let hi = ratios.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    let range = match (ratio(lo), ratio(hi)) {
+        (a, b) if a == b => a,
+        (a, b) => format!("{a}–{b}"),
+    };
+    if lo > 1.0 {
+        format!("rotacal's U is {range} times smaller than seed 000's stated uncertainties")
+    } else if hi < 1.0 {
+        format!("rotacal's U is larger than seed 000's stated uncertainties ({range} times it)")
+    } else {
+        format!("seed 000's stated uncertainties are {range} times rotacal's U, not all above it")
+    }
+}
+
+/// "k = 2", or the range when the quantities' coverage factors differ.
+fn k_phrase(qs: &[&Quantity]) -> String {
+    let lo = qs.iter().map(|q| q.k).fold(f64::INFINITY, f64::min);
+    let hi = qs.iter().map(|q| q.k).fold(f64::NEG_INFINITY, f64::max);
+    match (short(lo), short(hi)) {
+        (a, b) if a == b => format!("k = {a}"),
+        (a, b) => format!("k = {a}–{b} by quantity"),
+    }
+}
+
+/// Whether a difference is within its U (|v| ≤ U), and by how much.
+fn against_u((v, u): (f64, f64)) -> String {
+    let r = v.abs() / u;
+    if v.abs() <= u {
+        format!("within its U ({r:.2} U)")
+    } else {
+        format!("not within its U ({r:.1} U)")
+    }
+}
+
+/// "0.5 Hz", "10 mHz".
+fn rate_label(hz: f64) -> String {
+    if hz < 0.1 {
+        format!("{} mHz", short(hz * 1e3))
+    } else {
+        format!("{} Hz", short(hz))
+    }
+}
+
+/// "s_w(0.5 Hz) − s_w(10 mHz)": the last rate's against the first's.
+fn deviation_label(rates_hz: &[f64]) -> String {
+    match (rates_hz.first(), rates_hz.last()) {
+        (Some(&lo), Some(&hi)) => format!("s_w({}) − s_w({})", rate_label(hi), rate_label(lo)),
+        _ => "s_w(last rate) − s_w(first rate)".into(),
+    }
+}
+
+/// The truth is seed 000 Table 1's DC column (as the first sentence says).
+fn truth_is_paper_dc(truth: &[f64; 6]) -> bool {
+    let paper = PAPER_DC_SENSITIVITY.iter().chain(&PAPER_DC_ANGLES_DEG);
+    truth
+        .iter()
+        .zip(paper)
+        .all(|(t, p)| (t - p).abs() <= 1e-9 * p.abs())
+}
+
+/// `f` summed over the conditions recorded.
+fn total(d: &Demo, f: fn(&Outcome) -> u64) -> u64 {
+    d.recorded.iter().map(|(_, o)| f(o)).sum()
+}
+
+/// Everything the demo states about its numbers, as checks: `rotacal demo` prints them and
+/// fails if any does not hold.
+pub fn checks(d: &Demo) -> Vec<Check> {
+    let mut c = Vec::new();
+    let lost = total(d, |o| o.summary.lost_samples());
+    let undecodable = total(d, |o| o.undecodable);
+    let finals = d.recorded.iter().filter(|(_, o)| o.final_fit).count();
+    let conditions = Condition::ALL.len();
+    c.push(Check {
+        claim: "chain: nothing lost".into(),
+        passed: lost == 0 && undecodable == 0 && finals == conditions,
+        measured: format!(
+            "{lost} samples lost, {undecodable} values undecodable, final fit of \
+             {finals} of {conditions} conditions received"
+        ),
+    });
+    let x = &d.crosscheck;
+    c.push(Check {
+        claim: "cross-check: the device's fits match f64 re-fits".into(),
+        passed: x.passed,
+        measured: format!(
+            "{} of {} fits outside the threshold; max |Δ| = {:.1e} σ_CRLB, threshold {}",
+            x.fits.iter().filter(|f| !f.passed).count(),
+            x.fits.len(),
+            x.max_delta_crlb,
+            x.threshold
+        ),
+    });
+    match d.calibration.by_rate.first() {
+        Some(r) => {
+            let ours = r.intrinsic.quantities();
+            for (k, ((name, q), t)) in PROPERTY_NAMES.iter().zip(ours).zip(d.truth).enumerate() {
+                let digits = if k < 3 { 4 } else { 5 };
+                let err = (q.value - t).abs();
+                c.push(Check {
+                    claim: format!("{name} within {TRUTH_LIMIT_U} U of the truth"),
+                    passed: err <= TRUTH_LIMIT_U * q.expanded_unc,
+                    measured: format!(
+                        "|{:.*} − {}| = {:.2} U (U = {:.*}, k = {})",
+                        digits,
+                        q.value,
+                        short(t),
+                        err / q.expanded_unc,
+                        digits,
+                        q.expanded_unc,
+                        short(q.k)
+                    ),
+                });
+            }
+        }
+        None => c.push(Check {
+            claim: "calibration: a result".into(),
+            passed: false,
+            measured: "calibration.json has no rate".into(),
+        }),
+    }
+    let a = applied(d);
+    c.push(Check {
+        claim: "applied: RMS of |a| − g is the noise of one reading".into(),
+        passed: a
+            .as_ref()
+            .is_some_and(|a| (a.after / a.noise - 1.0).abs() <= a.tolerance),
+        measured: a.map_or("not computed".into(), |a| {
+            format!(
+                "{:.2e} / {:.2e} m/s² = {:.3}, 1 ± {:.3} expected (3σ)",
+                a.after,
+                a.noise,
+                a.after / a.noise,
+                a.tolerance
+            )
+        }),
+    });
+    let p = &d.puzzle;
+    let label = deviation_label(&p.rates_hz);
+    for (claim, (v, u), passed) in [
+        (
+            "puzzle: the deviation per rate is not within its U",
+            p.deviation_per_rate,
+            p.deviation_per_rate.0.abs() > p.deviation_per_rate.1,
+        ),
+        (
+            "puzzle: the deviation modelled is within its U",
+            p.deviation_modelled,
+            p.deviation_modelled.0.abs() <= p.deviation_modelled.1,
+        ),
+    ] {
+        c.push(Check {
+            claim: claim.into(),
+            passed,
+            measured: format!("{label} = {v:+.4} ± {u:.4}, {:.2} U", v.abs() / u),
+        });
+    }
+    let in_u = |(v, u): (f64, f64), t: f64| (v - t).abs() / u;
+    let k2 = in_u(p.k2_w, p.true_k2_w);
+    let radii: Vec<f64> = p.radius.iter().map(|&r| in_u(r, p.true_radius_m)).collect();
+    c.push(Check {
+        claim: format!("puzzle: the simulated effects recovered within {TRUTH_LIMIT_U} U"),
+        passed: !radii.is_empty() && [k2].iter().chain(&radii).all(|e| *e <= TRUTH_LIMIT_U),
+        measured: format!(
+            "K2_w {k2:.2} U from {:e}; radius {} U from {} m",
+            p.true_k2_w,
+            radii
+                .iter()
+                .map(|e| format!("{e:.2}"))
+                .collect::<Vec<_>>()
+                .join(", "),
+            short(p.true_radius_m)
+        ),
+    });
+    c
+}
+
+/// Ok when every check holds; otherwise what `rotacal demo` exits with: each failed check
+/// and its numbers.
+pub fn verdict(checks: &[Check]) -> Result<(), String> {
+    let failed: Vec<&Check> = checks.iter().filter(|c| !c.passed).collect();
+    if failed.is_empty() {
+        return Ok(());
+    }
+    let mut m = format!(
+        "the demo failed {} of {} checks:",
+        failed.len(),
+        checks.len()
+    );
+    for c in failed {
+        let _ = write!(m, "\n  {}: {}", c.claim, c.measured);
+    }
+    Err(m)
+}
+
+/// `rotacal demo`: run the chain and print everything, then fail, naming each failed
+/// check, if any failed (the numbers are on screen before the verdict).
+pub fn command(seed: u64, dir: &Path, inject: Option<Inject>) -> anyhow::Result<()> {
+    let d = run(seed, dir, inject)?;
+    crate::output::emit(&render(&d))?;
+    verdict(&checks(&d)).map_err(anyhow::Error::msg)
+}
+
+/// The demo's terminal output, its checks and verdict last.
 pub fn render(d: &Demo) -> String {
     let mut o = String::new();
-    let rows: u64 = d.recorded.iter().map(|(_, r)| r.summary.rows).sum();
-    let lost: u64 = d
-        .recorded
-        .iter()
-        .map(|(_, r)| r.summary.lost_samples())
-        .sum();
-    let fits: u64 = d.recorded.iter().map(|(_, r)| r.summary.fit_lines).sum();
+    if let Some(i) = d.injected {
+        let _ = writeln!(
+            o,
+            "Fault injected on purpose: {} (to prove the demo can fail).\n",
+            i.name()
+        );
+    }
+    let rows = total(d, |o| o.summary.rows);
+    let lost = total(d, |o| o.summary.lost_samples());
+    let fits = total(d, |o| o.summary.fit_lines);
     let _ = writeln!(
         o,
-        "Simulated seed 000 session: 10 mHz about x, y, z; LSM6DS33 at 104 Hz ({} conversions per\n\
-         condition), truth = seed 000 Table 1 DC, g = {} m/s².\n\
+        "Simulated seed 000 session: 10 mHz about x, y, z; LSM6DS33 at {} Hz ({} conversions per\n\
+         condition), truth {}, g = {} m/s².\n\
          Device logic (the firmware's, on this host) → BLE packets → decoded → recorded:\n\
          {rows} samples at 16 Hz, {lost} lost, {fits} fit-log lines (device fit reports and quick-look).",
-        d.conversions, PAPER_G_LOC
+        short(d.sensor_hz),
+        d.conversions,
+        if truth_is_paper_dc(&d.truth) {
+            "= seed 000 Table 1 DC"
+        } else {
+            "≠ seed 000 Table 1 DC"
+        },
+        d.calibration.g_loc
     );
     let x = &d.crosscheck;
     let _ = writeln!(
         o,
-        "Cross-check: {} device fits (f32, on board) against f64 re-fits of the same samples: \n\
-         max |Δ| = {:.1e} σ_CRLB (threshold {}): {}.",
+        "Cross-check: {} device fits (the firmware's f32 fit, run on this host) against f64 re-fits\n\
+         of the same samples: max |Δ| = {:.1e} σ_CRLB (threshold {}): {}.",
         x.fits.len(),
         x.max_delta_crlb,
         x.threshold,
         if x.passed { "pass" } else { "FAIL" }
     );
-    let Some(r) = d.calibration.by_rate.first() else {
-        return o;
+    if let Some(r) = d.calibration.by_rate.first() {
+        render_intrinsic(&mut o, d, r);
+    }
+    let _ = writeln!(
+        o,
+        "\nFiles in {}: recording.csv, recording.fits.jsonl (device fits), recording.capture (every\n\
+         value received), calibration.json, crosscheck.json.\nReport: {}",
+        d.dir.display(),
+        d.report.display()
+    );
+    if let Some(a) = applied(d) {
+        let _ = writeln!(
+            o,
+            "\nApplied (rotacal apply, device frame, a = L⁻¹·(y − O) with G = L·Lᵀ): {} rows in m/s² with\n\
+             their uncertainties in recording-ms2.csv; RMS of |a| − g = {:.2e} m/s², {:.3} times the\n\
+             noise of one reading (the fits' residual RMS, {:.2e} m/s²; 1 ± {:.3} expected, 3σ).",
+            d.applied.rows,
+            a.after,
+            a.after / a.noise,
+            a.noise,
+            a.tolerance
+        );
+    }
+    render_puzzle(&mut o, &d.puzzle);
+    let checks = checks(d);
+    let _ = writeln!(
+        o,
+        "\nChecks (rotacal demo exits with status 1 if any fails):"
+    );
+    for c in &checks {
+        let mark = if c.passed { "ok  " } else { "FAIL" };
+        let _ = writeln!(o, "  {mark} {}: {}", c.claim, c.measured);
+    }
+    let failed: Vec<&str> = checks
+        .iter()
+        .filter(|c| !c.passed)
+        .map(|c| c.claim.as_str())
+        .collect();
+    let _ = if failed.is_empty() {
+        writeln!(o, "All {} checks passed.", checks.len())
+    } else {
+        writeln!(
+            o,
+            "FAILED {} of {} checks: {}.",
+            failed.len(),
+            checks.len(),
+            failed.join("; ")
+        )
     };
+    o
+}
+
+/// The intrinsic properties' table and the sentence on its U ratio column.
+fn render_intrinsic(o: &mut String, d: &Demo, r: &crate::calibration_file::RateJson) {
     let ours = r.intrinsic.quantities();
     let _ = writeln!(
         o,
-        "\nIntrinsic properties (f64, exact Gram form, method.md §2; ± is U, k = 2;\n\
-         s in counts/(m/s²), φ in degrees):"
+        "\nIntrinsic properties (f64, exact Gram form, method.md §2; ± is U, {};\n\
+         s in counts/(m/s²), φ in degrees):",
+        k_phrase(&ours)
     );
     let _ = writeln!(
         o,
         "{:<5} {:>22} {:>9} {:>8} {:>20} {:>9} {:>20}",
         "", "rotacal", "truth", "|err|/U", "seed 000 (10 mHz)", "U ratio", "phase method"
     );
-    let names = crate::calibration_file::PROPERTY_NAMES;
     let phase = r
         .angle_deg_phase_method
         .as_ref()
         .map(|p| [&p.uv, &p.vw, &p.wu]);
-    for (k, name) in names.iter().enumerate() {
-        let Some(q) = ours.get(k) else { continue };
+    let mut ratios = Vec::new();
+    let rows = PROPERTY_NAMES
+        .iter()
+        .zip(&ours)
+        .zip(d.truth)
+        .zip(PAPER_10MHZ);
+    for (k, (((name, q), t), (pv, pu))) in rows.enumerate() {
         let (digits, pd) = if k < 3 { (4, 2) } else { (5, 3) };
-        let ph = match (k, phase) {
-            (3.., Some(p)) => p
-                .get(k - 3)
-                .map(|p| format!("{:.*} ± {:.*}", digits, p.value, digits, p.expanded_unc))
-                .unwrap_or_default(),
-            _ => "—".to_string(),
-        };
-        let (pv, pu) = PAPER_10MHZ[k];
+        let ph = k
+            .checked_sub(3)
+            .and_then(|i| phase.as_ref()?.get(i))
+            .map_or("—".to_string(), |p| {
+                format!("{:.*} ± {:.*}", digits, p.value, digits, p.expanded_unc)
+            });
+        let ur = pu / q.expanded_unc;
+        ratios.push(ur);
         let _ = writeln!(
             o,
-            "{:<5} {:>22} {:>9} {:>8.2} {:>20} {:>8.0}× {:>20}",
+            "{:<5} {:>22} {:>9} {:>8.2} {:>20} {:>8}× {:>20}",
             name,
             format!("{:.*} ± {:.*}", digits, q.value, digits, q.expanded_unc),
-            format!("{:.*}", pd, d.truth[k]),
-            (q.value - d.truth[k]).abs() / q.expanded_unc,
+            format!("{:.*}", pd, t),
+            (q.value - t).abs() / q.expanded_unc,
             format!("{:.*} ± {:.*}", pd, pv, pd, pu),
-            pu / q.expanded_unc,
+            ratio(ur),
             ph
         );
     }
     let _ = writeln!(
         o,
-        "U ratio: seed 000's stated uncertainty over rotacal's U. With sensor noise the only effect,\n\
-         the noise limit is ~50 times below the paper's figures (method.md §7); the missing effects\n\
-         are what the discrepancy workflow is for.\n\n\
-         Files in {}: recording.csv, recording.fits.jsonl (device fits), recording.capture (every\n\
-         value received), calibration.json, crosscheck.json.\nReport: {}",
-        d.dir.display(),
-        d.report.display()
+        "U ratio: seed 000's stated uncertainty over rotacal's U. With sensor noise the only\n\
+         simulated effect, {};\nthe missing effects are what the discrepancy workflow is for.",
+        ratio_sentence(&ratios)
     );
-    if let Some(after) = d.applied.rms_after {
-        // The fits' residual RMS in m/s²: the noise one reading carries.
-        let noise = r.fits.iter().map(|f| f.rms_residual).sum::<f64>()
-            / r.fits.len().max(1) as f64
-            / r.intrinsic.sensitivity.u.value;
-        let _ = writeln!(
-            o,
-            "\nApplied (rotacal apply, device frame, a = L⁻¹·(y − O) with G = L·Lᵀ): {} rows in m/s² with\n\
-             their uncertainties in recording-ms2.csv; RMS of |a| − g = {after:.2e} m/s², the noise of one\n\
-             reading (the fits' residual RMS: {noise:.2e} m/s²).",
-            d.applied.rows
-        );
-    }
-    let p = &d.puzzle;
+}
+
+/// The paper's puzzle, every comparison word from its numbers.
+fn render_puzzle(o: &mut String, p: &Puzzle) {
+    let label = deviation_label(&p.rates_hz);
+    let rates: Vec<String> = p.rates_hz.iter().map(|r| short(r * 1e3)).collect();
     let _ = writeln!(
         o,
         "\nThe paper's puzzle: seed 000 saw s_w deviate at 0.5 Hz and could not say why. Simulated:\n\
-         paper-multirate (10, 50, 100, 500 mHz; sensor 22 cm off the axis) with K2 = 2e-4 /(m/s²) on w.\n\
-         Fitting each rate on its own (the paper's analysis): s_w(0.5 Hz) − s_w(10 mHz) = {:+.4} ± {:.4}.\n\
-         rotacal discrepancy names {} (χ²/dof {:.0} → {:.3});\n\
-         K2_w = {:.3e} ± {:.1e} /(m/s²), radius {} m.\n\
-         With them modelled: s_w(0.5 Hz) − s_w(10 mHz) = {:+.4} ± {:.4}, within uncertainty.\n\
+         paper-multirate ({} mHz; sensor {} cm off the axis) with K2 = {:e} /(m/s²) on w.\n\
+         Fitting each rate on its own (the paper's analysis): {label} = {:+.4} ± {:.4},\n\
+         {}. rotacal discrepancy names {}\n\
+         (χ²/dof {:.0} → {:.3}): K2_w = {:.3e} ± {:.1e} /(m/s²),\n\
+         radius {} m.\n\
+         With them modelled: {label} = {:+.4} ± {:.4}, {}.\n\
          Report: {}",
+        rates.join(", "),
+        short(p.true_radius_m * 100.0),
+        p.true_k2_w,
         p.deviation_per_rate.0,
         p.deviation_per_rate.1,
-        p.named.join(" then "),
+        against_u(p.deviation_per_rate),
+        if p.named.is_empty() {
+            "no effect".to_string()
+        } else {
+            p.named.join(" then ")
+        },
         p.chi2_dof.0,
         p.chi2_dof.1,
         p.k2_w.0,
@@ -415,7 +842,7 @@ pub fn render(d: &Demo) -> String {
             .join(", "),
         p.deviation_modelled.0,
         p.deviation_modelled.1,
+        against_u(p.deviation_modelled),
         p.report.display()
     );
-    o
 }

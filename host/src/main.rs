@@ -217,7 +217,8 @@ enum Command {
         seed: Option<u64>,
     },
     /// The main job without hardware: simulate seed 000's 10 mHz session, run it through
-    /// the firmware's logic, record its packets, calibrate, cross-check, report.
+    /// the firmware's logic, record its packets, calibrate, cross-check, report; exits
+    /// with status 1 if any of its checks fails.
     Demo {
         /// Seed of the simulation.
         #[arg(long, default_value_t = 2022)]
@@ -225,6 +226,10 @@ enum Command {
         /// The folder to write (created if missing).
         #[arg(long, default_value = "rotacal-demo")]
         out: PathBuf,
+        /// A fault put into the chain on purpose (corrupt-device-fit): it exists only to
+        /// prove that the demo can fail (its tests use it).
+        #[arg(long, hide = true)]
+        inject: Option<rotacal::demo::Inject>,
     },
 }
 
@@ -331,8 +336,7 @@ fn main() -> ExitCode {
             alpha,
         ),
         Command::Decode { capture, out } => record::decode(&capture, &out),
-        Command::Demo { seed, out } => rotacal::demo::run(seed, &out)
-            .and_then(|d| Ok(rotacal::output::emit(&rotacal::demo::render(&d))?)),
+        Command::Demo { seed, out, inject } => rotacal::demo::command(seed, &out, inject),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
