@@ -244,7 +244,10 @@ pub fn design(
     for (i, (t, _)) in samples.iter().enumerate() {
         let (s, c) = step.phase_at(*t).sin_cos::<f64>();
         let tau = seconds_between(*t, t_ref, clock);
-        for (j, v) in regressor_row(model, s.hi, c.hi, tau).into_iter().enumerate() {
+        for (j, v) in regressor_row(model, s.hi, c.hi, tau)
+            .into_iter()
+            .enumerate()
+        {
             h[(i, j)] = v;
         }
     }

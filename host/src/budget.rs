@@ -84,16 +84,15 @@ impl Budget {
         }
     }
 
-    /// Add a source of one input of standard uncertainty `u` with sensitivity `c` per
-    /// property and infinitely many degrees of freedom (a type-B value taken as exact in
-    /// its own uncertainty) unless `dof` is given.
+    /// Add a source of one input of standard uncertainty `u` (in `unit`) with sensitivity
+    /// `c` per property and infinitely many degrees of freedom (a type-B value taken as
+    /// exact in its own uncertainty) unless `dof` is given.
     pub fn scalar(
         &mut self,
         name: &str,
         kind: Kind,
         description: impl Into<String>,
-        u: f64,
-        unit: &str,
+        (u, unit): (f64, &str),
         c: &[f64],
         dof: Option<f64>,
     ) {

@@ -184,14 +184,18 @@ fn noise_models(s: &[(Ticks, [f64; 3])], step: PhaseStep) -> Result<[NoiseModel;
             cs
         }
     });
-    let qr = wide.clone().qr();
-    let q = qr.q();
+    // Normal equations: the columns are near-orthogonal (sines, a centred trend), so their
+    // Cholesky solve is as good as QR here and needs no N × q factor.
+    let chol = wide.tr_mul(&wide).cholesky().ok_or(NoiseError::Singular)?;
     let mut models = Vec::with_capacity(3);
     for ch in 0..3 {
-        let y: Vec<f64> = s.iter().map(|(_, y)| y[ch]).collect();
-        let yv = nalgebra::DVector::from_column_slice(&y);
-        let resid = &yv - &q * (q.transpose() * &yv);
-        models.push(NoiseModel::estimate(resid.as_slice(), &noise::clipped(&y))?.rescaled(&wide)?);
+        let y = nalgebra::DVector::from_iterator(s.len(), s.iter().map(|(_, y)| y[ch]));
+        let beta = chol.solve(&wide.tr_mul(&y));
+        let resid = &y - &wide * beta;
+        models.push(
+            NoiseModel::estimate(resid.as_slice(), &noise::clipped(y.as_slice()))?
+                .rescaled(&wide)?,
+        );
     }
     models.try_into().map_err(|_| NoiseError::TooFew(0))
 }
@@ -233,8 +237,8 @@ fn fit_group(
     // Fitted first at the nominal rate: this also checks the span, so a short record gets
     // the plain 'too few periods' message rather than a failure of the rate fit.
     let at_nominal = fit_at(s, nominal).map_err(fail)?;
-    let four = batch::fit_four_param(s, nominal, CLOCK)
-        .map_err(|e| fail(format!("rate fit: {e}")))?;
+    let four =
+        batch::fit_four_param(s, nominal, CLOCK).map_err(|e| fail(format!("rate fit: {e}")))?;
     let fitted_step = PhaseStep::from_hz(four.rate_hz, CLOCK)
         .ok_or_else(|| err(rec, Some(g.first_line), "fitted rate unusable"))?;
     let span_s = match (s.first(), s.last()) {
@@ -397,8 +401,7 @@ pub fn calibrate(rec: &Recording, opts: &Options) -> Result<CalibrationJson, Cal
                 let budget = rotation_budget(&fits, &group_samples, &cal, g, &inputs, &units)
                     .map_err(at_rate)?;
                 let json_fits = fits.iter().flat_map(fit_json).collect();
-                let mut entry =
-                    calibration_file::rotation_entry(nominal, &cal, &budget, json_fits);
+                let mut entry = calibration_file::rotation_entry(nominal, &cal, &budget, json_fits);
                 entry.noise = Some(fits.iter().flat_map(noise_json).collect());
                 entry.uncertainty_budget = Some(budget);
                 let device = rotation_correction(&fits, g).map_err(|e| at_rate(e.to_string()))?;
@@ -690,9 +693,9 @@ fn static_budget(
     }
     let mut contribution = Vec::with_capacity(9);
     let mut dof = Vec::with_capacity(9);
-    for q in 0..6 {
-        let var = cal.intrinsic.cov[q][q].max(0.0);
-        let denom: f64 = (0..3).map(|j| share[j][q].powi(2) / nu[j]).sum();
+    for (q, row) in cal.intrinsic.cov.iter().enumerate() {
+        let var = row[q].max(0.0);
+        let denom: f64 = share.iter().zip(nu).map(|(sh, n)| sh[q].powi(2) / n).sum();
         contribution.push(var.sqrt());
         dof.push((denom > 0.0 && denom.is_finite()).then(|| var * var / denom));
     }
@@ -725,8 +728,7 @@ fn gravity_source(b: &mut Budget, g: f64, u_g_loc: Option<f64>, cg: &[f64]) {
             "g_loc",
             Kind::B,
             format!("local gravity g_loc = {g} m/s²: every sensitivity is ∝ 1/g_loc, the angles and offsets do not depend on it"),
-            u,
-            "m/s^2",
+            (u, "m/s^2"),
             cg,
             None,
         ),
@@ -735,8 +737,7 @@ fn gravity_source(b: &mut Budget, g: f64, u_g_loc: Option<f64>, cg: &[f64]) {
                 "g_loc",
                 Kind::B,
                 format!("local gravity g_loc = {g} m/s²: its uncertainty was NOT GIVEN (--u-g-loc or '# u_g_loc='), so it is taken as exact: a gravimeter gives about 1e-5 relative, a formula from latitude and height about 1e-4"),
-                0.0,
-                "m/s^2",
+                (0.0, "m/s^2"),
                 cg,
                 None,
             );
@@ -772,7 +773,7 @@ fn rotation_budget(
     // combine by Welch–Satterthwaite.
     let total = diag(&cal.intrinsic.cov);
     let mut per_dof = [0.0; 6];
-    for c in 0..3 {
+    for (c, fit) in fits.iter().enumerate() {
         for j in 0..3 {
             let mut only = cf;
             for (oc, f) in only.iter_mut().enumerate() {
@@ -782,10 +783,14 @@ fn rotation_budget(
                     }
                 }
             }
-            let part = diag(&intrinsic::from_gram(&only, g, 0.0).map_err(|e| e.to_string())?.cov);
-            let nu = fits[c].noise[j].dof(3);
-            for q in 0..6 {
-                per_dof[q] += part[q] * part[q] / nu;
+            let part = diag(
+                &intrinsic::from_gram(&only, g, 0.0)
+                    .map_err(|e| e.to_string())?
+                    .cov,
+            );
+            let nu = fit.noise[j].dof(3);
+            for (d, x) in per_dof.iter_mut().zip(part) {
+                *d += x * x / nu;
             }
         }
     }
@@ -834,7 +839,11 @@ fn rotation_budget(
             Some(_) => "fitted (IEEE 1057): its standard error",
             None => "nominal: the fitted rate's standard error and its distance from nominal",
         };
-        let nu = f.noise.iter().map(|m| m.dof(4)).fold(f64::INFINITY, f64::min);
+        let nu = f
+            .noise
+            .iter()
+            .map(|m| m.dof(4))
+            .fold(f64::INFINITY, f64::min);
         b.scalar(
             &format!("rate_{}", f.condition.letter()),
             Kind::A,
@@ -843,8 +852,7 @@ fn rotation_budget(
                 f.condition.letter(),
                 f.rate_hz
             ),
-            u,
-            "Hz",
+            (u, "Hz"),
             &sens,
             Some(nu),
         );
@@ -871,8 +879,7 @@ fn rotation_budget(
             "each timestamp's error: resolution {resolution:e} s (uniform) and jitter {jitter:e} s{}; amplitude attenuation (ωσ_t)²/2 taken as the standard uncertainty",
             if inputs.u_time_s.is_some() { "" } else { " (not given: --u-time-s or '# u_time_s=')" }
         ),
-        sigma_t,
-        "s",
+        (sigma_t, "s"),
         &ct,
         None,
     );

@@ -353,12 +353,7 @@ pub struct NoiseJson {
 
 impl NoiseJson {
     /// From a model; `omega` is the rotation's angle per sample (rad).
-    pub fn new(
-        condition: char,
-        channel: char,
-        m: &crate::noise::NoiseModel,
-        omega: f64,
-    ) -> Self {
+    pub fn new(condition: char, channel: char, m: &crate::noise::NoiseModel, omega: f64) -> Self {
         NoiseJson {
             condition: condition.to_string(),
             channel: channel.to_string(),

@@ -249,23 +249,25 @@ fn main() -> ExitCode {
             offsets,
         } => calibrate(
             file,
-            method,
-            rate_hz,
-            g_loc,
             json,
-            monte_carlo,
-            rotacal::calibrate_recording::TypeB {
-                u_g_loc,
-                u_time_s,
-            },
-            rotacal::orientation::Options {
-                weights: match pose_weights {
-                    WeightsArg::RandomEffects => rotacal::orientation::Weights::RandomEffects,
-                    WeightsArg::Equal => rotacal::orientation::Weights::Equal,
-                },
-                offsets: match offsets {
-                    OffsetsArg::Joint => rotacal::orientation::OffsetEstimator::Joint,
-                    OffsetsArg::AxisPairs => rotacal::orientation::OffsetEstimator::AxisPairs,
+            rotacal::calibrate_recording::Options {
+                method: method.map(|m| match m {
+                    MethodArg::Rotation => rotacal::recording::Method::Rotation,
+                    MethodArg::Static => rotacal::recording::Method::Static,
+                }),
+                rate_hz,
+                g_loc,
+                monte_carlo,
+                inputs: rotacal::calibrate_recording::TypeB { u_g_loc, u_time_s },
+                poses: rotacal::orientation::Options {
+                    weights: match pose_weights {
+                        WeightsArg::RandomEffects => rotacal::orientation::Weights::RandomEffects,
+                        WeightsArg::Equal => rotacal::orientation::Weights::Equal,
+                    },
+                    offsets: match offsets {
+                        OffsetsArg::Joint => rotacal::orientation::OffsetEstimator::Joint,
+                        OffsetsArg::AxisPairs => rotacal::orientation::OffsetEstimator::AxisPairs,
+                    },
                 },
             },
         ),
@@ -353,27 +355,10 @@ fn main() -> ExitCode {
 
 fn calibrate(
     file: PathBuf,
-    method: Option<MethodArg>,
-    rate_hz: Option<f64>,
-    g_loc: Option<f64>,
     json: Option<PathBuf>,
-    monte_carlo: Option<usize>,
-    inputs: rotacal::calibrate_recording::TypeB,
-    poses: rotacal::orientation::Options,
+    opts: rotacal::calibrate_recording::Options,
 ) -> anyhow::Result<()> {
-    use rotacal::recording::Method;
     let rec = rotacal::recording::read(&file)?;
-    let opts = rotacal::calibrate_recording::Options {
-        method: method.map(|m| match m {
-            MethodArg::Rotation => Method::Rotation,
-            MethodArg::Static => Method::Static,
-        }),
-        rate_hz,
-        g_loc,
-        monte_carlo,
-        poses,
-        inputs,
-    };
     let cal = rotacal::calibrate_recording::calibrate(&rec, &opts)?;
     if let Some(path) = json {
         let text = serde_json::to_string_pretty(&cal)? + "\n";

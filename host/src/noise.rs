@@ -13,8 +13,9 @@
 //!   polynomials OLS is asymptotically as efficient as GLS: Grenander 1954), and their
 //!   covariance is the sandwich (HᵀH)⁻¹ HᵀΣH (HᵀH)⁻¹ with Σ the AR model's, computed
 //!   exactly in O(N·p) as HᵀΣH = σ_ε²·ZᵀZ, Z = A⁻ᵀH (A the AR filter as a matrix);
-//! - the level is corrected for what the regression removed from the residuals
-//!   (E[RSS] = tr((I − P)Σ)), so white noise gives exactly RSS/(N − q) as before.
+//! - the model is corrected for what the regression removed from the residuals (their
+//!   expected autocovariances under it, E[(I − P)Σ(I − P)], matched to the observed ones),
+//!   so white noise gives exactly RSS/(N − q) as before.
 
 use nalgebra::DMatrix;
 
@@ -44,8 +45,11 @@ pub struct NoiseModel {
     pub innovation_var: f64,
     /// The stationary variance γ₀ (output units²): the level of one sample's noise.
     pub var: f64,
-    /// Autocorrelations ρ₀ … ρ_p of the model (equal to the sample ones up to lag p).
+    /// Autocorrelations ρ₀ … ρ_p of the model (equal to the sample ones up to lag p
+    /// before [`NoiseModel::rescaled`] corrects them for the fit).
     rho: Vec<f64>,
+    /// The residuals' sample autocovariances γ̂₀ … γ̂_p the model was estimated from.
+    observed: Vec<f64>,
     /// Samples in the record.
     pub n: usize,
     /// Samples left out of the estimate (flagged as clipped).
@@ -60,6 +64,7 @@ impl NoiseModel {
             innovation_var: var,
             var,
             rho: vec![1.0],
+            observed: vec![var],
             n,
             excluded: 0,
         }
@@ -121,6 +126,7 @@ impl NoiseModel {
         let p = ar.len();
         Ok(NoiseModel {
             rho: gamma.iter().take(p + 1).map(|g| g / g0).collect(),
+            observed: gamma.iter().take(p + 1).copied().collect(),
             ar,
             innovation_var,
             var: g0,
@@ -217,17 +223,121 @@ impl NoiseModel {
         Ok((m, cov))
     }
 
-    /// The model rescaled for what a least-squares fit of regressors `h` removed from the
-    /// residuals it was estimated from: E[RSS] = tr((I − P)Σ), so the level is multiplied
-    /// by N/(N − tr(PΣ)/γ₀) (N/(N − q) for white noise: σ̂² = RSS/(N − q)).
-    pub fn rescaled(mut self, h: &DMatrix<f64>) -> Result<NoiseModel, NoiseError> {
-        let n = h.nrows();
+    /// The model corrected for what a least-squares fit of regressors `h` took out of the
+    /// residuals it was estimated from. The residuals are r = (I − P)e, so their sample
+    /// autocovariances are biased: E[Σ_t r_t r_{t+k}] = Σ_t [(I − P)Σ(I − P)]_{t,t+k}, low
+    /// by what the fit absorbed (most at low frequency, where correlated noise has its
+    /// power). The model's autocovariances γ₀ … γ_p are moved until their expected sample
+    /// values match the observed ones (a few fixed-point steps at the same order), so
+    /// white noise gives exactly σ̂² = RSS/(N − q), and AR(1) noise of ρ = 0.9 its ρ.
+    pub fn rescaled(self, h: &DMatrix<f64>) -> Result<NoiseModel, NoiseError> {
+        // Each step shrinks the error by about tr(PΣ)/(Nγ₀), a few thousandths.
+        const STEPS: usize = 2;
+        let p = self.order();
+        let observed = self.observed.clone();
+        let (n, q) = h.shape();
+        if p == 0 {
+            // White noise: the fixed point in closed form, σ̂² = RSS/(N − q).
+            let g0 = observed.first().copied().unwrap_or(self.var) * n as f64
+                / (n as f64 - q as f64).max(1.0);
+            return self.with_autocovariances(&[g0]).ok_or(NoiseError::Constant);
+        }
+        let mut m = self;
+        for _ in 0..STEPS {
+            let expected = m.expected_residual_autocov(h)?;
+            let target: Vec<f64> = (0..=p)
+                .map(|k| observed[k] + m.var * m.autocorrelation(k) - expected[k])
+                .collect();
+            match m.with_autocovariances(&target) {
+                Some(next) => m = next,
+                None => break,
+            }
+        }
+        Ok(m)
+    }
+
+    /// The AR(p) model (same p) whose autocovariances at lags 0 … p are `gamma`, by
+    /// Levinson–Durbin; `None` if they are not those of a stationary process.
+    fn with_autocovariances(&self, gamma: &[f64]) -> Option<NoiseModel> {
+        let p = self.order();
+        let g0 = *gamma.first()?;
+        if !(g0.is_finite() && g0 > 0.0) {
+            return None;
+        }
+        let mut phi: Vec<f64> = Vec::with_capacity(p);
+        let mut v = g0;
+        for q in 1..=p {
+            let acc: f64 = phi
+                .iter()
+                .enumerate()
+                .map(|(j, f)| f * gamma[q - 1 - j])
+                .sum();
+            let kappa = (gamma[q] - acc) / v;
+            if !(kappa.is_finite() && kappa.abs() < 1.0) {
+                return None;
+            }
+            let prev = phi.clone();
+            phi.push(kappa);
+            for j in 0..q - 1 {
+                phi[j] = prev[j] - kappa * prev[q - 2 - j];
+            }
+            v *= 1.0 - kappa * kappa;
+        }
+        Some(NoiseModel {
+            ar: phi,
+            innovation_var: v,
+            var: g0,
+            rho: gamma.iter().map(|g| g / g0).collect(),
+            observed: self.observed.clone(),
+            n: self.n,
+            excluded: self.excluded,
+        })
+    }
+
+    /// E[γ̂_k] = E[Σ_t r_t r_{t+k}]/N for k = 0 … p, the residuals r = (I − P)e of a fit of
+    /// regressors `h` to noise of this model: with B = (HᵀH)⁻¹HᵀΣ and C = (HᵀH)⁻¹HᵀΣH(HᵀH)⁻¹,
+    /// Σ_t [Σ − PΣ − ΣP + PΣP]_{t,t+k} = (N−k)γ_k − Σ_t h_tᵀb_{t+k} − Σ_t h_{t+k}ᵀb_t
+    /// + Σ_t h_tᵀC h_{t+k}.
+    fn expected_residual_autocov(&self, h: &DMatrix<f64>) -> Result<Vec<f64>, NoiseError> {
+        let (n, q) = h.shape();
         let (inv, meat) = self.parts(h)?;
-        let removed = (&inv * &meat).trace() / self.var;
-        let scale = n as f64 / (n as f64 - removed).max(1.0);
-        self.var *= scale;
-        self.innovation_var *= scale;
-        Ok(self)
+        if self.order() == 0 {
+            // White: Σ = γ₀I, so the sum is (N − 2q + q)γ₀.
+            return Ok(vec![self.var * (n as f64 - q as f64) / n as f64]);
+        }
+        // ΣH = σ_ε²·A⁻¹A⁻ᵀH: the backward recursion, then the forward one.
+        let mut sh = self.filter_back(h);
+        let p = self.order();
+        for t in 0..n {
+            if t < p {
+                continue;
+            }
+            for (k, f) in self.ar.iter().enumerate() {
+                for c in 0..q {
+                    sh[(t, c)] += f * sh[(t - k - 1, c)];
+                }
+            }
+        }
+        sh *= self.innovation_var;
+        // Columns of H, of B·ᵀ = ΣH(HᵀH)⁻¹ and of HC, each contiguous: the sums over t are
+        // dot products of shifted columns.
+        let bt = sh * &inv; // N × q: rows b_tᵀ
+        let c = &inv * meat * &inv;
+        let hc = h * &c; // N × q: rows h_tᵀC
+        let dot = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(x, y)| x * y).sum::<f64>();
+        Ok((0..=p)
+            .map(|k| {
+                let mut sum = (n - k) as f64 * self.var * self.autocorrelation(k);
+                for col in 0..q {
+                    let (hcol, bcol, hccol) = (h.column(col), bt.column(col), hc.column(col));
+                    let (hs, bs, hcs) = (hcol.as_slice(), bcol.as_slice(), hccol.as_slice());
+                    sum += dot(&hcs[..n - k], &hs[k..])
+                        - dot(&hs[..n - k], &bs[k..])
+                        - dot(&hs[k..], &bs[..n - k]);
+                }
+                sum / n as f64
+            })
+            .collect())
     }
 
     /// The sandwich (HᵀH)⁻¹HᵀΣH(HᵀH)⁻¹ under this model as it stands.
@@ -238,14 +348,17 @@ impl NoiseModel {
 
     /// (HᵀH)⁻¹ and HᵀΣH.
     fn parts(&self, h: &DMatrix<f64>) -> Result<(DMatrix<f64>, DMatrix<f64>), NoiseError> {
-        let inv = (h.transpose() * h)
-            .try_inverse()
-            .ok_or(NoiseError::Singular)?;
+        let inv = h.tr_mul(h).try_inverse().ok_or(NoiseError::Singular)?;
         if inv.iter().any(|v| !v.is_finite()) {
             return Err(NoiseError::Singular);
         }
-        let z = self.filter_back(h);
-        Ok((inv, z.transpose() * &z * self.innovation_var))
+        let meat = if self.ar.is_empty() {
+            h.tr_mul(h)
+        } else {
+            let z = self.filter_back(h);
+            z.tr_mul(&z)
+        };
+        Ok((inv, meat * self.innovation_var))
     }
 }
 

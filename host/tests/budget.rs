@@ -1,6 +1,8 @@
 //! The uncertainty budget's arithmetic (docs/uncertainty.md): the g_loc line, its absence
 //! stated, the combination (quadrature, Welch–Satterthwaite, k per property), and the
 //! metadata key against the flag.
+// Per-property index loops read more plainly over parallel lists.
+#![allow(clippy::needless_range_loop)]
 mod common;
 
 use rotacal::calibrate_recording::{calibrate, Options, TypeB};
@@ -42,7 +44,10 @@ fn check_combination(r: &RateJson) {
         let nu = c.nu_eff.unwrap_or(f64::INFINITY);
         assert!((nu - var * var / denom).abs() <= 1e-9 * nu, "{nu}");
         assert!(c.k >= 2.0 && (c.expanded_unc - c.k * c.std_unc).abs() <= 1e-12 * c.expanded_unc);
-        assert_eq!((q.std_unc, q.expanded_unc, q.k), (c.std_unc, c.expanded_unc, c.k));
+        assert_eq!(
+            (q.std_unc, q.expanded_unc, q.k),
+            (c.std_unc, c.expanded_unc, c.k)
+        );
         let largest = b
             .sources
             .iter()
@@ -78,7 +83,10 @@ fn g_loc_scales_every_sensitivity_and_no_angle() {
         assert_eq!(line.contribution[i], 0.0);
         assert_eq!(qs[i].std_unc, without.intrinsic.quantities()[i].std_unc);
     }
-    assert_eq!(b.combined[0].dominant, "g_loc", "1e-4/g is about 6e-6·s here");
+    assert_eq!(
+        b.combined[0].dominant, "g_loc",
+        "1e-4/g is about 6e-6·s here"
+    );
     assert!(b.notes.is_empty());
     // Without it: a line of zero that says so, and a note.
     let b0 = without.uncertainty_budget.as_ref().unwrap();
@@ -102,11 +110,19 @@ fn static_budget_g_loc_leaves_offsets_and_angles() {
         },
         ..Options::default()
     };
-    let with = calibrate(&rec, &opts(Some(2e-4))).unwrap().by_rate.remove(0);
+    let with = calibrate(&rec, &opts(Some(2e-4)))
+        .unwrap()
+        .by_rate
+        .remove(0);
     let without = calibrate(&rec, &opts(None)).unwrap().by_rate.remove(0);
     check_combination(&with);
     check_combination(&without);
-    let line = with.uncertainty_budget.as_ref().unwrap().source("g_loc").unwrap();
+    let line = with
+        .uncertainty_budget
+        .as_ref()
+        .unwrap()
+        .source("g_loc")
+        .unwrap();
     let qs = with.intrinsic.quantities();
     assert_eq!(qs.len(), 9);
     for i in 0..9 {
@@ -126,7 +142,11 @@ fn the_file_key_and_the_flag() {
         .unwrap();
     let text = std::fs::read_to_string(&plain).unwrap();
     let keyed = dir.join("keyed.csv");
-    std::fs::write(&keyed, text.replacen("# g_loc=", "# u_g_loc=3e-4\n# g_loc=", 1)).unwrap();
+    std::fs::write(
+        &keyed,
+        text.replacen("# g_loc=", "# u_g_loc=3e-4\n# g_loc=", 1),
+    )
+    .unwrap();
     let json = |args: &[&str]| {
         let out = dir.join("out.json");
         let mut a = vec!["calibrate"];
@@ -155,14 +175,23 @@ fn the_file_key_and_the_flag() {
     assert_eq!(u_g(&v), 1e-5, "the flag overrides the file");
     let (v, out) = json(&[plain.to_str().unwrap()]);
     assert_eq!(u_g(&v), 0.0);
-    assert!(out.contains("WARNING: g_loc's uncertainty was not given"), "{out}");
+    assert!(
+        out.contains("WARNING: g_loc's uncertainty was not given"),
+        "{out}"
+    );
     assert!(out.contains("dominant"), "{out}");
     // A negative one is refused, by flag and by key (the key's line named).
     let (ok, _, err) = common::run(&["calibrate", plain.to_str().unwrap(), "--u-g-loc=-1"]);
-    assert!(!ok && err.contains("--u-g-loc -1 is not a standard uncertainty"), "{err}");
+    assert!(
+        !ok && err.contains("--u-g-loc -1 is not a standard uncertainty"),
+        "{err}"
+    );
     let bad = dir.join("bad.csv");
     std::fs::write(&bad, text.replacen("# g_loc=", "# u_g_loc=-2\n# g_loc=", 1)).unwrap();
     let (ok, _, err) = common::run(&["calibrate", bad.to_str().unwrap()]);
-    assert!(!ok && err.contains("bad.csv:") && err.contains("u_g_loc"), "{err}");
+    assert!(
+        !ok && err.contains("bad.csv:") && err.contains("u_g_loc"),
+        "{err}"
+    );
     std::fs::remove_dir_all(&dir).ok();
 }

@@ -28,10 +28,15 @@ const TRIALS: usize = 2000;
 
 /// Runs `trial(i)` for i in 0..TRIALS on two threads.
 fn parallel<T: Send>(trial: impl Fn(usize) -> T + Sync) -> Vec<T> {
-    let half = TRIALS / 2;
+    parallel_n(TRIALS, trial)
+}
+
+/// Runs `trial(i)` for i in 0..n on two threads.
+fn parallel_n<T: Send>(n: usize, trial: impl Fn(usize) -> T + Sync) -> Vec<T> {
+    let half = n / 2;
     std::thread::scope(|s| {
         let a = s.spawn(|| (0..half).map(&trial).collect::<Vec<_>>());
-        let mut out: Vec<T> = (half..TRIALS).map(&trial).collect();
+        let mut out: Vec<T> = (half..n).map(&trial).collect();
         let mut first = a.join().unwrap();
         first.append(&mut out);
         first
@@ -268,9 +273,13 @@ fn static_coverage_through_the_simulator() {
     assert!(failures.is_empty(), "{failures:?}");
 }
 
-/// Coverage of the six properties (at every rate) over TRIALS runs of `cfg(trial)`.
-fn rotation_coverage(case: &str, cfg: impl Fn(usize) -> Config + Sync) -> Vec<String> {
-    let results: Vec<(Vec<RateJson>, Truth)> = parallel(|trial| {
+/// Coverage of the six properties (at every rate) over `trials` runs of `cfg(trial)`.
+fn rotation_coverage(
+    case: &str,
+    trials: usize,
+    cfg: impl Fn(usize) -> Config + Sync,
+) -> Vec<String> {
+    let results: Vec<(Vec<RateJson>, Truth)> = parallel_n(trials, |trial| {
         let sim = Simulation::new(cfg(trial)).unwrap();
         let rec = sim.recording().unwrap();
         let cal = calibrate(&rec, &Options::default()).unwrap();
@@ -294,11 +303,19 @@ fn rotation_coverage(case: &str, cfg: impl Fn(usize) -> Config + Sync) -> Vec<St
         for (by_rate, _) in &results {
             tally.add(&by_rate[r].intrinsic.quantities());
         }
-        failures.extend(tally.check().into_iter().map(|f| format!("{case} rate {r}: {f}")));
+        failures.extend(
+            tally
+                .check()
+                .into_iter()
+                .map(|f| format!("{case} rate {r}: {f}")),
+        );
     }
     let fitted = results
         .iter()
-        .filter(|(b, _)| b.iter().any(|e| e.fits.iter().any(|f| f.rate_hz_fitted.is_some())))
+        .filter(|(b, _)| {
+            b.iter()
+                .any(|e| e.fits.iter().any(|f| f.rate_hz_fitted.is_some()))
+        })
         .count();
     let factor: f64 = results
         .iter()
@@ -306,7 +323,9 @@ fn rotation_coverage(case: &str, cfg: impl Fn(usize) -> Config + Sync) -> Vec<St
         .map(|n| n.variance_factor)
         .sum::<f64>()
         / (results.len() * rates * 9) as f64;
-    println!("{case}: runs with a fitted rate {fitted}/{TRIALS}; mean variance factor at ω {factor:.2}");
+    println!(
+        "{case}: runs with a fitted rate {fitted}/{trials}; mean variance factor at ω {factor:.2}"
+    );
     failures
 }
 
@@ -319,19 +338,25 @@ fn correlated(trial: usize, noise: Option<Noise>) -> Config {
 
 #[test]
 fn rotation_coverage_ar1_0_3() {
-    let f = rotation_coverage("AR(1) ρ = 0.3", |t| correlated(t, unstated(Some(vec![0.3]), None)));
+    let f = rotation_coverage("AR(1) ρ = 0.3", TRIALS, |t| {
+        correlated(t, unstated(Some(vec![0.3]), None))
+    });
     assert!(f.is_empty(), "{f:?}");
 }
 
 #[test]
 fn rotation_coverage_ar1_0_6() {
-    let f = rotation_coverage("AR(1) ρ = 0.6", |t| correlated(t, unstated(Some(vec![0.6]), None)));
+    let f = rotation_coverage("AR(1) ρ = 0.6", TRIALS, |t| {
+        correlated(t, unstated(Some(vec![0.6]), None))
+    });
     assert!(f.is_empty(), "{f:?}");
 }
 
 #[test]
 fn rotation_coverage_ar1_0_9() {
-    let f = rotation_coverage("AR(1) ρ = 0.9", |t| correlated(t, unstated(Some(vec![0.9]), None)));
+    let f = rotation_coverage("AR(1) ρ = 0.9", TRIALS, |t| {
+        correlated(t, unstated(Some(vec![0.9]), None))
+    });
     assert!(f.is_empty(), "{f:?}");
 }
 
@@ -339,7 +364,8 @@ fn rotation_coverage_ar1_0_9() {
 fn rotation_coverage_lowpass_like_the_lsm6ds33() {
     // The LSM6DS33 at 104 Hz with its digital low-pass at ODR/9 (11.6 Hz), seed 000's
     // 262.5 s per condition at the sensor's own rate; the level that of the 11.6 Hz band.
-    let f = rotation_coverage("low-pass 11.6 Hz at 104 Hz", |t| {
+    // 1000 runs (each 6.5 times the samples): [0.93, 0.97] is then ±2.9 binomial σ.
+    let f = rotation_coverage("low-pass 11.6 Hz at 104 Hz", 1000, |t| {
         let mut cfg = correlated(t, unstated(None, Some(104.0 / 9.0)));
         cfg.timing.sample_rate_hz = 104.0;
         cfg.table.samples_per_condition = Some(27_300);
@@ -350,7 +376,7 @@ fn rotation_coverage_lowpass_like_the_lsm6ds33() {
 
 #[test]
 fn rotation_coverage_with_a_300_ppm_rate_error() {
-    let f = rotation_coverage("rate error 300 ppm", |t| {
+    let f = rotation_coverage("rate error 300 ppm", TRIALS, |t| {
         let mut cfg = correlated(t, unstated(None, None));
         cfg.effects.rate_error = Some(rotacal::simulate::config::RateError { relative: 3e-4 });
         cfg
@@ -360,7 +386,7 @@ fn rotation_coverage_with_a_300_ppm_rate_error() {
 
 #[test]
 fn rotation_coverage_at_four_rates_in_one_file() {
-    let f = rotation_coverage("10, 50, 100, 500 mHz", |t| {
+    let f = rotation_coverage("10, 50, 100, 500 mHz", TRIALS, |t| {
         let mut cfg = Config::preset("paper-multirate").unwrap();
         cfg.seed = 0x4A7E_0000 + t as u64;
         cfg.sensor.noise = unstated(Some(vec![0.5]), None);

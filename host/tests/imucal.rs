@@ -487,5 +487,8 @@ fn halves_of_each_pose_agree_within_their_combined_uncertainty() {
         chi2_model / 18.0,
         chi2_white / 18.0
     );
-    assert!(worst <= 1.0, "a property's halves differ by {worst} of their combined U");
+    assert!(
+        worst <= 1.0,
+        "a property's halves differ by {worst} of their combined U"
+    );
 }

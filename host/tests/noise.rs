@@ -164,7 +164,10 @@ fn clipped_samples_do_not_bias_the_level() {
             );
         }
         if left_out < 200 || (with.sd() - truth).abs() > bound {
-            failures.push(format!("seed {seed}: {left_out} left out, sd {}", with.sd()));
+            failures.push(format!(
+                "seed {seed}: {left_out} left out, sd {}",
+                with.sd()
+            ));
         }
     }
     assert!(failures.is_empty(), "{failures:?}");
