@@ -648,6 +648,19 @@ fn values6(i: &intrinsic::Intrinsic) -> [f64; 6] {
     [s0, s1, s2, a0, a1, a2]
 }
 
+/// An empty budget for the six properties, and the offsets too when `offsets`.
+fn new_budget(units: &str, offsets: bool) -> Budget {
+    let su = format!("{units} per m/s^2");
+    let mut unit_of = vec![su.clone(), su.clone(), su];
+    unit_of.extend(["deg", "deg", "deg"].map(String::from));
+    if offsets {
+        unit_of.extend([units, units, units].map(String::from));
+        Budget::new(&calibration_file::PROPERTY_NAMES_WITH_OFFSETS, &unit_of)
+    } else {
+        Budget::new(&calibration_file::PROPERTY_NAMES, &unit_of)
+    }
+}
+
 /// The static methods' budget: the pose fit (type A, each row of S and each offset with its
 /// channel's degrees of freedom) and g_loc (S ∝ 1/g_loc; angles and offsets do not
 /// depend on it).
@@ -657,22 +670,7 @@ fn static_budget(
     inputs: &TypeB,
     units: &str,
 ) -> Result<Budget, String> {
-    let su = format!("{units} per m/s^2");
-    let deg = "deg".to_string();
-    let mut b = Budget::new(
-        &calibration_file::PROPERTY_NAMES_WITH_OFFSETS,
-        &[
-            su.clone(),
-            su.clone(),
-            su,
-            deg.clone(),
-            deg.clone(),
-            deg,
-            units.to_string(),
-            units.to_string(),
-            units.to_string(),
-        ],
-    );
+    let mut b = new_budget(units, true);
     let channels = &cal.pose_fit.channels;
     let nu = channels.map(|c| c.nu);
     let values = values6(&cal.intrinsic);
@@ -759,12 +757,7 @@ fn rotation_budget(
     inputs: &TypeB,
     units: &str,
 ) -> Result<Budget, String> {
-    let su = format!("{units} per m/s^2");
-    let deg = "deg".to_string();
-    let mut b = Budget::new(
-        &calibration_file::PROPERTY_NAMES,
-        &[su.clone(), su.clone(), su, deg.clone(), deg.clone(), deg],
-    );
+    let mut b = new_budget(units, false);
     let cf = fits.clone().map(|f| f.condition_fit());
     let values = values6(&cal.intrinsic);
     let diag = |c: &[[f64; 6]; 6]| [0, 1, 2, 3, 4, 5].map(|q| c[q][q].max(0.0));

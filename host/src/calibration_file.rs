@@ -398,6 +398,31 @@ pub struct CalibrationJson {
     pub by_rate: Vec<RateJson>,
 }
 
+/// `intrinsic`: the values, each with the uncertainty of its combined line in the budget
+/// (in the order s_u … φ_wu, then the offsets).
+fn intrinsic_json(
+    i: &rotacal_shared::intrinsic::Intrinsic,
+    offsets: Option<&[Estimate; 3]>,
+    budget: &crate::budget::Budget,
+) -> IntrinsicJson {
+    let q = |k: usize, e: &Estimate| budget.quantity(k, e.value);
+    let uvw = |e: &[Estimate; 3], at: usize| Uvw {
+        u: q(at, &e[0]),
+        v: q(at + 1, &e[1]),
+        w: q(at + 2, &e[2]),
+    };
+    let [uv, vw, wu] = &i.angle_deg;
+    IntrinsicJson {
+        sensitivity: uvw(&i.sensitivity, 0),
+        angle_deg: Pairs {
+            uv: q(3, uv),
+            vw: q(4, vw),
+            wu: q(5, wu),
+        },
+        offset: offsets.map(|o| uvw(o, 6)),
+    }
+}
+
 /// The `by_rate` entry of a rotation calibration: the values, with the uncertainties of
 /// the budget.
 pub fn rotation_entry(
@@ -406,24 +431,9 @@ pub fn rotation_entry(
     budget: &crate::budget::Budget,
     fits: Vec<FitJson>,
 ) -> RateJson {
-    let q = |i: usize, e: &Estimate| budget.quantity(i, e.value);
-    let [su, sv, sw] = &cal.intrinsic.sensitivity;
-    let [uv, vw, wu] = &cal.intrinsic.angle_deg;
     RateJson {
         rate_hz: Some(rate_hz),
-        intrinsic: IntrinsicJson {
-            sensitivity: Uvw {
-                u: q(0, su),
-                v: q(1, sv),
-                w: q(2, sw),
-            },
-            angle_deg: Pairs {
-                uv: q(3, uv),
-                vw: q(4, vw),
-                wu: q(5, wu),
-            },
-            offset: None,
-        },
+        intrinsic: intrinsic_json(&cal.intrinsic, None, budget),
         angle_deg_phase_method: Some(pairs(cal.phase_angles_deg)),
         sensitivity_matrix: None,
         fits,
@@ -438,10 +448,6 @@ pub fn rotation_entry(
 /// The `by_rate` entry of a static calibration: the values, with the uncertainties of the
 /// budget (properties s_u … φ_wu, O_u, O_v, O_w).
 pub fn static_entry(cal: &StaticCalibration, budget: &crate::budget::Budget) -> RateJson {
-    let q = |i: usize, e: &Estimate| budget.quantity(i, e.value);
-    let [su, sv, sw] = &cal.intrinsic.sensitivity;
-    let [uv, vw, wu] = &cal.intrinsic.angle_deg;
-    let [ou, ov, ow] = &cal.offsets;
     let mut fits = Vec::new();
     for (cond, per_ch) in ['x', 'y', 'z'].iter().zip(cal.fits.iter().flatten()) {
         for (ch, f) in ['u', 'v', 'w'].iter().zip(per_ch) {
@@ -462,23 +468,7 @@ pub fn static_entry(cal: &StaticCalibration, budget: &crate::budget::Budget) -> 
     }
     RateJson {
         rate_hz: None,
-        intrinsic: IntrinsicJson {
-            sensitivity: Uvw {
-                u: q(0, su),
-                v: q(1, sv),
-                w: q(2, sw),
-            },
-            angle_deg: Pairs {
-                uv: q(3, uv),
-                vw: q(4, vw),
-                wu: q(5, wu),
-            },
-            offset: Some(Uvw {
-                u: q(6, ou),
-                v: q(7, ov),
-                w: q(8, ow),
-            }),
-        },
+        intrinsic: intrinsic_json(&cal.intrinsic, Some(&cal.offsets), budget),
         angle_deg_phase_method: None,
         sensitivity_matrix: Some(MatrixJson {
             value: cal.s,

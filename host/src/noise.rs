@@ -102,21 +102,10 @@ impl NoiseModel {
         let mut v = g0;
         let mut best = (used as f64 * v.ln(), Vec::new(), v);
         for p in 1..=max_p {
-            let acc: f64 = phi
-                .iter()
-                .enumerate()
-                .map(|(j, f)| f * gamma[p - 1 - j])
-                .sum();
-            let kappa = (gamma[p] - acc) / v;
-            if !(kappa.is_finite() && kappa.abs() < 1.0) {
+            let Some(next) = levinson_step(&mut phi, &gamma, v) else {
                 break;
-            }
-            let prev = phi.clone();
-            phi.push(kappa);
-            for j in 0..p - 1 {
-                phi[j] = prev[j] - kappa * prev[p - 2 - j];
-            }
-            v *= 1.0 - kappa * kappa;
+            };
+            v = next;
             let bic = used as f64 * v.ln() + p as f64 * (used as f64).ln();
             if bic < best.0 {
                 best = (bic, phi.clone(), v);
@@ -266,22 +255,8 @@ impl NoiseModel {
         }
         let mut phi: Vec<f64> = Vec::with_capacity(p);
         let mut v = g0;
-        for q in 1..=p {
-            let acc: f64 = phi
-                .iter()
-                .enumerate()
-                .map(|(j, f)| f * gamma[q - 1 - j])
-                .sum();
-            let kappa = (gamma[q] - acc) / v;
-            if !(kappa.is_finite() && kappa.abs() < 1.0) {
-                return None;
-            }
-            let prev = phi.clone();
-            phi.push(kappa);
-            for j in 0..q - 1 {
-                phi[j] = prev[j] - kappa * prev[q - 2 - j];
-            }
-            v *= 1.0 - kappa * kappa;
+        for _ in 1..=p {
+            v = levinson_step(&mut phi, gamma, v)?;
         }
         Some(NoiseModel {
             ar: phi,
@@ -360,6 +335,28 @@ impl NoiseModel {
         };
         Ok((inv, meat * self.innovation_var))
     }
+}
+
+/// One Levinson–Durbin step: the AR(p−1) coefficients `phi` and innovation variance `v` to
+/// AR(p) from the autocovariances `gamma`; `None` when the reflection coefficient is not
+/// below 1 in size (not a stationary process, or the lags run out).
+fn levinson_step(phi: &mut Vec<f64>, gamma: &[f64], v: f64) -> Option<f64> {
+    let p = phi.len() + 1;
+    let acc: f64 = phi
+        .iter()
+        .enumerate()
+        .map(|(j, f)| f * gamma.get(p - 1 - j).copied().unwrap_or(f64::NAN))
+        .sum();
+    let kappa = (gamma.get(p)? - acc) / v;
+    if !(kappa.is_finite() && kappa.abs() < 1.0) {
+        return None;
+    }
+    let prev = phi.clone();
+    phi.push(kappa);
+    for j in 0..p - 1 {
+        phi[j] = prev[j] - kappa * prev[p - 2 - j];
+    }
+    Some(v * (1.0 - kappa * kappa))
 }
 
 /// Readings at a channel's rails: the smallest (largest) value, when at least three
