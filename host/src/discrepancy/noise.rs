@@ -1,8 +1,9 @@
 //! The noise model without the physical model: for each group (condition × rate) and
 //! channel, an AR(p) model ([`crate::noise::NoiseModel`]: Yule–Walker, order by BIC) of the
-//! residuals of a generic fit (a straight line and harmonics 1–4 of the nominal rate), which
-//! takes out what the physical model may leave (a drift, a rate error's growing quadrature,
-//! nonlinearity, clipping), so a missing effect does not read as noise. Readings at a rail
+//! residuals of a generic fit (a straight line, harmonics 1–4 of the nominal rate, τ·sin ωτ
+//! and τ·cos ωτ, and the temperature where it varies), which takes out what the physical
+//! model may leave (a drift, nonlinearity, a rate error's growing quadrature, a temperature
+//! coefficient), so a missing effect does not read as noise. Readings at a rail
 //! ([`crate::noise::clipped`]) are left out of the generic fit and of the estimate, and the
 //! level is rescaled for what the generic fit removed ([`NoiseModel::rescaled`]).
 //!
@@ -15,33 +16,38 @@ use nalgebra::{DMatrix, DVector};
 
 /// How the estimate is made (for the JSON's `source`).
 pub const HOW: &str = "AR(p) per group and channel, Yule-Walker with the order by BIC, of the \
-                       residuals of a generic per-group fit (line + harmonics 1-4 of the \
-                       nominal rate), readings at a rail left out, level rescaled for that fit";
+                       residuals of a generic per-group fit (line, harmonics 1-4 of the \
+                       nominal rate, tau*sin and tau*cos, temperature), readings at a rail \
+                       left out; innovations' level from that fit made by GLS";
 
 /// Harmonics of the nominal rate in the generic fit.
 const HARMONICS: usize = 4;
 
 /// Regressors of the generic fit: 1, τ (scaled to [0, 1]), sin kωτ and cos kωτ for
-/// k = 1 … [`HARMONICS`]; rows flagged in `skip` are zero.
-fn design(tau: &[f64], omega: f64, skip: &[bool]) -> DMatrix<f64> {
+/// k = 1 … [`HARMONICS`], (τ/span)·sin ωτ and (τ/span)·cos ωτ (a rate error's growing
+/// quadrature), and the temperature when `temp` is given; rows flagged in `skip` are zero.
+fn design(tau: &[f64], omega: f64, temp: Option<&[f64]>, skip: &[bool]) -> DMatrix<f64> {
     let n = tau.len();
     let span = tau.last().copied().unwrap_or(1.0).max(f64::MIN_POSITIVE);
-    DMatrix::from_fn(n, 2 + 2 * HARMONICS, |r, c| {
+    let cols = 4 + 2 * HARMONICS + usize::from(temp.is_some());
+    DMatrix::from_fn(n, cols, |r, c| {
         if skip.get(r).copied().unwrap_or(false) {
             return 0.0;
         }
         let t = tau.get(r).copied().unwrap_or(0.0);
+        let harmonic = |k: f64, sine: bool| {
+            if sine {
+                (k * omega * t).sin()
+            } else {
+                (k * omega * t).cos()
+            }
+        };
         match c {
             0 => 1.0,
             1 => t / span,
-            _ => {
-                let k = ((c - 2) / 2 + 1) as f64;
-                if c % 2 == 0 {
-                    (k * omega * t).sin()
-                } else {
-                    (k * omega * t).cos()
-                }
-            }
+            c if c < 2 + 2 * HARMONICS => harmonic(((c - 2) / 2 + 1) as f64, c % 2 == 0),
+            c if c < 4 + 2 * HARMONICS => t / span * harmonic(1.0, c % 2 == 0),
+            _ => temp.and_then(|x| x.get(r)).copied().unwrap_or(0.0),
         }
     })
 }
@@ -86,6 +92,32 @@ fn whiten_keep(m: &NoiseModel, flagged: &[bool]) -> Vec<bool> {
     super::model::kept(m.order(), flagged)
 }
 
+/// One group's channel's model: the generic fit's residuals, their AR model, its level
+/// rescaled for the fit, and the innovations' level from the fit made by GLS.
+fn model_of(
+    y: &[f64],
+    tau: &[f64],
+    omega: f64,
+    temp: Option<&[f64]>,
+    flagged: &[bool],
+) -> Result<NoiseModel, String> {
+    let x = design(tau, omega, temp, flagged);
+    let yv = DVector::from_iterator(
+        y.len(),
+        y.iter()
+            .zip(flagged)
+            .map(|(v, f)| if *f { 0.0 } else { *v }),
+    );
+    let qr = x.clone().qr();
+    let q = qr.q();
+    let e = &yv - &q * (q.transpose() * &yv);
+    let mut m = NoiseModel::estimate(e.as_slice(), flagged)
+        .and_then(|m| m.rescaled(&x))
+        .map_err(|err| err.to_string())?;
+    m.innovation_var *= whitened_level(&m, &x, &yv, flagged)?;
+    Ok(m)
+}
+
 /// The noise model per group and channel (u, v, w).
 pub fn estimate(data: &Data) -> Result<Vec<[NoiseModel; 3]>, String> {
     let mut out = Vec::with_capacity(data.groups.len());
@@ -94,23 +126,24 @@ pub fn estimate(data: &Data) -> Result<Vec<[NoiseModel; 3]>, String> {
         if n < 30 {
             return Err("a group has fewer than 30 rows: too few to estimate the noise".into());
         }
+        // The temperature is a regressor only where it varies within the group.
+        let (lo, hi) = g
+            .temp
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &x| {
+                (lo.min(x), hi.max(x))
+            });
+        let temp = (hi - lo > 0.05).then_some(g.temp.as_slice());
         let mut models = Vec::with_capacity(3);
         for y in &g.y {
             let flagged = noise::clipped(y);
-            let x = design(&g.tau, g.omega(), &flagged);
-            let yv = DVector::from_iterator(
-                n,
-                y.iter()
-                    .zip(&flagged)
-                    .map(|(v, f)| if *f { 0.0 } else { *v }),
-            );
-            let qr = x.clone().qr();
-            let q = qr.q();
-            let e = &yv - &q * (q.transpose() * &yv);
-            let mut m = NoiseModel::estimate(e.as_slice(), &flagged)
-                .and_then(|m| m.rescaled(&x))
+            // Without the temperature if it makes the fit singular (a temperature that is
+            // a straight line in time).
+            let m = model_of(y, &g.tau, g.omega(), temp, &flagged)
+                .or_else(|e| {
+                    temp.map_or(Err(e), |_| model_of(y, &g.tau, g.omega(), None, &flagged))
+                })
                 .map_err(|err| format!("noise model of a group's channel: {err}"))?;
-            m.innovation_var *= whitened_level(&m, &x, &yv, &flagged)?;
             models.push(m);
         }
         let [u, v, w]: [NoiseModel; 3] = models
