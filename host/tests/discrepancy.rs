@@ -345,21 +345,22 @@ fn the_noise_model_is_estimated_without_the_model() {
     assert!(chi2_ok(&a), "χ²/dof {}", a.final_.chi2_dof);
 }
 
+/// The single-rate base under `noise`, simulated with `seed`.
+fn single_rate_recording(noise: Noise, seed: u64) -> rotacal::recording::Recording {
+    let toml = format!("{}{}", trials::SINGLE_RATE, noise.toml());
+    let mut cfg = rotacal::simulate::Config::from_toml(&toml).unwrap();
+    cfg.seed = seed;
+    rotacal::simulate::Simulation::new(cfg)
+        .unwrap()
+        .recording()
+        .unwrap()
+}
+
 #[test]
 fn a_stated_noise_sigma_is_checked_and_never_used() {
     // The AR(1) recording with a (false) white-noise statement of its level: the data
     // contradict it, and the analysis is exactly the one without it.
-    let mut cfg = rotacal::simulate::Config::from_toml(&format!(
-        "{}{}",
-        trials::SINGLE_RATE,
-        Noise::Ar1.toml()
-    ))
-    .unwrap();
-    cfg.seed = 3;
-    let mut rec = rotacal::simulate::Simulation::new(cfg)
-        .unwrap()
-        .recording()
-        .unwrap();
+    let mut rec = single_rate_recording(Noise::Ar1, 3);
     let without = rotacal::discrepancy::run(&rec, &Default::default()).unwrap();
     rec.meta.noise_sigma = Some(4.0);
     let with = rotacal::discrepancy::run(&rec, &Default::default()).unwrap();
@@ -369,17 +370,7 @@ fn a_stated_noise_sigma_is_checked_and_never_used() {
     assert_eq!(with.final_, without.final_);
     assert_eq!(with.noise_sigma, without.noise_sigma);
     // A wrong level on white noise is caught too.
-    let mut cfg = rotacal::simulate::Config::from_toml(&format!(
-        "{}{}",
-        trials::SINGLE_RATE,
-        Noise::White.toml()
-    ))
-    .unwrap();
-    cfg.seed = 3;
-    let mut rec = rotacal::simulate::Simulation::new(cfg)
-        .unwrap()
-        .recording()
-        .unwrap();
+    let mut rec = single_rate_recording(Noise::White, 3);
     rec.meta.noise_sigma = Some(3.0);
     let a = rotacal::discrepancy::run(&rec, &Default::default()).unwrap();
     let s = a.noise_sigma_stated.as_ref().unwrap();
