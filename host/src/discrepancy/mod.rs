@@ -159,7 +159,8 @@ pub fn noise_model_json(data: &Data) -> Vec<NoiseModelJson> {
                 ar: m.ar.clone(),
                 sd: m.sd(),
                 innovation_sd: m.innovation_var.sqrt(),
-                lag1_autocorrelation: m.autocorrelation(1),
+                // + 0.0: white noise's empty sum is −0.0.
+                lag1_autocorrelation: m.autocorrelation(1) + 0.0,
                 variance_factor: m.variance_factor(omega),
                 n: m.n,
                 n_excluded: m.excluded,
