@@ -3,7 +3,9 @@
 //! temperature, readings at the rails; across rates, the offsets against ω² and the angles
 //! against ω.
 //! Each finding has a size (output units) and a z-score (size over its standard error
-//! under white noise of the floor σ); those beyond 5 are listed, largest first.
+//! under the group's and channel's noise model: white noise's, times the square root of
+//! the model's variance factor at the frequency concerned); those beyond 5 are listed,
+//! largest first.
 
 use super::model::{Data, Fit};
 use super::RateIntrinsic;
@@ -38,6 +40,14 @@ fn slope(x: &[f64], y: &[f64], sigma: f64) -> (f64, f64) {
     (b, b / (sigma / sxx.sqrt()))
 }
 
+/// The mean interval between a group's rows, s.
+fn sample_interval(tau: &[f64]) -> f64 {
+    match (tau.first(), tau.last()) {
+        (Some(a), Some(b)) if tau.len() > 1 => (b - a) / (tau.len() - 1) as f64,
+        _ => 0.0,
+    }
+}
+
 /// The findings for `fit`'s residuals.
 pub fn locate(data: &Data, fit: &Fit) -> Vec<Finding> {
     let mut out = Vec::new();
@@ -45,9 +55,14 @@ pub fn locate(data: &Data, fit: &Fit) -> Vec<Finding> {
     let temperature = data.temperature_varies();
     for (gi, g) in data.groups.iter().enumerate() {
         let alpha: Vec<f64> = g.tau.iter().map(|t| g.omega() * t).collect();
+        let omega = g.omega() * sample_interval(&g.tau);
         for (j, name) in names.iter().enumerate() {
             let r = &fit.residuals[gi][j];
-            let sigma = data.sigma[j];
+            let model = data.noise.get(gi).and_then(|m| m.get(j));
+            // The sd of a slowly varying coefficient (trend, temperature) and of one at k·ω.
+            let sd_at =
+                |w: f64| model.map_or(data.sigma[j], |m| m.sd() * m.variance_factor(w).sqrt());
+            let sigma = sd_at(0.0);
             let at = format!(
                 "{} at {} Hz, channel {}",
                 g.condition.letter(),
@@ -56,8 +71,8 @@ pub fn locate(data: &Data, fit: &Fit) -> Vec<Finding> {
             );
             // Amplitudes at k·ω; a coefficient's variance is ≈ 2σ²/n under white noise.
             let amps = crate::report::harmonic_amplitudes(&alpha, r);
-            let se = sigma * (2.0 / r.len() as f64).sqrt();
             for k in [2, 3] {
+                let se = sd_at(k as f64 * omega) * (2.0 / r.len() as f64).sqrt();
                 let amp = amps.get(k - 1).copied().unwrap_or(f64::NAN);
                 out.push(Finding {
                     at: at.clone(),
@@ -108,16 +123,20 @@ pub fn locate(data: &Data, fit: &Fit) -> Vec<Finding> {
             for (j, name) in names.iter().enumerate() {
                 let (mut w2, mut m) = (Vec::new(), Vec::new());
                 let mut n_min = usize::MAX;
+                let mut sd = 0.0f64;
                 for (gi, g) in data.groups.iter().enumerate() {
                     if g.condition == c {
                         let r = &fit.residuals[gi][j];
+                        if let Some(m) = data.noise.get(gi).and_then(|m| m.get(j)) {
+                            sd = sd.max(m.sd() * m.variance_factor(0.0).sqrt());
+                        }
                         w2.push(g.omega().powi(2));
                         m.push(r.iter().sum::<f64>() / r.len() as f64);
                         n_min = n_min.min(r.len());
                     }
                 }
                 if w2.len() > 1 {
-                    let (b, z) = slope(&w2, &m, data.sigma[j] / (n_min as f64).sqrt());
+                    let (b, z) = slope(&w2, &m, sd / (n_min as f64).sqrt());
                     out.push(Finding {
                         at: format!("{} across rates, channel {name}", c.letter()),
                         what: "offset vs ω² (per (rad/s)²)".into(),

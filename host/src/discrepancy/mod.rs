@@ -4,7 +4,8 @@
 //! 1. Fit the current model and predict the recording with it at the measured timestamps
 //!    ([`model`]: the simulator's equations, docs/simulator.md); the gap is measurement
 //!    minus prediction.
-//! 2. Measure the gap against the noise floor ([`noise`]).
+//! 2. Measure the gap against the noise ([`noise`]: an AR(p) model per group and channel,
+//!    estimated once from the data and used by every fit to whiten the residuals).
 //! 3. Locate it ([`locate`]): harmonics of ω, trends, temperature, rails, rates.
 //! 4. Test every applicable effect by a nested F-test; name the most significant one that
 //!    passes, add it, refit, and repeat until none passes.
@@ -48,17 +49,126 @@ impl Default for Options {
     }
 }
 
-/// The noise floor and where it came from.
+/// The noise level per channel and where it came from (always the estimate from the
+/// data; the per-group models are in [`Analysis::noise_model`]).
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct NoiseSigma {
-    /// σ of u, output units.
+    /// One sample's noise sd of u over all groups (root of the row-weighted mean
+    /// variance), output units.
     pub u: f64,
-    /// σ of v.
+    /// The same for v.
     pub v: f64,
-    /// σ of w.
+    /// The same for w.
     pub w: f64,
-    /// `metadata` or `estimated: <how>`.
+    /// `estimated: <how>`.
     pub source: String,
+}
+
+/// One group's channel's noise model (JSON `noise_model`).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct NoiseModelJson {
+    /// x, y or z.
+    pub condition: String,
+    /// Nominal rate, Hz.
+    pub rate_hz: f64,
+    /// u, v or w.
+    pub channel: String,
+    /// AR coefficients φ₁ … φ_p (empty: white).
+    pub ar: Vec<f64>,
+    /// One sample's noise sd, output units.
+    pub sd: f64,
+    /// The innovations' sd (what the whitening divides by), output units.
+    pub innovation_sd: f64,
+    /// The model's lag-1 autocorrelation.
+    pub lag1_autocorrelation: f64,
+    /// 2πS(ω)/γ₀ at the rotation frequency: how many times the amplitudes' variance
+    /// exceeds what white noise of the same level gives.
+    pub variance_factor: f64,
+    /// Rows of the group.
+    pub n: usize,
+    /// Rows left out of the estimate (at a rail).
+    pub n_excluded: usize,
+    /// n / variance_factor: the effective number of independent rows for the amplitudes.
+    pub n_eff: f64,
+}
+
+/// A `noise_sigma` the file states, and whether the data contradict it. It is never used:
+/// the noise model is always the one estimated from the data.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct NoiseStatement {
+    /// The stated white-noise sd per sample, output units.
+    pub stated: f64,
+    /// The data contradict it: some channel's noise is not white (AR order > 0), or some
+    /// channel's estimated variance differs from the stated one by more than 4 standard
+    /// errors (√(2/ν), ν the rows used less the generic fit's 10 coefficients per group).
+    pub contradicted: bool,
+    /// Why (or "consistent").
+    pub why: String,
+}
+
+/// The statement checked against the estimated models.
+fn check_statement(stated: f64, data: &Data) -> NoiseStatement {
+    let mut why = Vec::new();
+    let names = ['u', 'v', 'w'];
+    for (j, name) in names.iter().enumerate() {
+        let mut worst_order = 0;
+        let mut nu = 0.0;
+        for m in data.noise.iter().filter_map(|g| g.get(j)) {
+            worst_order = worst_order.max(m.order());
+            nu += (m.n - m.excluded).saturating_sub(10) as f64;
+        }
+        if worst_order > 0 {
+            why.push(format!(
+                "{name} is correlated (AR order up to {worst_order})"
+            ));
+        }
+        let ratio = (data.sigma[j] / stated).powi(2);
+        let bound = 4.0 * (2.0 / nu.max(1.0)).sqrt();
+        if (ratio - 1.0).abs() > bound {
+            why.push(format!(
+                "{name}: estimated variance {ratio:.3} times the stated one (bound 1 ± {bound:.3})"
+            ));
+        }
+    }
+    NoiseStatement {
+        stated,
+        contradicted: !why.is_empty(),
+        why: if why.is_empty() {
+            "consistent".into()
+        } else {
+            why.join("; ")
+        },
+    }
+}
+
+/// The per-group models for the JSON.
+pub fn noise_model_json(data: &Data) -> Vec<NoiseModelJson> {
+    let mut out = Vec::new();
+    for (g, models) in data.groups.iter().zip(&data.noise) {
+        let n = g.tau.len();
+        let dt = match (g.tau.first(), g.tau.last()) {
+            (Some(a), Some(b)) if n > 1 => (b - a) / (n - 1) as f64,
+            _ => 0.0,
+        };
+        let omega = g.omega() * dt;
+        for (m, name) in models.iter().zip(['u', 'v', 'w']) {
+            out.push(NoiseModelJson {
+                condition: g.condition.letter().to_string(),
+                rate_hz: g.rate_hz,
+                channel: name.to_string(),
+                ar: m.ar.clone(),
+                sd: m.sd(),
+                innovation_sd: m.innovation_var.sqrt(),
+                // + 0.0: white noise's empty sum is −0.0.
+                lag1_autocorrelation: m.autocorrelation(1) + 0.0,
+                variance_factor: m.variance_factor(omega),
+                n: m.n,
+                n_excluded: m.excluded,
+                n_eff: m.n_eff(omega),
+            });
+        }
+    }
+    out
 }
 
 /// χ²/dof and residual RMS of a model.
@@ -140,8 +250,13 @@ pub struct Step {
 /// The whole analysis (formats.md `rotacal discrepancy --json`, with added keys).
 #[derive(Clone, Debug, Serialize)]
 pub struct Analysis {
-    /// The noise floor.
+    /// The noise level per channel (the estimate; formats.md's key).
     pub noise_sigma: NoiseSigma,
+    /// The noise model per group and channel, estimated once from the data and used by
+    /// every fit (prewhitening).
+    pub noise_model: Vec<NoiseModelJson>,
+    /// The file's `noise_sigma`, if stated, and whether the data contradict it (never used).
+    pub noise_sigma_stated: Option<NoiseStatement>,
     /// The significance each test had to beat.
     pub alpha: f64,
     /// The papers' model.
@@ -173,7 +288,8 @@ pub struct Analysis {
     pub data: Data,
 }
 
-/// The recording as the model's data, and the noise floor.
+/// The recording as the model's data, with its noise model estimated from the data (a
+/// stated `noise_sigma` is not used: see [`NoiseStatement`]).
 pub fn data_from(rec: &Recording, opts: &Options) -> Result<(Data, NoiseSigma), String> {
     if rec.method != Method::Rotation {
         return Err(format!(
@@ -228,25 +344,26 @@ pub fn data_from(rec: &Recording, opts: &Options) -> Result<(Data, NoiseSigma), 
         groups,
         g_loc,
         sigma: [1.0; 3],
+        noise: Vec::new(),
     };
-    let noise = match rec.meta.noise_sigma {
-        Some(s) if s > 0.0 => NoiseSigma {
-            u: s,
-            v: s,
-            w: s,
-            source: "metadata".into(),
-        },
-        _ => {
-            let s = noise::estimate(&data)?;
-            NoiseSigma {
-                u: s[0],
-                v: s[1],
-                w: s[2],
-                source: format!("estimated: {}", noise::HOW),
-            }
-        }
+    data.noise = noise::estimate(&data)?;
+    let rows = data.rows().max(1) as f64;
+    data.sigma = [0, 1, 2].map(|j| {
+        (data
+            .noise
+            .iter()
+            .zip(&data.groups)
+            .map(|(m, g)| m[j].var * g.tau.len() as f64)
+            .sum::<f64>()
+            / rows)
+            .sqrt()
+    });
+    let noise = NoiseSigma {
+        u: data.sigma[0],
+        v: data.sigma[1],
+        w: data.sigma[2],
+        source: format!("estimated: {}", noise::HOW),
     };
-    data.sigma = [noise.u, noise.v, noise.w];
     Ok((data, noise))
 }
 
@@ -275,6 +392,16 @@ pub fn applicable(data: &Data) -> (Vec<Effect>, Vec<(String, String)>) {
     (yes, no)
 }
 
+/// The nested F-test of `with` against `base`; k is the parameters added (at least 1:
+/// saturation's rails are read off the data, not fitted). Saturation also leaves out the
+/// whitened rows whose window holds a reading it puts at a rail; the Δχ² they give is its
+/// evidence that the fitted curve reaches a value at which at least three readings sit
+/// exactly. Without clipping the curve stays some σ below the file's extreme readings,
+/// leaves nothing out and gains nothing, so this does not add false alarms (the clean
+/// proofs). Counting each left-out row as a degree of freedom instead would ask the
+/// clipped readings to sit further from the curve than noise, which shallow clipping
+/// (a rail within about 2σ of the peaks) never does: a clipped reading is nearer the
+/// curve than an unclipped one would be (white limit 8 counts against 1).
 fn criterion(e: Effect, base: &Fit, with: &Fit, n: f64, alpha: f64) -> Criterion {
     let k = with.n_params.saturating_sub(base.n_params).max(1);
     let d_chi2 = (base.chi2 - with.chi2).max(0.0);
@@ -404,7 +531,12 @@ pub fn parameters(e: Effect, f: &Fit, data: &Data) -> BTreeMap<String, serde_jso
 }
 
 /// Run the workflow on prepared data.
-pub fn analyse(data: Data, noise: NoiseSigma, alpha: f64) -> Result<Analysis, String> {
+pub fn analyse(
+    data: Data,
+    noise: NoiseSigma,
+    stated: Option<f64>,
+    alpha: f64,
+) -> Result<Analysis, String> {
     let n = (data.rows() * 3) as f64;
     let (candidates, untestable) = applicable(&data);
     let baseline = model::fit(&data, &[], None)?;
@@ -466,6 +598,10 @@ pub fn analyse(data: Data, noise: NoiseSigma, alpha: f64) -> Result<Analysis, St
         intrinsic_baseline,
         intrinsic_final: intrinsic_now,
         noise_sigma: noise,
+        noise_model: noise_model_json(&data),
+        noise_sigma_stated: stated
+            .filter(|s| *s > 0.0)
+            .map(|s| check_statement(s, &data)),
         baseline: Goodness::of(&baseline),
         findings,
         named_effects: steps.iter().map(|s| s.effect.clone()).collect(),
@@ -481,5 +617,5 @@ pub fn analyse(data: Data, noise: NoiseSigma, alpha: f64) -> Result<Analysis, St
 /// Read, prepare and analyse a recording.
 pub fn run(rec: &Recording, opts: &Options) -> Result<Analysis, String> {
     let (data, noise) = data_from(rec, opts)?;
-    analyse(data, noise, opts.alpha)
+    analyse(data, noise, rec.meta.noise_sigma, opts.alpha)
 }

@@ -17,8 +17,16 @@
 //! O is per condition, shared by all rates (the baseline's "constant offsets").
 //!
 //! The fit is Gauss–Newton, channel by channel (QR of each channel's Jacobian), with the
-//! one parameter shared by all channels, δ, solved through the Schur complement.
+//! one parameter shared by all channels, δ, solved through the Schur complement. It is
+//! generalised least squares under each group's and channel's AR(p) noise model
+//! ([`Data::noise`]) by prewhitening: the residuals and every Jacobian column of a group's
+//! channel go through its filter (x_t − Σ φ_k x_{t−k})/σ_ε, so χ² is the sum of squared
+//! whitened residuals, which has expectation equal to the whitened degrees of freedom.
+//! A group's first p rows (no complete filter window) and the rows whose window touches
+//! a reading the model puts at a rail (fixed by the rail: no residual degree of freedom)
+//! are left out, and not counted in the degrees of freedom.
 
+use crate::noise::NoiseModel;
 use nalgebra::{DMatrix, DVector};
 use rotacal_shared::Condition;
 use std::f64::consts::TAU;
@@ -99,11 +107,68 @@ pub struct Data {
     pub groups: Vec<GroupData>,
     /// Local gravity, m/s².
     pub g_loc: f64,
-    /// Noise σ per channel, output units.
+    /// One sample's noise sd per channel over all groups (the root of the mean variance,
+    /// weighted by rows), output units: for summaries.
     pub sigma: [f64; 3],
+    /// The noise model per group and channel (u, v, w), held fixed through every fit.
+    pub noise: Vec<[NoiseModel; 3]>,
+}
+
+/// A group's channel's rows through its noise filter: rows `t ≥ p` whose window
+/// `t − p … t` holds no flagged reading become (x_t − Σ φ_k x_{t−k})/σ_ε; the others 0.
+/// `keep[t]` says which rows were kept. In place, from the end (so x_{t−k} is still raw).
+pub(super) fn whiten(m: &NoiseModel, x: &mut [f64], keep: &[bool]) {
+    let w = 1.0 / m.innovation_var.sqrt().max(f64::MIN_POSITIVE);
+    for t in (0..x.len()).rev() {
+        if !keep.get(t).copied().unwrap_or(false) {
+            x[t] = 0.0;
+            continue;
+        }
+        let mut v = x[t];
+        for (k, f) in m.ar.iter().enumerate() {
+            v -= f * x[t - k - 1];
+        }
+        x[t] = v * w;
+    }
+}
+
+/// Which whitened rows are kept: t ≥ p and no flagged reading in t − p … t.
+pub(super) fn kept(p: usize, flagged: &[bool]) -> Vec<bool> {
+    let mut last_flag: Option<usize> = None;
+    flagged
+        .iter()
+        .enumerate()
+        .map(|(t, &f)| {
+            if f {
+                last_flag = Some(t);
+            }
+            t >= p && last_flag.is_none_or(|l| t - l > p)
+        })
+        .collect()
+}
+
+/// Σ of squared whitened residuals and the rows kept.
+fn whitened_ss(m: &NoiseModel, r: &[f64], flagged: &[bool]) -> (f64, usize) {
+    let keep = kept(m.order(), flagged);
+    let mut x = r.to_vec();
+    whiten(m, &mut x, &keep);
+    (
+        x.iter().map(|v| v * v).sum(),
+        keep.iter().filter(|&&k| k).count(),
+    )
 }
 
 impl Data {
+    /// White noise of sd `sigma[j]` on every group's channel j (for noise-free tests).
+    pub fn set_white(&mut self, sigma: [f64; 3]) {
+        self.sigma = sigma;
+        self.noise = self
+            .groups
+            .iter()
+            .map(|g| sigma.map(|s| NoiseModel::white(s * s, g.tau.len())))
+            .collect();
+    }
+
     /// Rows over all groups.
     pub fn rows(&self) -> usize {
         self.groups.iter().map(|g| g.tau.len()).sum()
@@ -303,9 +368,10 @@ pub struct Fit {
     pub unc: Params,
     /// Covariance of (A, B) per group and channel (for the intrinsic properties).
     pub ab_cov: Vec<[[[f64; 2]; 2]; 3]>,
-    /// Σ (r/σ)² over all rows and channels.
+    /// Σ of the squared whitened residuals over all rows and channels.
     pub chi2: f64,
-    /// Rows × 3 − parameters.
+    /// Whitened rows kept (rows × 3 less each group's first p rows per channel and those
+    /// next to readings at a rail) − parameters.
     pub dof: f64,
     /// Parameters fitted.
     pub n_params: usize,
@@ -383,29 +449,33 @@ pub fn fit(data: &Data, effects: &[Effect], start: Option<&Params>) -> Result<Fi
     }
     let step = result.ok_or("no iteration")?;
     let s = p.sensitivity(data);
-    // Residuals and χ² at the final parameters.
+    // Residuals and χ² (whitened) at the final parameters. Readings the model puts at a
+    // rail are fixed by the rail, not fitted: no residual degree of freedom, and the
+    // whitened rows whose window touches them are left out.
     let mut chi2 = 0.0;
     let mut ss = [0.0; 3];
-    // Readings the model puts at a rail are fixed by the rail, not fitted: no residual
-    // degree of freedom.
-    let mut clipped = 0usize;
+    let mut used = 0usize;
     let mut residuals = Vec::with_capacity(data.groups.len());
     for (gi, g) in data.groups.iter().enumerate() {
         let mut r: [Vec<f64>; 3] = Default::default();
         for (j, rj) in r.iter_mut().enumerate() {
+            let mut clipped = Vec::with_capacity(g.tau.len());
             for k in 0..g.tau.len() {
                 let e = eval(&p, s[j], gi, g, j, k);
-                clipped += usize::from(e.clipped);
+                clipped.push(e.clipped);
                 let res = g.y[j][k] - e.y;
-                chi2 += (res / data.sigma[j]).powi(2);
                 ss[j] += res * res;
                 rj.push(res);
             }
+            let m = noise_of(data, gi, j)?;
+            let (c, n) = whitened_ss(m, rj, &clipped);
+            chi2 += c;
+            used += n;
         }
         residuals.push(r);
     }
     let n_params = layout.n * 3 + usize::from(p.delta.is_some());
-    let dof = (n_rows * 3 - clipped) as f64 - n_params as f64;
+    let dof = used as f64 - n_params as f64;
     let mut unc = Params::new(data, effects);
     let mut ab_cov = vec![[[[0.0; 2]; 2]; 3]; data.groups.len()];
     for j in 0..3 {
@@ -452,6 +522,14 @@ pub fn fit(data: &Data, effects: &[Effect], start: Option<&Params>) -> Result<Fi
     })
 }
 
+/// Group `gi`'s channel `j`'s noise model.
+fn noise_of(data: &Data, gi: usize, j: usize) -> Result<&NoiseModel, String> {
+    data.noise
+        .get(gi)
+        .and_then(|m| m.get(j))
+        .ok_or_else(|| format!("no noise model for group {gi}, channel {j}"))
+}
+
 /// One Gauss–Newton increment and the covariance at the current point.
 struct Step {
     local: [DVector<f64>; 3],
@@ -475,49 +553,69 @@ fn gauss_newton_step(data: &Data, p: &Params, l: &Layout, s: [f64; 3]) -> Result
     let mut zz = 0.0;
     let mut zr = 0.0;
     let mut chi2 = 0.0;
-    for (j, (sigma, sj)) in data.sigma.iter().zip(s).enumerate() {
-        let w = 1.0 / sigma;
-        let mut x = DMatrix::<f64>::zeros(n_rows, l.n);
-        let mut r = DVector::<f64>::zeros(n_rows);
-        let mut z = DVector::<f64>::zeros(n_rows);
-        let mut row = 0;
+    for (j, sj) in s.into_iter().enumerate() {
+        // Column-major: column c of the Jacobian at xs[c * n_rows ..].
+        let mut xs = vec![0.0; n_rows * l.n];
+        let mut r = vec![0.0; n_rows];
+        let mut z = vec![0.0; n_rows];
+        let mut row0 = 0;
         for (gi, g) in data.groups.iter().enumerate() {
             let omega = g.omega();
             let ci = g.condition.index();
             let [a_amp, b_amp] = p.ab[gi][j];
-            for k in 0..g.tau.len() {
+            let n = g.tau.len();
+            let mut clipped = Vec::with_capacity(n);
+            for k in 0..n {
+                let row = row0 + k;
                 let e = eval(p, sj, gi, g, j, k);
-                r[row] = w * (g.y[j][k] - e.y);
-                chi2 += r[row] * r[row];
+                r[row] = g.y[j][k] - e.y;
+                clipped.push(e.clipped);
                 if !e.clipped {
+                    let mut put = |c: usize, v: f64| xs[c * n_rows + row] = v;
                     let h = e.dyda / sj; // dy/d(amplitude in output units)
-                    x[(row, 2 * gi)] = w * h * e.sin;
-                    x[(row, 2 * gi + 1)] = w * h * e.cos;
+                    put(2 * gi, h * e.sin);
+                    put(2 * gi + 1, h * e.cos);
                     if let Some(c) = l.conditions[ci] {
-                        x[(row, c)] = w;
+                        put(c, 1.0);
                     }
                     if let Some(c) = l.centripetal {
-                        x[(row, c + ci)] = w * h * omega * omega;
+                        put(c + ci, h * omega * omega);
                     }
                     if let Some(c) = l.k2 {
-                        x[(row, c)] = w * sj * e.a * e.a;
+                        put(c, sj * e.a * e.a);
                     }
                     if let Some(c) = l.k3 {
-                        x[(row, c)] = w * sj * e.a * e.a * e.a;
+                        put(c, sj * e.a * e.a * e.a);
                     }
                     if let Some(c) = l.drift {
-                        x[(row, c)] = w * g.t[k];
+                        put(c, g.t[k]);
                     }
                     if let Some(c) = l.temp {
-                        x[(row, c)] = w * g.temp[k];
+                        put(c, g.temp[k]);
                     }
                     if with_delta {
-                        z[row] = w * h * (a_amp * e.cos - b_amp * e.sin) * omega * g.tau[k];
+                        z[row] = h * (a_amp * e.cos - b_amp * e.sin) * omega * g.tau[k];
                     }
                 }
-                row += 1;
             }
+            // Prewhiten the group's rows of the residual and of every column.
+            let m = noise_of(data, gi, j)?;
+            let keep = kept(m.order(), &clipped);
+            let rows = row0..row0 + n;
+            whiten(m, &mut r[rows.clone()], &keep);
+            if with_delta {
+                whiten(m, &mut z[rows.clone()], &keep);
+            }
+            for c in 0..l.n {
+                let at = c * n_rows;
+                whiten(m, &mut xs[at + row0..at + row0 + n], &keep);
+            }
+            row0 += n;
         }
+        chi2 += r.iter().map(|v| v * v).sum::<f64>();
+        let x = DMatrix::from_vec(n_rows, l.n, xs);
+        let r = DVector::from_vec(r);
+        let z = DVector::from_vec(z);
         let qr = x.qr();
         let q = qr.q();
         if with_delta {

@@ -1,57 +1,155 @@
-//! The noise floor without the physical model: for each group and channel, the residuals
-//! of a generic fit (a straight line and harmonics 1–4 of the nominal rate), then the
-//! second differences of those residuals, which cancel what is left smooth (a slow drift,
-//! a rate error's growing quadrature). For white noise e, (e₋ − 2e + e₊)/√6 has variance σ².
+//! The noise model without the physical model: for each group (condition × rate) and
+//! channel, an AR(p) model ([`crate::noise::NoiseModel`]: Yule–Walker, order by BIC) of the
+//! residuals of a generic fit (a straight line, harmonics 1–4 of the nominal rate, τ·sin ωτ
+//! and τ·cos ωτ, and the temperature where it varies), which takes out what the physical
+//! model may leave (a drift, nonlinearity, a rate error's growing quadrature, a temperature
+//! coefficient), so a missing effect does not read as noise. Readings at a rail
+//! ([`crate::noise::clipped`]) are left out of the generic fit and of the estimate, and the
+//! level is rescaled for what the generic fit removed ([`NoiseModel::rescaled`]).
+//!
+//! The models are estimated once, before any physical model is fitted, and held fixed
+//! through the baseline and every step, so nested tests compare like with like.
 
 use super::model::Data;
+use crate::noise::{self, NoiseModel};
 use nalgebra::{DMatrix, DVector};
 
 /// How the estimate is made (for the JSON's `source`).
-pub const HOW: &str = "second differences of the residuals of a generic per-group fit \
-                       (line + harmonics 1-4 of the nominal rate)";
+pub const HOW: &str = "AR(p) per group and channel, Yule-Walker with the order by BIC, of the \
+                       residuals of a generic per-group fit (line, harmonics 1-4 of the \
+                       nominal rate, tau*sin and tau*cos, temperature), readings at a rail \
+                       left out; innovations' level from that fit made by GLS";
 
-/// σ per channel.
-pub fn estimate(data: &Data) -> Result<[f64; 3], String> {
-    let mut sum = [0.0; 3];
-    let mut count = 0usize;
+/// Harmonics of the nominal rate in the generic fit.
+const HARMONICS: usize = 4;
+
+/// Regressors of the generic fit: 1, τ (scaled to [0, 1]), sin kωτ and cos kωτ for
+/// k = 1 … [`HARMONICS`], (τ/span)·sin ωτ and (τ/span)·cos ωτ (a rate error's growing
+/// quadrature), and the temperature when `temp` is given; rows flagged in `skip` are zero.
+fn design(tau: &[f64], omega: f64, temp: Option<&[f64]>, skip: &[bool]) -> DMatrix<f64> {
+    let n = tau.len();
+    let span = tau.last().copied().unwrap_or(1.0).max(f64::MIN_POSITIVE);
+    let cols = 4 + 2 * HARMONICS + usize::from(temp.is_some());
+    DMatrix::from_fn(n, cols, |r, c| {
+        if skip.get(r).copied().unwrap_or(false) {
+            return 0.0;
+        }
+        let t = tau.get(r).copied().unwrap_or(0.0);
+        let harmonic = |k: f64, sine: bool| {
+            if sine {
+                (k * omega * t).sin()
+            } else {
+                (k * omega * t).cos()
+            }
+        };
+        match c {
+            0 => 1.0,
+            1 => t / span,
+            c if c < 2 + 2 * HARMONICS => harmonic(((c - 2) / 2 + 1) as f64, c % 2 == 0),
+            c if c < 4 + 2 * HARMONICS => t / span * harmonic(1.0, c % 2 == 0),
+            _ => temp.and_then(|x| x.get(r)).copied().unwrap_or(0.0),
+        }
+    })
+}
+
+/// The innovations' variance as the generic fit made by generalised least squares under
+/// `m` sees it, relative to `m`'s: RSS_w/(kept rows − coefficients), RSS_w the sum of the
+/// squared whitened residuals. This is what a whitened fit's χ² is measured against, and
+/// it is unbiased for it. (Rescaling the innovations like the marginal level,
+/// [`NoiseModel::rescaled`], would not be: a slowly varying regressor takes a share
+/// (1+ρ)/(1−ρ) of the marginal variance for AR(1) noise, but only one whitened degree of
+/// freedom; for AR(1) ρ = 0.5 the χ²/dof would sit 0.5 % low.)
+fn whitened_level(
+    m: &NoiseModel,
+    x: &DMatrix<f64>,
+    y: &DVector<f64>,
+    flagged: &[bool],
+) -> Result<f64, String> {
+    let keep = whiten_keep(m, flagged);
+    let rows = keep.iter().filter(|&&k| k).count();
+    let mut xw = x.clone();
+    for mut c in xw.column_iter_mut() {
+        super::model::whiten(m, c.as_mut_slice(), &keep);
+    }
+    let mut yw = y.clone();
+    super::model::whiten(m, yw.as_mut_slice(), &keep);
+    let q = xw.ncols();
+    if rows <= q + 10 {
+        return Err("too few rows to estimate the noise".into());
+    }
+    let qr = xw.qr();
+    let qm = qr.q();
+    let e = &yw - &qm * (qm.transpose() * &yw);
+    let level = e.norm_squared() / (rows - q) as f64;
+    if level.is_finite() && level > 0.0 {
+        Ok(level)
+    } else {
+        Err("the noise estimate is zero: are the readings constant?".into())
+    }
+}
+
+fn whiten_keep(m: &NoiseModel, flagged: &[bool]) -> Vec<bool> {
+    super::model::kept(m.order(), flagged)
+}
+
+/// One group's channel's model: the generic fit's residuals, their AR model, its level
+/// rescaled for the fit, and the innovations' level from the fit made by GLS.
+fn model_of(
+    y: &[f64],
+    tau: &[f64],
+    omega: f64,
+    temp: Option<&[f64]>,
+    flagged: &[bool],
+) -> Result<NoiseModel, String> {
+    let x = design(tau, omega, temp, flagged);
+    let yv = DVector::from_iterator(
+        y.len(),
+        y.iter()
+            .zip(flagged)
+            .map(|(v, f)| if *f { 0.0 } else { *v }),
+    );
+    let qr = x.clone().qr();
+    let q = qr.q();
+    let e = &yv - &q * (q.transpose() * &yv);
+    let mut m = NoiseModel::estimate(e.as_slice(), flagged)
+        .and_then(|m| m.rescaled(&x))
+        .map_err(|err| err.to_string())?;
+    m.innovation_var *= whitened_level(&m, &x, &yv, flagged)?;
+    Ok(m)
+}
+
+/// The noise model per group and channel (u, v, w).
+pub fn estimate(data: &Data) -> Result<Vec<[NoiseModel; 3]>, String> {
+    let mut out = Vec::with_capacity(data.groups.len());
     for g in &data.groups {
         let n = g.tau.len();
         if n < 30 {
             return Err("a group has fewer than 30 rows: too few to estimate the noise".into());
         }
-        let omega = g.omega();
-        let cols = 2 + 2 * 4;
-        let x = DMatrix::from_fn(n, cols, |r, c| {
-            let tau = g.tau[r];
-            match c {
-                0 => 1.0,
-                1 => tau,
-                _ => {
-                    let k = ((c - 2) / 2 + 1) as f64;
-                    if c % 2 == 0 {
-                        (k * omega * tau).sin()
-                    } else {
-                        (k * omega * tau).cos()
-                    }
-                }
-            }
-        });
-        let qr = x.qr();
-        let q = qr.q();
-        for (j, s) in sum.iter_mut().enumerate() {
-            let y = DVector::from_column_slice(&g.y[j]);
-            let e = &y - &q * (q.transpose() * &y);
-            *s += e
-                .as_slice()
-                .windows(3)
-                .map(|w| (w[0] - 2.0 * w[1] + w[2]).powi(2) / 6.0)
-                .sum::<f64>();
+        // The temperature is a regressor only where it varies within the group.
+        let (lo, hi) = g
+            .temp
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &x| {
+                (lo.min(x), hi.max(x))
+            });
+        let temp = (hi - lo > 0.05).then_some(g.temp.as_slice());
+        let mut models = Vec::with_capacity(3);
+        for y in &g.y {
+            let flagged = noise::clipped(y);
+            // Without the temperature if it makes the fit singular (a temperature that is
+            // a straight line in time).
+            let m = model_of(y, &g.tau, g.omega(), temp, &flagged)
+                .or_else(|e| {
+                    temp.map_or(Err(e), |_| model_of(y, &g.tau, g.omega(), None, &flagged))
+                })
+                .map_err(|err| format!("noise model of a group's channel: {err}"))?;
+            models.push(m);
         }
-        count += n - 2;
+        let [u, v, w]: [NoiseModel; 3] = models
+            .try_into()
+            .map_err(|_| "noise model: three channels expected".to_string())?;
+        out.push([u, v, w]);
     }
-    let s = sum.map(|s| (s / count.max(1) as f64).sqrt());
-    if s.iter().any(|x| !(x.is_finite() && *x > 0.0)) {
-        return Err("the noise estimate is zero: are the readings constant?".into());
-    }
-    Ok(s)
+    Ok(out)
 }

@@ -65,9 +65,40 @@ pub fn render(a: &Analysis) -> String {
     let n = &a.noise_sigma;
     let _ = writeln!(
         o,
-        "Noise floor σ: u {:.3}, v {:.3}, w {:.3} ({})",
+        "Noise sd: u {:.3}, v {:.3}, w {:.3} ({})",
         n.u, n.v, n.w, n.source
     );
+    for ch in ["u", "v", "w"] {
+        let ms: Vec<_> = a.noise_model.iter().filter(|m| m.channel == ch).collect();
+        let lag1 = ms
+            .iter()
+            .map(|m| m.lag1_autocorrelation)
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), x| {
+                (lo.min(x), hi.max(x))
+            });
+        let order = ms.iter().map(|m| m.ar.len()).max().unwrap_or(0);
+        let excluded: usize = ms.iter().map(|m| m.n_excluded).sum();
+        let _ = writeln!(
+            o,
+            "  {ch}: {} groups, AR order up to {order}, lag-1 autocorrelation {:.3} to {:.3}, \
+             {excluded} readings at a rail left out",
+            ms.len(),
+            lag1.0,
+            lag1.1
+        );
+    }
+    if let Some(s) = &a.noise_sigma_stated {
+        let _ = writeln!(
+            o,
+            "The file states noise_sigma = {} (not used): {}",
+            s.stated,
+            if s.contradicted {
+                format!("the data contradict it: {}", s.why)
+            } else {
+                "the data agree with it".to_string()
+            }
+        );
+    }
     let _ = writeln!(
         o,
         "Baseline (3-parameter sines at the nominal rate, constant offsets): χ²/dof {:.3}, \

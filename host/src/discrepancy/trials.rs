@@ -17,6 +17,38 @@ pub const MULTI_RATE: &str = "preset = \"paper-multirate\"\n\
     [table]\nrates_hz = [0.1, 0.5]\nsamples_per_condition = 2000\n\
     [effects.centripetal]\nradius_m = 0.0\n";
 
+/// The noise of a trial (a `[sensor.noise]` table appended to the base). None of them
+/// lets the file state `noise_sigma`: the workflow is told nothing about the noise.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Noise {
+    /// White, the base's level (the LSM6DS33's 4.17 counts at 16 Hz), not stated.
+    White,
+    /// AR(1), ρ = 0.5, marginal sd 4 counts (a filtered sensor's output).
+    Ar1,
+    /// White, 3, 4 and 5 counts on u, v and w, not stated.
+    Levels345,
+}
+
+impl Noise {
+    /// The `[sensor.noise]` table.
+    pub fn toml(self) -> &'static str {
+        match self {
+            Noise::White => "[sensor.noise]\nstate = false\n",
+            Noise::Ar1 => "[sensor.noise]\nsd = 4.0\nar = [0.5]\n",
+            Noise::Levels345 => "[sensor.noise]\nsd = [3.0, 4.0, 5.0]\nstate = false\n",
+        }
+    }
+
+    /// A short name (for the benchmark's keys and messages).
+    pub fn name(self) -> &'static str {
+        match self {
+            Noise::White => "white",
+            Noise::Ar1 => "ar1_rho0.5_sd4",
+            Noise::Levels345 => "white_3_4_5",
+        }
+    }
+}
+
 /// Where an effect of magnitude `m` goes, and its unit.
 pub fn injection(e: Effect, m: f64) -> (String, &'static str, &'static str) {
     match e {
@@ -79,8 +111,13 @@ pub fn analyse(toml: &str, seed: u64) -> Result<Analysis, String> {
     super::run(&rec, &Options::default())
 }
 
-/// One trial: `effects` at their magnitudes, hidden in their base.
+/// One trial: `effects` at their magnitudes, hidden in their base, white noise not stated.
 pub fn trial(effects: &[(Effect, f64)], seed: u64) -> Result<Analysis, String> {
+    trial_in(Noise::White, effects, seed)
+}
+
+/// One trial under `noise`: `effects` at their magnitudes, hidden in their base.
+pub fn trial_in(noise: Noise, effects: &[(Effect, f64)], seed: u64) -> Result<Analysis, String> {
     let multi = effects.iter().any(|(e, _)| *e == Effect::Centripetal);
     let mut toml = String::from(base(if multi {
         Effect::Centripetal
@@ -94,6 +131,7 @@ pub fn trial(effects: &[(Effect, f64)], seed: u64) -> Result<Analysis, String> {
     if multi {
         toml = toml.replacen("[effects.centripetal]\nradius_m = 0.0\n", "", 1);
     }
+    toml.push_str(noise.toml());
     analyse(&toml, seed)
 }
 
