@@ -1115,17 +1115,28 @@ pub fn render(c: &CalibrationJson) -> String {
         if let Some(mc) = &r.monte_carlo {
             let _ = writeln!(
                 o,
-                "  Monte Carlo (GUM S1) check: standard uncertainty and 95 % interval"
+                "  Monte Carlo (GUM S1) check of the type-A term: standard uncertainty and 95 % interval"
             );
-            for (key, linear) in calibration_file::MC_KEYS
+            // The draws are of the fits (or the pose fit) only: compare with the budget's
+            // type-A line, not with the combined uncertainty.
+            let type_a = r.uncertainty_budget.as_ref().and_then(|b| {
+                b.sources
+                    .iter()
+                    .find(|x| x.kind == Kind::A && (x.source == "fits" || x.source == "poses"))
+            });
+            for (i, (key, q)) in calibration_file::MC_KEYS
                 .iter()
                 .zip([&s.u, &s.v, &s.w, &a.uv, &a.vw, &a.wu])
+                .enumerate()
             {
+                let linear = type_a
+                    .and_then(|x| x.contribution.get(i).copied())
+                    .unwrap_or(q.std_unc);
                 if let Some(m) = mc.get(*key) {
                     let _ = writeln!(
                         o,
                         "  {key:<7} u = {:.6} (linear {:.6}), [{:.6}, {:.6}]",
-                        m.std_unc, linear.std_unc, m.low_95, m.high_95
+                        m.std_unc, linear, m.low_95, m.high_95
                     );
                 }
             }
