@@ -185,17 +185,23 @@ fn noise_models(s: &[(Ticks, [f64; 3])], step: PhaseStep) -> Result<[NoiseModel;
         }
     });
     // Normal equations: the columns are near-orthogonal (sines, a centred trend), so their
-    // Cholesky solve is as good as QR here and needs no N × q factor.
-    let chol = wide.tr_mul(&wide).cholesky().ok_or(NoiseError::Singular)?;
+    // Cholesky solve is as good as QR here and needs no N × q factor. Readings on a rail are
+    // not measurements of the model: they are left out of this fit as of the estimate.
+    let full = wide.tr_mul(&wide);
     let mut models = Vec::with_capacity(3);
     for ch in 0..3 {
         let y = nalgebra::DVector::from_iterator(s.len(), s.iter().map(|(_, y)| y[ch]));
-        let beta = chol.solve(&wide.tr_mul(&y));
+        let flags = noise::clipped(y.as_slice());
+        let mut normal = full.clone();
+        let mut rhs = wide.tr_mul(&y);
+        for (i, _) in flags.iter().enumerate().filter(|(_, f)| **f) {
+            let row = wide.row(i);
+            normal -= row.transpose() * row;
+            rhs -= row.transpose() * y[i];
+        }
+        let beta = normal.cholesky().ok_or(NoiseError::Singular)?.solve(&rhs);
         let resid = &y - &wide * beta;
-        models.push(
-            NoiseModel::estimate(resid.as_slice(), &noise::clipped(y.as_slice()))?
-                .rescaled(&wide)?,
-        );
+        models.push(NoiseModel::estimate(resid.as_slice(), &flags)?.rescaled(&wide)?);
     }
     models.try_into().map_err(|_| NoiseError::TooFew(0))
 }
@@ -246,9 +252,10 @@ fn fit_group(
         _ => 0.0,
     };
     let omega_per_sample = TAU * four.rate_hz * span_s / (s.len().max(2) - 1) as f64;
-    // The rate's standard error assumes white noise; under the noise the residuals show,
-    // its variance grows by the variance factor at ω (weighted by each channel's share
-    // of the rate information, its amplitude²).
+    // The rate's standard error is that of one unweighted joint fit with a pooled σ̂² (the
+    // mean of the channels' variances). Under the channels' own noise its variance is
+    // Σ f_j γ₀_j A_j² / (Σ A_j²)² against σ̄²/Σ A_j²: f_j the variance factor at ω, γ₀_j
+    // the level, A_j² the channel's share of the rate information.
     let coef_of = |f: &batch::BatchFit| {
         [0, 1, 2].map(|ch| {
             let c = |i: usize| {
@@ -268,10 +275,15 @@ fn fit_group(
     let (mut num, mut den) = (0.0, 0.0);
     for (m, c) in noise.iter().zip(&four_coef) {
         let amp2 = c[0] * c[0] + c[1] * c[1];
-        num += m.variance_factor(omega_per_sample) * amp2;
+        num += m.variance_factor(omega_per_sample) * m.var * amp2;
         den += amp2;
     }
-    let factor = if den > 0.0 { num / den } else { 1.0 };
+    let pooled = noise.iter().map(|m| m.var).sum::<f64>() / 3.0;
+    let factor = if den > 0.0 && pooled > 0.0 {
+        num / (den * pooled)
+    } else {
+        1.0
+    };
     let se_rate = four.se_rate_hz * factor.max(1e-6).sqrt();
     let differs = (four.rate_hz - nominal_hz).abs() > 3.0 * se_rate;
     let (step, fit, rate_hz, rate_fitted, u_rate_hz) = if differs {
@@ -714,6 +726,10 @@ fn static_budget(
         *c = -v / g;
     }
     gravity_source(&mut b, g, inputs.u_g_loc, &cg);
+    if inputs.u_time_s.is_some() {
+        b.notes
+            .push("u_time_s was given but a static calibration does not use the timestamps".into());
+    }
     b.combine();
     Ok(b)
 }
@@ -734,7 +750,7 @@ fn gravity_source(b: &mut Budget, g: f64, u_g_loc: Option<f64>, cg: &[f64]) {
             b.scalar(
                 "g_loc",
                 Kind::B,
-                format!("local gravity g_loc = {g} m/s²: its uncertainty was NOT GIVEN (--u-g-loc or '# u_g_loc='), so it is taken as exact: a gravimeter gives about 1e-5 relative, a formula from latitude and height about 1e-4"),
+                format!("local gravity g_loc = {g} m/s²: its uncertainty was NOT GIVEN (--u-g-loc or '# u_g_loc='), so it is taken as exact: a gravity model or map gives about 1e-5 relative, a formula from latitude and height about 1e-4, an absolute gravimeter 1e-8"),
                 (0.0, "m/s^2"),
                 cg,
                 None,
@@ -822,9 +838,21 @@ fn rotation_budget(
                 &intrinsic::from_gram(&moved, g, 0.0).map_err(|e| e.to_string())?,
             ))
         };
+        // The Gram form is blind to the common phase a rate error makes, so what is left is
+        // mostly even in δ (an amplitude loss) and a central difference would cancel it:
+        // the larger one-sided change per u is taken.
         let sens: Vec<f64> = if u > 0.0 {
             let (hi, lo) = (at(f.rate_hz + u)?, at(f.rate_hz - u)?);
-            (0..6).map(|q| (hi[q] - lo[q]) / (2.0 * u)).collect()
+            (0..6)
+                .map(|q| {
+                    let (a, b) = (hi[q] - values[q], lo[q] - values[q]);
+                    if a.abs() >= b.abs() {
+                        a / u
+                    } else {
+                        -b / u
+                    }
+                })
+                .collect()
         } else {
             vec![0.0; 6]
         };
@@ -859,7 +887,8 @@ fn rotation_budget(
     let ct: Vec<f64> = (0..6)
         .map(|q| {
             if q < 3 {
-                values[q] * omega * omega * sigma_t / 2.0
+                // c·σ_t = −s(ωσ_t)²/2: the attenuation lowers s.
+                -values[q] * omega * omega * sigma_t / 2.0
             } else {
                 0.0
             }

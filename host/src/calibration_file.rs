@@ -135,9 +135,10 @@ pub struct PoseJson {
     /// Standard error of the mean (under the readings' noise model where there is one).
     pub std_err: Option<[f64; 3]>,
     /// The readings' noise per channel (lag-1 autocorrelation, AR order, standard error,
-    /// effective number of readings), with at least 20 readings.
+    /// effective number of readings), with at least 100 readings; null for a channel whose
+    /// model could not be made.
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub noise: Option<[crate::orientation::PoseNoise; 3]>,
+    pub noise: Option<[Option<crate::orientation::PoseNoise>; 3]>,
     /// Mean minus model.
     pub residual: [f64; 3],
     /// File line of its first reading; for stepped files, of its condition's first row

@@ -83,7 +83,8 @@ enum Command {
         #[arg(long)]
         g_loc: Option<f64>,
         /// Standard uncertainty of g_loc, m/s² (overrides `# u_g_loc=`): about 1e-4 relative
-        /// from a latitude-and-height formula, 1e-5 from a gravimeter.
+        /// from a latitude-and-height formula, 1e-5 from a gravity model or map, 1e-8 from
+        /// an absolute gravimeter.
         #[arg(long)]
         u_g_loc: Option<f64>,
         /// Rotation files: standard uncertainty of each timestamp beyond its resolution

@@ -37,7 +37,7 @@ pub struct Pose {
     /// The readings' noise per channel, estimated from them (at least
     /// [`NOISE_MODEL_MIN`] readings): successive readings of a filtering sensor are
     /// correlated, and the mean's standard error is then not std/√n.
-    pub noise: Option<[PoseNoise; 3]>,
+    pub noise: Option<[Option<PoseNoise>; 3]>,
 }
 
 /// One channel's noise at one pose, from an AR model of its readings about their mean
@@ -50,23 +50,27 @@ pub struct PoseNoise {
     pub order: usize,
     /// Standard error of the mean under the model.
     pub se: f64,
-    /// Effective number of independent readings: std² / se².
+    /// Effective number of independent readings: the model's variance of one reading over
+    /// the mean's (close to std²/se²).
     pub n_eff: f64,
 }
 
-/// Readings a pose needs for its noise to be modelled; fewer use std/√n.
-pub const NOISE_MODEL_MIN: usize = 20;
+/// Readings a pose needs for its noise to be modelled; fewer use std/√n. (The model's
+/// correction for the mean taken out needs N well above the noise's correlation time.)
+pub const NOISE_MODEL_MIN: usize = 100;
 
 impl Pose {
     /// Standard error of the mean, per channel: under the readings' noise model where
     /// there is one, else std/√n (0 for a single reading: unknown).
     pub fn se(&self) -> [f64; 3] {
-        if let Some(m) = &self.noise {
-            return m.map(|c| c.se);
-        }
-        self.std
+        let white = self
+            .std
             .map(|s| s.map(|x| x / (self.n as f64).sqrt()))
-            .unwrap_or([0.0; 3])
+            .unwrap_or([0.0; 3]);
+        match &self.noise {
+            Some(m) => [0, 1, 2].map(|j| m[j].map_or(white[j], |c| c.se)),
+            None => white,
+        }
     }
 }
 
@@ -240,33 +244,27 @@ impl PoseFit {
 }
 
 /// Each channel's noise model at a pose, when it has enough readings: the mean's variance
-/// is the AR sandwich for a regressor of ones.
-fn pose_noise(rows: &[[f64; 3]], mean: &[f64; 3]) -> Option<[PoseNoise; 3]> {
+/// is the AR sandwich for a regressor of ones. A channel whose model cannot be made (a
+/// constant reading, say) keeps std/√n.
+fn pose_noise(rows: &[[f64; 3]], mean: &[f64; 3]) -> Option<[Option<PoseNoise>; 3]> {
     if rows.len() < NOISE_MODEL_MIN {
         return None;
     }
     let ones = nalgebra::DMatrix::from_element(rows.len(), 1, 1.0);
-    let mut out = [PoseNoise {
-        lag1: 0.0,
-        order: 0,
-        se: 0.0,
-        n_eff: 0.0,
-    }; 3];
-    for (j, o) in out.iter_mut().enumerate() {
+    Some([0, 1, 2].map(|j| {
         let resid: Vec<f64> = rows.iter().map(|r| r[j] - mean[j]).collect();
         let (m, cov) = crate::noise::NoiseModel::estimate(&resid, &[])
             .ok()?
             .regression_cov(&ones)
             .ok()?;
         let var = cov[(0, 0)];
-        *o = PoseNoise {
+        Some(PoseNoise {
             lag1: m.autocorrelation(1),
             order: m.order(),
             se: var.max(0.0).sqrt(),
             n_eff: m.var / var,
-        };
-    }
-    Some(out)
+        })
+    }))
 }
 
 fn mean_std(rows: &[[f64; 3]]) -> ([f64; 3], Option<[f64; 3]>) {

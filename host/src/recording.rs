@@ -911,7 +911,15 @@ impl Parser<'_> {
         }
         let bad = |m: String| self.err(Some(lineno), RecordingErrorKind::BadMetadata(m));
         let Some(&known) = KNOWN_KEYS.iter().find(|k| **k == key) else {
-            if UNCERTAINTY_KEYS.contains(&key) {
+            if let Some(&ukey) = UNCERTAINTY_KEYS.iter().find(|k| **k == key) {
+                if let (Some(&first), Some(before)) = (seen.get(ukey), meta.other.get(ukey)) {
+                    if before != value {
+                        return Err(bad(format!(
+                            "{key} given twice with different values (first on line {first})"
+                        )));
+                    }
+                }
+                seen.insert(ukey, lineno);
                 let x: f64 = value.parse().map_err(|_| {
                     bad(format!(
                         "{key}: '{}' is not a number",

@@ -5,7 +5,8 @@
 //!
 //! Bounds come from statistics: an autocorrelation estimate has Bartlett's standard error,
 //! a coverage fraction its binomial spread (1000 trials: σ = 0.0069 at 0.95, so
-//! [0.93, 0.97] is about ±3σ, and an interval 10 % too wide covers 0.975 and fails).
+//! [0.93, 0.97] is about ±3σ; an interval 10 % too wide covers 0.972, which a single
+//! coefficient's check catches only about half the time, the three together mostly).
 use nalgebra::DMatrix;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -78,7 +79,7 @@ fn ar1_parameters_are_recovered_from_residuals() {
 }
 
 /// Coverage of k = 2 intervals for A, B and C over `trials` records, and the mean z².
-fn coverage(rho: f64, trials: usize, clip: Option<f64>) -> ([f64; 3], [f64; 3]) {
+fn coverage(rho: f64, trials: usize) -> ([f64; 3], [f64; 3]) {
     let n = 4200;
     let h = design(n);
     let truth = [40.0, -25.0, 3.0];
@@ -88,10 +89,7 @@ fn coverage(rho: f64, trials: usize, clip: Option<f64>) -> ([f64; 3], [f64; 3]) 
         let mut rng = ChaCha8Rng::seed_from_u64(0xC0FE_0000 + t as u64);
         let e = ar1(n, rho, 4.0, &mut rng);
         let y: Vec<f64> = (0..n)
-            .map(|i| {
-                let v = (0..3).map(|j| h[(i, j)] * truth[j]).sum::<f64>() + e[i];
-                clip.map_or(v, |c| v.min(c))
-            })
+            .map(|i| (0..3).map(|j| h[(i, j)] * truth[j]).sum::<f64>() + e[i])
             .collect();
         let (coef, resid) = ols(&h, &y);
         let (_, cov) = NoiseModel::estimate(&resid, &clipped(&y))
@@ -113,7 +111,7 @@ fn coverage(rho: f64, trials: usize, clip: Option<f64>) -> ([f64; 3], [f64; 3]) 
 fn fit_covariance_covers_under_correlated_noise() {
     let mut failures = Vec::new();
     for rho in [0.0, 0.3, 0.6, 0.9] {
-        let (cov, z2) = coverage(rho, 1000, None);
+        let (cov, z2) = coverage(rho, 1000);
         println!("AR(1) ρ = {rho}: coverage A, B, C {cov:.3?}; mean z² {z2:.3?}");
         for c in cov {
             if !(0.93..=0.97).contains(&c) {
@@ -171,4 +169,48 @@ fn clipped_samples_do_not_bias_the_level() {
         }
     }
     assert!(failures.is_empty(), "{failures:?}");
+}
+
+#[test]
+fn calibrate_leaves_a_clipping_channel_out_of_its_noise() {
+    // u's peaks (525 + 16 361 counts) clip at 16 880 in the conditions where u sees all of
+    // gravity; v and w stay below the rail. calibrate finds the rail, leaves those readings
+    // out of the noise fit and estimate, and reads u's level as the others'.
+    use rotacal::calibrate_recording::{calibrate, Options};
+    use rotacal::simulate::{Config, Noise, Simulation};
+    let mut cfg = Config::from_toml(
+        "preset = \"paper-10mhz\"\n[effects.saturation]\nrails = [-40000.0, 16880.0]\n",
+    )
+    .unwrap();
+    cfg.sensor.noise = Some(Noise {
+        sd: None,
+        ar: None,
+        lowpass_hz: None,
+        state: false,
+    });
+    let rec = Simulation::new(cfg).unwrap().recording().unwrap();
+    let cal = calibrate(&rec, &Options::default()).unwrap();
+    let noise = cal.by_rate[0].noise.as_ref().unwrap();
+    // White noise of 4.173 counts quantised to whole counts: 4.183; the sd of a sample sd
+    // of N readings is σ/√(2N).
+    let truth = (4.173_089f64.powi(2) + 1.0 / 12.0).sqrt();
+    let mut clipped = 0;
+    for n in noise {
+        let bound = 4.0 * truth / (2.0 * (n.n - n.n_excluded) as f64).sqrt();
+        println!(
+            "{} {}: sd {:.3} (truth {truth:.3} ± {bound:.3}), {} on a rail",
+            n.condition, n.channel, n.sd, n.n_excluded
+        );
+        assert!(
+            (n.sd - truth).abs() <= bound,
+            "{} {}: {}",
+            n.condition,
+            n.channel,
+            n.sd
+        );
+        if n.channel == "u" && n.condition != "x" {
+            clipped += n.n_excluded;
+        }
+    }
+    assert!(clipped > 50, "{clipped} of u's readings on the rail");
 }

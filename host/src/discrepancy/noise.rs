@@ -111,11 +111,11 @@ fn model_of(
     let qr = x.clone().qr();
     let q = qr.q();
     let e = &yv - &q * (q.transpose() * &yv);
-    let mut m = NoiseModel::estimate(e.as_slice(), flagged)
+    let m = NoiseModel::estimate(e.as_slice(), flagged)
         .and_then(|m| m.rescaled(&x))
         .map_err(|err| err.to_string())?;
-    m.innovation_var *= whitened_level(&m, &x, &yv, flagged)?;
-    Ok(m)
+    let factor = whitened_level(&m, &x, &yv, flagged)?;
+    Ok(m.scaled(factor))
 }
 
 /// The noise model per group and channel (u, v, w).
