@@ -35,9 +35,6 @@ pub enum NoiseError {
     /// The regressors are linearly dependent.
     #[error("singular fit: the regressors do not determine every coefficient")]
     Singular,
-    /// The fit takes out most of the noise's power: its residuals cannot tell the noise.
-    #[error("the fit leaves too little of the noise in its residuals to model it (too few samples for how slowly the noise varies)")]
-    Absorbed,
     /// Regressors for another number of samples than the model's.
     #[error("regressors for {0} samples, the noise model has {1}")]
     Length(usize, usize),
@@ -240,8 +237,10 @@ impl NoiseModel {
     pub fn rescaled(self, h: &DMatrix<f64>) -> Result<NoiseModel, NoiseError> {
         // Each step shrinks the error by about tr(PΣ)/(Nγ₀): 0.045 for the widened sine
         // fit of 4200 samples of AR(1) noise with ρ = 0.9, about 0.003 for white noise.
-        // Iterated until it stops moving; a fit that takes out most of the noise's power
-        // (the ratio near 1) cannot be corrected, and is refused.
+        // Iterated until it stops moving. A fit that takes out most of the residuals' power
+        // under the model (the ratio near 1: residuals that are round-off of noise-free
+        // data, or noise far slower than the record) cannot be corrected this way; the level
+        // is then corrected as for white noise, N/(N − q).
         const MAX_STEPS: usize = 100;
         let p = self.order();
         let observed = self.observed.clone();
@@ -252,25 +251,28 @@ impl NoiseModel {
                 / (n as f64 - q as f64).max(1.0);
             return self.with_autocovariances(&[g0]).ok_or(NoiseError::Constant);
         }
+        let white = (n as f64 / (n as f64 - q as f64).max(1.0), self.clone());
         let mut m = self;
         for _ in 0..MAX_STEPS {
             let expected = m.expected_residual_autocov(h)?;
-            if expected.first().copied().unwrap_or(0.0) < 0.5 * m.var {
-                return Err(NoiseError::Absorbed);
-            }
-            let target: Vec<f64> = (0..=p)
-                .map(|k| observed[k] + m.var * m.autocorrelation(k) - expected[k])
-                .collect();
-            let next = m
-                .with_autocovariances(&target)
-                .ok_or(NoiseError::Absorbed)?;
+            let next = (expected.first().copied().unwrap_or(0.0) >= 0.5 * m.var)
+                .then(|| {
+                    let target: Vec<f64> = (0..=p)
+                        .map(|k| observed[k] + m.var * m.autocorrelation(k) - expected[k])
+                        .collect();
+                    m.with_autocovariances(&target)
+                })
+                .flatten();
+            let Some(next) = next else {
+                return Ok(white.1.scaled(white.0));
+            };
             let moved = (next.var - m.var).abs() / m.var;
             m = next;
             if moved < 1e-9 {
-                break;
+                return Ok(m);
             }
         }
-        Ok(m)
+        Ok(white.1.scaled(white.0))
     }
 
     /// The AR(p) model (same p) whose autocovariances at lags 0 … p are `gamma`, by
