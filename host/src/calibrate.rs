@@ -65,8 +65,9 @@ pub struct StaticCalibration {
     pub s_std: [[f64; 3]; 3],
     /// Offsets O_u, O_v, O_w (output units), of the chosen estimator.
     pub offsets: [Estimate; 3],
-    /// Covariance of each row S_j.
-    pub row_cov: [[[f64; 3]; 3]; 3],
+    /// Covariance of the nine elements of S (row-major): rows are correlated when a pose's
+    /// tilt moves all three channels.
+    pub s_cov: [[f64; 9]; 9],
     /// Intrinsic properties from the rows of S.
     pub intrinsic: Intrinsic,
     /// Seed 001's estimator (its eqs. 20–21): each element of S the mean of its two
@@ -217,13 +218,13 @@ pub fn from_poses(
     opts: orientation::Options,
 ) -> Result<StaticCalibration, StaticError> {
     let fit = orientation::fit(poses, g, opts)?;
-    let (s, row_cov) = (fit.s(), fit.row_cov());
-    let intrinsic = intrinsic::from_matrix(&s, &row_cov)?;
+    let (s, s_cov) = (fit.s(), fit.s_cov());
+    let intrinsic = intrinsic::from_matrix_cov(&s, &s_cov)?;
     Ok(StaticCalibration {
         s,
         s_std: fit.s_std(),
         offsets: fit.offsets(),
-        row_cov,
+        s_cov,
         intrinsic,
         duplicate_average: None,
         fits: None,
@@ -320,8 +321,8 @@ pub fn monte_carlo_rotation(
     Ok(out.map(summarise))
 }
 
-/// GUM Supplement 1 check of the static method: draws of each row S_j from its normal
-/// distribution through the intrinsic computation. Outputs s_u … φ_wu as above.
+/// GUM Supplement 1 check of the static method: draws of S from its normal distribution
+/// through the intrinsic computation. Outputs s_u … φ_wu as above.
 pub fn monte_carlo_static(
     cal: &StaticCalibration,
     trials: usize,
@@ -329,14 +330,13 @@ pub fn monte_carlo_static(
 ) -> Result<[McSummary; 6], IntrinsicError> {
     use rand::SeedableRng;
     let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
-    let factors = cal.row_cov.map(|c| chol(&c));
+    let l = chol(&cal.s_cov);
+    let mean: [f64; 9] = std::array::from_fn(|i| cal.s[i / 3][i % 3]);
     let mut out: [Vec<f64>; 6] = Default::default();
     for _ in 0..trials {
-        let mut s = cal.s;
-        for ((row, mean), l) in s.iter_mut().zip(cal.s).zip(&factors) {
-            *row = draw(mean, l, &mut rng);
-        }
-        let r = intrinsic::from_matrix(&s, &cal.row_cov)?;
+        let d = draw(mean, &l, &mut rng);
+        let s = [0, 1, 2].map(|j| [0, 1, 2].map(|k| d[3 * j + k]));
+        let r = intrinsic::from_matrix_cov(&s, &cal.s_cov)?;
         for (o, e) in out
             .iter_mut()
             .zip(r.sensitivity.iter().chain(r.angle_deg.iter()))

@@ -45,6 +45,8 @@ pub struct TypeB {
     pub u_g_loc: Option<f64>,
     /// Each timestamp beyond its resolution (jitter), s (`--u-time-s`, `# u_time_s=`).
     pub u_time_s: Option<f64>,
+    /// Each stepped table angle, degrees (`--u-angle-deg`, `# u_angle_deg=`).
+    pub u_angle_deg: Option<f64>,
 }
 
 impl TypeB {
@@ -53,6 +55,7 @@ impl TypeB {
         TypeB {
             u_g_loc: self.u_g_loc.or(rec.meta.uncertainty("u_g_loc")),
             u_time_s: self.u_time_s.or(rec.meta.uncertainty("u_time_s")),
+            u_angle_deg: self.u_angle_deg.or(rec.meta.uncertainty("u_angle_deg")),
         }
     }
 }
@@ -451,7 +454,7 @@ pub fn calibrate(rec: &Recording, opts: &Options) -> Result<CalibrationJson, Cal
                     err(rec, line, e.to_string())
                 })?
                 .unwrap_or_default();
-            let cal = calibrate::from_poses(poses, g, opts.poses)
+            let cal = calibrate::from_poses(poses, g, pose_options(opts, &inputs))
                 .map_err(|e| err(rec, None, e.to_string()))?;
             by_rate.push(static_json(rec, &cal, opts, (g, &inputs), &units)?);
         }
@@ -472,7 +475,7 @@ pub fn calibrate(rec: &Recording, opts: &Options) -> Result<CalibrationJson, Cal
                     first_line: grp.first_line,
                 });
             }
-            let cal = calibrate::static_method(&conds, g, opts.poses)
+            let cal = calibrate::static_method(&conds, g, pose_options(opts, &inputs))
                 .map_err(|e| err(rec, None, e.to_string()))?;
             by_rate.push(static_json(rec, &cal, opts, (g, &inputs), &units)?);
         }
@@ -550,6 +553,14 @@ fn offsets_at_rest(by_rate: &mut [calibration_file::RateJson]) -> Result<(), Str
     Ok(())
 }
 
+/// The pose fit's options with the stated table-angle uncertainty.
+fn pose_options(opts: &Options, inputs: &TypeB) -> orientation::Options {
+    orientation::Options {
+        u_angle_rad: inputs.u_angle_deg.map(f64::to_radians),
+        ..opts.poses
+    }
+}
+
 fn static_json(
     rec: &Recording,
     cal: &calibrate::StaticCalibration,
@@ -582,24 +593,24 @@ fn static_json(
     Ok(entry)
 }
 
-/// Both corrections of a static calibration. The covariance of (S, O) is the pose fit's,
-/// channel by channel; imucal's offsets are taken as uncorrelated with S (with balanced
-/// up/down poses their correlation is zero).
+/// Both corrections of a static calibration. The covariance of (S, O) is the pose fit's;
+/// imucal's offsets are taken as uncorrelated with S (with balanced up/down poses their
+/// correlation is zero).
 pub fn static_correction(
     cal: &calibrate::StaticCalibration,
 ) -> Result<(correction::Correction, correction::Correction), correction::CorrectionError> {
     let mut cov = DMatrix::zeros(correction::PARAMS, correction::PARAMS);
     let joint = cal.pose_fit.options.offsets == orientation::OffsetEstimator::Joint;
-    for (j, ch) in cal.pose_fit.channels.iter().enumerate() {
-        let idx = |a: usize| if a < 3 { 3 * j + a } else { 9 + j };
-        for a in 0..4 {
-            for b in 0..4 {
-                if joint || (a < 3 && b < 3) {
-                    cov[(idx(a), idx(b))] = ch.cov[a][b];
-                }
+    let full = &cal.pose_fit.cov;
+    for a in 0..12 {
+        for b in 0..12 {
+            if joint || (a < 9 && b < 9) {
+                cov[(a, b)] = full[(a, b)];
             }
         }
-        if !joint {
+    }
+    if !joint {
+        for j in 0..3 {
             cov[(9 + j, 9 + j)] = cal.offsets[j].std_unc.powi(2);
         }
     }
@@ -673,54 +684,113 @@ fn new_budget(units: &str, offsets: bool) -> Budget {
     }
 }
 
-/// The static methods' budget: the pose fit (type A, each row of S and each offset with its
-/// channel's degrees of freedom) and g_loc (S ∝ 1/g_loc; angles and offsets do not
-/// depend on it).
-fn static_budget(
+/// The static methods' budget: the parts of the pose fit's covariance (the readings'
+/// noise, the poses' tilt, the stated table angles; or each channel's own scatter) and
+/// g_loc (S ∝ 1/g_loc; angles and offsets do not depend on it).
+pub fn static_budget(
     cal: &calibrate::StaticCalibration,
     g: f64,
     inputs: &TypeB,
     units: &str,
 ) -> Result<Budget, String> {
     let mut b = new_budget(units, true);
-    let channels = &cal.pose_fit.channels;
-    let nu = channels.map(|c| c.nu);
+    let fit = &cal.pose_fit;
     let values = values6(&cal.intrinsic);
-    // Each row S_j comes from channel j's fit alone: its share of each property is the
-    // propagation with the other rows' covariance set to zero.
-    let mut share = [[0.0; 6]; 3];
-    for (j, sh) in share.iter_mut().enumerate() {
-        let mut only = cal.row_cov;
-        for (k, m) in only.iter_mut().enumerate() {
-            if k != j {
-                *m = [[0.0; 3]; 3];
-            }
+    // Each part's variance of the nine properties, and its degrees of freedom.
+    let forms = |part: &orientation::CovPart| -> Result<[f64; 9], String> {
+        let s_part = orientation::s_block(&part.theta);
+        let prop = intrinsic::from_matrix_cov(&cal.s, &s_part).map_err(|e| e.to_string())?;
+        let mut var = [0.0; 9];
+        for (q, v) in var.iter_mut().take(6).enumerate() {
+            *v = prop.cov[q][q];
         }
-        let part = intrinsic::from_matrix(&cal.s, &only).map_err(|e| e.to_string())?;
-        for (q, x) in sh.iter_mut().enumerate() {
-            *x = part.cov[q][q].max(0.0);
+        for (v, o) in var.iter_mut().skip(6).zip(fit.offset_var(part)) {
+            *v = o;
+        }
+        Ok(var)
+    };
+    let mut per_channel: Vec<([f64; 9], f64)> = Vec::new();
+    let (mut noise, mut tilt) = ([0.0; 9], [0.0; 9]);
+    for part in &fit.parts {
+        let var = forms(part)?;
+        match part.source {
+            orientation::PartSource::TableAngle => {
+                let u = inputs.u_angle_deg.unwrap_or(f64::NAN);
+                let sd: Vec<f64> = var.iter().map(|v| v.max(0.0).sqrt()).collect();
+                b.vector(
+                    "table_angle",
+                    Kind::B,
+                    format!(
+                        "each table angle off by u = {u} deg (stated; independent from step to \
+                         step), moving ĝ along the rotation; through the joint fit"
+                    ),
+                    &sd,
+                    &[None; 9],
+                );
+            }
+            orientation::PartSource::PoseNoise => noise = var,
+            orientation::PartSource::PoseTilt => tilt = var,
+            orientation::PartSource::Channel(_) => per_channel.push((var, part.nu)),
         }
     }
     let mut contribution = Vec::with_capacity(9);
     let mut dof = Vec::with_capacity(9);
-    for (q, row) in cal.intrinsic.cov.iter().enumerate() {
-        let var = row[q].max(0.0);
-        let denom: f64 = share.iter().zip(nu).map(|(sh, n)| sh[q].powi(2) / n).sum();
-        contribution.push(var.sqrt());
-        dof.push((denom > 0.0 && denom.is_finite()).then(|| var * var / denom));
+    match &fit.tilt_scale {
+        Some(ts) => {
+            let unit = forms(&ts.unit)?;
+            for q in 0..9 {
+                let (var, nu) = fit.pose_variance(noise[q], tilt[q], unit[q]);
+                contribution.push(var.max(0.0).sqrt());
+                dof.push(nu.is_finite().then_some(nu));
+            }
+        }
+        None => {
+            // Each channel alone, or the readings' noise with no degrees of freedom left
+            // for a tilt: an angle combines two channels by Welch–Satterthwaite.
+            if per_channel.is_empty() {
+                per_channel.push((noise, fit.parts.first().map_or(f64::INFINITY, |p| p.nu)));
+            }
+            for q in 0..9 {
+                let var: f64 = per_channel.iter().map(|(v, _)| v[q]).sum::<f64>().max(0.0);
+                let denom: f64 = per_channel.iter().map(|(v, n)| v[q].powi(2) / n).sum();
+                contribution.push(var.sqrt());
+                dof.push((denom > 0.0 && denom.is_finite()).then(|| var * var / denom));
+            }
+        }
     }
-    for (j, o) in cal.offsets.iter().enumerate() {
-        contribution.push(o.std_unc);
-        dof.push(nu[j].is_finite().then_some(nu[j]));
-    }
-    b.vector(
-        "poses",
-        Kind::A,
-        "the least-squares fit of S and O to the pose means (JSON poses): each channel's \
-         covariance with its degrees of freedom",
-        &contribution,
-        &dof,
-    );
+    let description = match fit.scatter {
+        orientation::Scatter::PerChannel => "the least-squares fit of S and O to the pose means \
+             (JSON poses), each channel alone with its variance from the poses' scatter and its \
+             degrees of freedom"
+            .to_string(),
+        orientation::Scatter::None
+            if fit
+                .parts
+                .iter()
+                .any(|p| matches!(p.source, orientation::PartSource::Channel(_))) =>
+        {
+            "the least-squares fit of S and O to the pose means (JSON poses), each channel alone \
+             with its variance from its readings' noise"
+                .to_string()
+        }
+        orientation::Scatter::None => format!(
+            "the readings' noise within each pose (JSON poses) through the joint fit of S and \
+             O; no tilt estimated (joint χ²/dof = {}), so each quantity's share that a tilt \
+             would move is scaled by χ²/dof with 3P − 12 degrees of freedom, the rest keeps \
+             the readings' Σ(n − 1) (docs/uncertainty.md)",
+            fit.chi2_dof
+                .map_or("undefined".to_string(), |q| format!("{q:.3}"))
+        ),
+        orientation::Scatter::Tilt { sd_deg } => format!(
+            "the readings' noise within each pose and a random tilt of each pose off its \
+             nominal direction of {sd_deg:.2e}° per axis (standard deviation), estimated so that \
+             the joint fit's χ² equals its 3P − 12 degrees of freedom; degrees of freedom \
+             between those and the readings' Σ(n − 1) by how much a tilt moves each quantity \
+             (docs/uncertainty.md)"
+        ),
+    };
+    b.vector("poses", Kind::A, description, &contribution, &dof);
+    b.notes.extend(fit.notes.iter().cloned());
     let mut cg = vec![0.0; 9];
     for (c, v) in cg.iter_mut().zip(values.iter().take(3)) {
         *c = -v / g;
@@ -911,18 +981,33 @@ fn rotation_budget(
 
 fn render_poses(p: &calibration_file::PosesJson, units: &str) -> String {
     let mut o = String::new();
+    let scatter = match p.scatter {
+        orientation::Scatter::Tilt { sd_deg } => format!(
+            "each pose tilted by {sd_deg:.2e}° per axis (estimated; its effect τ = {:.2e} {:.2e} {:.2e} {units})",
+            p.tau[0], p.tau[1], p.tau[2]
+        ),
+        orientation::Scatter::PerChannel => format!(
+            "between-pose scatter τ = {:.2e} {:.2e} {:.2e} {units}",
+            p.tau[0], p.tau[1], p.tau[2]
+        ),
+        orientation::Scatter::None => match p.chi2_dof_joint {
+            Some(q) => format!("no scatter beyond the noise (joint χ²/dof = {q:.2})"),
+            None => "no scatter beyond the noise".to_string(),
+        },
+    };
     let _ = writeln!(
         o,
-        "  {} poses, condition number {:.2}; weights {}; between-pose scatter τ = {:.2e} {:.2e} {:.2e} {units}",
+        "  {} poses, condition number {:.2}; weights {}; {scatter}",
         p.list.len(),
         p.condition_number,
-        match p.weights {
-            orientation::Weights::RandomEffects => "1/(se² + τ²)",
-            orientation::Weights::Equal => "equal",
+        match (
+            p.weights,
+            p.chi2_dof_joint.is_some() || p.scatter != orientation::Scatter::PerChannel
+        ) {
+            (orientation::Weights::Equal, _) => "equal",
+            (_, true) => "the inverse of each pose mean's covariance (u, v, w together)",
+            (_, false) => "1/(se² + τ²)",
         },
-        p.tau[0],
-        p.tau[1],
-        p.tau[2]
     );
     if let Some(s) = &p.suggestion {
         let _ = writeln!(
@@ -1076,13 +1161,16 @@ pub fn render(c: &CalibrationJson) -> String {
         if let Some(p) = &r.poses {
             if (p.k - calibration_file::K).abs() > 1e-12 {
                 let nu = p.nu.iter().fold(f64::INFINITY, |a, b| a.min(*b));
-                let why = if p.tau.iter().any(|t| *t > 0.0) {
-                    format!(
+                let why = match p.scatter {
+                    orientation::Scatter::PerChannel => format!(
                         "the poses' scatter about the model, estimated from {} poses − 4",
                         p.list.len()
-                    )
-                } else {
-                    "the readings' scatter within the poses".to_string()
+                    ),
+                    _ if p.chi2_dof_joint.is_some() => format!(
+                        "the poses' scatter in the joint fit, 3 × {} poses − 12",
+                        p.list.len()
+                    ),
+                    _ => "the readings' scatter within the poses".to_string(),
                 };
                 let _ = writeln!(o, "  k = {:.2}: Student's t for ν = {nu} ({why})", p.k);
             }

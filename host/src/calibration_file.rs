@@ -159,8 +159,16 @@ pub struct PosesJson {
     pub k: f64,
     /// Degrees of freedom behind each channel's variance.
     pub nu: [f64; 3],
-    /// Between-pose scatter per channel (output units).
+    /// Between-pose scatter per channel (output units): with a tilt model, the tilt's rms
+    /// effect on the channel over the poses.
     pub tau: [f64; 3],
+    /// How the scatter beyond the poses' noise was modelled: `{"model": "none"}`,
+    /// `{"model": "tilt", "sd_deg": x}` or `{"model": "per-channel"}`.
+    pub scatter: orientation::Scatter,
+    /// χ²/dof of the joint fit of the three channels (3P − 12 degrees of freedom) with
+    /// the noise alone (no tilt estimated) or 1 (a tilt estimated); null when the channels
+    /// were fitted alone.
+    pub chi2_dof_joint: Option<f64>,
     /// χ²/dof of the pose means with their own noise only, per channel.
     pub chi2_dof_noise_only: [Option<f64>; 3],
     /// Condition number of the design (ĝ, 1).
@@ -189,6 +197,8 @@ fn poses_json(f: &orientation::PoseFit) -> PosesJson {
         k: f.k,
         nu: f.channels.map(|c| c.nu),
         tau: f.channels.map(|c| c.tau),
+        scatter: f.scatter,
+        chi2_dof_joint: f.chi2_dof,
         chi2_dof_noise_only: f.channels.map(|c| finite(c.chi2_dof_noise_only)),
         condition_number: f.conditioning.condition_number,
         suggestion: f.conditioning.suggestion.clone(),

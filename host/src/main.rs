@@ -91,6 +91,11 @@ enum Command {
         /// (jitter), seconds (overrides `# u_time_s=`).
         #[arg(long)]
         u_time_s: Option<f64>,
+        /// Stepped static files: standard uncertainty of each table angle, degrees
+        /// (overrides `# u_angle_deg=`): the table's positioning accuracy, independent from
+        /// step to step.
+        #[arg(long)]
+        u_angle_deg: Option<f64>,
         /// Write the result as JSON (formats.md) here.
         #[arg(long)]
         json: Option<PathBuf>,
@@ -244,6 +249,7 @@ fn main() -> ExitCode {
             g_loc,
             u_g_loc,
             u_time_s,
+            u_angle_deg,
             json,
             monte_carlo,
             pose_weights,
@@ -259,7 +265,11 @@ fn main() -> ExitCode {
                 rate_hz,
                 g_loc,
                 monte_carlo,
-                inputs: rotacal::calibrate_recording::TypeB { u_g_loc, u_time_s },
+                inputs: rotacal::calibrate_recording::TypeB {
+                    u_g_loc,
+                    u_time_s,
+                    u_angle_deg,
+                },
                 poses: rotacal::orientation::Options {
                     weights: match pose_weights {
                         WeightsArg::RandomEffects => rotacal::orientation::Weights::RandomEffects,
@@ -269,6 +279,8 @@ fn main() -> ExitCode {
                         OffsetsArg::Joint => rotacal::orientation::OffsetEstimator::Joint,
                         OffsetsArg::AxisPairs => rotacal::orientation::OffsetEstimator::AxisPairs,
                     },
+                    // Set from the type-B inputs (flag or file) when the file is read.
+                    u_angle_rad: None,
                 },
             },
         ),

@@ -14,7 +14,7 @@
 
 use crate::calibrate::{gravity_direction, StaticCondition};
 use crate::recording::Oriented;
-use nalgebra::{DMatrix, Matrix4, Vector4};
+use nalgebra::{DMatrix, Matrix3, Matrix4, SMatrix, SVector, Vector3, Vector4};
 use rotacal_shared::intrinsic::Estimate;
 
 /// The readings at one orientation.
@@ -38,6 +38,9 @@ pub struct Pose {
     /// [`NOISE_MODEL_MIN`] readings): successive readings of a filtering sensor are
     /// correlated, and the mean's standard error is then not std/√n.
     pub noise: Option<[Option<PoseNoise>; 3]>,
+    /// ∂ĝ/∂α, the direction ĝ moves in when the table angle α is off (stepped records;
+    /// `None` for poses whose orientation is given directly).
+    pub angle_direction: Option<[f64; 3]>,
 }
 
 /// One channel's noise at one pose, from an AR model of its readings about their mean
@@ -99,16 +102,79 @@ pub enum OffsetEstimator {
 }
 
 /// Choices of the fit.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct Options {
     /// Pose weighting.
     pub weights: Weights,
     /// Offset estimator.
     pub offsets: OffsetEstimator,
+    /// Standard uncertainty of each table angle, rad (type B, `--u-angle-deg`): stepped
+    /// records only.
+    pub u_angle_rad: Option<f64>,
 }
 
+/// How the scatter of the pose means beyond their own noise is modelled.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
+#[serde(rename_all = "kebab-case", tag = "model")]
+pub enum Scatter {
+    /// None: the poses agree with the model within their noise (and any stated angle
+    /// uncertainty).
+    None,
+    /// Each pose is tilted off its nominal direction by a random small rotation, normal
+    /// with standard deviation `sd_deg` about each axis. It moves channel j by
+    /// g·S_j·(t × ĝ): much where gravity lies across S_j, little along it, and the same
+    /// tilt moves all three channels. One variance for every pose and channel, estimated
+    /// so that the joint χ² equals its 3P − 12 degrees of freedom (Paule–Mandel). With
+    /// [`Scatter::None`] too, the pose fit's covariance is scaled to the joint χ²/dof.
+    Tilt {
+        /// Per axis, degrees.
+        sd_deg: f64,
+    },
+    /// A variance τ_j² per channel, added to each pose mean's own (single readings, equal
+    /// weights, or scatter that no tilt explains).
+    PerChannel,
+}
+
+/// Where one part of the covariance of (S, O) comes from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum PartSource {
+    /// The readings' noise within each pose (type A, Σ(n − 1) degrees of freedom).
+    PoseNoise,
+    /// The poses' tilt ([`Scatter::Tilt`]; type A, 3P − 12 degrees of freedom).
+    PoseTilt,
+    /// The stated uncertainty of each table angle (type B).
+    TableAngle,
+    /// Channel j's own fit, its variance from its scatter ([`Scatter::PerChannel`] or
+    /// equal weights; type A).
+    Channel(usize),
+}
+
+/// One part of the covariance of (S, O): the parts are independent and add up to it.
+#[derive(Clone, Debug, PartialEq)]
+pub struct CovPart {
+    /// Its source.
+    pub source: PartSource,
+    /// Its covariance of (S row-major, O).
+    pub theta: Cov12,
+    /// Its covariance of each pose mean (u, v, w).
+    pub pose_cov: Vec<Matrix3<f64>>,
+    /// Its degrees of freedom (infinite for type B).
+    pub nu: f64,
+}
+
+/// A covariance of (S row-major, O): twelve parameters.
+pub type Cov12 = SMatrix<f64, 12, 12>;
+type Theta = SVector<f64, 12>;
+/// One pose's rows of the joint design (u, v, w against (S row-major, O)).
+type Design = SMatrix<f64, 3, 12>;
+
+/// The largest tilt (standard deviation per axis, rad) the tilt model accepts: beyond it
+/// the poses' directions are not "known", and the scatter is taken per channel.
+pub const TILT_MAX_RAD: f64 = 0.1;
+
 /// Why the poses cannot be fitted.
-#[derive(Debug, thiserror::Error, PartialEq)]
+#[derive(Clone, Debug, thiserror::Error, PartialEq)]
 pub enum PoseError {
     /// Fewer than four distinct orientations, or all in one plane or cone.
     #[error(
@@ -207,6 +273,37 @@ pub struct PoseFit {
     pub options: Options,
     /// Poses whose scatter exceeds [`NOT_STILL_FACTOR`] times the median.
     pub not_still: Vec<String>,
+    /// Covariance of (S row-major, O), the sum of `parts`.
+    pub cov: Cov12,
+    /// Its independent parts, each with its source and degrees of freedom.
+    pub parts: Vec<CovPart>,
+    /// How the scatter beyond the pose noise was modelled.
+    pub scatter: Scatter,
+    /// χ²/dof of the joint fit (3P − 12 degrees of freedom) with the tilt estimated: the
+    /// factor its covariance was scaled by (1 with a tilt). `None` when the channels were
+    /// fitted alone or there are no degrees of freedom.
+    pub chi2_dof: Option<f64>,
+    /// The ±x, ±y, ±z poses behind imucal's offsets, when there is exactly one of each.
+    pub axis_poses: Option<[[usize; 2]; 3]>,
+    /// What the fit did that its user should know, each in a sentence.
+    pub notes: Vec<String>,
+    /// The joint fit's view of a tilt, behind each quantity's variance and degrees of
+    /// freedom ([`PoseFit::pose_variance`]); `None` when the channels were fitted alone or
+    /// there are no degrees of freedom.
+    pub tilt_scale: Option<TiltScale>,
+}
+
+/// How visible a tilt is in each quantity and in the joint fit's χ².
+#[derive(Clone, Debug, PartialEq)]
+pub struct TiltScale {
+    /// The covariance a tilt variance of 1 rad² would give (at the noise-only weights).
+    pub unit: CovPart,
+    /// How much that tilt variance raises E[χ²]/dof, per rad².
+    pub chi2_per_dof_per_rad2: f64,
+    /// χ²/dof at the noise-only weights when no tilt was estimated (below 1), else 1.
+    pub q: f64,
+    /// The readings' degrees of freedom, Σ(n − 1).
+    pub noise_dof: f64,
 }
 
 impl PoseFit {
@@ -215,23 +312,106 @@ impl PoseFit {
         self.channels.map(|c| [c.coef[0], c.coef[1], c.coef[2]])
     }
 
-    /// Covariance of each row S_j.
-    pub fn row_cov(&self) -> [[[f64; 3]; 3]; 3] {
-        self.channels.map(|c| {
-            let mut r = [[0.0; 3]; 3];
-            for (a, row) in r.iter_mut().enumerate() {
-                for (b, x) in row.iter_mut().enumerate() {
-                    *x = c.cov[a][b];
-                }
-            }
-            r
-        })
+    /// Covariance of the nine elements of S (row-major).
+    pub fn s_cov(&self) -> [[f64; 9]; 9] {
+        s_block(&self.cov)
+    }
+
+    /// One part's variance of each offset of the chosen estimator.
+    pub fn offset_var(&self, part: &CovPart) -> [f64; 3] {
+        match (self.options.offsets, self.axis_poses) {
+            (OffsetEstimator::AxisPairs, Some(ix)) => [0, 1, 2].map(|j| axis_pair_var(part, ix, j)),
+            _ => [0, 1, 2].map(|j| part.theta[(o_index(j), o_index(j))].max(0.0)),
+        }
     }
 
     /// Standard uncertainties of S.
     pub fn s_std(&self) -> [[f64; 3]; 3] {
-        self.channels
-            .map(|c| [0, 1, 2].map(|a| c.cov[a][a].max(0.0).sqrt()))
+        [0, 1, 2].map(|j| [0, 1, 2].map(|k| self.var_theta(s_index(j, k)).max(0.0).sqrt()))
+    }
+
+    /// Coverage factor of each element of (S row-major, O): Student's t at its Welch–
+    /// Satterthwaite degrees of freedom over the parts.
+    pub fn k_theta(&self) -> [f64; 12] {
+        std::array::from_fn(|i| coverage_factor(self.nu_theta(i)))
+    }
+
+    /// The variance of one quantity from the pose parts and its degrees of freedom, given
+    /// the quantity's variance from each part (`noise`: [`PartSource::PoseNoise`], `tilt`:
+    /// [`PartSource::PoseTilt`], `unit_tilt`: [`TiltScale::unit`]; zero where absent).
+    ///
+    /// With six poses the joint χ² has 6 degrees of freedom, too few to tell a small tilt
+    /// from none: a tilt variance estimated only when χ² exceeds them (Paule–Mandel) would
+    /// leave U too large when there is none and too small when it is just below what χ²
+    /// can see. What saves a quantity that a tilt moves (an off-diagonal element of S, an
+    /// angle) is to take its variance from the poses' scatter, as χ² gives it, with Student's
+    /// t at 3P − 12 (Knapp–Hartung); a quantity a tilt hardly moves (a diagonal element, a
+    /// sensitivity) keeps its noise variance and the readings' many degrees of freedom.
+    /// Between the two, w = (the quantity's relative increase per rad² of tilt) / (χ²/dof's
+    /// increase per rad²), in [0, 1], weighs the first way against the second.
+    pub fn pose_variance(&self, noise: f64, tilt: f64, unit_tilt: f64) -> (f64, f64) {
+        let Some(ts) = &self.tilt_scale else {
+            return (noise + tilt, f64::INFINITY);
+        };
+        let dof = (3 * self.poses.len()).saturating_sub(12) as f64;
+        let w = if noise > 0.0 && ts.chi2_per_dof_per_rad2 > 0.0 {
+            ((unit_tilt / noise) / ts.chi2_per_dof_per_rad2).clamp(0.0, 1.0)
+        } else {
+            0.0
+        };
+        // (known from the readings, from the poses' scatter)
+        let (known, scatter) = if tilt > 0.0 {
+            ((1.0 - w) * noise, w * noise + tilt)
+        } else {
+            ((1.0 - w) * noise, w * ts.q * noise)
+        };
+        let var = known + scatter;
+        let denom = known.powi(2) / ts.noise_dof + scatter.powi(2) / dof;
+        (
+            var,
+            if denom > 0.0 {
+                var * var / denom
+            } else {
+                f64::INFINITY
+            },
+        )
+    }
+
+    /// Variance and degrees of freedom of element `i` of (S, O): the parts as
+    /// [`PoseFit::pose_variance`] weighs them, and the table angle's (ν infinite).
+    fn theta_var_nu(&self, i: usize) -> (f64, f64) {
+        let Some(t) = &self.tilt_scale else {
+            return (self.cov[(i, i)], nu_eff(&self.parts, i));
+        };
+        let form = |src: PartSource| {
+            self.parts
+                .iter()
+                .filter(|c| c.source == src)
+                .map(|c| c.theta[(i, i)])
+                .sum::<f64>()
+        };
+        let (var, nu) = self.pose_variance(
+            form(PartSource::PoseNoise),
+            form(PartSource::PoseTilt),
+            t.unit.theta[(i, i)],
+        );
+        let total = var + form(PartSource::TableAngle);
+        let nu = if nu.is_finite() && var > 0.0 {
+            total * total / (var * var / nu)
+        } else {
+            f64::INFINITY
+        };
+        (total, nu)
+    }
+
+    /// Degrees of freedom of element `i` of (S, O).
+    fn nu_theta(&self, i: usize) -> f64 {
+        self.theta_var_nu(i).1
+    }
+
+    /// Variance of element `i` of (S, O).
+    fn var_theta(&self, i: usize) -> f64 {
+        self.theta_var_nu(i).0
     }
 
     /// The offsets of the chosen estimator.
@@ -241,6 +421,11 @@ impl PoseFit {
             _ => self.offsets_joint,
         }
     }
+}
+
+/// The S block of a covariance of (S, O), as an array.
+pub fn s_block(c: &Cov12) -> [[f64; 9]; 9] {
+    std::array::from_fn(|a| std::array::from_fn(|b| c[(a, b)]))
 }
 
 /// Each channel's noise model at a pose, when it has enough readings: the mean's variance
@@ -350,6 +535,7 @@ pub fn poses_from_oriented(o: &Oriented) -> Result<Vec<Pose>, PoseError> {
                 std,
                 first_line,
                 noise,
+                angle_direction: None,
             }
         })
         .collect())
@@ -379,6 +565,10 @@ pub fn poses_from_conditions(conds: &[StaticCondition<'_>]) -> Vec<Pose> {
                 std,
                 first_line: g.first_line,
                 noise,
+                angle_direction: Some(gravity_direction(
+                    g.condition,
+                    deg.to_radians() + std::f64::consts::FRAC_PI_2,
+                )),
             });
         }
     }
@@ -466,6 +656,245 @@ fn wls(x: &[[f64; 4]], y: &[f64], var: &[f64]) -> Option<([f64; 4], Matrix4<f64>
     Some((beta.into(), inv, chi2))
 }
 
+/// Index of S_jk in (S row-major, O).
+const fn s_index(j: usize, k: usize) -> usize {
+    3 * j + k
+}
+
+/// Index of O_j in (S row-major, O).
+const fn o_index(j: usize) -> usize {
+    9 + j
+}
+
+/// The poses' design in (S row-major, O): row j of pose p is (g·ĝ_p in S_j's columns, 1
+/// in O_j's).
+fn design(poses: &[Pose], g: f64) -> Vec<Design> {
+    poses
+        .iter()
+        .map(|q| {
+            let mut x = Design::zeros();
+            for j in 0..3 {
+                for k in 0..3 {
+                    x[(j, s_index(j, k))] = g * q.gravity[k];
+                }
+                x[(j, o_index(j))] = 1.0;
+            }
+            x
+        })
+        .collect()
+}
+
+/// The joint generalised least-squares fit of (S, O) with a 3×3 covariance per pose mean.
+struct Gls {
+    theta: Theta,
+    cov: Cov12,
+    chi2: f64,
+    weights: Vec<Matrix3<f64>>,
+}
+
+fn gls(x: &[Design], y: &[Vector3<f64>], v: &[Matrix3<f64>]) -> Option<Gls> {
+    let mut m = Cov12::zeros();
+    let mut b = Theta::zeros();
+    let mut weights = Vec::with_capacity(v.len());
+    for ((xp, yp), vp) in x.iter().zip(y).zip(v) {
+        let w = vp.try_inverse()?;
+        let xtw = xp.transpose() * w;
+        m += xtw * xp;
+        b += xtw * yp;
+        weights.push(w);
+    }
+    let cov = m.try_inverse()?;
+    let theta = cov * b;
+    let chi2 = x
+        .iter()
+        .zip(y)
+        .zip(&weights)
+        .map(|((xp, yp), w)| {
+            let r = yp - xp * theta;
+            r.dot(&(w * r))
+        })
+        .sum();
+    Some(Gls {
+        theta,
+        cov,
+        chi2,
+        weights,
+    })
+}
+
+/// The covariance one part `v` of the pose means' covariance gives (S, O) under the
+/// weights of `fit`: C·(Σ XᵀW·V·WX)·C. The parts add up to C.
+fn sandwich(fit: &Gls, x: &[Design], v: &[Matrix3<f64>]) -> Cov12 {
+    let mut meat = Cov12::zeros();
+    for ((xp, w), vp) in x.iter().zip(&fit.weights).zip(v) {
+        let wx = w * xp;
+        meat += wx.transpose() * vp * wx;
+    }
+    fit.cov * meat * fit.cov
+}
+
+/// The root of the decreasing `f(x) = target` between `lo` (f > target) and `hi`.
+fn bisect(f: &impl Fn(f64) -> f64, target: f64, mut lo: f64, mut hi: f64) -> f64 {
+    for _ in 0..100 {
+        let mid = 0.5 * (lo + hi);
+        if mid <= lo || mid >= hi {
+            break;
+        }
+        if f(mid) > target {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    0.5 * (lo + hi)
+}
+
+/// The joint fit with the tilt random effect (see [`Scatter::Tilt`]); `None` when the
+/// poses scatter in a way no tilt up to [`TILT_MAX_RAD`] explains.
+fn joint_fit(
+    poses: &[Pose],
+    g: f64,
+    se2: &[[f64; 3]],
+    s0: &[[f64; 3]; 3],
+    u_angle_rad: Option<f64>,
+    noise_dof: f64,
+) -> Option<(Gls, Vec<CovPart>, f64, Option<TiltScale>)> {
+    let x = design(poses, g);
+    let y: Vec<Vector3<f64>> = poses.iter().map(|q| Vector3::from(q.mean)).collect();
+    let s = Matrix3::from_fn(|j, k| s0[j][k]);
+    let noise: Vec<Matrix3<f64>> = se2
+        .iter()
+        .map(|v| Matrix3::from_diagonal(&Vector3::from(*v)))
+        .collect();
+    // A tilt t (rad per axis) moves ĝ by t × ĝ: the reading by g·S·(t × ĝ), of covariance
+    // g²·S·(I − ĝĝᵀ)·Sᵀ per rad² (ĝ a unit vector).
+    let tilt: Vec<Matrix3<f64>> = poses
+        .iter()
+        .map(|q| {
+            let gh = Vector3::from(q.gravity);
+            let n2 = gh.norm_squared();
+            let perp = Matrix3::identity() * n2 - gh * gh.transpose();
+            (g * g) * s * perp * s.transpose()
+        })
+        .collect();
+    // A table angle off by δα moves ĝ by δα·∂ĝ/∂α.
+    let angle: Vec<Matrix3<f64>> = poses
+        .iter()
+        .map(|q| match (u_angle_rad, q.angle_direction) {
+            (Some(u), Some(d)) => {
+                let sd = g * u * (s * Vector3::from(d));
+                sd * sd.transpose()
+            }
+            _ => Matrix3::zeros(),
+        })
+        .collect();
+    let total = |t2: f64| -> Vec<Matrix3<f64>> {
+        noise
+            .iter()
+            .zip(&tilt)
+            .zip(&angle)
+            .map(|((n, t), a)| n + t * t2 + a)
+            .collect()
+    };
+    let dof = (3 * poses.len()).saturating_sub(12) as f64;
+    let at_zero = gls(&x, &y, &total(0.0))?;
+    let chi2 = |t2: f64| gls(&x, &y, &total(t2)).map_or(f64::NAN, |f| f.chi2);
+    // χ² falls as the tilt variance grows (every pose's covariance grows): the variance
+    // that makes it equal its degrees of freedom (Paule–Mandel), or 0 when χ² is below them
+    // already.
+    let t2 = if dof == 0.0 || at_zero.chi2 <= dof {
+        0.0
+    } else {
+        let mut hi = 1e-10;
+        while chi2(hi) > dof {
+            hi *= 4.0;
+            if hi > TILT_MAX_RAD * TILT_MAX_RAD {
+                return None;
+            }
+        }
+        bisect(&chi2, dof, 0.0, hi)
+    };
+    // How a unit tilt variance shows at the noise-only weights: in each quantity (B₁ =
+    // C·Σ XᵀW·T·WX·C) and in χ² (E[χ²] grows by Σ tr(W·T) − tr(C·Σ XᵀW·T·WX) per rad²).
+    let unit_tilt = sandwich(&at_zero, &x, &tilt);
+    let mut meat = Cov12::zeros();
+    let mut tr_wt = 0.0;
+    for ((xp, w), t) in x.iter().zip(&at_zero.weights).zip(&tilt) {
+        let wx = w * xp;
+        meat += wx.transpose() * t * wx;
+        tr_wt += (w * t).trace();
+    }
+    let chi2_per_rad2 = tr_wt - (at_zero.cov * meat).trace();
+    let scale = (dof > 0.0).then(|| TiltScale {
+        unit: CovPart {
+            source: PartSource::PoseTilt,
+            theta: unit_tilt,
+            pose_cov: tilt.clone(),
+            nu: dof,
+        },
+        chi2_per_dof_per_rad2: chi2_per_rad2 / dof,
+        q: if t2 > 0.0 { 1.0 } else { at_zero.chi2 / dof },
+        noise_dof,
+    });
+    let fit = gls(&x, &y, &total(t2))?;
+    let mut parts = vec![CovPart {
+        source: PartSource::PoseNoise,
+        theta: sandwich(&fit, &x, &noise),
+        pose_cov: noise.clone(),
+        nu: noise_dof,
+    }];
+    if t2 > 0.0 {
+        let v: Vec<Matrix3<f64>> = tilt.iter().map(|t| t * t2).collect();
+        parts.push(CovPart {
+            source: PartSource::PoseTilt,
+            theta: sandwich(&fit, &x, &v),
+            pose_cov: v,
+            nu: dof,
+        });
+    }
+    if angle.iter().any(|a| a.norm() > 0.0) {
+        parts.push(CovPart {
+            source: PartSource::TableAngle,
+            theta: sandwich(&fit, &x, &angle),
+            pose_cov: angle,
+            nu: f64::INFINITY,
+        });
+    }
+    Some((fit, parts, t2, scale))
+}
+
+/// Each channel fitted alone (`Weights::Equal`, poses of single readings, or scatter that
+/// is not a tilt): its parts of the covariance, one per channel.
+fn per_channel_parts(channels: &[ChannelFit; 3], se2: &[[f64; 3]]) -> Vec<CovPart> {
+    channels
+        .iter()
+        .enumerate()
+        .map(|(j, c)| {
+            let mut theta = Cov12::zeros();
+            let idx = |a: usize| if a < 3 { s_index(j, a) } else { o_index(j) };
+            for a in 0..4 {
+                for b in 0..4 {
+                    theta[(idx(a), idx(b))] = c.cov[a][b];
+                }
+            }
+            let pose_cov = se2
+                .iter()
+                .map(|v| {
+                    let mut m = Matrix3::zeros();
+                    m[(j, j)] = c.pose_var.unwrap_or(v[j] + c.tau * c.tau);
+                    m
+                })
+                .collect();
+            CovPart {
+                source: PartSource::Channel(j),
+                theta,
+                pose_cov,
+                nu: c.nu,
+            }
+        })
+        .collect()
+}
+
 /// Fit S and O to the poses in gravity `g`.
 pub fn fit(poses: Vec<Pose>, g: f64, opts: Options) -> Result<PoseFit, PoseError> {
     let p = poses.len();
@@ -492,24 +921,27 @@ pub fn fit(poses: Vec<Pose>, g: f64, opts: Options) -> Result<PoseFit, PoseError
         cond,
         missing: suggestion.clone(),
     };
-    let mut channels = Vec::with_capacity(3);
+    // Each pose mean's variance from its own noise, per channel. A pose whose readings did
+    // not change at all in a channel (a quantised sensor held still) has se = 0, which is
+    // not a known variance: it gets the smallest standard error of the other poses.
+    let mut se2 = vec![[0.0; 3]; p];
     for j in 0..3 {
-        let y: Vec<f64> = poses.iter().map(|q| q.mean[j]).collect();
-        // A pose whose readings did not change at all in this channel (a quantised sensor
-        // held still) has se = 0, which is not a known variance: it gets the smallest
-        // standard error of the other poses.
         let floor = poses
             .iter()
             .map(|q| q.se()[j].powi(2))
             .filter(|v| *v > 0.0)
             .fold(f64::INFINITY, f64::min);
-        let se2: Vec<f64> = poses
-            .iter()
-            .map(|q| match q.std {
+        for (v, q) in se2.iter_mut().zip(&poses) {
+            v[j] = match q.std {
                 Some(_) if floor.is_finite() => q.se()[j].powi(2).max(floor),
                 _ => 0.0,
-            })
-            .collect();
+            };
+        }
+    }
+    let mut channels = Vec::with_capacity(3);
+    for j in 0..3 {
+        let y: Vec<f64> = poses.iter().map(|q| q.mean[j]).collect();
+        let se2: Vec<f64> = se2.iter().map(|v| v[j]).collect();
         let ones = vec![1.0; p];
         // Ordinary least squares: the equal-weights result, and the top of τ²'s bracket.
         let (ols_beta, ols_inv, rss) = wls(&x, &y, &ones).ok_or_else(singular)?;
@@ -585,8 +1017,114 @@ pub fn fit(poses: Vec<Pose>, g: f64, opts: Options) -> Result<PoseFit, PoseError
     let [cu, cv, cw] = channels.as_slice() else {
         return Err(singular());
     };
-    let channels = [*cu, *cv, *cw];
-    let nu = channels.iter().map(|c| c.nu).fold(f64::INFINITY, f64::min);
+    let mut channels = [*cu, *cv, *cw];
+    let mut notes = Vec::new();
+    // Repeated readings give each pose mean a known variance: then the three channels are
+    // fitted together, and the scatter beyond the noise is a tilt of each pose (one
+    // variance for all channels and poses, shaped by S and ĝ), not a variance per channel.
+    let joint_possible = opts.weights == Weights::RandomEffects
+        && all_repeated
+        && se2.iter().all(|v| v.iter().all(|x| *x > 0.0));
+    let s_first = channels.map(|c| [c.coef[0], c.coef[1], c.coef[2]]);
+    let joint = if joint_possible {
+        let j = joint_fit(&poses, g, &se2, &s_first, opts.u_angle_rad, noise_dof);
+        if j.is_none() {
+            notes.push(format!(
+                "the poses scatter about the model by more than their noise in a way a tilt of \
+                 up to {:.1}° does not explain: each channel's own scatter τ_j is used instead",
+                TILT_MAX_RAD.to_degrees()
+            ));
+        }
+        j
+    } else {
+        None
+    };
+    let joint_used = joint.is_some();
+    let mut tilt_scale = None;
+    let (theta, cov, parts, scatter, chi2_dof) = match joint {
+        Some((fit, parts, t2, scale)) => {
+            tilt_scale = scale;
+            let dof3 = (3 * p).saturating_sub(12);
+            let chi2_dof = (dof3 > 0).then(|| fit.chi2 / dof3 as f64);
+            let scatter = if t2 > 0.0 {
+                Scatter::Tilt {
+                    sd_deg: t2.sqrt().to_degrees(),
+                }
+            } else {
+                Scatter::None
+            };
+            let mut theta = [0.0; 12];
+            for (t, v) in theta.iter_mut().zip(fit.theta.iter()) {
+                *t = *v;
+            }
+            let cov = parts.iter().fold(Cov12::zeros(), |a, c| a + c.theta);
+            (theta, cov, parts, scatter, chi2_dof)
+        }
+        None => {
+            let parts = per_channel_parts(&channels, &se2);
+            let cov = parts.iter().fold(Cov12::zeros(), |a, c| a + c.theta);
+            let mut theta = [0.0; 12];
+            for (j, c) in channels.iter().enumerate() {
+                for k in 0..3 {
+                    theta[s_index(j, k)] = c.coef[k];
+                }
+                theta[o_index(j)] = c.coef[3];
+            }
+            let scatter = if channels.iter().any(|c| c.tau > 0.0) {
+                Scatter::PerChannel
+            } else {
+                Scatter::None
+            };
+            (theta, cov, parts, scatter, None)
+        }
+    };
+    if opts.u_angle_rad.is_some() {
+        if poses.iter().all(|q| q.angle_direction.is_none()) {
+            notes.push(
+                "u_angle_deg was given but the poses are not table angles (it applies to stepped \
+                 records)"
+                    .into(),
+            );
+        } else if !parts.iter().any(|c| c.source == PartSource::TableAngle) {
+            notes.push(
+                "u_angle_deg was given, but with each channel's scatter estimated from the poses \
+                 (single readings, equal weights, or scatter a tilt does not explain) the angles' \
+                 scatter is already part of it and is not counted again"
+                    .into(),
+            );
+        }
+    }
+    // The channels as the joint fit has them: coefficients, covariance blocks, and the
+    // tilt's scatter in each channel (rms over the poses).
+    if joint_used {
+        let t2 = match scatter {
+            Scatter::Tilt { sd_deg } => sd_deg.to_radians().powi(2),
+            _ => 0.0,
+        };
+        {
+            let s = Matrix3::from_fn(|j, k| s_first[j][k]);
+            for (j, c) in channels.iter_mut().enumerate() {
+                let idx = |a: usize| if a < 3 { s_index(j, a) } else { o_index(j) };
+                for a in 0..4 {
+                    c.coef[a] = theta[idx(a)];
+                    for b in 0..4 {
+                        c.cov[a][b] = cov[(idx(a), idx(b))];
+                    }
+                }
+                let mean_tilt_var = poses
+                    .iter()
+                    .map(|q| {
+                        let gh = Vector3::from(q.gravity);
+                        let perp = Matrix3::identity() * gh.norm_squared() - gh * gh.transpose();
+                        ((g * g) * s * perp * s.transpose())[(j, j)] * t2
+                    })
+                    .sum::<f64>()
+                    / p as f64;
+                c.tau = mean_tilt_var.max(0.0).sqrt();
+            }
+        }
+    }
+    let nu = f64::INFINITY;
     let residuals = poses
         .iter()
         .zip(&x)
@@ -594,14 +1132,31 @@ pub fn fit(poses: Vec<Pose>, g: f64, opts: Options) -> Result<PoseFit, PoseError
             [0, 1, 2].map(|j| q.mean[j] - (0..4).map(|a| h[a] * channels[j].coef[a]).sum::<f64>())
         })
         .collect();
-    let offsets_joint = channels.map(|c| Estimate {
-        value: c.coef[3],
-        std_unc: c.cov[3][3].max(0.0).sqrt(),
+    let offsets_joint = [0, 1, 2].map(|j| Estimate {
+        value: theta[o_index(j)],
+        std_unc: cov[(o_index(j), o_index(j))].max(0.0).sqrt(),
     });
-    let offsets_axis_pairs = match (axis_pairs(&poses, &channels), opts.offsets) {
-        (Err(e), OffsetEstimator::AxisPairs) => return Err(e),
-        (r, _) => r.ok(),
-    };
+    let axis_poses = axis_poses(&poses);
+    if opts.offsets == OffsetEstimator::AxisPairs {
+        if let Err(e) = &axis_poses {
+            return Err(e.clone());
+        }
+    }
+    let axis_poses = axis_poses.ok();
+    let offsets_axis_pairs = axis_poses.map(|ix| {
+        [0, 1, 2].map(|j| Estimate {
+            value: 0.5
+                * ix[j]
+                    .iter()
+                    .map(|i| poses.get(*i).map_or(f64::NAN, |q| q.mean[j]))
+                    .sum::<f64>(),
+            std_unc: parts
+                .iter()
+                .map(|c| axis_pair_var(c, ix, j))
+                .sum::<f64>()
+                .sqrt(),
+        })
+    });
     // Stillness: each channel's std against the median pose's.
     let mut not_still = Vec::new();
     for j in 0..3 {
@@ -617,7 +1172,7 @@ pub fn fit(poses: Vec<Pose>, g: f64, opts: Options) -> Result<PoseFit, PoseError
             }
         }
     }
-    Ok(PoseFit {
+    let mut out = PoseFit {
         poses,
         channels,
         dof,
@@ -631,38 +1186,102 @@ pub fn fit(poses: Vec<Pose>, g: f64, opts: Options) -> Result<PoseFit, PoseError
         offsets_axis_pairs,
         options: opts,
         not_still,
-    })
+        cov,
+        parts,
+        scatter,
+        chi2_dof,
+        axis_poses,
+        notes,
+        tilt_scale,
+    };
+    // The uncertainties of the offsets and the coverage factor as the parts weigh them.
+    for j in 0..3 {
+        out.offsets_joint[j].std_unc = out.var_theta(o_index(j)).max(0.0).sqrt();
+    }
+    if let (Some(mut o), Some(ix)) = (out.offsets_axis_pairs, out.axis_poses) {
+        for (j, e) in o.iter_mut().enumerate() {
+            let form = |src: PartSource| {
+                out.parts
+                    .iter()
+                    .filter(|c| c.source == src)
+                    .map(|c| axis_pair_var(c, ix, j))
+                    .sum::<f64>()
+            };
+            let unit = out
+                .tilt_scale
+                .as_ref()
+                .map_or(0.0, |t| axis_pair_var(&t.unit, ix, j));
+            let var = match out.tilt_scale {
+                Some(_) => {
+                    out.pose_variance(
+                        form(PartSource::PoseNoise),
+                        form(PartSource::PoseTilt),
+                        unit,
+                    )
+                    .0 + form(PartSource::TableAngle)
+                }
+                None => out.parts.iter().map(|c| axis_pair_var(c, ix, j)).sum(),
+            };
+            e.std_unc = var.max(0.0).sqrt();
+        }
+        out.offsets_axis_pairs = Some(o);
+    }
+    out.k = coverage_factor(
+        (0..12)
+            .map(|i| out.nu_theta(i))
+            .fold(f64::INFINITY, f64::min),
+    );
+    if joint_used {
+        for j in 0..3 {
+            let nu = [s_index(j, 0), s_index(j, 1), s_index(j, 2), o_index(j)]
+                .map(|i| out.nu_theta(i))
+                .into_iter()
+                .fold(f64::INFINITY, f64::min);
+            if let Some(c) = out.channels.get_mut(j) {
+                c.nu = nu;
+            }
+        }
+    }
+    Ok(out)
 }
 
-/// imucal's offsets: O_j = (ȳ_j(+e_j) + ȳ_j(−e_j))/2, each pose mean with variance
-/// se² + τ_j².
-fn axis_pairs(poses: &[Pose], ch: &[ChannelFit; 3]) -> Result<[Estimate; 3], PoseError> {
-    let find = |k: usize, sign: f64| -> Result<&Pose, PoseError> {
+/// Welch–Satterthwaite degrees of freedom of element `i` of (S, O) over the parts.
+fn nu_eff(parts: &[CovPart], i: usize) -> f64 {
+    let var: f64 = parts.iter().map(|c| c.theta[(i, i)]).sum();
+    let denom: f64 = parts.iter().map(|c| c.theta[(i, i)].powi(2) / c.nu).sum();
+    if denom > 0.0 {
+        var * var / denom
+    } else {
+        f64::INFINITY
+    }
+}
+
+/// One part's variance of imucal's offset O_j = (ȳ_j(+e_j) + ȳ_j(−e_j))/2.
+fn axis_pair_var(part: &CovPart, ix: [[usize; 2]; 3], j: usize) -> f64 {
+    let v = |p: usize| part.pose_cov.get(p).map_or(0.0, |m| m[(j, j)]);
+    0.25 * (v(ix[j][0]) + v(ix[j][1]))
+}
+
+/// For each channel j, the poses with gravity along +e_j and −e_j (imucal's offsets need
+/// exactly one of each).
+fn axis_poses(poses: &[Pose]) -> Result<[[usize; 2]; 3], PoseError> {
+    let find = |k: usize, sign: f64| -> Result<usize, PoseError> {
         let mut e = [0.0; 3];
         e[k] = sign;
-        let hits: Vec<&Pose> = poses
+        let hits: Vec<usize> = poses
             .iter()
-            .filter(|q| q.gravity.iter().zip(&e).all(|(a, b)| (a - b).abs() < 1e-9))
+            .enumerate()
+            .filter(|(_, q)| q.gravity.iter().zip(&e).all(|(a, b)| (a - b).abs() < 1e-9))
+            .map(|(i, _)| i)
             .collect();
         match hits.as_slice() {
-            [one] => Ok(one),
+            [one] => Ok(*one),
             other => Err(PoseError::AxisPose(direction_name(&e), other.len())),
         }
     };
-    let mut out = [Estimate {
-        value: 0.0,
-        std_unc: 0.0,
-    }; 3];
-    for (j, o) in out.iter_mut().enumerate() {
-        let (up, down) = (find(j, 1.0)?, find(j, -1.0)?);
-        let v = match ch[j].pose_var {
-            Some(s2) => 2.0 * s2,
-            None => up.se()[j].powi(2) + down.se()[j].powi(2) + 2.0 * ch[j].tau.powi(2),
-        };
-        *o = Estimate {
-            value: 0.5 * (up.mean[j] + down.mean[j]),
-            std_unc: 0.5 * v.sqrt(),
-        };
+    let mut out = [[0; 2]; 3];
+    for (k, o) in out.iter_mut().enumerate() {
+        *o = [find(k, 1.0)?, find(k, -1.0)?];
     }
     Ok(out)
 }

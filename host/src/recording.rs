@@ -31,7 +31,7 @@
 //! Checks beyond formats.md: the rate (`rate_hz` metadata or column), `g_loc` and
 //! `sample_rate_hz` must be positive, `noise_sigma` non-negative; a known metadata key given
 //! twice with different values is an error; `seq` must be a non-negative integer; the
-//! uncertainty keys `u_g_loc` and `u_time_s` must be numbers ≥ 0.
+//! uncertainty keys `u_g_loc`, `u_time_s` and `u_angle_deg` must be numbers ≥ 0.
 
 use std::collections::BTreeMap;
 use std::fmt;
@@ -119,8 +119,9 @@ pub const KNOWN_KEYS: [&str; 7] = [
 
 /// Metadata keys rotacal adds (docs/formats.md): standard uncertainties of type-B inputs,
 /// checked when read (a finite number ≥ 0) and kept with the other keys.
-/// `u_g_loc` (m/s²), `u_time_s` (each timestamp, seconds, beyond its resolution: jitter).
-pub const UNCERTAINTY_KEYS: [&str; 2] = ["u_g_loc", "u_time_s"];
+/// `u_g_loc` (m/s²), `u_time_s` (each timestamp, seconds, beyond its resolution: jitter),
+/// `u_angle_deg` (each stepped table angle, degrees).
+pub const UNCERTAINTY_KEYS: [&str; 3] = ["u_g_loc", "u_time_s", "u_angle_deg"];
 
 impl Metadata {
     /// One of [`UNCERTAINTY_KEYS`], as checked when read.

@@ -481,10 +481,16 @@ pub fn write(rec: &Recording, opts: &Options, dir: &Path) -> Result<PathBuf, Rep
         if let Some(p) = &entry.poses {
             let _ = writeln!(
                 md,
-                "\nPoses ({}; condition number {:.2}; between-pose scatter τ = {:.2e}, {:.2e}, {:.2e} {units}; k = {:.2} from ν = {}):\n\n\
+                "\nPoses ({}; condition number {:.2}; {}: τ = {:.2e}, {:.2e}, {:.2e} {units}; k = {:.2} from ν = {}):\n\n\
                  | pose | ĝ | n | std u, v, w (how still) | residual u, v, w (mean − model) |\n| --- | --- | --- | --- | --- |",
                 p.list.len(),
                 p.condition_number,
+                match p.scatter {
+                    crate::orientation::Scatter::Tilt { sd_deg } =>
+                        format!("each pose tilted by {sd_deg:.2e}° per axis (estimated)"),
+                    crate::orientation::Scatter::PerChannel => "between-pose scatter".into(),
+                    crate::orientation::Scatter::None => "no scatter beyond the noise".into(),
+                },
                 p.tau[0],
                 p.tau[1],
                 p.tau[2],

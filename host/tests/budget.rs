@@ -195,3 +195,45 @@ fn the_file_key_and_the_flag() {
     );
     std::fs::remove_dir_all(&dir).ok();
 }
+
+#[test]
+fn the_table_angle_line_of_a_stepped_budget() {
+    // 30° steps, 20 readings a step, no angle errors in the data: the stated u_angle_deg
+    // is a type-B line with infinite degrees of freedom and a contribution to every
+    // property. (Its U need not exceed the unstated one: stating it changes the weights,
+    // and with them the scatter the poses' line reads.)
+    let mut cfg = Config::preset("metrologia-static").unwrap();
+    cfg.table.angle_step_deg = Some(30.0);
+    cfg.table.readings_per_angle = Some(20);
+    let rec = Simulation::new(cfg).unwrap().recording().unwrap();
+    let with = |u: Option<f64>| {
+        let opts = Options {
+            inputs: TypeB {
+                u_angle_deg: u,
+                ..TypeB::default()
+            },
+            ..Options::default()
+        };
+        calibrate(&rec, &opts).unwrap().by_rate.remove(0)
+    };
+    let (none, stated) = (with(None), with(Some(0.01)));
+    assert!(none
+        .uncertainty_budget
+        .as_ref()
+        .unwrap()
+        .source("table_angle")
+        .is_none());
+    let b = stated.uncertainty_budget.as_ref().unwrap();
+    let line = b.source("table_angle").unwrap();
+    assert_eq!(line.kind, rotacal::budget::Kind::B);
+    assert!(line.dof.iter().all(Option::is_none));
+    let (qn, qs) = (none.intrinsic.quantities(), stated.intrinsic.quantities());
+    for (i, (n, q)) in qn.iter().zip(&qs).enumerate() {
+        println!(
+            "{}: table_angle {:.3e}, U {:.3e} (none stated: {:.3e})",
+            b.quantities[i], line.contribution[i], q.expanded_unc, n.expanded_unc
+        );
+        assert!(line.contribution[i] > 0.0);
+    }
+    check_combination(&stated);
+}

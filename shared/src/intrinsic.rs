@@ -285,11 +285,33 @@ pub fn from_phase_differences(fits: &[ConditionFit; 3]) -> Result<[Estimate; 3],
 
 /// Intrinsic sensitivities and angles from a sensitivity matrix `s` (rows u, v, w, in
 /// output units per m/s²) whose rows are estimated independently with covariances
-/// `row_cov[j]` (3×3), as the static method gives them: `s_j = |S_j|`,
-/// `cos φ_jk = S_j·S_k/(s_j s_k)`.
+/// `row_cov[j]` (3×3): [`from_matrix_cov`] with a block-diagonal covariance.
 pub fn from_matrix(
     s: &[[f64; 3]; 3],
     row_cov: &[[[f64; 3]; 3]; 3],
+) -> Result<Intrinsic, IntrinsicError> {
+    let mut full = [[0.0; 9]; 9];
+    for (j, block) in row_cov.iter().enumerate() {
+        for (a, brow) in block.iter().enumerate() {
+            if let Some(frow) = full.get_mut(3 * j + a) {
+                for (b, x) in brow.iter().enumerate() {
+                    if let Some(f) = frow.get_mut(3 * j + b) {
+                        *f = *x;
+                    }
+                }
+            }
+        }
+    }
+    from_matrix_cov(s, &full)
+}
+
+/// Intrinsic sensitivities and angles from a sensitivity matrix `s` (rows u, v, w, in
+/// output units per m/s²) with the covariance `cov` of its nine elements (row-major), as
+/// the static method gives them: `s_j = |S_j|`, `cos φ_jk = S_j·S_k/(s_j s_k)`. The rows
+/// may be correlated (a pose's tilt moves all three channels).
+pub fn from_matrix_cov(
+    s: &[[f64; 3]; 3],
+    cov9: &[[f64; 9]; 9],
 ) -> Result<Intrinsic, IntrinsicError> {
     let dot = |a: &[f64; 3], b: &[f64; 3]| a.iter().zip(b).map(|(x, y)| x * y).sum::<f64>();
     let row = |j: usize| s.get(j).copied().unwrap_or([f64::NAN; 3]);
@@ -300,13 +322,16 @@ pub fn from_matrix(
         return Err(IntrinsicError::Degenerate);
     }
     let angles = cosines.map(|c| libm::acos(c).to_degrees());
-    // Gradient of each output with respect to each row S_m (3-vectors).
-    let mut grad = [[[0.0f64; 3]; 3]; 6];
+    // Gradient of each output with respect to the nine elements of S (row-major).
+    let mut grad = [[0.0f64; 9]; 6];
     for (o, go) in grad.iter_mut().enumerate() {
-        for (m, gm) in go.iter_mut().enumerate() {
+        for (m, gm) in go.chunks_exact_mut(3).enumerate() {
             if o < 3 {
                 if m == o {
-                    *gm = row(m).map(|x| x / at(&norms, m)); // ∂|S_m|/∂S_m = S_m/s_m
+                    // ∂|S_m|/∂S_m = S_m/s_m
+                    for (g, x) in gm.iter_mut().zip(row(m)) {
+                        *g = x / at(&norms, m);
+                    }
                 }
             } else {
                 let (j, k) = ANGLE_PAIRS.get(o - 3).copied().unwrap_or((0, 0));
@@ -332,14 +357,8 @@ pub fn from_matrix(
         for (c, gj) in ci.iter_mut().zip(grad.iter()) {
             *c = gi
                 .iter()
-                .zip(gj.iter())
-                .zip(row_cov.iter())
-                .map(|((a, b), m)| {
-                    m.iter()
-                        .zip(a)
-                        .map(|(mrow, ai)| ai * dot(mrow, b))
-                        .sum::<f64>()
-                })
+                .zip(cov9.iter())
+                .map(|(a, crow)| a * crow.iter().zip(gj).map(|(x, b)| x * b).sum::<f64>())
                 .sum();
         }
     }

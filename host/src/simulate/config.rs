@@ -362,6 +362,23 @@ pub struct Effects {
     /// The rate varies once per revolution.
     #[serde(default)]
     pub rate_ripple: Option<RateRipple>,
+    /// Static: each step of the table lands off its nominal orientation.
+    #[serde(default)]
+    pub step_error: Option<StepError>,
+}
+
+/// `step_error`: at each step (condition and angle) the table's true angle is the nominal
+/// one plus a normal error, and the platter is tilted by a small random rotation, normal
+/// about each axis; the file states the nominal angle. Independent from step to step.
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct StepError {
+    /// Standard deviation of the angle error, degrees.
+    #[serde(default)]
+    pub angle_sd_deg: f64,
+    /// Standard deviation of the tilt about each axis, degrees.
+    #[serde(default)]
+    pub tilt_sd_deg: f64,
 }
 
 /// `rate_error`.
@@ -766,6 +783,7 @@ impl Config {
                 only_for(
                     "static",
                     &[
+                        ("effects.step_error", self.effects.step_error.is_some()),
                         ("table.angles_deg", tb.angles_deg.is_some()),
                         ("table.angle_step_deg", tb.angle_step_deg.is_some()),
                         ("table.readings_per_angle", tb.readings_per_angle.is_some()),
@@ -843,6 +861,15 @@ impl Config {
         }
         if let Some(x) = &e.offset_drift {
             finite("effects.offset_drift.per_s", &x.per_s)?;
+        }
+        if let Some(x) = &e.step_error {
+            let ok = |v: f64| v.is_finite() && (0.0..=5.0).contains(&v);
+            if !ok(x.angle_sd_deg) || !ok(x.tilt_sd_deg) {
+                return bad(
+                    "effects.step_error",
+                    "angle_sd_deg and tilt_sd_deg must lie in [0, 5] degrees",
+                );
+            }
         }
         if let Some(x) = &e.temperature_offset {
             finite("effects.temperature_offset.per_c", &x.per_c)?;

@@ -17,7 +17,7 @@
 
 pub mod config;
 
-pub use config::{Config, ConfigError, Noise, NoiseSd, PRESETS};
+pub use config::{Config, ConfigError, Noise, NoiseSd, StepError, PRESETS};
 
 use crate::calibrate::gravity_direction;
 use crate::demo::sensitivity_from_intrinsic;
@@ -740,7 +740,10 @@ impl Simulation {
                     .max(f64::from(readings) / fs);
                 for cond in Condition::ALL {
                     for (k, deg) in angles.iter().enumerate() {
-                        let g_hat = gravity_direction(cond, deg.to_radians());
+                        let g_hat = match &c.effects.step_error {
+                            Some(e) => step_orientation(cond, *deg, e, &mut rng),
+                            None => gravity_direction(cond, deg.to_radians()),
+                        };
                         let f = g_hat.map(|v| c.g_loc * v);
                         for r in 0..readings {
                             let t = t0 + k as f64 * dwell + f64::from(r) / fs;
@@ -858,4 +861,26 @@ pub fn render(sim: &Simulation, sum: &Summary, out: &Path) -> String {
         if sim.states_noise_sigma() { "stated" } else { "not stated" }
     );
     o
+}
+
+/// ĝ at one step of a stepped table with `step_error`: the angle off by a normal error, then
+/// tilted by a small rotation t (normal about each axis): ĝ + t × ĝ, normalised.
+fn step_orientation(
+    cond: Condition,
+    deg: f64,
+    e: &config::StepError,
+    rng: &mut impl Rng,
+) -> [f64; 3] {
+    let mut normal =
+        || -> f64 { rand_distr::Distribution::sample(&rand_distr::StandardNormal, &mut *rng) };
+    let alpha = (deg + e.angle_sd_deg * normal()).to_radians();
+    let g = gravity_direction(cond, alpha);
+    let t = [0; 3].map(|_| e.tilt_sd_deg.to_radians() * normal());
+    let r = [
+        g[0] + t[1] * g[2] - t[2] * g[1],
+        g[1] + t[2] * g[0] - t[0] * g[2],
+        g[2] + t[0] * g[1] - t[1] * g[0],
+    ];
+    let n = r.iter().map(|v| v * v).sum::<f64>().sqrt();
+    r.map(|v| v / n)
 }
