@@ -412,7 +412,12 @@ fn plot_rates(cal: &CalibrationJson, path: &Path) -> Result<(), ReportError> {
 
 fn q(x: &Quantity, unit: &str) -> String {
     let d = calibrate_recording::decimals(x.expanded_unc);
-    format!("{:.d$} ± {:.d$} {unit}", x.value, x.expanded_unc)
+    let k = if (x.k - crate::calibration_file::K).abs() > 1e-12 {
+        format!(" (k = {:.2})", x.k)
+    } else {
+        String::new()
+    };
+    format!("{:.d$} ± {:.d$} {unit}{k}", x.value, x.expanded_unc)
 }
 
 /// Write the report; returns the Markdown file's path.
@@ -436,11 +441,11 @@ pub fn write(rec: &Recording, opts: &Options, dir: &Path) -> Result<PathBuf, Rep
             .map(|r| format!("Rotation at {r} Hz"))
             .unwrap_or_else(|| "Static".into());
         let _ = writeln!(md, "## {heading}\n");
-        let k = entry
-            .poses
-            .as_ref()
-            .map_or(crate::calibration_file::K, |p| p.k);
-        let _ = writeln!(md, "| property | value ± U (k = {k:.2}) |\n| --- | --- |");
+        let _ = writeln!(
+            md,
+            "| property | value ± U (k = {} unless stated) |\n| --- | --- |",
+            crate::calibration_file::K
+        );
         let names = crate::calibration_file::PROPERTY_NAMES;
         for (i, x) in props(entry).iter().enumerate() {
             let _ = writeln!(
