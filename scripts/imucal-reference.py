@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""The imucal numbers written into host/tests/imucal.rs, and how they were obtained.
+"""The imucal numbers written into host/tests/suite/imucal.rs, and how they were obtained.
 
 Not part of CI (it needs PyPI). To reproduce:
 

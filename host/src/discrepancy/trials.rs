@@ -1,4 +1,4 @@
-//! Simulated trials for the workflow's proof (host/tests/discrepancy.rs) and its
+//! Simulated trials for the workflow's proof (host/tests/suite/discrepancy.rs) and its
 //! detection-limit benchmark (`scripts/bench-discrepancy`): the data, with one effect of a
 //! given magnitude hidden in it, and the analysis of each seed.
 

@@ -2,7 +2,7 @@
 //! simulated truth round-trips within the stated uncertainty, rotation data become
 //! orthonormal sinusoids, static poses read g, and the exported constants compile and
 //! compute what `apply` computes.
-mod common;
+use crate::common;
 use common::run;
 use rotacal::apply;
 use rotacal::calibrate_recording::{calibrate, Options};

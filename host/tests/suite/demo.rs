@@ -1,7 +1,7 @@
 //! `rotacal demo` can fail: a clean run passes every check and its sentences agree with
 //! its numbers; a corrupted device fit fails it with status 1, naming the cross-check; a
 //! property moved 4 U from the truth fails its 3 U check.
-mod common;
+use crate::common;
 use common::run;
 use rotacal::calibration_file::{IntrinsicJson, Quantity, PROPERTY_NAMES};
 use rotacal::demo::{self, Check};

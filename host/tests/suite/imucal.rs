@@ -11,7 +11,7 @@
 //! rotacal runs through the binary with exactly the README's worked example.
 // imucal's printout is kept digit for digit (17 significant digits).
 #![allow(clippy::excessive_precision)]
-mod common;
+use crate::common;
 use common::run;
 use serde_json::Value;
 use std::path::{Path, PathBuf};

@@ -1,7 +1,7 @@
 //! The device logic's packets (the simulated session, run on the host) recorded into a
 //! recording and a fit log, then `rotacal crosscheck` on them: it passes on the true
 //! files, fails on a changed or missing sample, and names the line of a bad fit log.
-mod common;
+use crate::common;
 use common::run;
 use rotacal::acquire::Recorder;
 use rotacal::recording::{Metadata, Method};

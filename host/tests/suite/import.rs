@@ -1,7 +1,7 @@
 //! `rotacal import`: a simulated session written as three plain text logs (one per
 //! condition: a header, then "time_ms u v w" separated by spaces) imports into a recording
 //! that calibrates exactly as the original; and malformed logs name file and line.
-mod common;
+use crate::common;
 use common::run;
 use rotacal::simulate::{Config, Simulation};
 use std::path::{Path, PathBuf};

@@ -3,7 +3,7 @@
 //! metadata key against the flag.
 // Per-property index loops read more plainly over parallel lists.
 #![allow(clippy::needless_range_loop)]
-mod common;
+use crate::common;
 
 use rotacal::calibrate_recording::{calibrate, Options, TypeB};
 use rotacal::calibration_file::RateJson;

@@ -1,6 +1,6 @@
 //! `rotacal calibrate` end to end: recordings written with the recording writer, the
 //! binary run on them, its JSON checked against formats.md and the truth.
-mod common;
+use crate::common;
 use common::run;
 use rotacal::demo::{
     paper_run_spec, sensitivity_from_intrinsic, PAPER_DC_ANGLES_DEG, PAPER_DC_SENSITIVITY,

@@ -3,7 +3,7 @@
 //! garbage notifications, wrong firmware and protocol versions, a link that never
 //! returns. Every run is on a paused clock, so 262 s of recording take a fraction of
 //! a second. Then a real-time run of the binary killed with SIGKILL.
-mod common;
+use crate::common;
 use rotacal::capture;
 use rotacal::link::simulated::{Faults, SimulatedDevice};
 use rotacal::record::{self, Options, Outcome, Paths, Plan, Quiet, RecordError};

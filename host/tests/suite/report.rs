@@ -1,7 +1,7 @@
 //! `rotacal report`: every preset gives a Markdown report whose table is the calibration's,
 //! with its plots; the residual spectrum finds a simulated second-order nonlinearity at
 //! the second harmonic of the channel that has it; a bad file fails with its place.
-mod common;
+use crate::common;
 use common::run;
 use rotacal::simulate::{Config, Simulation};
 use std::path::PathBuf;

@@ -1,0 +1,26 @@
+//! The host's integration tests, one binary (`cargo test --release -p rotacal --test suite`;
+//! one module: `... --test suite -- coverage::`). One binary links once: nineteen linked
+//! separately took most of a fresh clone's test time.
+
+mod apply;
+mod budget;
+mod calibrate_cli;
+mod common;
+mod coverage;
+mod crosscheck_cli;
+mod demo;
+mod discrepancy;
+mod fit_vs_batch;
+mod import;
+mod imucal;
+mod intrinsic;
+mod malformed;
+mod mounting;
+mod noise;
+mod orientation;
+mod record;
+mod recording;
+mod report;
+mod session_check;
+mod simulator;
+mod static_method;
