@@ -18,66 +18,12 @@ use crate::crosscheck::CrosscheckReport;
 use crate::link::simulated::{Faults, SimulatedDevice};
 use crate::record::{self, Options, Outcome, Paths, Plan, Quiet};
 use crate::recording::{Metadata, Method};
+use crate::reference::{PAPER_10MHZ, PAPER_DC_ANGLES_DEG, PAPER_DC_SENSITIVITY, PAPER_G_LOC};
 use crate::simulate::{Config, Simulation};
-use rotacal_shared::synth::{self, crosscheck, SynthSpec};
-use rotacal_shared::{Condition, PhaseStep, TickRate};
+use rotacal_shared::Condition;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
-
-/// Seed 000 Table 1, DC column: sensitivities (counts per m/s²), angles φ_uv, φ_vw, φ_wu
-/// (degrees) and offsets (counts).
-pub const PAPER_DC_SENSITIVITY: [f64; 3] = [1669.32, 1669.10, 1676.46];
-/// See [`PAPER_DC_SENSITIVITY`].
-pub const PAPER_DC_ANGLES_DEG: [f64; 3] = [90.077, 90.095, 89.910];
-/// See [`PAPER_DC_SENSITIVITY`].
-pub const PAPER_DC_OFFSETS: [f64; 3] = [525.1, 99.6, 442.4];
-/// Seed 000 Table 1, 10 mHz column: s_u, s_v, s_w, φ_uv, φ_vw, φ_wu and their stated
-/// uncertainties (the paper does not give the coverage factor).
-pub const PAPER_10MHZ: [(f64, f64); 6] = [
-    (1669.54, 0.66),
-    (1669.14, 0.47),
-    (1676.43, 0.75),
-    (90.099, 0.032),
-    (90.122, 0.034),
-    (89.910, 0.040),
-];
-/// Seed 000's local gravity, m/s².
-pub const PAPER_G_LOC: f64 = 9.80101;
-
-/// A sensitivity matrix with the given intrinsic properties, in the device's own frame:
-/// u along x, v in the xy plane (method.md §1; any rotation of it has the same
-/// intrinsic properties).
-pub fn sensitivity_from_intrinsic(s: [f64; 3], angles_deg: [f64; 3]) -> [[f64; 3]; 3] {
-    let [uv, vw, wu] = angles_deg.map(f64::to_radians);
-    let u = [1.0, 0.0, 0.0];
-    let v = [uv.cos(), uv.sin(), 0.0];
-    let wx = wu.cos();
-    let wy = (vw.cos() - uv.cos() * wu.cos()) / uv.sin();
-    let w = [wx, wy, (1.0 - wx * wx - wy * wy).sqrt()];
-    [
-        u.map(|c| c * s[0]),
-        v.map(|c| c * s[1]),
-        w.map(|c| c * s[2]),
-    ]
-}
-
-/// Seed 000's 10 mHz run, one condition: the sensitivity matrix `s` (counts per m/s²)
-/// turned about platter axis `axis` (0 = x, 1 = y, 2 = z) with seed 000 Table 1's DC
-/// offsets, 4200 samples at 16 Hz with LSM6DS33 noise, timestamps on a 1 MHz clock.
-/// `step` is the true rotation per tick (nominally 10 mHz).
-pub fn paper_run_spec(s: &[[f64; 3]; 3], axis: usize, step: PhaseStep, seed: u64) -> SynthSpec {
-    SynthSpec {
-        coef: synth::coefficients(s, &PAPER_DC_OFFSETS, PAPER_G_LOC, axis),
-        noise_sigma: crosscheck::noise_sigma(16_000),
-        step,
-        clock: TickRate::MHZ_1,
-        sample_rate_mhz: 16_000,
-        n_samples: 4200,
-        drop_per_million: 0,
-        seed,
-    }
-}
 
 /// A fault put into the demo's chain on purpose (`rotacal demo --inject NAME`, a hidden
 /// option). It exists only to prove that the demo can fail: its tests use it to see the

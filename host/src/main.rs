@@ -66,48 +66,87 @@ impl From<FrameArg> for rotacal::correction::Frame {
     }
 }
 
+/// The choices of a calibration, shared by `calibrate` and `report` so that both give the
+/// same numbers for the same options.
+#[derive(clap::Args)]
+struct CalibrationArgs {
+    /// Override the method (default: the file's `method`, else rotation if it has t_s).
+    #[arg(long, value_enum)]
+    method: Option<MethodArg>,
+    /// Nominal rotation rate, Hz (overrides `# rate_hz=`).
+    #[arg(long)]
+    rate_hz: Option<f64>,
+    /// Local gravity, m/s² (overrides `# g_loc=`).
+    #[arg(long)]
+    g_loc: Option<f64>,
+    /// Standard uncertainty of g_loc, m/s² (overrides `# u_g_loc=`): about 1e-4 relative
+    /// from a latitude-and-height formula, 1e-5 from a gravity model or map, 1e-8 from
+    /// an absolute gravimeter.
+    #[arg(long)]
+    u_g_loc: Option<f64>,
+    /// Rotation files: standard uncertainty of each timestamp beyond its resolution
+    /// (jitter), seconds (overrides `# u_time_s=`).
+    #[arg(long)]
+    u_time_s: Option<f64>,
+    /// Stepped static files: standard uncertainty of each table angle, degrees
+    /// (overrides `# u_angle_deg=`): the table's positioning accuracy, independent from
+    /// step to step.
+    #[arg(long)]
+    u_angle_deg: Option<f64>,
+    /// Check the uncertainties by Monte Carlo (GUM Supplement 1) with N trials.
+    #[arg(long, value_name = "N")]
+    monte_carlo: Option<usize>,
+    /// Static data: how to weight the pose means.
+    #[arg(long, value_enum, default_value = "random-effects")]
+    pose_weights: WeightsArg,
+    /// Static data: which offsets to report.
+    #[arg(long, value_enum, default_value = "joint")]
+    offsets: OffsetsArg,
+}
+
+impl From<CalibrationArgs> for rotacal::calibrate_recording::Options {
+    fn from(a: CalibrationArgs) -> Self {
+        rotacal::calibrate_recording::Options {
+            method: a.method.map(|m| match m {
+                MethodArg::Rotation => rotacal::recording::Method::Rotation,
+                MethodArg::Static => rotacal::recording::Method::Static,
+            }),
+            rate_hz: a.rate_hz,
+            g_loc: a.g_loc,
+            monte_carlo: a.monte_carlo,
+            inputs: rotacal::calibrate_recording::TypeB {
+                u_g_loc: a.u_g_loc,
+                u_time_s: a.u_time_s,
+                u_angle_deg: a.u_angle_deg,
+            },
+            poses: rotacal::orientation::Options {
+                weights: match a.pose_weights {
+                    WeightsArg::RandomEffects => rotacal::orientation::Weights::RandomEffects,
+                    WeightsArg::Equal => rotacal::orientation::Weights::Equal,
+                },
+                offsets: match a.offsets {
+                    OffsetsArg::Joint => rotacal::orientation::OffsetEstimator::Joint,
+                    OffsetsArg::AxisPairs => rotacal::orientation::OffsetEstimator::AxisPairs,
+                },
+                // Set from the type-B inputs (flag or file) when the file is read.
+                u_angle_rad: None,
+            },
+        }
+    }
+}
+
 #[derive(Subcommand)]
 enum Command {
     /// Intrinsic properties (sensitivities, angles, offsets) with uncertainties from a
-    /// recording (../shared/docs/formats.md).
+    /// recording (the recording CSV: docs/formats.md in rotacal's source).
     Calibrate {
         /// The recording CSV.
         file: PathBuf,
-        /// Override the method (default: the file's `method`, else rotation if it has t_s).
-        #[arg(long, value_enum)]
-        method: Option<MethodArg>,
-        /// Nominal rotation rate, Hz (overrides `# rate_hz=`).
-        #[arg(long)]
-        rate_hz: Option<f64>,
-        /// Local gravity, m/s² (overrides `# g_loc=`).
-        #[arg(long)]
-        g_loc: Option<f64>,
-        /// Standard uncertainty of g_loc, m/s² (overrides `# u_g_loc=`): about 1e-4 relative
-        /// from a latitude-and-height formula, 1e-5 from a gravity model or map, 1e-8 from
-        /// an absolute gravimeter.
-        #[arg(long)]
-        u_g_loc: Option<f64>,
-        /// Rotation files: standard uncertainty of each timestamp beyond its resolution
-        /// (jitter), seconds (overrides `# u_time_s=`).
-        #[arg(long)]
-        u_time_s: Option<f64>,
-        /// Stepped static files: standard uncertainty of each table angle, degrees
-        /// (overrides `# u_angle_deg=`): the table's positioning accuracy, independent from
-        /// step to step.
-        #[arg(long)]
-        u_angle_deg: Option<f64>,
-        /// Write the result as JSON (formats.md) here.
+        #[command(flatten)]
+        options: CalibrationArgs,
+        /// Write the result as JSON (docs/formats.md) here.
         #[arg(long)]
         json: Option<PathBuf>,
-        /// Check the uncertainties by Monte Carlo (GUM Supplement 1) with N trials.
-        #[arg(long, value_name = "N")]
-        monte_carlo: Option<usize>,
-        /// Static data: how to weight the pose means.
-        #[arg(long, value_enum, default_value = "random-effects")]
-        pose_weights: WeightsArg,
-        /// Static data: which offsets to report.
-        #[arg(long, value_enum, default_value = "joint")]
-        offsets: OffsetsArg,
     },
     /// Correct readings with a calibration: a = M·(y − O) in m/s², written as a recording
     /// with each value's standard uncertainty from the calibration.
@@ -154,12 +193,8 @@ enum Command {
         /// The folder to write (created if missing).
         #[arg(long)]
         out: PathBuf,
-        /// Nominal rotation rate, Hz (overrides `# rate_hz=`).
-        #[arg(long)]
-        rate_hz: Option<f64>,
-        /// Local gravity, m/s² (overrides `# g_loc=`).
-        #[arg(long)]
-        g_loc: Option<f64>,
+        #[command(flatten)]
+        options: CalibrationArgs,
     },
     /// Re-fit in f64 exactly the sample windows the device fitted, and compare
     /// (exit 1 if any differs by more than the threshold).
@@ -186,7 +221,7 @@ enum Command {
     Discrepancy {
         /// The recording CSV (rotation).
         file: PathBuf,
-        /// Write the analysis as JSON (formats.md) here.
+        /// Write the analysis as JSON (docs/formats.md) here.
         #[arg(long)]
         json: Option<PathBuf>,
         /// Write a report folder (Markdown, residual and spectrum plots) here.
@@ -244,46 +279,9 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Calibrate {
             file,
-            method,
-            rate_hz,
-            g_loc,
-            u_g_loc,
-            u_time_s,
-            u_angle_deg,
+            options,
             json,
-            monte_carlo,
-            pose_weights,
-            offsets,
-        } => calibrate(
-            file,
-            json,
-            rotacal::calibrate_recording::Options {
-                method: method.map(|m| match m {
-                    MethodArg::Rotation => rotacal::recording::Method::Rotation,
-                    MethodArg::Static => rotacal::recording::Method::Static,
-                }),
-                rate_hz,
-                g_loc,
-                monte_carlo,
-                inputs: rotacal::calibrate_recording::TypeB {
-                    u_g_loc,
-                    u_time_s,
-                    u_angle_deg,
-                },
-                poses: rotacal::orientation::Options {
-                    weights: match pose_weights {
-                        WeightsArg::RandomEffects => rotacal::orientation::Weights::RandomEffects,
-                        WeightsArg::Equal => rotacal::orientation::Weights::Equal,
-                    },
-                    offsets: match offsets {
-                        OffsetsArg::Joint => rotacal::orientation::OffsetEstimator::Joint,
-                        OffsetsArg::AxisPairs => rotacal::orientation::OffsetEstimator::AxisPairs,
-                    },
-                    // Set from the type-B inputs (flag or file) when the file is read.
-                    u_angle_rad: None,
-                },
-            },
-        ),
+        } => calibrate(file, json, options.into()),
         Command::Apply {
             calibration,
             recording,
@@ -321,12 +319,7 @@ fn main() -> ExitCode {
             out.as_deref(),
         ),
         Command::Simulate { config, out, seed } => simulate(&config, &out, seed),
-        Command::Report {
-            file,
-            out,
-            rate_hz,
-            g_loc,
-        } => report(&file, &out, rate_hz, g_loc),
+        Command::Report { file, out, options } => report(&file, &out, &options.into()),
         Command::Import(args) => import::run(args),
         Command::Crosscheck {
             recording,
@@ -472,16 +465,10 @@ fn export(
 fn report(
     file: &std::path::Path,
     out: &std::path::Path,
-    rate_hz: Option<f64>,
-    g_loc: Option<f64>,
+    opts: &rotacal::calibrate_recording::Options,
 ) -> anyhow::Result<()> {
     let rec = rotacal::recording::read(file)?;
-    let opts = rotacal::calibrate_recording::Options {
-        rate_hz,
-        g_loc,
-        ..Default::default()
-    };
-    let path = rotacal::report::write(&rec, &opts, out)?;
+    let path = rotacal::report::write(&rec, opts, out)?;
     rotacal::output::emit(&format!("wrote {}\n", path.display()))?;
     Ok(())
 }

@@ -13,15 +13,12 @@
 
 use crate::calibrate_recording::{self, calibrate, CalibrateError, Options, CLOCK};
 use crate::calibration_file::{CalibrationJson, FitJson, Quantity, RateJson};
+use crate::harmonics::{harmonic_amplitudes, HARMONICS};
 use crate::recording::{Group, Method, Recording};
-use nalgebra::{Matrix3, Vector3};
 use plotters::prelude::*;
 use rotacal_shared::PhaseStep;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
-
-/// Harmonics of ω whose residual amplitude is reported.
-pub const HARMONICS: usize = 8;
 
 /// Most points drawn per series (the data are decimated evenly beyond that).
 const MAX_POINTS: usize = 3000;
@@ -122,25 +119,6 @@ pub(crate) fn residuals(s: &Series, ch: usize) -> Vec<f64> {
         .iter()
         .zip(&s.model[ch])
         .map(|(y, m)| y - m)
-        .collect()
-}
-
-/// Residual amplitude at harmonic k = 1..HARMONICS: LS fit of a·sin kα + b·cos kα + c.
-pub(crate) fn harmonic_amplitudes(alpha: &[f64], r: &[f64]) -> Vec<f64> {
-    (1..=HARMONICS)
-        .map(|k| {
-            let k = k as f64;
-            let mut m = Matrix3::zeros();
-            let mut v = Vector3::zeros();
-            for (a, y) in alpha.iter().zip(r) {
-                let h = Vector3::new((k * a).sin(), (k * a).cos(), 1.0);
-                m += h * h.transpose();
-                v += h * *y;
-            }
-            m.lu()
-                .solve(&v)
-                .map_or(f64::NAN, |c| (c[0] * c[0] + c[1] * c[1]).sqrt())
-        })
         .collect()
 }
 

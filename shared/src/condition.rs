@@ -45,6 +45,17 @@ impl Condition {
         }
     }
 
+    /// ĝ(α), the direction of gravity's reading in the platter frame at table angle
+    /// `alpha_rad` (method.md §1): the sign convention of the conditions, in one place.
+    pub fn gravity_direction(self, alpha_rad: f64) -> [f64; 3] {
+        let (s, c) = (libm::sin(alpha_rad), libm::cos(alpha_rad));
+        match self {
+            Condition::X => [0.0, s, c],
+            Condition::Y => [s, 0.0, c],
+            Condition::Z => [s, c, 0.0],
+        }
+    }
+
     /// From the letter used in files (lower or upper case).
     pub const fn from_letter(c: char) -> Option<Condition> {
         match c {

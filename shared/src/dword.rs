@@ -7,7 +7,7 @@
 //! 2 % of the error budget. Built on the error-free transformations TwoSum (Knuth) and
 //! TwoProd (Dekker, no FMA needed), so it is exact IEEE arithmetic on every platform.
 
-use crate::real::Real;
+use crate::real::{fast_two_sum, Real};
 use core::ops::{Add, Mul, Neg, Sub};
 
 /// `hi + lo` with `|lo| ≤ ulp(hi)/2` after normalisation.
@@ -27,13 +27,6 @@ pub fn two_sum<T: Real>(a: T, b: T) -> (T, T) {
     let bb = s - a;
     let e = (a - (s - bb)) + (b - bb);
     (s, e)
-}
-
-/// TwoSum when `|a| ≥ |b|` is known: three operations instead of six.
-#[inline(always)]
-fn fast_two_sum<T: Real>(a: T, b: T) -> (T, T) {
-    let s = a + b;
-    (s, b - (s - a))
 }
 
 #[inline(always)]

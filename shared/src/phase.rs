@@ -69,11 +69,13 @@ impl Phase {
         const EIGHTH: u64 = 1 << 61; // one octant in 2⁻⁶⁴ turns
         let quadrant = self.0 >> 62;
         let r = self.0 & (2 * EIGHTH - 1);
+        let dw = |(hi, lo): (T, T)| DoubleWord { hi, lo };
         let (s, c) = if r <= EIGHTH {
-            T::sin_cos_octant(r)
+            let (s, c) = T::sin_cos_octant(r);
+            (dw(s), dw(c))
         } else {
             let (s, c) = T::sin_cos_octant(2 * EIGHTH - r);
-            (c, s)
+            (dw(c), dw(s))
         };
         match quadrant {
             0 => (s, c),

@@ -1,6 +1,5 @@
 //! The floating-point types the fit runs on: `f32` on the device, `f64` on the host.
 
-use crate::dword::DoubleWord;
 use core::fmt::Debug;
 use core::ops::{Add, AddAssign, Div, Mul, Neg, Sub, SubAssign};
 
@@ -46,8 +45,9 @@ pub trait Real:
     fn abs(self) -> Self;
     /// Whether the value is neither NaN nor infinite.
     fn is_finite(self) -> bool;
-    /// `(sin x, cos x)` in double-word precision for `x = r·(π/4)/2⁶¹`, `r ≤ 2⁶¹`
-    /// (an angle within the first octant, in 2⁻⁶⁴ turns).
+    /// `(sin x, cos x)` in double-word precision, each as (hi, lo) with |lo| ≤ ulp(hi)/2,
+    /// for `x = r·(π/4)/2⁶¹`, `r ≤ 2⁶¹` (an angle within the first octant, in 2⁻⁶⁴
+    /// turns). `crate::phase` makes them `DoubleWord`s.
     ///
     /// Why double word: during a steady rotation the samples fall on the same few hundred
     /// phases again and again, so the rounding of an f32 sine does not average out; it
@@ -56,7 +56,15 @@ pub trait Real:
     /// angle (≤ 1.6e-3 rad), accurate to ~1e-10 in about 20 f32 operations; libm's
     /// `sinf` would be both less accurate and, working in f64, which the Cortex-M4F only
     /// emulates, hundreds of instructions. For `f64` it is libm's sin and cos.
-    fn sin_cos_octant(r: u64) -> (DoubleWord<Self>, DoubleWord<Self>);
+    fn sin_cos_octant(r: u64) -> ((Self, Self), (Self, Self));
+}
+
+/// Fast2Sum (Dekker): `(s, e)` with `s = fl(a + b)` and `a + b = s + e` exactly, when
+/// |a| ≥ |b| is known: three operations instead of TwoSum's six.
+#[inline(always)]
+pub(crate) fn fast_two_sum<T: Real>(a: T, b: T) -> (T, T) {
+    let s = a + b;
+    (s, b - (s - a))
 }
 
 impl Real for f32 {
@@ -84,7 +92,7 @@ impl Real for f32 {
     fn is_finite(self) -> bool {
         f32::is_finite(self)
     }
-    fn sin_cos_octant(r: u64) -> (DoubleWord<Self>, DoubleWord<Self>) {
+    fn sin_cos_octant(r: u64) -> ((Self, Self), (Self, Self)) {
         const SHIFT: u32 = 61 - 8; // 256 table steps per octant
         let i = (r + (1 << (SHIFT - 1))) >> SHIFT;
         // Remainder from the nearest table point, |d| ≤ 2⁵², as an angle b.
@@ -103,8 +111,8 @@ impl Real for f32 {
         // Renormalised (|lo| ≤ ulp(hi)/2) so that products of two regressors may drop
         // lo·lo. Fast2Sum is exact here: the table value always dominates the bracket
         // (|S| ≥ sin(π/1024) > 1.6e-3 except at i = 0, where S = 0).
-        let s = DoubleWord::fast_normalised(sh, sl + (sh * cos_b_1 + ch * sin_b));
-        let c = DoubleWord::fast_normalised(ch, cl + (ch * cos_b_1 - sh * sin_b));
+        let s = fast_two_sum(sh, sl + (sh * cos_b_1 + ch * sin_b));
+        let c = fast_two_sum(ch, cl + (ch * cos_b_1 - sh * sin_b));
         (s, c)
     }
 }
@@ -138,11 +146,8 @@ impl Real for f64 {
     fn is_finite(self) -> bool {
         f64::is_finite(self)
     }
-    fn sin_cos_octant(r: u64) -> (DoubleWord<Self>, DoubleWord<Self>) {
+    fn sin_cos_octant(r: u64) -> ((Self, Self), (Self, Self)) {
         let x = r as f64 * (core::f64::consts::FRAC_PI_4 / (1u64 << 61) as f64);
-        (
-            DoubleWord::from_t(libm::sin(x)),
-            DoubleWord::from_t(libm::cos(x)),
-        )
+        ((libm::sin(x), 0.0), (libm::cos(x), 0.0))
     }
 }

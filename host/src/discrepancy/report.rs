@@ -218,7 +218,9 @@ pub fn write(a: &Analysis, dir: &Path, units: &str) -> Result<PathBuf, ReportErr
             let res = dir.join(format!("residuals_{}.svg", s.stem));
             report::plot_residuals(&s, &res, units)?;
             let amps: Vec<Vec<f64>> = (0..3)
-                .map(|ch| report::harmonic_amplitudes(&s.alpha, &report::residuals(&s, ch)))
+                .map(|ch| {
+                    crate::harmonics::harmonic_amplitudes(&s.alpha, &report::residuals(&s, ch))
+                })
                 .collect();
             let spec = dir.join(format!("spectrum_{}.svg", s.stem));
             report::plot_spectrum(&s, &amps, &spec, units)?;

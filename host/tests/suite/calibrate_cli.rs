@@ -2,11 +2,9 @@
 //! binary run on them, its JSON checked against formats.md and the truth.
 use crate::common;
 use common::run;
-use rotacal::demo::{
-    paper_run_spec, sensitivity_from_intrinsic, PAPER_DC_ANGLES_DEG, PAPER_DC_SENSITIVITY,
-    PAPER_G_LOC,
-};
+use rotacal::geometry::sensitivity_from_intrinsic;
 use rotacal::recording::{Columns, Metadata, Method, Row, Writer};
+use rotacal::reference::{paper_run_spec, PAPER_DC_ANGLES_DEG, PAPER_DC_SENSITIVITY, PAPER_G_LOC};
 use rotacal_shared::synth::Synth;
 use rotacal_shared::{Condition, PhaseStep, TickRate};
 use serde_json::Value;
@@ -187,7 +185,7 @@ fn static_recording_to_json() {
     for c in Condition::ALL {
         for i in 0..72usize {
             let a = i as f64 * 5.0;
-            let gd = rotacal::calibrate::gravity_direction(c, a.to_radians());
+            let gd = c.gravity_direction(a.to_radians());
             let y = [0, 1, 2].map(|j| {
                 9.801018 * (s[j][0] * gd[0] + s[j][1] * gd[1] + s[j][2] * gd[2])
                     + 0.001 * j as f64

@@ -21,7 +21,7 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rotacal::calibrate_recording::{calibrate, Options, TypeB};
 use rotacal::calibration_file::{Quantity, RateJson};
-use rotacal::demo::PAPER_10MHZ;
+use rotacal::reference::PAPER_10MHZ;
 use rotacal::simulate::{Config, Noise, Simulation, StepError, Truth};
 use std::f64::consts::TAU;
 

@@ -88,3 +88,95 @@ fn a_bad_recording_fails_with_its_place() {
     assert!(!ok);
     assert!(err.contains("bad.csv:3"), "{err}");
 }
+
+/// `rotacal report` takes `calibrate`'s options and shows the same numbers as its JSON:
+/// here a stepped file with equal pose weights and a stated g_loc uncertainty, which
+/// change U against the defaults (so a report that ignored them would fail).
+#[test]
+fn the_report_and_the_json_agree_for_the_same_options() {
+    let d = dir("options");
+    let rec = d.join("rec.csv");
+    let mut cfg = Config::preset("metrologia-static").unwrap();
+    cfg.table.angle_step_deg = Some(30.0);
+    cfg.table.readings_per_angle = Some(20);
+    Simulation::new(cfg).unwrap().write_file(&rec).unwrap();
+    let options = ["--pose-weights", "equal", "--u-g-loc", "1e-4"].map(String::from);
+    let table = |args: &[String], name: &str| -> Vec<(f64, f64)> {
+        let out = d.join(name);
+        let mut a = vec![
+            "report".to_string(),
+            rec.display().to_string(),
+            "--out".into(),
+            out.display().to_string(),
+        ];
+        a.extend_from_slice(args);
+        let (ok, stdout, stderr) = run(&a);
+        assert!(ok, "{stdout}\n{stderr}");
+        let md = std::fs::read_to_string(out.join("report.md")).unwrap();
+        [
+            "s_u", "s_v", "s_w", "φ_uv", "φ_vw", "φ_wu", "O_u", "O_v", "O_w",
+        ]
+        .iter()
+        .map(|q| {
+            let row = md
+                .lines()
+                .find(|l| l.starts_with(&format!("| {q} |")))
+                .unwrap();
+            let cell = row.split('|').nth(2).unwrap();
+            let nums: Vec<f64> = cell
+                .split_whitespace()
+                .filter_map(|t| t.parse().ok())
+                .collect();
+            (nums[0], nums[1])
+        })
+        .collect()
+    };
+    let json = d.join("cal.json");
+    let mut a = vec![
+        "calibrate".to_string(),
+        rec.display().to_string(),
+        "--json".into(),
+        json.display().to_string(),
+    ];
+    a.extend_from_slice(&options);
+    let (ok, _, stderr) = run(&a);
+    assert!(ok, "{stderr}");
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let intrinsic = &v["by_rate"][0]["intrinsic"];
+    let expected: Vec<(f64, f64)> = [
+        ("sensitivity", "u"),
+        ("sensitivity", "v"),
+        ("sensitivity", "w"),
+        ("angle_deg", "uv"),
+        ("angle_deg", "vw"),
+        ("angle_deg", "wu"),
+        ("offset", "u"),
+        ("offset", "v"),
+        ("offset", "w"),
+    ]
+    .iter()
+    .map(|(g, k)| {
+        let q = &intrinsic[*g][*k];
+        (
+            q["value"].as_f64().unwrap(),
+            q["expanded_unc"].as_f64().unwrap(),
+        )
+    })
+    .collect();
+    let agree = |md: &[(f64, f64)]| {
+        md.iter().zip(&expected).all(|((vm, um), (vj, uj))| {
+            // The report rounds U to two significant digits and the value to match.
+            let d = rotacal::calibrate_recording::decimals(*uj);
+            let tol = 0.5001 * 10f64.powi(-(d as i32));
+            (vm - vj).abs() <= tol && (um - uj).abs() <= tol
+        })
+    };
+    let with = table(&options, "with");
+    assert!(agree(&with), "{with:?}\n{expected:?}");
+    let without = table(&[], "without");
+    assert!(
+        !agree(&without),
+        "the options made no difference: {without:?}"
+    );
+}

@@ -6,7 +6,7 @@
 
 use rand::{Rng, SeedableRng};
 use rand_distr::{Distribution, Normal};
-use rotacal::calibrate::{gravity_direction, static_method, StaticCondition};
+use rotacal::calibrate::{static_method, StaticCondition};
 use rotacal::geometry::{mounted, rotation};
 use rotacal_shared::Condition;
 
@@ -136,7 +136,7 @@ fn simulate(s: &[[f64; 3]; 3], o: &[f64; 3], sigma: f64, rng: &mut impl Rng) -> 
             [0, 1, 2].map(|j| {
                 a.iter()
                     .map(|d| {
-                        let gd = gravity_direction(*c, d.to_radians());
+                        let gd = c.gravity_direction(d.to_radians());
                         G * (s[j][0] * gd[0] + s[j][1] * gd[1] + s[j][2] * gd[2])
                             + o[j]
                             + noise.sample(&mut *rng)

@@ -6,10 +6,10 @@
 //! (`rotacal_shared::intrinsic`); and the static stepped method (seed 001).
 
 use crate::batch::{self, BatchError};
+pub use crate::orientation::StaticCondition;
 use crate::orientation::{self, PoseError, PoseFit};
 use nalgebra::{DMatrix, DVector};
 use rotacal_shared::intrinsic::{self, ConditionFit, Estimate, Intrinsic, IntrinsicError};
-use rotacal_shared::Condition;
 
 /// The rotation method's result for one rate.
 #[derive(Clone, Debug)]
@@ -27,19 +27,6 @@ pub fn rotation(cf: &[ConditionFit; 3], g: f64) -> Result<RotationCalibration, I
         intrinsic: intrinsic::from_gram(cf, g, 0.0)?,
         phase_angles_deg: intrinsic::from_phase_differences(cf)?,
     })
-}
-
-/// One condition of a static (stepped-angle) record.
-#[derive(Clone, Copy, Debug)]
-pub struct StaticCondition<'a> {
-    /// The platter axis turned about.
-    pub condition: Condition,
-    /// Table angle of each row, degrees.
-    pub angle_deg: &'a [f64],
-    /// Readings u, v, w of each row.
-    pub y: [&'a [f64]; 3],
-    /// 1-based file line of the first row (0: not from a file).
-    pub first_line: u64,
 }
 
 /// A fit `y = A sin α + B cos α + O` of one channel of one condition.
@@ -110,16 +97,6 @@ pub enum StaticError {
     /// No intrinsic properties.
     #[error(transparent)]
     Intrinsic(#[from] IntrinsicError),
-}
-
-/// ĝ(α) in the platter frame for `condition` (method.md §1).
-pub fn gravity_direction(condition: Condition, alpha_rad: f64) -> [f64; 3] {
-    let (s, c) = alpha_rad.sin_cos();
-    match condition {
-        Condition::X => [0.0, s, c],
-        Condition::Y => [s, 0.0, c],
-        Condition::Z => [s, c, 0.0],
-    }
 }
 
 /// The stepped static method (seed 001): the per-condition sine fits of its Table 1 and

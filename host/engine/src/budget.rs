@@ -4,8 +4,6 @@
 //! quadrature (they are independent), the effective degrees of freedom by Welch–
 //! Satterthwaite, and a coverage factor per property (docs/uncertainty.md).
 
-use crate::calibration_file::Quantity;
-use rotacal_shared::intrinsic::Estimate;
 use serde::Serialize;
 
 /// Type A (evaluated from the data) or type B (from other knowledge).
@@ -174,22 +172,6 @@ impl Budget {
                 }
             })
             .collect();
-    }
-
-    /// Property `i` as a [`Quantity`] with `value` and the combined uncertainty.
-    pub fn quantity(&self, i: usize, value: f64) -> Quantity {
-        match self.combined.get(i) {
-            Some(c) => Quantity {
-                value,
-                std_unc: c.std_unc,
-                expanded_unc: c.expanded_unc,
-                k: c.k,
-            },
-            None => Quantity::from(Estimate {
-                value,
-                std_unc: f64::NAN,
-            }),
-        }
     }
 
     /// The source named `name`.

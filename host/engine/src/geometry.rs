@@ -20,3 +20,20 @@ pub fn rotation(axis: [f64; 3], deg: f64) -> [[f64; 3]; 3] {
 pub fn mounted(s: &[[f64; 3]; 3], r: &[[f64; 3]; 3]) -> [[f64; 3]; 3] {
     s.map(|row| r.map(|ra| row.iter().zip(ra).map(|(x, y)| x * y).sum()))
 }
+
+/// A sensitivity matrix with the given intrinsic properties, in the device's own frame:
+/// u along x, v in the xy plane (method.md §1; any rotation of it has the same
+/// intrinsic properties).
+pub fn sensitivity_from_intrinsic(s: [f64; 3], angles_deg: [f64; 3]) -> [[f64; 3]; 3] {
+    let [uv, vw, wu] = angles_deg.map(f64::to_radians);
+    let u = [1.0, 0.0, 0.0];
+    let v = [uv.cos(), uv.sin(), 0.0];
+    let wx = wu.cos();
+    let wy = (vw.cos() - uv.cos() * wu.cos()) / uv.sin();
+    let w = [wx, wy, (1.0 - wx * wx - wy * wy).sqrt()];
+    [
+        u.map(|c| c * s[0]),
+        v.map(|c| c * s[1]),
+        w.map(|c| c * s[2]),
+    ]
+}

@@ -13,7 +13,6 @@
 pub mod locate;
 pub mod model;
 pub mod noise;
-pub mod report;
 pub mod trials;
 
 use crate::calibration_file::Quantity;

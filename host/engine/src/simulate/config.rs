@@ -12,15 +12,15 @@ use std::fmt;
 pub const PRESETS: [(&str, &str); 3] = [
     (
         "paper-10mhz",
-        include_str!("../../presets/paper-10mhz.toml"),
+        include_str!("../../../presets/paper-10mhz.toml"),
     ),
     (
         "paper-multirate",
-        include_str!("../../presets/paper-multirate.toml"),
+        include_str!("../../../presets/paper-multirate.toml"),
     ),
     (
         "metrologia-static",
-        include_str!("../../presets/metrologia-static.toml"),
+        include_str!("../../../presets/metrologia-static.toml"),
     ),
 ];
 

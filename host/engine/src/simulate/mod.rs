@@ -19,8 +19,7 @@ pub mod config;
 
 pub use config::{Config, ConfigError, Noise, NoiseSd, StepError, PRESETS};
 
-use crate::calibrate::gravity_direction;
-use crate::demo::sensitivity_from_intrinsic;
+use crate::geometry::sensitivity_from_intrinsic;
 use crate::geometry::{mounted, rotation};
 use crate::recording::{self, Columns, Metadata, Method, Recording, Row, Writer};
 use rand::{Rng, SeedableRng};
@@ -742,7 +741,7 @@ impl Simulation {
                     for (k, deg) in angles.iter().enumerate() {
                         let g_hat = match &c.effects.step_error {
                             Some(e) => step_orientation(cond, *deg, e, &mut rng),
-                            None => gravity_direction(cond, deg.to_radians()),
+                            None => cond.gravity_direction(deg.to_radians()),
                         };
                         let f = g_hat.map(|v| c.g_loc * v);
                         for r in 0..readings {
@@ -783,7 +782,7 @@ impl Simulation {
             let psi = r.phase_deg.to_radians();
             alpha += r.relative * ((omega * tj + psi).sin() - psi.sin());
         }
-        let mut f = gravity_direction(cond, alpha).map(|v| self.cfg.g_loc * v);
+        let mut f = cond.gravity_direction(alpha).map(|v| self.cfg.g_loc * v);
         if let Some(cp) = &e.centripetal {
             let a = omega * omega * cp.radius_m;
             for (fi, d) in f.iter_mut().zip(self.outward[cond.index()]) {
@@ -874,7 +873,7 @@ fn step_orientation(
     let mut normal =
         || -> f64 { rand_distr::Distribution::sample(&rand_distr::StandardNormal, &mut *rng) };
     let alpha = (deg + e.angle_sd_deg * normal()).to_radians();
-    let g = gravity_direction(cond, alpha);
+    let g = cond.gravity_direction(alpha);
     let t = [0; 3].map(|_| e.tilt_sd_deg.to_radians() * normal());
     let r = [
         g[0] + t[1] * g[2] - t[2] * g[1],

@@ -12,10 +12,23 @@
 //! squares with σ̂² = RSS/(P − 4). The expanded uncertainty uses Student's t for the
 //! degrees of freedom behind the variance: P − 4 when τ > 0, else those of the pose noise.
 
-use crate::calibrate::{gravity_direction, StaticCondition};
 use crate::recording::Oriented;
 use nalgebra::{DMatrix, Matrix3, Matrix4, SMatrix, SVector, Vector3, Vector4};
 use rotacal_shared::intrinsic::Estimate;
+use rotacal_shared::Condition;
+
+/// One condition of a static (stepped-angle) record.
+#[derive(Clone, Copy, Debug)]
+pub struct StaticCondition<'a> {
+    /// The platter axis turned about.
+    pub condition: Condition,
+    /// Table angle of each row, degrees.
+    pub angle_deg: &'a [f64],
+    /// Readings u, v, w of each row.
+    pub y: [&'a [f64]; 3],
+    /// 1-based file line of the first row (0: not from a file).
+    pub first_line: u64,
+}
 
 /// The readings at one orientation.
 #[derive(Clone, Debug, PartialEq, serde::Serialize)]
@@ -559,16 +572,16 @@ pub fn poses_from_conditions(conds: &[StaticCondition<'_>]) -> Vec<Pose> {
             let noise = pose_noise(&rows, &mean);
             out.push(Pose {
                 name: format!("{} {deg}°", g.condition.letter()),
-                gravity: gravity_direction(g.condition, deg.to_radians()),
+                gravity: g.condition.gravity_direction(deg.to_radians()),
                 n: rows.len(),
                 mean,
                 std,
                 first_line: g.first_line,
                 noise,
-                angle_direction: Some(gravity_direction(
-                    g.condition,
-                    deg.to_radians() + std::f64::consts::FRAC_PI_2,
-                )),
+                angle_direction: Some(
+                    g.condition
+                        .gravity_direction(deg.to_radians() + std::f64::consts::FRAC_PI_2),
+                ),
             });
         }
     }

@@ -409,6 +409,22 @@ pub struct CalibrationJson {
     pub by_rate: Vec<RateJson>,
 }
 
+/// Property `i` of a budget as a [`Quantity`] with `value` and its combined uncertainty.
+fn budget_quantity(b: &crate::budget::Budget, i: usize, value: f64) -> Quantity {
+    match b.combined.get(i) {
+        Some(c) => Quantity {
+            value,
+            std_unc: c.std_unc,
+            expanded_unc: c.expanded_unc,
+            k: c.k,
+        },
+        None => Quantity::from(Estimate {
+            value,
+            std_unc: f64::NAN,
+        }),
+    }
+}
+
 /// `intrinsic`: the values, each with the uncertainty of its combined line in the budget
 /// (in the order s_u … φ_wu, then the offsets).
 fn intrinsic_json(
@@ -416,7 +432,7 @@ fn intrinsic_json(
     offsets: Option<&[Estimate; 3]>,
     budget: &crate::budget::Budget,
 ) -> IntrinsicJson {
-    let q = |k: usize, e: &Estimate| budget.quantity(k, e.value);
+    let q = |k: usize, e: &Estimate| budget_quantity(budget, k, e.value);
     let uvw = |e: &[Estimate; 3], at: usize| Uvw {
         u: q(at, &e[0]),
         v: q(at + 1, &e[1]),
