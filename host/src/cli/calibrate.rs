@@ -1,0 +1,125 @@
+//! `rotacal calibrate`: a recording to its calibration, printed and optionally as JSON.
+use clap::ValueEnum;
+use std::path::PathBuf;
+
+/// `--method`.
+#[derive(Clone, Copy, ValueEnum)]
+pub enum MethodArg {
+    /// Constant-rate rotation (seed 000).
+    Rotation,
+    /// Stepped angles or known orientations (seed 001, poses).
+    Static,
+}
+
+/// `--pose-weights`.
+#[derive(Clone, Copy, ValueEnum)]
+pub enum WeightsArg {
+    /// Each pose mean by its covariance: its readings' noise and a tilt of the pose
+    /// estimated from the poses (default; per channel 1/(se² + τ²) for single readings).
+    RandomEffects,
+    /// Every pose equally (ordinary least squares on the pose means, as imucal).
+    Equal,
+}
+
+/// `--offsets`.
+#[derive(Clone, Copy, ValueEnum)]
+pub enum OffsetsArg {
+    /// From the joint fit of all poses (default).
+    Joint,
+    /// imucal's: each channel's from the up/down pair of its own axis.
+    AxisPairs,
+}
+
+/// The choices of a calibration, shared by `calibrate` and `report` so that both give the
+/// same numbers for the same options.
+#[derive(clap::Args)]
+pub struct Options {
+    /// Override the method (default: the file's `method`, else rotation if it has t_s).
+    #[arg(long, value_enum)]
+    pub method: Option<MethodArg>,
+    /// Nominal rotation rate, Hz (overrides `# rate_hz=`).
+    #[arg(long)]
+    pub rate_hz: Option<f64>,
+    /// Local gravity, m/s² (overrides `# g_loc=`).
+    #[arg(long)]
+    pub g_loc: Option<f64>,
+    /// Standard uncertainty of g_loc, m/s² (overrides `# u_g_loc=`): about 1e-4 relative
+    /// from a latitude-and-height formula, 1e-5 from a gravity model or map, 1e-8 from
+    /// an absolute gravimeter.
+    #[arg(long)]
+    pub u_g_loc: Option<f64>,
+    /// Rotation files: standard uncertainty of each timestamp beyond its resolution
+    /// (jitter), seconds (overrides `# u_time_s=`).
+    #[arg(long)]
+    pub u_time_s: Option<f64>,
+    /// Stepped static files: standard uncertainty of each table angle, degrees
+    /// (overrides `# u_angle_deg=`): the table's positioning accuracy, independent from
+    /// step to step.
+    #[arg(long)]
+    pub u_angle_deg: Option<f64>,
+    /// Check the uncertainties by Monte Carlo (GUM Supplement 1) with N trials.
+    #[arg(long, value_name = "N")]
+    pub monte_carlo: Option<usize>,
+    /// Static data: how to weight the pose means.
+    #[arg(long, value_enum, default_value = "random-effects")]
+    pub pose_weights: WeightsArg,
+    /// Static data: which offsets to report.
+    #[arg(long, value_enum, default_value = "joint")]
+    pub offsets: OffsetsArg,
+}
+
+impl From<Options> for rotacal::calibrate_recording::Options {
+    fn from(a: Options) -> Self {
+        rotacal::calibrate_recording::Options {
+            method: a.method.map(|m| match m {
+                MethodArg::Rotation => rotacal::recording::Method::Rotation,
+                MethodArg::Static => rotacal::recording::Method::Static,
+            }),
+            rate_hz: a.rate_hz,
+            g_loc: a.g_loc,
+            monte_carlo: a.monte_carlo,
+            inputs: rotacal::calibrate_recording::TypeB {
+                u_g_loc: a.u_g_loc,
+                u_time_s: a.u_time_s,
+                u_angle_deg: a.u_angle_deg,
+            },
+            poses: rotacal::orientation::Options {
+                weights: match a.pose_weights {
+                    WeightsArg::RandomEffects => rotacal::orientation::Weights::RandomEffects,
+                    WeightsArg::Equal => rotacal::orientation::Weights::Equal,
+                },
+                offsets: match a.offsets {
+                    OffsetsArg::Joint => rotacal::orientation::OffsetEstimator::Joint,
+                    OffsetsArg::AxisPairs => rotacal::orientation::OffsetEstimator::AxisPairs,
+                },
+                // Set from the type-B inputs (flag or file) when the file is read.
+                u_angle_rad: None,
+            },
+        }
+    }
+}
+
+/// `rotacal calibrate` arguments.
+#[derive(clap::Args)]
+pub struct Args {
+    /// The recording CSV.
+    pub file: PathBuf,
+    #[command(flatten)]
+    pub options: Options,
+    /// Write the result as JSON (docs/formats.md) here.
+    #[arg(long)]
+    pub json: Option<PathBuf>,
+}
+
+/// Run it.
+pub fn run(a: Args) -> anyhow::Result<()> {
+    let opts: rotacal::calibrate_recording::Options = a.options.into();
+    let rec = rotacal::recording::read(&a.file)?;
+    let cal = rotacal::calibrate_recording::calibrate(&rec, &opts)?;
+    if let Some(path) = a.json {
+        let text = serde_json::to_string_pretty(&cal)? + "\n";
+        std::fs::write(&path, text).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+    }
+    rotacal::output::emit(&rotacal::calibrate_recording::render(&cal))?;
+    Ok(())
+}

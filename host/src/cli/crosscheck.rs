@@ -1,0 +1,47 @@
+//! `rotacal crosscheck`: the device's fits against f64 re-fits of the same samples.
+use std::path::PathBuf;
+
+/// `rotacal crosscheck` arguments.
+#[derive(clap::Args)]
+pub struct Args {
+    /// The recording CSV (with a seq column).
+    pub recording: PathBuf,
+    /// The device's fit log (JSON lines).
+    pub fit_log: PathBuf,
+    /// Pass threshold, in σ_CRLB.
+    #[arg(long, default_value_t = rotacal::crosscheck::DEFAULT_THRESHOLD)]
+    pub threshold: f64,
+    /// Write the comparison as JSON here.
+    #[arg(long)]
+    pub json: Option<PathBuf>,
+}
+
+/// Run it (an error when a fit differs by more than the threshold).
+pub fn run(a: Args) -> anyhow::Result<()> {
+    crosscheck(&a.recording, &a.fit_log, a.threshold, a.json.as_deref())
+}
+
+fn crosscheck(
+    recording: &std::path::Path,
+    fit_log: &std::path::Path,
+    threshold: f64,
+    json: Option<&std::path::Path>,
+) -> anyhow::Result<()> {
+    // One condition is enough to check the device's fits of it.
+    let rec = rotacal::recording::read_in_progress(recording)?;
+    let text = std::fs::read_to_string(fit_log)
+        .map_err(|e| anyhow::anyhow!("{}: {e}", fit_log.display()))?;
+    let log = rotacal::acquire::read_fit_log(&text, &fit_log.display().to_string())
+        .map_err(anyhow::Error::msg)?;
+    let report =
+        rotacal::crosscheck::crosscheck(&rec, &log, threshold).map_err(anyhow::Error::msg)?;
+    if let Some(path) = json {
+        std::fs::write(path, serde_json::to_string_pretty(&report)? + "\n")
+            .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+    }
+    rotacal::output::emit(&rotacal::crosscheck::render(&report))?;
+    if !report.passed {
+        anyhow::bail!("the device's fits do not match the recording (see the table)");
+    }
+    Ok(())
+}

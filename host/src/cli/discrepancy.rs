@@ -1,0 +1,67 @@
+//! `rotacal discrepancy`: where model and measurement disagree, and which effect explains it.
+use std::path::PathBuf;
+
+/// `rotacal discrepancy` arguments.
+#[derive(clap::Args)]
+pub struct Args {
+    /// The recording CSV (rotation).
+    pub file: PathBuf,
+    /// Write the analysis as JSON (docs/formats.md) here.
+    #[arg(long)]
+    pub json: Option<PathBuf>,
+    /// Write a report folder (Markdown, residual and spectrum plots) here.
+    #[arg(long)]
+    pub report: Option<PathBuf>,
+    /// Local gravity, m/s² (overrides `# g_loc=`).
+    #[arg(long)]
+    pub g_loc: Option<f64>,
+    /// Nominal rotation rate, Hz (overrides `# rate_hz=`).
+    #[arg(long)]
+    pub rate_hz: Option<f64>,
+    /// Significance of each effect's F-test.
+    #[arg(long, default_value_t = rotacal::discrepancy::ALPHA)]
+    pub alpha: f64,
+}
+
+/// Run it.
+pub fn run(a: Args) -> anyhow::Result<()> {
+    discrepancy(
+        &a.file,
+        a.json.as_deref(),
+        a.report.as_deref(),
+        a.g_loc,
+        a.rate_hz,
+        a.alpha,
+    )
+}
+
+fn discrepancy(
+    file: &std::path::Path,
+    json: Option<&std::path::Path>,
+    report: Option<&std::path::Path>,
+    g_loc: Option<f64>,
+    rate_hz: Option<f64>,
+    alpha: f64,
+) -> anyhow::Result<()> {
+    if !(alpha > 0.0 && alpha < 1.0) {
+        anyhow::bail!("--alpha {alpha}: expected a probability between 0 and 1");
+    }
+    let rec = rotacal::recording::read(file)?;
+    let opts = rotacal::discrepancy::Options {
+        g_loc,
+        rate_hz,
+        alpha,
+    };
+    let a = rotacal::discrepancy::run(&rec, &opts).map_err(anyhow::Error::msg)?;
+    if let Some(path) = json {
+        std::fs::write(path, serde_json::to_string_pretty(&a)? + "\n")
+            .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+    }
+    rotacal::output::emit(&rotacal::discrepancy::report::render(&a))?;
+    if let Some(dir) = report {
+        let units = rec.meta.units.as_deref().unwrap_or("output units");
+        let path = rotacal::discrepancy::report::write(&a, dir, units)?;
+        rotacal::output::emit(&format!("report: {}\n", path.display()))?;
+    }
+    Ok(())
+}

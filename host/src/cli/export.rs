@@ -1,0 +1,60 @@
+//! `rotacal export`: the correction as constants to embed.
+use super::FrameArg;
+use clap::ValueEnum;
+use std::path::PathBuf;
+
+#[derive(Clone, Copy, ValueEnum)]
+pub enum FormatArg {
+    C,
+    Rust,
+    Json,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+pub enum PrecisionArg {
+    F32,
+    F64,
+}
+
+/// `rotacal export` arguments.
+#[derive(clap::Args)]
+pub struct Args {
+    /// The calibration JSON (`rotacal calibrate --json`).
+    pub calibration: PathBuf,
+    /// Output language.
+    #[arg(long, value_enum)]
+    pub format: FormatArg,
+    /// The frame.
+    #[arg(long, value_enum, default_value = "device")]
+    pub frame: FrameArg,
+    /// Floating-point type of the constants (C and Rust).
+    #[arg(long, value_enum, default_value = "f32")]
+    pub precision: PrecisionArg,
+    /// Which calibration, when the file has several rates.
+    #[arg(long)]
+    pub rate_hz: Option<f64>,
+    /// Write here instead of standard output.
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+}
+
+/// Run it.
+pub fn run(a: Args) -> anyhow::Result<()> {
+    let format = match a.format {
+        FormatArg::C => rotacal::export::Format::C,
+        FormatArg::Rust => rotacal::export::Format::Rust,
+        FormatArg::Json => rotacal::export::Format::Json,
+    };
+    let precision = match a.precision {
+        PrecisionArg::F32 => rotacal::export::Precision::F32,
+        PrecisionArg::F64 => rotacal::export::Precision::F64,
+    };
+    let l = rotacal::apply::load(&a.calibration, a.rate_hz, a.frame.into())?;
+    let name = a.calibration.display().to_string();
+    let body = rotacal::export::render(&l.json, &l.correction, &name, format, precision);
+    match a.out {
+        Some(p) => std::fs::write(&p, body).map_err(|e| anyhow::anyhow!("{}: {e}", p.display()))?,
+        None => rotacal::output::emit(&body)?,
+    }
+    Ok(())
+}

@@ -1,0 +1,23 @@
+//! `rotacal report`: a Markdown report with plots, calibrated with `calibrate`'s options.
+use std::path::PathBuf;
+
+/// `rotacal report` arguments.
+#[derive(clap::Args)]
+pub struct Args {
+    /// The recording CSV.
+    pub file: PathBuf,
+    /// The folder to write (created if missing).
+    #[arg(long)]
+    pub out: PathBuf,
+    #[command(flatten)]
+    pub options: super::calibrate::Options,
+}
+
+/// Run it.
+pub fn run(a: Args) -> anyhow::Result<()> {
+    let opts: rotacal::calibrate_recording::Options = a.options.into();
+    let rec = rotacal::recording::read(&a.file)?;
+    let path = rotacal::report::write(&rec, &opts, &a.out)?;
+    rotacal::output::emit(&format!("wrote {}\n", path.display()))?;
+    Ok(())
+}
