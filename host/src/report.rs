@@ -468,12 +468,7 @@ pub fn write(rec: &Recording, opts: &Options, dir: &Path) -> Result<PathBuf, Rep
                  | pose | ĝ | n | std u, v, w (how still) | residual u, v, w (mean − model) |\n| --- | --- | --- | --- | --- |",
                 p.list.len(),
                 p.condition_number,
-                match p.scatter {
-                    crate::orientation::Scatter::Tilt { sd_deg } =>
-                        format!("each pose tilted by {sd_deg:.2e}° per axis (estimated)"),
-                    crate::orientation::Scatter::PerChannel => "between-pose scatter".into(),
-                    crate::orientation::Scatter::None => "no scatter beyond the noise".into(),
-                },
+                p.scatter,
                 p.tau[0],
                 p.tau[1],
                 p.tau[2],

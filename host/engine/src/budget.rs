@@ -148,8 +148,9 @@ impl Budget {
                     .iter()
                     .filter_map(|(u, nu, _)| nu.map(|nu| u.powi(4) / nu))
                     .sum();
-                let nu_eff = (denom > 0.0).then(|| var * var / denom);
-                let k = crate::orientation::coverage_factor(nu_eff.unwrap_or(f64::INFINITY));
+                let nu = welch_satterthwaite(var, denom);
+                let nu_eff = nu.is_finite().then_some(nu);
+                let k = coverage_factor(nu);
                 let dominant = terms
                     .iter()
                     .fold((f64::NEG_INFINITY, ""), |best, t| {
@@ -177,5 +178,27 @@ impl Budget {
     /// The source named `name`.
     pub fn source(&self, name: &str) -> Option<&Source> {
         self.sources.iter().find(|s| s.source == name)
+    }
+}
+
+/// Student's t quantile for a two-sided 95 % interval.
+pub fn coverage_factor(nu: f64) -> f64 {
+    use statrs::distribution::{ContinuousCDF, StudentsT};
+    // k = 2 (the convention of every other result here) unless few degrees of freedom
+    // call for more.
+    if !(1.0..=1e6).contains(&nu) {
+        return 2.0;
+    }
+    StudentsT::new(0.0, 1.0, nu)
+        .map(|t| t.inverse_cdf(0.975).max(2.0))
+        .unwrap_or(2.0)
+}
+
+/// ν_eff = var² / Σ(u_i⁴/ν_i), given that sum (infinite when it is 0).
+pub fn welch_satterthwaite(var: f64, denom: f64) -> f64 {
+    if denom > 0.0 && denom.is_finite() {
+        var * var / denom
+    } else {
+        f64::INFINITY
     }
 }

@@ -6,8 +6,7 @@
 //! (`rotacal_shared::intrinsic`); and the static stepped method (seed 001).
 
 use crate::batch::{self, BatchError};
-pub use crate::orientation::StaticCondition;
-use crate::orientation::{self, PoseError, PoseFit};
+use crate::orientation::{self, PoseError, PoseFit, StaticCondition};
 use nalgebra::{DMatrix, DVector};
 use rotacal_shared::intrinsic::{self, ConditionFit, Estimate, Intrinsic, IntrinsicError};
 

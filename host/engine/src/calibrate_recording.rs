@@ -9,11 +9,11 @@
 
 use crate::batch;
 use crate::budget::{Budget, Kind};
-use crate::calibrate::{self, StaticCondition};
+use crate::calibrate;
 use crate::calibration_file::{self, CalibrationJson, CorrectionJson, FitJson, NoiseJson};
 use crate::correction;
 use crate::noise::{self, NoiseError, NoiseModel};
-use crate::orientation;
+use crate::orientation::{self, StaticCondition};
 use crate::recording::{Group, Method, Recording};
 use nalgebra::DMatrix;
 use rotacal_shared::intrinsic::{self, ConditionFit};
@@ -709,55 +709,46 @@ pub fn static_budget(
         }
         Ok(var)
     };
-    let mut per_channel: Vec<([f64; 9], f64)> = Vec::new();
-    let (mut noise, mut tilt) = ([0.0; 9], [0.0; 9]);
-    for part in &fit.parts {
-        let var = forms(part)?;
-        match part.source {
-            orientation::PartSource::TableAngle => {
-                let u = inputs.u_angle_deg.unwrap_or(f64::NAN);
-                let sd: Vec<f64> = var.iter().map(|v| v.max(0.0).sqrt()).collect();
-                b.vector(
-                    "table_angle",
-                    Kind::B,
-                    format!(
-                        "each table angle off by u = {u} deg (stated; independent from step to \
-                         step), moving ĝ along the rotation; through the joint fit"
-                    ),
-                    &sd,
-                    &[None; 9],
-                );
-            }
-            orientation::PartSource::PoseNoise => noise = var,
-            orientation::PartSource::PoseTilt => tilt = var,
-            orientation::PartSource::Channel(_) => per_channel.push((var, part.nu)),
+    // Each part's variances (the unit tilt's too), computed once.
+    let unit = fit.tilt_scale.as_ref().map(|t| &t.unit);
+    let cache = fit
+        .parts
+        .iter()
+        .chain(unit)
+        .map(|c| Ok((c, forms(c)?)))
+        .collect::<Result<Vec<_>, String>>()?;
+    let of = |q: usize| {
+        let cache = &cache;
+        move |c: &orientation::CovPart| {
+            cache
+                .iter()
+                .find(|(p, _)| std::ptr::eq(*p, c))
+                .map_or(0.0, |(_, v)| v[q])
+        }
+    };
+    for (part, var) in &cache {
+        if part.source == orientation::PartSource::TableAngle {
+            let u = inputs.u_angle_deg.unwrap_or(f64::NAN);
+            let sd: Vec<f64> = var.iter().map(|v| v.max(0.0).sqrt()).collect();
+            b.vector(
+                "table_angle",
+                Kind::B,
+                format!(
+                    "each table angle off by u = {u} deg (stated; independent from step to \
+                     step), moving ĝ along the rotation; through the joint fit"
+                ),
+                &sd,
+                &[None; 9],
+            );
         }
     }
-    let mut contribution = Vec::with_capacity(9);
-    let mut dof = Vec::with_capacity(9);
-    match &fit.tilt_scale {
-        Some(ts) => {
-            let unit = forms(&ts.unit)?;
-            for q in 0..9 {
-                let (var, nu) = fit.pose_variance(noise[q], tilt[q], unit[q]);
-                contribution.push(var.max(0.0).sqrt());
-                dof.push(nu.is_finite().then_some(nu));
-            }
-        }
-        None => {
-            // Each channel alone, or the readings' noise with no degrees of freedom left
-            // for a tilt: an angle combines two channels by Welch–Satterthwaite.
-            if per_channel.is_empty() {
-                per_channel.push((noise, fit.parts.first().map_or(f64::INFINITY, |p| p.nu)));
-            }
-            for q in 0..9 {
-                let var: f64 = per_channel.iter().map(|(v, _)| v[q]).sum::<f64>().max(0.0);
-                let denom: f64 = per_channel.iter().map(|(v, n)| v[q].powi(2) / n).sum();
-                contribution.push(var.sqrt());
-                dof.push((denom > 0.0 && denom.is_finite()).then(|| var * var / denom));
-            }
-        }
-    }
+    let weigh = fit.weighing();
+    let (contribution, dof): (Vec<f64>, Vec<Option<f64>>) = (0..9)
+        .map(|q| {
+            let (var, nu) = weigh.poses(of(q));
+            (var.max(0.0).sqrt(), nu.is_finite().then_some(nu))
+        })
+        .unzip();
     let description = match fit.scatter {
         orientation::Scatter::PerChannel => "the least-squares fit of S and O to the pose means \
              (JSON poses), each channel alone with its variance from the poses' scatter and its \
@@ -981,19 +972,14 @@ fn rotation_budget(
 
 fn render_poses(p: &calibration_file::PosesJson, units: &str) -> String {
     let mut o = String::new();
-    let scatter = match p.scatter {
-        orientation::Scatter::Tilt { sd_deg } => format!(
-            "each pose tilted by {sd_deg:.2e}° per axis (estimated; its effect τ = {:.2e} {:.2e} {:.2e} {units})",
-            p.tau[0], p.tau[1], p.tau[2]
-        ),
-        orientation::Scatter::PerChannel => format!(
-            "between-pose scatter τ = {:.2e} {:.2e} {:.2e} {units}",
-            p.tau[0], p.tau[1], p.tau[2]
-        ),
-        orientation::Scatter::None => match p.chi2_dof_joint {
-            Some(q) => format!("no scatter beyond the noise (joint χ²/dof = {q:.2})"),
-            None => "no scatter beyond the noise".to_string(),
-        },
+    let tau = format!(
+        "τ = {:.2e} {:.2e} {:.2e} {units}",
+        p.tau[0], p.tau[1], p.tau[2]
+    );
+    let scatter = match (p.scatter, p.chi2_dof_joint) {
+        (orientation::Scatter::None, Some(q)) => format!("{} (joint χ²/dof = {q:.2})", p.scatter),
+        (orientation::Scatter::None, None) => p.scatter.to_string(),
+        _ => format!("{}: {tau}", p.scatter),
     };
     let _ = writeln!(
         o,

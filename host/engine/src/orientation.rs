@@ -12,6 +12,7 @@
 //! squares with σ̂² = RSS/(P − 4). The expanded uncertainty uses Student's t for the
 //! degrees of freedom behind the variance: P − 4 when τ > 0, else those of the pose noise.
 
+use crate::budget::{coverage_factor, welch_satterthwaite};
 use crate::recording::Oriented;
 use nalgebra::{DMatrix, Matrix3, Matrix4, SMatrix, SVector, Vector3, Vector4};
 use rotacal_shared::intrinsic::Estimate;
@@ -146,6 +147,19 @@ pub enum Scatter {
     /// A variance τ_j² per channel, added to each pose mean's own (single readings, equal
     /// weights, or scatter that no tilt explains).
     PerChannel,
+}
+
+impl std::fmt::Display for Scatter {
+    /// What the terminal and the report say of it.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Scatter::None => f.write_str("no scatter beyond the noise"),
+            Scatter::Tilt { sd_deg } => {
+                write!(f, "each pose tilted by {sd_deg:.2e}° per axis (estimated)")
+            }
+            Scatter::PerChannel => f.write_str("between-pose scatter"),
+        }
+    }
 }
 
 /// Where one part of the covariance of (S, O) comes from.
@@ -301,7 +315,7 @@ pub struct PoseFit {
     /// What the fit did that its user should know, each in a sentence.
     pub notes: Vec<String>,
     /// The joint fit's view of a tilt, behind each quantity's variance and degrees of
-    /// freedom ([`PoseFit::pose_variance`]); `None` when the channels were fitted alone or
+    /// freedom ([`Weighing`]); `None` when the channels were fitted alone or
     /// there are no degrees of freedom.
     pub tilt_scale: Option<TiltScale>,
 }
@@ -315,8 +329,6 @@ pub struct TiltScale {
     pub chi2_per_dof_per_rad2: f64,
     /// χ²/dof at the noise-only weights when no tilt was estimated (below 1), else 1.
     pub q: f64,
-    /// The readings' degrees of freedom, Σ(n − 1).
-    pub noise_dof: f64,
 }
 
 impl PoseFit {
@@ -340,91 +352,28 @@ impl PoseFit {
 
     /// Standard uncertainties of S.
     pub fn s_std(&self) -> [[f64; 3]; 3] {
-        [0, 1, 2].map(|j| [0, 1, 2].map(|k| self.var_theta(s_index(j, k)).max(0.0).sqrt()))
+        let w = self.weighing();
+        [0, 1, 2].map(|j| {
+            [0, 1, 2].map(|k| {
+                let i = s_index(j, k);
+                w.total(|c| c.theta[(i, i)]).0.max(0.0).sqrt()
+            })
+        })
     }
 
-    /// Coverage factor of each element of (S row-major, O): Student's t at its Welch–
-    /// Satterthwaite degrees of freedom over the parts.
+    /// Coverage factor of each element of (S row-major, O): Student's t at its degrees of
+    /// freedom ([`Weighing`]).
     pub fn k_theta(&self) -> [f64; 12] {
-        std::array::from_fn(|i| coverage_factor(self.nu_theta(i)))
+        let w = self.weighing();
+        std::array::from_fn(|i| coverage_factor(w.total(|c| c.theta[(i, i)]).1))
     }
 
-    /// The variance of one quantity from the pose parts and its degrees of freedom, given
-    /// the quantity's variance from each part (`noise`: [`PartSource::PoseNoise`], `tilt`:
-    /// [`PartSource::PoseTilt`], `unit_tilt`: [`TiltScale::unit`]; zero where absent).
-    ///
-    /// With six poses the joint χ² has 6 degrees of freedom, too few to tell a small tilt
-    /// from none: a tilt variance estimated only when χ² exceeds them (Paule–Mandel) would
-    /// leave U too large when there is none and too small when it is just below what χ²
-    /// can see. What saves a quantity that a tilt moves (an off-diagonal element of S, an
-    /// angle) is to take its variance from the poses' scatter, as χ² gives it, with Student's
-    /// t at 3P − 12 (Knapp–Hartung); a quantity a tilt hardly moves (a diagonal element, a
-    /// sensitivity) keeps its noise variance and the readings' many degrees of freedom.
-    /// Between the two, w = (the quantity's relative increase per rad² of tilt) / (χ²/dof's
-    /// increase per rad²), in [0, 1], weighs the first way against the second.
-    pub fn pose_variance(&self, noise: f64, tilt: f64, unit_tilt: f64) -> (f64, f64) {
-        let Some(ts) = &self.tilt_scale else {
-            return (noise + tilt, f64::INFINITY);
-        };
-        let dof = (3 * self.poses.len()).saturating_sub(12) as f64;
-        let w = if noise > 0.0 && ts.chi2_per_dof_per_rad2 > 0.0 {
-            ((unit_tilt / noise) / ts.chi2_per_dof_per_rad2).clamp(0.0, 1.0)
-        } else {
-            0.0
-        };
-        // (known from the readings, from the poses' scatter)
-        let (known, scatter) = if tilt > 0.0 {
-            ((1.0 - w) * noise, w * noise + tilt)
-        } else {
-            ((1.0 - w) * noise, w * ts.q * noise)
-        };
-        let var = known + scatter;
-        let denom = known.powi(2) / ts.noise_dof + scatter.powi(2) / dof;
-        (
-            var,
-            if denom > 0.0 {
-                var * var / denom
-            } else {
-                f64::INFINITY
-            },
-        )
-    }
-
-    /// Variance and degrees of freedom of element `i` of (S, O): the parts as
-    /// [`PoseFit::pose_variance`] weighs them, and the table angle's (ν infinite).
-    fn theta_var_nu(&self, i: usize) -> (f64, f64) {
-        let Some(t) = &self.tilt_scale else {
-            return (self.cov[(i, i)], nu_eff(&self.parts, i));
-        };
-        let form = |src: PartSource| {
-            self.parts
-                .iter()
-                .filter(|c| c.source == src)
-                .map(|c| c.theta[(i, i)])
-                .sum::<f64>()
-        };
-        let (var, nu) = self.pose_variance(
-            form(PartSource::PoseNoise),
-            form(PartSource::PoseTilt),
-            t.unit.theta[(i, i)],
-        );
-        let total = var + form(PartSource::TableAngle);
-        let nu = if nu.is_finite() && var > 0.0 {
-            total * total / (var * var / nu)
-        } else {
-            f64::INFINITY
-        };
-        (total, nu)
-    }
-
-    /// Degrees of freedom of element `i` of (S, O).
-    fn nu_theta(&self, i: usize) -> f64 {
-        self.theta_var_nu(i).1
-    }
-
-    /// Variance of element `i` of (S, O).
-    fn var_theta(&self, i: usize) -> f64 {
-        self.theta_var_nu(i).0
+    /// How the parts of the covariance combine into one quantity's variance.
+    pub fn weighing(&self) -> Weighing<'_> {
+        Weighing {
+            parts: &self.parts,
+            tilt: self.tilt_scale.as_ref(),
+        }
     }
 
     /// The offsets of the chosen estimator.
@@ -439,6 +388,86 @@ impl PoseFit {
 /// The S block of a covariance of (S, O), as an array.
 pub fn s_block(c: &Cov12) -> [[f64; 9]; 9] {
     std::array::from_fn(|a| std::array::from_fn(|b| c[(a, b)]))
+}
+
+/// How the independent parts of the pose fit's covariance combine into one quantity's
+/// variance and degrees of freedom. The quantity (an element of S or O, an offset, or
+/// through its Jacobian a sensitivity or angle) is given by its variance from each part,
+/// `of(part)`.
+///
+/// With six poses the joint χ² has 6 degrees of freedom, too few to tell a small tilt from
+/// none: a tilt variance estimated only when χ² exceeds them (Paule–Mandel) would leave U
+/// too large when there is none and too small when it is just below what χ² can see. What
+/// saves a quantity that a tilt moves (an off-diagonal element of S, an angle) is to take
+/// its variance from the poses' scatter, as χ² gives it, with Student's t at 3P − 12
+/// (Knapp–Hartung); a quantity a tilt hardly moves (a diagonal element, a sensitivity)
+/// keeps its noise variance and the readings' many degrees of freedom. Between the two,
+/// w = (the quantity's relative increase per rad² of tilt) / (χ²/dof's increase per rad²),
+/// in [0, 1], weighs the first way against the second. Without a joint fit (each channel
+/// alone) the parts add, their degrees of freedom by Welch–Satterthwaite.
+#[derive(Clone, Copy, Debug)]
+pub struct Weighing<'a> {
+    parts: &'a [CovPart],
+    tilt: Option<&'a TiltScale>,
+}
+
+impl Weighing<'_> {
+    /// The poses' line (every part but the stated table angle): variance and ν.
+    pub fn poses(&self, of: impl Fn(&CovPart) -> f64) -> (f64, f64) {
+        let sum = |src: PartSource| {
+            self.parts
+                .iter()
+                .filter(|c| c.source == src)
+                .map(&of)
+                .sum::<f64>()
+        };
+        let Some(ts) = self.tilt else {
+            let (var, denom) = self
+                .parts
+                .iter()
+                .filter(|c| c.source != PartSource::TableAngle)
+                .map(|c| {
+                    let x = of(c);
+                    (x, x * x / c.nu)
+                })
+                .fold((0.0, 0.0), |(v, d), (x, y)| (v + x, d + y));
+            return (var, welch_satterthwaite(var, denom));
+        };
+        let (noise, tilt) = (sum(PartSource::PoseNoise), sum(PartSource::PoseTilt));
+        let w = if noise > 0.0 && ts.chi2_per_dof_per_rad2 > 0.0 {
+            ((of(&ts.unit) / noise) / ts.chi2_per_dof_per_rad2).clamp(0.0, 1.0)
+        } else {
+            0.0
+        };
+        // Known from the readings, and from the poses' scatter (3P − 12 = the unit part's ν).
+        let known = (1.0 - w) * noise;
+        let scatter = if tilt > 0.0 {
+            w * noise + tilt
+        } else {
+            w * ts.q * noise
+        };
+        let var = known + scatter;
+        let noise_nu = self
+            .parts
+            .iter()
+            .find(|c| c.source == PartSource::PoseNoise)
+            .map_or(f64::INFINITY, |c| c.nu);
+        let denom = known.powi(2) / noise_nu + scatter.powi(2) / ts.unit.nu;
+        (var, welch_satterthwaite(var, denom))
+    }
+
+    /// The poses' line and the stated table angle's (ν infinite) together.
+    pub fn total(&self, of: impl Fn(&CovPart) -> f64) -> (f64, f64) {
+        let angle: f64 = self
+            .parts
+            .iter()
+            .filter(|c| c.source == PartSource::TableAngle)
+            .map(&of)
+            .sum();
+        let (var, nu) = self.poses(of);
+        let total = var + angle;
+        (total, welch_satterthwaite(total, var * var / nu))
+    }
 }
 
 /// Each channel's noise model at a pose, when it has enough readings: the mean's variance
@@ -635,19 +664,6 @@ fn conditioning(poses: &[Pose]) -> (f64, String) {
     (cond, format!("{d} (the {axis} axis reading {reads})"))
 }
 
-/// Student's t quantile for a two-sided 95 % interval.
-pub fn coverage_factor(nu: f64) -> f64 {
-    use statrs::distribution::{ContinuousCDF, StudentsT};
-    // k = 2 (the convention of every other result here) unless few degrees of freedom
-    // call for more.
-    if !(1.0..=1e6).contains(&nu) {
-        return 2.0;
-    }
-    StudentsT::new(0.0, 1.0, nu)
-        .map(|t| t.inverse_cdf(0.975).max(2.0))
-        .unwrap_or(2.0)
-}
-
 /// Weighted fit of one channel with variances `var` (all > 0, or all equal).
 fn wls(x: &[[f64; 4]], y: &[f64], var: &[f64]) -> Option<([f64; 4], Matrix4<f64>, f64)> {
     let mut m = Matrix4::zeros();
@@ -738,12 +754,18 @@ fn gls(x: &[Design], y: &[Vector3<f64>], v: &[Matrix3<f64>]) -> Option<Gls> {
 /// The covariance one part `v` of the pose means' covariance gives (S, O) under the
 /// weights of `fit`: C·(Σ XᵀW·V·WX)·C. The parts add up to C.
 fn sandwich(fit: &Gls, x: &[Design], v: &[Matrix3<f64>]) -> Cov12 {
-    let mut meat = Cov12::zeros();
-    for ((xp, w), vp) in x.iter().zip(&fit.weights).zip(v) {
-        let wx = w * xp;
-        meat += wx.transpose() * vp * wx;
-    }
-    fit.cov * meat * fit.cov
+    fit.cov * meat(fit, x, v) * fit.cov
+}
+
+/// Σ XᵀW·V·WX under the weights of `fit`.
+fn meat(fit: &Gls, x: &[Design], v: &[Matrix3<f64>]) -> Cov12 {
+    x.iter()
+        .zip(&fit.weights)
+        .zip(v)
+        .fold(Cov12::zeros(), |m, ((xp, w), vp)| {
+            let wx = w * xp;
+            m + wx.transpose() * vp * wx
+        })
 }
 
 /// The root of the decreasing `f(x) = target` between `lo` (f > target) and `hi`.
@@ -829,15 +851,15 @@ fn joint_fit(
     };
     // How a unit tilt variance shows at the noise-only weights: in each quantity (B₁ =
     // C·Σ XᵀW·T·WX·C) and in χ² (E[χ²] grows by Σ tr(W·T) − tr(C·Σ XᵀW·T·WX) per rad²).
-    let unit_tilt = sandwich(&at_zero, &x, &tilt);
-    let mut meat = Cov12::zeros();
-    let mut tr_wt = 0.0;
-    for ((xp, w), t) in x.iter().zip(&at_zero.weights).zip(&tilt) {
-        let wx = w * xp;
-        meat += wx.transpose() * t * wx;
-        tr_wt += (w * t).trace();
-    }
-    let chi2_per_rad2 = tr_wt - (at_zero.cov * meat).trace();
+    let tilt_meat = meat(&at_zero, &x, &tilt);
+    let unit_tilt = at_zero.cov * tilt_meat * at_zero.cov;
+    let tr_wt: f64 = at_zero
+        .weights
+        .iter()
+        .zip(&tilt)
+        .map(|(w, t)| (w * t).trace())
+        .sum();
+    let chi2_per_rad2 = tr_wt - (at_zero.cov * tilt_meat).trace();
     let scale = (dof > 0.0).then(|| TiltScale {
         unit: CovPart {
             source: PartSource::PoseTilt,
@@ -847,7 +869,6 @@ fn joint_fit(
         },
         chi2_per_dof_per_rad2: chi2_per_rad2 / dof,
         q: if t2 > 0.0 { 1.0 } else { at_zero.chi2 / dof },
-        noise_dof,
     });
     let fit = gls(&x, &y, &total(t2))?;
     let mut parts = vec![CovPart {
@@ -1114,30 +1135,21 @@ pub fn fit(poses: Vec<Pose>, g: f64, opts: Options) -> Result<PoseFit, PoseError
             Scatter::Tilt { sd_deg } => sd_deg.to_radians().powi(2),
             _ => 0.0,
         };
-        {
-            let s = Matrix3::from_fn(|j, k| s_first[j][k]);
-            for (j, c) in channels.iter_mut().enumerate() {
-                let idx = |a: usize| if a < 3 { s_index(j, a) } else { o_index(j) };
-                for a in 0..4 {
-                    c.coef[a] = theta[idx(a)];
-                    for b in 0..4 {
-                        c.cov[a][b] = cov[(idx(a), idx(b))];
-                    }
+        for (j, c) in channels.iter_mut().enumerate() {
+            let idx = |a: usize| if a < 3 { s_index(j, a) } else { o_index(j) };
+            for a in 0..4 {
+                c.coef[a] = theta[idx(a)];
+                for b in 0..4 {
+                    c.cov[a][b] = cov[(idx(a), idx(b))];
                 }
-                let mean_tilt_var = poses
-                    .iter()
-                    .map(|q| {
-                        let gh = Vector3::from(q.gravity);
-                        let perp = Matrix3::identity() * gh.norm_squared() - gh * gh.transpose();
-                        ((g * g) * s * perp * s.transpose())[(j, j)] * t2
-                    })
-                    .sum::<f64>()
-                    / p as f64;
-                c.tau = mean_tilt_var.max(0.0).sqrt();
             }
+            // The unit tilt's covariance of each pose mean, T_p, is the tilt scale's.
+            let mean_tilt_var = tilt_scale.as_ref().map_or(0.0, |ts| {
+                t2 * ts.unit.pose_cov.iter().map(|m| m[(j, j)]).sum::<f64>() / p as f64
+            });
+            c.tau = mean_tilt_var.max(0.0).sqrt();
         }
     }
-    let nu = f64::INFINITY;
     let residuals = poses
         .iter()
         .zip(&x)
@@ -1145,9 +1157,15 @@ pub fn fit(poses: Vec<Pose>, g: f64, opts: Options) -> Result<PoseFit, PoseError
             [0, 1, 2].map(|j| q.mean[j] - (0..4).map(|a| h[a] * channels[j].coef[a]).sum::<f64>())
         })
         .collect();
+    // Every uncertainty below as the parts combine (Weighing).
+    let weigh = Weighing {
+        parts: &parts,
+        tilt: tilt_scale.as_ref(),
+    };
+    let theta_var_nu = |i: usize| weigh.total(|c| c.theta[(i, i)]);
     let offsets_joint = [0, 1, 2].map(|j| Estimate {
         value: theta[o_index(j)],
-        std_unc: cov[(o_index(j), o_index(j))].max(0.0).sqrt(),
+        std_unc: theta_var_nu(o_index(j)).0.max(0.0).sqrt(),
     });
     let axis_poses = axis_poses(&poses);
     if opts.offsets == OffsetEstimator::AxisPairs {
@@ -1163,13 +1181,22 @@ pub fn fit(poses: Vec<Pose>, g: f64, opts: Options) -> Result<PoseFit, PoseError
                     .iter()
                     .map(|i| poses.get(*i).map_or(f64::NAN, |q| q.mean[j]))
                     .sum::<f64>(),
-            std_unc: parts
-                .iter()
-                .map(|c| axis_pair_var(c, ix, j))
-                .sum::<f64>()
-                .sqrt(),
+            std_unc: weigh.total(|c| axis_pair_var(c, ix, j)).0.max(0.0).sqrt(),
         })
     });
+    let k = coverage_factor(
+        (0..12)
+            .map(|i| theta_var_nu(i).1)
+            .fold(f64::INFINITY, f64::min),
+    );
+    if joint_used {
+        for (j, c) in channels.iter_mut().enumerate() {
+            c.nu = [s_index(j, 0), s_index(j, 1), s_index(j, 2), o_index(j)]
+                .map(|i| theta_var_nu(i).1)
+                .into_iter()
+                .fold(f64::INFINITY, f64::min);
+        }
+    }
     // Stillness: each channel's std against the median pose's.
     let mut not_still = Vec::new();
     for j in 0..3 {
@@ -1185,11 +1212,11 @@ pub fn fit(poses: Vec<Pose>, g: f64, opts: Options) -> Result<PoseFit, PoseError
             }
         }
     }
-    let mut out = PoseFit {
+    Ok(PoseFit {
         poses,
         channels,
         dof,
-        k: coverage_factor(nu),
+        k,
         residuals,
         conditioning: Conditioning {
             condition_number: cond,
@@ -1206,67 +1233,7 @@ pub fn fit(poses: Vec<Pose>, g: f64, opts: Options) -> Result<PoseFit, PoseError
         axis_poses,
         notes,
         tilt_scale,
-    };
-    // The uncertainties of the offsets and the coverage factor as the parts weigh them.
-    for j in 0..3 {
-        out.offsets_joint[j].std_unc = out.var_theta(o_index(j)).max(0.0).sqrt();
-    }
-    if let (Some(mut o), Some(ix)) = (out.offsets_axis_pairs, out.axis_poses) {
-        for (j, e) in o.iter_mut().enumerate() {
-            let form = |src: PartSource| {
-                out.parts
-                    .iter()
-                    .filter(|c| c.source == src)
-                    .map(|c| axis_pair_var(c, ix, j))
-                    .sum::<f64>()
-            };
-            let unit = out
-                .tilt_scale
-                .as_ref()
-                .map_or(0.0, |t| axis_pair_var(&t.unit, ix, j));
-            let var = match out.tilt_scale {
-                Some(_) => {
-                    out.pose_variance(
-                        form(PartSource::PoseNoise),
-                        form(PartSource::PoseTilt),
-                        unit,
-                    )
-                    .0 + form(PartSource::TableAngle)
-                }
-                None => out.parts.iter().map(|c| axis_pair_var(c, ix, j)).sum(),
-            };
-            e.std_unc = var.max(0.0).sqrt();
-        }
-        out.offsets_axis_pairs = Some(o);
-    }
-    out.k = coverage_factor(
-        (0..12)
-            .map(|i| out.nu_theta(i))
-            .fold(f64::INFINITY, f64::min),
-    );
-    if joint_used {
-        for j in 0..3 {
-            let nu = [s_index(j, 0), s_index(j, 1), s_index(j, 2), o_index(j)]
-                .map(|i| out.nu_theta(i))
-                .into_iter()
-                .fold(f64::INFINITY, f64::min);
-            if let Some(c) = out.channels.get_mut(j) {
-                c.nu = nu;
-            }
-        }
-    }
-    Ok(out)
-}
-
-/// Welch–Satterthwaite degrees of freedom of element `i` of (S, O) over the parts.
-fn nu_eff(parts: &[CovPart], i: usize) -> f64 {
-    let var: f64 = parts.iter().map(|c| c.theta[(i, i)]).sum();
-    let denom: f64 = parts.iter().map(|c| c.theta[(i, i)].powi(2) / c.nu).sum();
-    if denom > 0.0 {
-        var * var / denom
-    } else {
-        f64::INFINITY
-    }
+    })
 }
 
 /// One part's variance of imucal's offset O_j = (ȳ_j(+e_j) + ȳ_j(−e_j))/2.

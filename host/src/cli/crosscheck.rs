@@ -18,24 +18,15 @@ pub struct Args {
 
 /// Run it (an error when a fit differs by more than the threshold).
 pub fn run(a: Args) -> anyhow::Result<()> {
-    crosscheck(&a.recording, &a.fit_log, a.threshold, a.json.as_deref())
-}
-
-fn crosscheck(
-    recording: &std::path::Path,
-    fit_log: &std::path::Path,
-    threshold: f64,
-    json: Option<&std::path::Path>,
-) -> anyhow::Result<()> {
     // One condition is enough to check the device's fits of it.
-    let rec = rotacal::recording::read_in_progress(recording)?;
-    let text = std::fs::read_to_string(fit_log)
-        .map_err(|e| anyhow::anyhow!("{}: {e}", fit_log.display()))?;
-    let log = rotacal::acquire::read_fit_log(&text, &fit_log.display().to_string())
-        .map_err(anyhow::Error::msg)?;
+    let rec = rotacal::recording::read_in_progress(&a.recording)?;
+    let log_name = a.fit_log.display().to_string();
+    let text =
+        std::fs::read_to_string(&a.fit_log).map_err(|e| anyhow::anyhow!("{log_name}: {e}"))?;
+    let log = rotacal::acquire::read_fit_log(&text, &log_name).map_err(anyhow::Error::msg)?;
     let report =
-        rotacal::crosscheck::crosscheck(&rec, &log, threshold).map_err(anyhow::Error::msg)?;
-    if let Some(path) = json {
+        rotacal::crosscheck::crosscheck(&rec, &log, a.threshold).map_err(anyhow::Error::msg)?;
+    if let Some(path) = &a.json {
         std::fs::write(path, serde_json::to_string_pretty(&report)? + "\n")
             .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
     }

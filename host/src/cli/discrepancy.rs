@@ -25,42 +25,27 @@ pub struct Args {
 
 /// Run it.
 pub fn run(a: Args) -> anyhow::Result<()> {
-    discrepancy(
-        &a.file,
-        a.json.as_deref(),
-        a.report.as_deref(),
-        a.g_loc,
-        a.rate_hz,
-        a.alpha,
-    )
-}
-
-fn discrepancy(
-    file: &std::path::Path,
-    json: Option<&std::path::Path>,
-    report: Option<&std::path::Path>,
-    g_loc: Option<f64>,
-    rate_hz: Option<f64>,
-    alpha: f64,
-) -> anyhow::Result<()> {
-    if !(alpha > 0.0 && alpha < 1.0) {
-        anyhow::bail!("--alpha {alpha}: expected a probability between 0 and 1");
+    if !(a.alpha > 0.0 && a.alpha < 1.0) {
+        anyhow::bail!(
+            "--alpha {}: expected a probability between 0 and 1",
+            a.alpha
+        );
     }
-    let rec = rotacal::recording::read(file)?;
+    let rec = rotacal::recording::read(&a.file)?;
     let opts = rotacal::discrepancy::Options {
-        g_loc,
-        rate_hz,
-        alpha,
+        g_loc: a.g_loc,
+        rate_hz: a.rate_hz,
+        alpha: a.alpha,
     };
-    let a = rotacal::discrepancy::run(&rec, &opts).map_err(anyhow::Error::msg)?;
-    if let Some(path) = json {
-        std::fs::write(path, serde_json::to_string_pretty(&a)? + "\n")
+    let analysis = rotacal::discrepancy::run(&rec, &opts).map_err(anyhow::Error::msg)?;
+    if let Some(path) = &a.json {
+        std::fs::write(path, serde_json::to_string_pretty(&analysis)? + "\n")
             .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
     }
-    rotacal::output::emit(&rotacal::discrepancy::report::render(&a))?;
-    if let Some(dir) = report {
+    rotacal::output::emit(&rotacal::discrepancy::report::render(&analysis))?;
+    if let Some(dir) = &a.report {
         let units = rec.meta.units.as_deref().unwrap_or("output units");
-        let path = rotacal::discrepancy::report::write(&a, dir, units)?;
+        let path = rotacal::discrepancy::report::write(&analysis, dir, units)?;
         rotacal::output::emit(&format!("report: {}\n", path.display()))?;
     }
     Ok(())

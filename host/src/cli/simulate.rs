@@ -17,19 +17,15 @@ pub struct Args {
 
 /// Run it.
 pub fn run(a: Args) -> anyhow::Result<()> {
-    simulate(&a.config, &a.out, a.seed)
-}
-
-fn simulate(config: &str, out: &std::path::Path, seed: Option<u64>) -> anyhow::Result<()> {
     use rotacal::simulate::{Config, Simulation};
-    let mut cfg = Config::load(config)?;
-    if let Some(s) = seed {
+    let mut cfg = Config::load(&a.config)?;
+    if let Some(s) = a.seed {
         cfg.seed = s;
     }
-    let sim = Simulation::new(cfg).map_err(|e| anyhow::anyhow!("{config}: {e}"))?;
+    let sim = Simulation::new(cfg).map_err(|e| anyhow::anyhow!("{}: {e}", a.config))?;
     let sum = sim
-        .write_file(out)
-        .map_err(|e| anyhow::anyhow!("{}: {e}", out.display()))?;
-    rotacal::output::emit(&rotacal::simulate::render(&sim, &sum, out))?;
+        .write_file(&a.out)
+        .map_err(|e| anyhow::anyhow!("{}: {e}", a.out.display()))?;
+    rotacal::output::emit(&rotacal::simulate::render(&sim, &sum, &a.out))?;
     Ok(())
 }

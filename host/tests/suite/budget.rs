@@ -205,6 +205,7 @@ fn the_table_angle_line_of_a_stepped_budget() {
     let mut cfg = Config::preset("metrologia-static").unwrap();
     cfg.table.angle_step_deg = Some(30.0);
     cfg.table.readings_per_angle = Some(20);
+    cfg.sensor.noise = common::unstated(None, None);
     let rec = Simulation::new(cfg).unwrap().recording().unwrap();
     let with = |u: Option<f64>| {
         let opts = Options {

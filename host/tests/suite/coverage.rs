@@ -17,6 +17,7 @@
 // Matrix arithmetic on small fixed arrays reads more plainly with indices.
 #![allow(clippy::needless_range_loop)]
 
+use crate::common::unstated;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rotacal::calibrate_recording::{calibrate, Options, TypeB};
@@ -106,16 +107,6 @@ impl Tally {
         }
         failures
     }
-}
-
-/// A noise table that keeps the file silent about its level.
-fn unstated(ar: Option<Vec<f64>>, lowpass_hz: Option<f64>) -> Option<Noise> {
-    Some(Noise {
-        sd: None,
-        ar,
-        lowpass_hz,
-        state: false,
-    })
 }
 
 fn paper_config(trial: usize, start_deg: [f64; 3]) -> Config {

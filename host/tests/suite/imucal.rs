@@ -472,21 +472,10 @@ fn halves_of_each_pose_agree_within_their_combined_uncertainty() {
         calibrate(&pb, "second.json", &[]),
     );
     // Each property: the halves' difference against √(U_a² + U_b²).
-    let props = [
-        ("sensitivity", "u"),
-        ("sensitivity", "v"),
-        ("sensitivity", "w"),
-        ("angle_deg", "uv"),
-        ("angle_deg", "vw"),
-        ("angle_deg", "wu"),
-        ("offset", "u"),
-        ("offset", "v"),
-        ("offset", "w"),
-    ];
     println!("property        first half              second half             |Δ|/√(U₁²+U₂²)  z");
     let mut worst: f64 = 0.0;
     let mut worst_z: f64 = 0.0;
-    for (group, key) in props {
+    for (group, key) in common::PROPERTY_KEYS {
         let (qa, qb) = (&a["intrinsic"][group][key], &b["intrinsic"][group][key]);
         let d = (f(&qa["value"]) - f(&qb["value"])).abs();
         let u = f(&qa["expanded_unc"]).hypot(f(&qb["expanded_unc"]));

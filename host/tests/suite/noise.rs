@@ -177,17 +177,12 @@ fn calibrate_leaves_a_clipping_channel_out_of_its_noise() {
     // gravity; v and w stay below the rail. calibrate finds the rail, leaves those readings
     // out of the noise fit and estimate, and reads u's level as the others'.
     use rotacal::calibrate_recording::{calibrate, Options};
-    use rotacal::simulate::{Config, Noise, Simulation};
+    use rotacal::simulate::{Config, Simulation};
     let mut cfg = Config::from_toml(
         "preset = \"paper-10mhz\"\n[effects.saturation]\nrails = [-40000.0, 16880.0]\n",
     )
     .unwrap();
-    cfg.sensor.noise = Some(Noise {
-        sd: None,
-        ar: None,
-        lowpass_hz: None,
-        state: false,
-    });
+    cfg.sensor.noise = crate::common::unstated(None, None);
     let rec = Simulation::new(cfg).unwrap().recording().unwrap();
     let cal = calibrate(&rec, &Options::default()).unwrap();
     let noise = cal.by_rate[0].noise.as_ref().unwrap();

@@ -99,6 +99,7 @@ fn the_report_and_the_json_agree_for_the_same_options() {
     let mut cfg = Config::preset("metrologia-static").unwrap();
     cfg.table.angle_step_deg = Some(30.0);
     cfg.table.readings_per_angle = Some(20);
+    cfg.sensor.noise = common::unstated(None, None);
     Simulation::new(cfg).unwrap().write_file(&rec).unwrap();
     let options = ["--pose-weights", "equal", "--u-g-loc", "1e-4"].map(String::from);
     let table = |args: &[String], name: &str| -> Vec<(f64, f64)> {
@@ -144,26 +145,16 @@ fn the_report_and_the_json_agree_for_the_same_options() {
     let v: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
     let intrinsic = &v["by_rate"][0]["intrinsic"];
-    let expected: Vec<(f64, f64)> = [
-        ("sensitivity", "u"),
-        ("sensitivity", "v"),
-        ("sensitivity", "w"),
-        ("angle_deg", "uv"),
-        ("angle_deg", "vw"),
-        ("angle_deg", "wu"),
-        ("offset", "u"),
-        ("offset", "v"),
-        ("offset", "w"),
-    ]
-    .iter()
-    .map(|(g, k)| {
-        let q = &intrinsic[*g][*k];
-        (
-            q["value"].as_f64().unwrap(),
-            q["expanded_unc"].as_f64().unwrap(),
-        )
-    })
-    .collect();
+    let expected: Vec<(f64, f64)> = common::PROPERTY_KEYS
+        .iter()
+        .map(|(g, k)| {
+            let q = &intrinsic[*g][*k];
+            (
+                q["value"].as_f64().unwrap(),
+                q["expanded_unc"].as_f64().unwrap(),
+            )
+        })
+        .collect();
     let agree = |md: &[(f64, f64)]| {
         md.iter().zip(&expected).all(|((vm, um), (vj, uj))| {
             // The report rounds U to two significant digits and the value to match.

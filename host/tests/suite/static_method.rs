@@ -6,8 +6,9 @@
 
 use rand::{Rng, SeedableRng};
 use rand_distr::{Distribution, Normal};
-use rotacal::calibrate::{static_method, StaticCondition};
+use rotacal::calibrate::static_method;
 use rotacal::geometry::{mounted, rotation};
+use rotacal::orientation::StaticCondition;
 use rotacal_shared::Condition;
 
 /// Seed 001's g_loc, m/s².
