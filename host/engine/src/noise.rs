@@ -196,22 +196,52 @@ impl NoiseModel {
     }
 
     /// Z = A⁻ᵀH, A the AR filter as a lower-triangular matrix ((Ae)_t = e_t − Σφ_k e_{t−k}
-    /// from t = p on): by the backward recursion z_t = h_t + Σ φ_k z_{t+k}.
-    fn filter_back(&self, h: &DMatrix<f64>) -> DMatrix<f64> {
-        let (n, q) = h.shape();
+    /// from t = p on): by the backward recursion z_t = h_t + Σ φ_k z_{t+k}. Works on Hᵀ
+    /// (q × N, a sample's regressors contiguous), so the q columns' recursions run side by
+    /// side rather than one long chain of dependent additions each.
+    fn filter_back(&self, ht: &DMatrix<f64>) -> DMatrix<f64> {
+        let mut z = ht.clone();
+        let (q, n) = z.shape();
         let p = self.order();
-        let mut z = h.clone();
+        let zs = z.as_mut_slice();
         for t in (0..n).rev() {
             for (k, f) in self.ar.iter().enumerate() {
                 let s = t + k + 1;
                 if s < n && s >= p {
-                    for c in 0..q {
-                        z[(t, c)] += f * z[(s, c)];
+                    let (head, tail) = zs.split_at_mut(s * q);
+                    let (Some(row), Some(later)) = (head.get_mut(t * q..(t + 1) * q), tail.get(..q))
+                    else {
+                        continue;
+                    };
+                    for (v, l) in row.iter_mut().zip(later) {
+                        *v += f * l;
                     }
                 }
             }
         }
         z
+    }
+
+    /// ΣH/σ_ε² = A⁻¹A⁻ᵀH, transposed, from Zᵀ = (A⁻ᵀH)ᵀ: the forward recursion
+    /// x_t = z_t + Σ φ_k x_{t−k} from t = p on.
+    fn filter_forward(&self, mut zt: DMatrix<f64>) -> DMatrix<f64> {
+        let (q, n) = zt.shape();
+        let p = self.order();
+        let zs = zt.as_mut_slice();
+        for t in p..n {
+            for (k, f) in self.ar.iter().enumerate() {
+                let s = t - k - 1;
+                let (head, tail) = zs.split_at_mut(t * q);
+                let (Some(row), Some(earlier)) = (tail.get_mut(..q), head.get(s * q..(s + 1) * q))
+                else {
+                    continue;
+                };
+                for (v, e) in row.iter_mut().zip(earlier) {
+                    *v += f * e;
+                }
+            }
+        }
+        zt
     }
 
     /// The covariance of the ordinary least-squares coefficients of regressors `h`
@@ -240,8 +270,12 @@ impl NoiseModel {
         // Iterated until it stops moving. A fit that takes out most of the residuals' power
         // under the model (the ratio near 1: residuals that are round-off of noise-free
         // data, or noise far slower than the record) cannot be corrected this way; the level
-        // is then corrected as for white noise, N/(N − q).
+        // is then corrected as for white noise, N/(N − q). Stopped when a step moves the
+        // level by less than TOLERANCE: the next step moves it by about 1 % of that (on the
+        // low-pass of the coverage proofs), 10⁻⁸ of the level, some 10⁶ times below the
+        // estimate's own scatter (1/√ν).
         const MAX_STEPS: usize = 100;
+        const TOLERANCE: f64 = 1e-6;
         let p = self.order();
         let observed = self.observed.clone();
         let (n, q) = h.shape();
@@ -252,9 +286,10 @@ impl NoiseModel {
             return self.with_autocovariances(&[g0]).ok_or(NoiseError::Constant);
         }
         let white = (n as f64 / (n as f64 - q as f64).max(1.0), self.clone());
+        let r = Regressors::new(h, self.n)?;
         let mut m = self;
         for _ in 0..MAX_STEPS {
-            let expected = m.expected_residual_autocov(h)?;
+            let expected = m.expected_residual_autocov(&r);
             let next = (expected.first().copied().unwrap_or(0.0) >= 0.5 * m.var)
                 .then(|| {
                     let target: Vec<f64> = (0..=p)
@@ -268,7 +303,7 @@ impl NoiseModel {
             };
             let moved = (next.var - m.var).abs() / m.var;
             m = next;
-            if moved < 1e-9 {
+            if moved < TOLERANCE {
                 return Ok(m);
             }
         }
@@ -303,71 +338,126 @@ impl NoiseModel {
     /// regressors `h` to noise of this model: with B = (HᵀH)⁻¹HᵀΣ and C = (HᵀH)⁻¹HᵀΣH(HᵀH)⁻¹,
     /// Σ_t [Σ − PΣ − ΣP + PΣP]_{t,t+k} = (N−k)γ_k − Σ_t h_tᵀb_{t+k} − Σ_t h_{t+k}ᵀb_t
     /// + Σ_t h_tᵀC h_{t+k}.
-    fn expected_residual_autocov(&self, h: &DMatrix<f64>) -> Result<Vec<f64>, NoiseError> {
+    fn expected_residual_autocov(&self, r: &Regressors) -> Vec<f64> {
+        let (h, inv) = (r.h, &r.inv);
         let (n, q) = h.shape();
-        let (inv, meat) = self.parts(h)?;
         if self.order() == 0 {
             // White: Σ = γ₀I, so the sum is (N − 2q + q)γ₀.
-            return Ok(vec![self.var * (n as f64 - q as f64) / n as f64]);
+            return vec![self.var * (n as f64 - q as f64) / n as f64];
         }
-        // ΣH = σ_ε²·A⁻¹A⁻ᵀH: the backward recursion, then the forward one.
-        let mut sh = self.filter_back(h);
-        let p = self.order();
-        for t in 0..n {
-            if t < p {
-                continue;
-            }
-            for (k, f) in self.ar.iter().enumerate() {
-                for c in 0..q {
-                    sh[(t, c)] += f * sh[(t - k - 1, c)];
-                }
-            }
-        }
-        sh *= self.innovation_var;
+        // ΣH = σ_ε²·A⁻¹A⁻ᵀH: the backward recursion (Z, shared with the meat), then the
+        // forward one.
+        let (zt, meat) = self.meat(h, &r.ht);
+        let sh = self.filter_forward(zt).transpose() * self.innovation_var;
         // Columns of H, of B·ᵀ = ΣH(HᵀH)⁻¹ and of HC, each contiguous: the sums over t are
         // dot products of shifted columns.
-        let bt = sh * &inv; // N × q: rows b_tᵀ
-        let c = &inv * meat * &inv;
+        let bt = sh * inv; // N × q: rows b_tᵀ
+        let c = inv * meat * inv;
         let hc = h * &c; // N × q: rows h_tᵀC
-        let dot = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(x, y)| x * y).sum::<f64>();
-        Ok((0..=p)
+        (0..=self.order())
             .map(|k| {
                 let mut sum = (n - k) as f64 * self.var * self.autocorrelation(k);
                 for col in 0..q {
                     let (hcol, bcol, hccol) = (h.column(col), bt.column(col), hc.column(col));
                     let (hs, bs, hcs) = (hcol.as_slice(), bcol.as_slice(), hccol.as_slice());
-                    sum += dot(&hcs[..n - k], &hs[k..])
-                        - dot(&hs[..n - k], &bs[k..])
-                        - dot(&hs[k..], &bs[..n - k]);
+                    let [x, y, w] = lagged_dots(hs, bs, hcs, k);
+                    sum += x - y - w;
                 }
                 sum / n as f64
             })
-            .collect())
+            .collect()
     }
 
     /// The sandwich (HᵀH)⁻¹HᵀΣH(HᵀH)⁻¹ under this model as it stands.
     pub fn sandwich(&self, h: &DMatrix<f64>) -> Result<DMatrix<f64>, NoiseError> {
-        let (inv, meat) = self.parts(h)?;
-        Ok(&inv * meat * &inv)
+        let r = Regressors::new(h, self.n)?;
+        let (_, meat) = self.meat(h, &r.ht);
+        Ok(&r.inv * meat * &r.inv)
     }
 
-    /// (HᵀH)⁻¹ and HᵀΣH.
-    fn parts(&self, h: &DMatrix<f64>) -> Result<(DMatrix<f64>, DMatrix<f64>), NoiseError> {
-        if h.nrows() != self.n {
-            return Err(NoiseError::Length(h.nrows(), self.n));
+    /// Zᵀ = (A⁻ᵀH)ᵀ and the meat HᵀΣH = σ_ε²·ZᵀZ (Z = H for white noise), from H and Hᵀ.
+    fn meat(&self, h: &DMatrix<f64>, ht: &DMatrix<f64>) -> (DMatrix<f64>, DMatrix<f64>) {
+        if self.ar.is_empty() {
+            return (ht.clone(), h.tr_mul(h) * self.innovation_var);
+        }
+        let zt = self.filter_back(ht);
+        // ZᵀZ as a matrix product (blocked, vectorised) rather than q² long dot products.
+        let meat = &zt * zt.transpose() * self.innovation_var;
+        (zt, meat)
+    }
+}
+
+/// Regressors H (N × q) with Hᵀ and (HᵀH)⁻¹, which a rescaling needs at every step.
+struct Regressors<'a> {
+    h: &'a DMatrix<f64>,
+    ht: DMatrix<f64>,
+    inv: DMatrix<f64>,
+}
+
+impl<'a> Regressors<'a> {
+    fn new(h: &'a DMatrix<f64>, n: usize) -> Result<Self, NoiseError> {
+        if h.nrows() != n {
+            return Err(NoiseError::Length(h.nrows(), n));
         }
         let inv = h.tr_mul(h).try_inverse().ok_or(NoiseError::Singular)?;
         if inv.iter().any(|v| !v.is_finite()) {
             return Err(NoiseError::Singular);
         }
-        let meat = if self.ar.is_empty() {
-            h.tr_mul(h)
-        } else {
-            let z = self.filter_back(h);
-            z.tr_mul(&z)
-        };
-        Ok((inv, meat * self.innovation_var))
+        Ok(Regressors {
+            h,
+            ht: h.transpose(),
+            inv,
+        })
     }
+}
+
+/// Σ_t hc_t·h_{t+k}, Σ_t h_t·b_{t+k} and Σ_t h_{t+k}·b_t over t < N − k, in one pass with
+/// four partial sums each, so the additions do not wait on each other.
+// The lane index l < LANES indexes arrays of LANES elements.
+#[allow(clippy::indexing_slicing)]
+fn lagged_dots(h: &[f64], b: &[f64], hc: &[f64], k: usize) -> [f64; 3] {
+    const LANES: usize = 4;
+    type Lanes<'a> = &'a [f64; LANES];
+    let (lo, hi) = (h.len().saturating_sub(k), k.min(h.len()));
+    let (h_lo, h_hi) = (h.get(..lo).unwrap_or(&[]), h.get(hi..).unwrap_or(&[]));
+    let (b_lo, b_hi) = (b.get(..lo).unwrap_or(&[]), b.get(hi..).unwrap_or(&[]));
+    let hc_lo = hc.get(..lo).unwrap_or(&[]);
+    let (mut sa, mut sb, mut sc) = ([0.0; LANES], [0.0; LANES], [0.0; LANES]);
+    let chunks = (h_lo.chunks_exact(LANES).zip(h_hi.chunks_exact(LANES)))
+        .zip(b_lo.chunks_exact(LANES).zip(b_hi.chunks_exact(LANES)))
+        .zip(hc_lo.chunks_exact(LANES));
+    for (((hl, hh), (bl, bh)), cl) in chunks {
+        let (Ok(hl), Ok(hh), Ok(bl), Ok(bh), Ok(cl)) = (
+            Lanes::try_from(hl),
+            Lanes::try_from(hh),
+            Lanes::try_from(bl),
+            Lanes::try_from(bh),
+            Lanes::try_from(cl),
+        ) else {
+            continue;
+        };
+        for l in 0..LANES {
+            sa[l] += cl[l] * hh[l];
+            sb[l] += hl[l] * bh[l];
+            sc[l] += hh[l] * bl[l];
+        }
+    }
+    // The last few samples.
+    let whole = lo - lo % LANES;
+    for t in whole..lo {
+        if let (Some(hl), Some(hh), Some(bl), Some(bh), Some(cl)) = (
+            h_lo.get(t),
+            h_hi.get(t),
+            b_lo.get(t),
+            b_hi.get(t),
+            hc_lo.get(t),
+        ) {
+            sa[0] += cl * hh;
+            sb[0] += hl * bh;
+            sc[0] += hh * bl;
+        }
+    }
+    [sa, sb, sc].map(|lanes| lanes.iter().sum())
 }
 
 /// One Levinson–Durbin step: the AR(p−1) coefficients `phi` and innovation variance `v` to
