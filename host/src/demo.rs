@@ -12,14 +12,14 @@
 //!
 //! The session runs on a paused tokio clock: 13 minutes of device time in seconds.
 
-use crate::acquire::LogLine;
-use crate::calibration_file::{CalibrationJson, Quantity, PROPERTY_NAMES};
-use crate::crosscheck::CrosscheckReport;
+use crate::calibrate::json::{CalibrationJson, Quantity, PROPERTY_NAMES};
 use crate::link::simulated::{Faults, SimulatedDevice};
 use crate::record::{self, Options, Outcome, Paths, Plan, Quiet};
+use crate::recording::from_device::LogLine;
 use crate::recording::{Metadata, Method};
 use crate::reference::{PAPER_10MHZ, PAPER_DC_ANGLES_DEG, PAPER_DC_SENSITIVITY, PAPER_G_LOC};
 use crate::simulate::{Config, Simulation};
+use crate::verify::recorded::CrosscheckReport;
 use rotacal_shared::Condition;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -79,7 +79,7 @@ pub struct Demo {
     pub report: PathBuf,
     /// The calibration applied to the recording (device frame), written as
     /// recording-ms2.csv.
-    pub applied: crate::apply::Summary,
+    pub applied: crate::correct::apply::Summary,
     /// The paper's puzzle, worked by the discrepancy workflow.
     pub puzzle: Puzzle,
 }
@@ -134,14 +134,14 @@ fn puzzle(seed: u64, dir: &Path) -> anyhow::Result<Puzzle> {
     sim.write_file(&csv)
         .map_err(|e| anyhow::anyhow!("{}: {e}", csv.display()))?;
     let rec = crate::recording::read(&csv)?;
-    let cal = crate::calibrate_recording::calibrate(&rec, &Default::default())?;
+    let cal = crate::calibrate::calibrate(&rec, &Default::default())?;
     let a = crate::discrepancy::run(&rec, &Default::default()).map_err(anyhow::Error::msg)?;
     std::fs::write(
         dir.join("puzzle.discrepancy.json"),
         serde_json::to_string_pretty(&a)? + "\n",
     )?;
-    let report = crate::discrepancy::report::write(&a, &dir.join("puzzle-report"), "counts")?;
-    let dev = |lo: &crate::calibration_file::Quantity, hi: &crate::calibration_file::Quantity| {
+    let report = crate::report::discrepancy::write(&a, &dir.join("puzzle-report"), "counts")?;
+    let dev = |lo: &crate::calibrate::json::Quantity, hi: &crate::calibrate::json::Quantity| {
         (hi.value - lo.value, lo.expanded_unc.hypot(hi.expanded_unc))
     };
     let (first, last) = match (cal.by_rate.first(), cal.by_rate.last()) {
@@ -258,12 +258,13 @@ pub fn run(seed: u64, dir: &Path, inject: Option<Inject>) -> anyhow::Result<Demo
         corrupt_first_fit(fits_path)?;
     }
     let rec = crate::recording::read(rec_path)?;
-    let calibration = crate::calibrate_recording::calibrate(&rec, &Default::default())?;
+    let calibration = crate::calibrate::calibrate(&rec, &Default::default())?;
     let log_text = std::fs::read_to_string(fits_path)?;
-    let log = crate::acquire::read_fit_log(&log_text, &fits_path.display().to_string())
-        .map_err(anyhow::Error::msg)?;
+    let log =
+        crate::recording::from_device::read_fit_log(&log_text, &fits_path.display().to_string())
+            .map_err(anyhow::Error::msg)?;
     let crosscheck =
-        crate::crosscheck::crosscheck(&rec, &log, crate::crosscheck::DEFAULT_THRESHOLD)
+        crate::verify::recorded::crosscheck(&rec, &log, crate::verify::recorded::DEFAULT_THRESHOLD)
             .map_err(anyhow::Error::msg)?;
     std::fs::write(
         dir.join("calibration.json"),
@@ -279,9 +280,9 @@ pub fn run(seed: u64, dir: &Path, inject: Option<Inject>) -> anyhow::Result<Demo
         .first()
         .and_then(|r| r.correction.as_ref())
         .ok_or_else(|| anyhow::anyhow!("the calibration has no correction"))?;
-    let applied = crate::apply::apply(
+    let applied = crate::correct::apply::apply(
         &rec,
-        &crate::apply::Job {
+        &crate::correct::apply::Job {
             correction: &correction.device_frame,
             units_in: &correction.units_in,
             k: correction.k,
@@ -701,7 +702,7 @@ pub fn render(d: &Demo) -> String {
 }
 
 /// The intrinsic properties' table and the sentence on its U ratio column.
-fn render_intrinsic(o: &mut String, d: &Demo, r: &crate::calibration_file::RateJson) {
+fn render_intrinsic(o: &mut String, d: &Demo, r: &crate::calibrate::json::RateJson) {
     let ours = r.intrinsic.quantities();
     let _ = writeln!(
         o,

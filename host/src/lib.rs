@@ -1,28 +1,21 @@
-//! The rotacal application: recording a device, reports with plots, the demo and the
-//! command line, over the calibration engine ([`rotacal_engine`], re-exported here so that
-//! `rotacal::calibrate_recording` and the like keep their paths). docs/architecture.md.
+//! The rotacal application over the calibration engine ([`rotacal_engine`], whose modules
+//! are re-exported here: `rotacal::calibrate` is `rotacal_engine::calibrate`).
+//! docs/architecture.md. In the order the data passes through them:
 //!
-//! - [`link`], [`record`], [`capture`]: recording a device over BLE (or a simulated one)
-//!   with gap backfill and reconnection;
-//! - [`report`]: the report folder with plots; [`discrepancy::report`] its discrepancy
-//!   counterpart;
+//! - [`link`]: the connection to a device (Bluetooth LE, or the device logic simulated);
+//! - [`record`]: driving a device through a session and writing its recording, with gap
+//!   backfill, reconnection and the raw capture;
+//! - the engine: [`recording`], [`fit`], [`verify`], [`calibrate`], [`correct`],
+//!   [`simulate`], [`discrepancy`];
+//! - [`report`]: the report folders with plots (calibration and discrepancy);
 //! - [`demo`]: the main job without hardware, wiring the rest together;
 //! - [`output`]: writing to the terminal.
 pub use rotacal_engine::{
-    acquire, apply, batch, budget, calibrate, calibrate_recording, calibration_file, correction,
-    crosscheck, export, fitcheck, geometry, harmonics, import, noise, orientation, recording,
-    reference, session_check, simulate,
+    calibrate, correct, discrepancy, fit, recording, reference, simulate, verify,
 };
 
-pub mod capture;
 pub mod demo;
 pub mod link;
 pub mod output;
 pub mod record;
 pub mod report;
-
-/// The discrepancy workflow ([`rotacal_engine::discrepancy`]) and its report with plots.
-pub mod discrepancy {
-    pub use rotacal_engine::discrepancy::*;
-    pub mod report;
-}

@@ -4,7 +4,7 @@
 //! writes JSON. Exits 1 if the ratio exceeds the threshold or the runs disagree.
 use anyhow::{Context, Result};
 use clap::Parser;
-use rotacal::fitcheck;
+use rotacal::verify::emulated;
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
 use std::path::PathBuf;
@@ -89,8 +89,8 @@ fn read(path: &std::path::Path) -> Result<String> {
 
 fn session(args: &Args, path: &std::path::Path, o: &mut String, json: &mut Json) -> Result<bool> {
     let text = read(path)?;
-    let packets = rotacal::session_check::parse_log(&text, &path.display().to_string())?;
-    let rep = rotacal::session_check::check(&packets)?;
+    let packets = rotacal::verify::session::parse_log(&text, &path.display().to_string())?;
+    let rep = rotacal::verify::session::check(&packets)?;
     let finals = rep.fits.iter().filter(|f| f.is_final).count();
     let _ = writeln!(
         o,
@@ -131,8 +131,8 @@ fn crosscheck(
     json: &mut Json,
 ) -> Result<bool> {
     let text = read(path)?;
-    let log = fitcheck::parse_log(&text).with_context(|| format!("{}", path.display()))?;
-    let rep = fitcheck::check(&log)?;
+    let log = emulated::parse_log(&text).with_context(|| format!("{}", path.display()))?;
+    let rep = emulated::check(&log)?;
     // Output is collected and written once, through a writer that survives a closed pipe.
     macro_rules! out {
         ($($a:tt)*) => { let _ = writeln!(o, $($a)*); };
@@ -211,7 +211,7 @@ fn crosscheck(
         json.insert("cortex_m4f".into(), serde_json::to_value(&bench)?);
     }
     if args.throughput {
-        let t = fitcheck::measure_throughput().context("no throughput record")?;
+        let t = emulated::measure_throughput().context("no throughput record")?;
         out!(
             "host throughput: f64 streaming {:.3e} samples/s, f32 streaming {:.3e}, f64 batch QR {:.3e}",
             t.f64_samples_per_s, t.f32_samples_per_s, t.f64_batch_samples_per_s

@@ -22,7 +22,7 @@ pub struct Args {
 
 /// Run it.
 pub fn run(a: Args) -> anyhow::Result<()> {
-    let (_, text) = rotacal::apply::run(
+    let (_, text) = rotacal::correct::apply::run(
         &a.calibration,
         &a.recording,
         &a.out,

@@ -68,9 +68,9 @@ pub struct Options {
     pub offsets: OffsetsArg,
 }
 
-impl From<Options> for rotacal::calibrate_recording::Options {
+impl From<Options> for rotacal::calibrate::Options {
     fn from(a: Options) -> Self {
-        rotacal::calibrate_recording::Options {
+        rotacal::calibrate::Options {
             method: a.method.map(|m| match m {
                 MethodArg::Rotation => rotacal::recording::Method::Rotation,
                 MethodArg::Static => rotacal::recording::Method::Static,
@@ -78,19 +78,19 @@ impl From<Options> for rotacal::calibrate_recording::Options {
             rate_hz: a.rate_hz,
             g_loc: a.g_loc,
             monte_carlo: a.monte_carlo,
-            inputs: rotacal::calibrate_recording::TypeB {
+            inputs: rotacal::calibrate::TypeB {
                 u_g_loc: a.u_g_loc,
                 u_time_s: a.u_time_s,
                 u_angle_deg: a.u_angle_deg,
             },
-            poses: rotacal::orientation::Options {
+            poses: rotacal::calibrate::poses::Options {
                 weights: match a.pose_weights {
-                    WeightsArg::RandomEffects => rotacal::orientation::Weights::RandomEffects,
-                    WeightsArg::Equal => rotacal::orientation::Weights::Equal,
+                    WeightsArg::RandomEffects => rotacal::calibrate::poses::Weights::RandomEffects,
+                    WeightsArg::Equal => rotacal::calibrate::poses::Weights::Equal,
                 },
                 offsets: match a.offsets {
-                    OffsetsArg::Joint => rotacal::orientation::OffsetEstimator::Joint,
-                    OffsetsArg::AxisPairs => rotacal::orientation::OffsetEstimator::AxisPairs,
+                    OffsetsArg::Joint => rotacal::calibrate::poses::OffsetEstimator::Joint,
+                    OffsetsArg::AxisPairs => rotacal::calibrate::poses::OffsetEstimator::AxisPairs,
                 },
                 // Set from the type-B inputs (flag or file) when the file is read.
                 u_angle_rad: None,
@@ -113,13 +113,13 @@ pub struct Args {
 
 /// Run it.
 pub fn run(a: Args) -> anyhow::Result<()> {
-    let opts: rotacal::calibrate_recording::Options = a.options.into();
+    let opts: rotacal::calibrate::Options = a.options.into();
     let rec = rotacal::recording::read(&a.file)?;
-    let cal = rotacal::calibrate_recording::calibrate(&rec, &opts)?;
+    let cal = rotacal::calibrate::calibrate(&rec, &opts)?;
     if let Some(path) = a.json {
         let text = serde_json::to_string_pretty(&cal)? + "\n";
         std::fs::write(&path, text).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
     }
-    rotacal::output::emit(&rotacal::calibrate_recording::render(&cal))?;
+    rotacal::output::emit(&rotacal::calibrate::table::render(&cal))?;
     Ok(())
 }

@@ -9,7 +9,7 @@ pub struct Args {
     /// The device's fit log (JSON lines).
     pub fit_log: PathBuf,
     /// Pass threshold, in σ_CRLB.
-    #[arg(long, default_value_t = rotacal::crosscheck::DEFAULT_THRESHOLD)]
+    #[arg(long, default_value_t = rotacal::verify::recorded::DEFAULT_THRESHOLD)]
     pub threshold: f64,
     /// Write the comparison as JSON here.
     #[arg(long)]
@@ -23,14 +23,15 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     let log_name = a.fit_log.display().to_string();
     let text =
         std::fs::read_to_string(&a.fit_log).map_err(|e| anyhow::anyhow!("{log_name}: {e}"))?;
-    let log = rotacal::acquire::read_fit_log(&text, &log_name).map_err(anyhow::Error::msg)?;
-    let report =
-        rotacal::crosscheck::crosscheck(&rec, &log, a.threshold).map_err(anyhow::Error::msg)?;
+    let log = rotacal::recording::from_device::read_fit_log(&text, &log_name)
+        .map_err(anyhow::Error::msg)?;
+    let report = rotacal::verify::recorded::crosscheck(&rec, &log, a.threshold)
+        .map_err(anyhow::Error::msg)?;
     if let Some(path) = &a.json {
         std::fs::write(path, serde_json::to_string_pretty(&report)? + "\n")
             .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
     }
-    rotacal::output::emit(&rotacal::crosscheck::render(&report))?;
+    rotacal::output::emit(&rotacal::verify::recorded::render(&report))?;
     if !report.passed {
         anyhow::bail!("the device's fits do not match the recording (see the table)");
     }

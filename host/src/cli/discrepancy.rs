@@ -42,10 +42,10 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         std::fs::write(path, serde_json::to_string_pretty(&analysis)? + "\n")
             .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
     }
-    rotacal::output::emit(&rotacal::discrepancy::report::render(&analysis))?;
+    rotacal::output::emit(&rotacal::report::discrepancy::render(&analysis))?;
     if let Some(dir) = &a.report {
         let units = rec.meta.units.as_deref().unwrap_or("output units");
-        let path = rotacal::discrepancy::report::write(&analysis, dir, units)?;
+        let path = rotacal::report::discrepancy::write(&analysis, dir, units)?;
         rotacal::output::emit(&format!("report: {}\n", path.display()))?;
     }
     Ok(())

@@ -41,17 +41,17 @@ pub struct Args {
 /// Run it.
 pub fn run(a: Args) -> anyhow::Result<()> {
     let format = match a.format {
-        FormatArg::C => rotacal::export::Format::C,
-        FormatArg::Rust => rotacal::export::Format::Rust,
-        FormatArg::Json => rotacal::export::Format::Json,
+        FormatArg::C => rotacal::correct::export::Format::C,
+        FormatArg::Rust => rotacal::correct::export::Format::Rust,
+        FormatArg::Json => rotacal::correct::export::Format::Json,
     };
     let precision = match a.precision {
-        PrecisionArg::F32 => rotacal::export::Precision::F32,
-        PrecisionArg::F64 => rotacal::export::Precision::F64,
+        PrecisionArg::F32 => rotacal::correct::export::Precision::F32,
+        PrecisionArg::F64 => rotacal::correct::export::Precision::F64,
     };
-    let l = rotacal::apply::load(&a.calibration, a.rate_hz, a.frame.into())?;
+    let l = rotacal::correct::apply::load(&a.calibration, a.rate_hz, a.frame.into())?;
     let name = a.calibration.display().to_string();
-    let body = rotacal::export::render(&l.json, &l.correction, &name, format, precision);
+    let body = rotacal::correct::export::render(&l.json, &l.correction, &name, format, precision);
     match a.out {
         Some(p) => std::fs::write(&p, body).map_err(|e| anyhow::anyhow!("{}: {e}", p.display()))?,
         None => rotacal::output::emit(&body)?,

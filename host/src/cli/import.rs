@@ -1,4 +1,4 @@
-//! `rotacal import`: the command line of `rotacal::import`.
+//! `rotacal import`: the command line of `rotacal::recording::import`.
 use rotacal_shared::Condition;
 use std::path::PathBuf;
 
@@ -10,7 +10,7 @@ pub struct Args {
     inputs: Vec<PathBuf>,
     /// Which field holds what, 0-based: t=0,u=1,v=2,w=3[,condition=N][,angle=N][,temp=N][,seq=N].
     #[arg(long)]
-    columns: rotacal::import::ColumnMap,
+    columns: rotacal::recording::import::ColumnMap,
     /// The condition of each input, in order (x, y, z), e.g. --condition x,y,z.
     #[arg(long, value_delimiter = ',')]
     condition: Vec<char>,
@@ -67,12 +67,12 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         Some((list, map)) => {
             let text = std::fs::read_to_string(list)
                 .map_err(|e| anyhow::anyhow!("{}: {e}", list.display()))?;
-            Some(rotacal::import::PoseSections {
-                sections: rotacal::import::PoseSections::sections_from_json(
+            Some(rotacal::recording::import::PoseSections {
+                sections: rotacal::recording::import::PoseSections::sections_from_json(
                     &text,
                     &list.display().to_string(),
                 )?,
-                map: rotacal::import::PoseSections::map_from_str(map)
+                map: rotacal::recording::import::PoseSections::map_from_str(map)
                     .map_err(|e| anyhow::anyhow!("--poses: {e}"))?,
             })
         }
@@ -93,7 +93,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             Box::new(std::io::BufReader::new(f)),
         ));
     }
-    let spec = rotacal::import::ImportSpec {
+    let spec = rotacal::recording::import::ImportSpec {
         columns,
         conditions,
         skip,
@@ -102,7 +102,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         poses,
     };
     let file = std::fs::File::create(out).map_err(|e| anyhow::anyhow!("{}: {e}", out.display()))?;
-    let counts = rotacal::import::import(readers, &spec, file)?;
+    let counts = rotacal::recording::import::import(readers, &spec, file)?;
     let total: usize = counts.rows.iter().sum();
     let mut text = format!(
         "wrote {}: {total} rows ({})\n",

@@ -22,7 +22,7 @@ pub enum FrameArg {
     Platter,
 }
 
-impl From<FrameArg> for rotacal::correction::Frame {
+impl From<FrameArg> for rotacal::calibrate::correction::Frame {
     fn from(f: FrameArg) -> Self {
         match f {
             FrameArg::Device => Self::Device,

@@ -260,7 +260,7 @@ fn metadata(a: &Args, info: &DeviceInfo, link: &str) -> Metadata {
 pub fn decode(capture: &Path, out: &Path) -> anyhow::Result<()> {
     let text = std::fs::read_to_string(capture)
         .map_err(|e| anyhow::anyhow!("{}: {e}", capture.display()))?;
-    let cap = rotacal::capture::read(&text, &capture.display().to_string())
+    let cap = rotacal::record::capture::read(&text, &capture.display().to_string())
         .map_err(anyhow::Error::msg)?;
     let paths = Paths::beside(out);
     let create = |p: &Path| {
@@ -272,7 +272,7 @@ pub fn decode(capture: &Path, out: &Path) -> anyhow::Result<()> {
     };
     let rows = create(&paths.recording)?;
     let fits = create(&paths.fits)?;
-    let r = rotacal::capture::rebuild(&cap, rows, fits)
+    let r = rotacal::record::capture::rebuild(&cap, rows, fits)
         .map_err(|e| anyhow::anyhow!("{}: {e}", capture.display()))?;
     let s = &r.summary;
     println!(

@@ -15,7 +15,7 @@ pub struct Args {
 
 /// Run it.
 pub fn run(a: Args) -> anyhow::Result<()> {
-    let opts: rotacal::calibrate_recording::Options = a.options.into();
+    let opts: rotacal::calibrate::Options = a.options.into();
     let rec = rotacal::recording::read(&a.file)?;
     let path = rotacal::report::write(&rec, &opts, &a.out)?;
     rotacal::output::emit(&format!("wrote {}\n", path.display()))?;

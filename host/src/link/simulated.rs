@@ -169,7 +169,7 @@ impl SimulatedDevice {
     }
 
     fn encode(&self, p: &Packet) -> Vec<u8> {
-        let mut v = crate::acquire::encode(p);
+        let mut v = crate::recording::from_device::encode(p);
         if let (Some(b), Some(ver)) = (v.first_mut(), self.faults.protocol_version) {
             *b = ver;
         }

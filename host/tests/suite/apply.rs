@@ -1,13 +1,13 @@
-//! Applying a calibration (`rotacal::correction`, `rotacal apply`, `rotacal export`):
+//! Applying a calibration (`rotacal::calibrate::correction`, `rotacal apply`, `rotacal export`):
 //! simulated truth round-trips within the stated uncertainty, rotation data become
 //! orthonormal sinusoids, static poses read g, and the exported constants compile and
 //! compute what `apply` computes.
 use crate::common;
 use common::run;
-use rotacal::apply;
-use rotacal::calibrate_recording::{calibrate, Options};
-use rotacal::calibration_file::CorrectionJson;
-use rotacal::correction::{self, Correction, Frame};
+use rotacal::calibrate::correction::{self, Correction, Frame};
+use rotacal::calibrate::json::CorrectionJson;
+use rotacal::calibrate::{calibrate, Options};
+use rotacal::correct::apply;
 use rotacal::simulate::{Config, Simulation};
 use std::path::PathBuf;
 

@@ -5,8 +5,8 @@
 #![allow(clippy::needless_range_loop)]
 use crate::common;
 
-use rotacal::calibrate_recording::{calibrate, Options, TypeB};
-use rotacal::calibration_file::RateJson;
+use rotacal::calibrate::json::RateJson;
+use rotacal::calibrate::{calibrate, Options, TypeB};
 use rotacal::simulate::{Config, Simulation};
 
 fn rotation_file() -> rotacal::recording::Recording {
@@ -226,7 +226,7 @@ fn the_table_angle_line_of_a_stepped_budget() {
         .is_none());
     let b = stated.uncertainty_budget.as_ref().unwrap();
     let line = b.source("table_angle").unwrap();
-    assert_eq!(line.kind, rotacal::budget::Kind::B);
+    assert_eq!(line.kind, rotacal::calibrate::budget::Kind::B);
     assert!(line.dof.iter().all(Option::is_none));
     let (qn, qs) = (none.intrinsic.quantities(), stated.intrinsic.quantities());
     for (i, (n, q)) in qn.iter().zip(&qs).enumerate() {

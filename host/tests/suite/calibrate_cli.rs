@@ -2,9 +2,9 @@
 //! binary run on them, its JSON checked against formats.md and the truth.
 use crate::common;
 use common::run;
-use rotacal::geometry::sensitivity_from_intrinsic;
 use rotacal::recording::{Columns, Metadata, Method, Row, Writer};
 use rotacal::reference::{paper_run_spec, PAPER_DC_ANGLES_DEG, PAPER_DC_SENSITIVITY, PAPER_G_LOC};
+use rotacal::simulate::geometry::sensitivity_from_intrinsic;
 use rotacal_shared::synth::Synth;
 use rotacal_shared::{Condition, PhaseStep, TickRate};
 use serde_json::Value;

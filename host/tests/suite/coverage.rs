@@ -20,8 +20,8 @@
 use crate::common::unstated;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use rotacal::calibrate_recording::{calibrate, Options, TypeB};
-use rotacal::calibration_file::{Quantity, RateJson};
+use rotacal::calibrate::json::{Quantity, RateJson};
+use rotacal::calibrate::{calibrate, Options, TypeB};
 use rotacal::reference::PAPER_10MHZ;
 use rotacal::simulate::{Config, Noise, Simulation, StepError, Truth};
 use std::f64::consts::TAU;

@@ -3,7 +3,7 @@
 //! files, fails on a changed or missing sample, and names the line of a bad fit log.
 use crate::common;
 use common::run;
-use rotacal::acquire::Recorder;
+use rotacal::recording::from_device::Recorder;
 use rotacal::recording::{Metadata, Method};
 use rotacal_shared::device::simulated::SessionSpec;
 use rotacal_shared::device::{Config, Device, RING};

@@ -3,7 +3,7 @@
 //! property moved 4 U from the truth fails its 3 U check.
 use crate::common;
 use common::run;
-use rotacal::calibration_file::{IntrinsicJson, Quantity, PROPERTY_NAMES};
+use rotacal::calibrate::json::{IntrinsicJson, Quantity, PROPERTY_NAMES};
 use rotacal::demo::{self, Check};
 use std::path::PathBuf;
 use std::process::Command;

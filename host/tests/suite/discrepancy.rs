@@ -176,7 +176,7 @@ fn the_papers_puzzle_centripetal_and_a_second_order_nonlinearity() {
         .unwrap()
         .recording()
         .unwrap();
-    let cal = rotacal::calibrate_recording::calibrate(&rec, &Default::default()).unwrap();
+    let cal = rotacal::calibrate::calibrate(&rec, &Default::default()).unwrap();
     let sw = |r: usize| cal.by_rate[r].intrinsic.sensitivity.w;
     let (lo, hi) = (sw(0), sw(3));
     let before = (hi.value - lo.value) / lo.expanded_unc.hypot(hi.expanded_unc);

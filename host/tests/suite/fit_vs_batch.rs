@@ -3,7 +3,7 @@
 //! amplitudes, phases, offsets, rates, record lengths, sample gaps, clocks and models.
 
 use proptest::prelude::*;
-use rotacal::batch;
+use rotacal::fit::batch;
 use rotacal_shared::synth::{Synth, SynthSpec};
 use rotacal_shared::{FitConfig, Model, PhaseStep, SineFit, TickRate, Ticks};
 

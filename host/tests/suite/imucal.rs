@@ -382,13 +382,13 @@ fn applying_it_makes_every_pose_read_g() {
         // against the calibration's own uncertainty of |a| there (from the correction's
         // covariance, which carries the poses' scatter about the model).
         let text = std::fs::read_to_string(&cal).unwrap();
-        let all_c = rotacal::apply::read_corrections(&text, "cal").unwrap();
+        let all_c = rotacal::correct::apply::read_corrections(&text, "cal").unwrap();
         let f = if frame == "device" {
-            rotacal::correction::Frame::Device
+            rotacal::calibrate::correction::Frame::Device
         } else {
-            rotacal::correction::Frame::Platter
+            rotacal::calibrate::correction::Frame::Platter
         };
-        let (_, corr) = rotacal::apply::choose(&all_c, None, f, "cal").unwrap();
+        let (_, corr) = rotacal::correct::apply::choose(&all_c, None, f, "cal").unwrap();
         assert_eq!(by_pose.len(), POSE_MEANS.len());
         for ((name, d), (pose, _, mean)) in by_pose.iter().zip(POSE_MEANS) {
             assert_eq!(name, pose);

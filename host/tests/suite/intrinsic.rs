@@ -4,9 +4,9 @@
 // Matrix arithmetic on small fixed arrays reads more plainly with indices.
 #![allow(clippy::needless_range_loop)]
 
-use rotacal::geometry::sensitivity_from_intrinsic;
-use rotacal::geometry::{mounted, rotation};
 use rotacal::reference::{PAPER_DC_ANGLES_DEG, PAPER_DC_SENSITIVITY};
+use rotacal::simulate::geometry::sensitivity_from_intrinsic;
+use rotacal::simulate::geometry::{mounted, rotation};
 use rotacal_shared::intrinsic::{from_gram, from_phase_differences, ConditionFit};
 use rotacal_shared::synth;
 

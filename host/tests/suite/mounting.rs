@@ -4,8 +4,8 @@
 //! angles show the bias of method.md §2; with noise, every mounting agrees with the truth
 //! within its uncertainty.
 
-use rotacal::calibrate_recording::{calibrate, Options};
-use rotacal::calibration_file::RateJson;
+use rotacal::calibrate::json::RateJson;
+use rotacal::calibrate::{calibrate, Options};
 use rotacal::simulate::{Config, Simulation};
 
 fn run(axis: [f64; 3], deg: f64, noise: bool, seed: u64) -> (RateJson, Simulation) {

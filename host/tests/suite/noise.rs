@@ -1,4 +1,4 @@
-//! The noise model (`rotacal::noise`) on its own: what it estimates from residuals, and
+//! The noise model (`rotacal::fit::noise`) on its own: what it estimates from residuals, and
 //! the coverage of the fit covariance it gives, on noise as sensors make it (serially
 //! correlated, clipped). The code under test sees only the residuals and the regressors:
 //! never the true level or correlation.
@@ -11,7 +11,7 @@ use nalgebra::DMatrix;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, StandardNormal};
-use rotacal::noise::{clipped, NoiseModel};
+use rotacal::fit::noise::{clipped, NoiseModel};
 use std::f64::consts::TAU;
 
 /// AR(1) noise of marginal sd `sd` and coefficient `rho`, started stationary.
@@ -176,7 +176,7 @@ fn calibrate_leaves_a_clipping_channel_out_of_its_noise() {
     // u's peaks (525 + 16 361 counts) clip at 16 880 in the conditions where u sees all of
     // gravity; v and w stay below the rail. calibrate finds the rail, leaves those readings
     // out of the noise fit and estimate, and reads u's level as the others'.
-    use rotacal::calibrate_recording::{calibrate, Options};
+    use rotacal::calibrate::{calibrate, Options};
     use rotacal::simulate::{Config, Simulation};
     let mut cfg = Config::from_toml(
         "preset = \"paper-10mhz\"\n[effects.saturation]\nrails = [-40000.0, 16880.0]\n",

@@ -1,11 +1,11 @@
-//! Static calibration from known orientations (`rotacal::orientation`): the fit's
+//! Static calibration from known orientations (`rotacal::calibrate::poses`): the fit's
 //! uncertainties checked by Monte Carlo coverage, and poses that leave S and O
 //! under-determined or badly conditioned named.
 use rand::{Rng, SeedableRng};
 use rand_distr::{Distribution, Normal, StandardNormal};
-use rotacal::calibrate::from_poses;
-use rotacal::calibrate_recording::{static_budget, TypeB};
-use rotacal::orientation::{self, Options, Pose, PoseError};
+use rotacal::calibrate::methods::from_poses;
+use rotacal::calibrate::poses::{self, Options, Pose, PoseError};
+use rotacal::calibrate::{static_budget, TypeB};
 
 const G: f64 = 9.81;
 
@@ -232,7 +232,7 @@ fn names(dirs: &[[f64; 3]]) -> Vec<Pose> {
 fn missing_orientations_are_named() {
     // No pose sees z: S_jz is unobservable.
     let four = &axes()[..4];
-    match orientation::fit(names(four), G, Options::default()) {
+    match poses::fit(names(four), G, Options::default()) {
         Err(e @ PoseError::UnderDetermined { .. }) => {
             let m = e.to_string();
             println!("{m}");
@@ -243,37 +243,37 @@ fn missing_orientations_are_named() {
     // Only +x, +y, +z: three poses for four unknowns per channel.
     let up = [axes()[0], axes()[2], axes()[4]];
     assert!(matches!(
-        orientation::fit(names(&up), G, Options::default()),
+        poses::fit(names(&up), G, Options::default()),
         Err(PoseError::UnderDetermined { poses: 3, .. })
     ));
     // Five of six: determined, one degree of freedom, well conditioned.
     let five = &axes()[..5];
-    let f = orientation::fit(names(five), G, Options::default()).unwrap();
+    let f = poses::fit(names(five), G, Options::default()).unwrap();
     assert_eq!(f.dof, 1);
     assert!(f.conditioning.suggestion.is_none());
     // imucal's offsets need the sixth.
     let opts = Options {
-        offsets: orientation::OffsetEstimator::AxisPairs,
+        offsets: poses::OffsetEstimator::AxisPairs,
         ..Options::default()
     };
-    let e = orientation::fit(names(five), G, opts).unwrap_err();
+    let e = poses::fit(names(five), G, opts).unwrap_err();
     assert!(e.to_string().contains("along -z"), "{e}");
     // Four poses that barely see z (one tilted 3° out of the x-y plane): flagged, and the
     // suggestion is a z pose.
     let mut weak = axes()[..4].to_vec();
     weak.push(unit([1.0, 0.0, 3f64.to_radians().tan()]));
-    let f = orientation::fit(names(&weak), G, Options::default()).unwrap();
+    let f = poses::fit(names(&weak), G, Options::default()).unwrap();
     let s = f.conditioning.suggestion.clone().unwrap();
     println!(
         "condition number {:.1}: add {s}",
         f.conditioning.condition_number
     );
-    assert!(f.conditioning.condition_number > orientation::WELL_CONDITIONED);
+    assert!(f.conditioning.condition_number > poses::WELL_CONDITIONED);
     assert!(s.contains('z'), "{s}");
     // Four exact poses, one reading each: S and O exactly determined, no uncertainty.
     let mut rng = rand::rngs::StdRng::seed_from_u64(2);
     let tetra = [axes()[0], axes()[2], axes()[4], unit([-1.0, -1.0, -1.0])];
-    let e = orientation::fit(
+    let e = poses::fit(
         session(&tetra, 1, 0.014, 0.0, &mut rng),
         G,
         Options::default(),
@@ -289,7 +289,7 @@ fn a_pose_that_moved_is_flagged() {
     if let Some(s) = poses[2].std.as_mut() {
         s[1] *= 5.0;
     }
-    let f = orientation::fit(poses, G, Options::default()).unwrap();
+    let f = poses::fit(poses, G, Options::default()).unwrap();
     assert_eq!(f.not_still, vec!["p2".to_string()]);
 }
 
@@ -300,18 +300,18 @@ fn exactly_determined_or_constant_poses() {
     // Four poses of repeated readings: S and O exact, the uncertainty from the pose noise
     // (random-effects weights); equal weights have nothing to estimate it from.
     let poses = session(&tetra, 50, 0.014, 0.0, &mut rng);
-    let f = orientation::fit(poses.clone(), G, Options::default()).unwrap();
+    let f = poses::fit(poses.clone(), G, Options::default()).unwrap();
     assert_eq!(f.dof, 0);
     assert!(f
         .channels
         .iter()
         .all(|c| c.cov[0][0] > 0.0 && c.nu == 196.0));
     let equal = Options {
-        weights: orientation::Weights::Equal,
+        weights: poses::Weights::Equal,
         ..Options::default()
     };
     assert_eq!(
-        orientation::fit(poses, G, equal).unwrap_err(),
+        poses::fit(poses, G, equal).unwrap_err(),
         PoseError::NoUncertainty(4)
     );
     // A channel that did not change at one pose (a quantised sensor held still): its
@@ -320,7 +320,7 @@ fn exactly_determined_or_constant_poses() {
     if let Some(s) = poses[0].std.as_mut() {
         s[1] = 0.0;
     }
-    let f = orientation::fit(poses, G, Options::default()).unwrap();
+    let f = poses::fit(poses, G, Options::default()).unwrap();
     assert!(f
         .channels
         .iter()

@@ -4,8 +4,8 @@
 //! returns. Every run is on a paused clock, so 262 s of recording take a fraction of
 //! a second. Then a real-time run of the binary killed with SIGKILL.
 use crate::common;
-use rotacal::capture;
 use rotacal::link::simulated::{Faults, SimulatedDevice};
+use rotacal::record::capture;
 use rotacal::record::{self, Options, Outcome, Paths, Plan, Quiet, RecordError};
 use rotacal::recording::{self, Metadata, Method};
 use rotacal::simulate::Simulation;
@@ -28,7 +28,13 @@ fn sim() -> Simulation {
 }
 
 struct Run {
-    result: Result<Outcome, (RecordError, Option<rotacal::acquire::RecordSummary>)>,
+    result: Result<
+        Outcome,
+        (
+            RecordError,
+            Option<rotacal::recording::from_device::RecordSummary>,
+        ),
+    >,
     paths: Paths,
     messages: Vec<String>,
 }
@@ -102,11 +108,13 @@ fn rebuild_matches(r: &Run) {
 
 fn crosscheck_passes(r: &Run) {
     let rec = recording::read_in_progress(&r.paths.recording).unwrap();
-    let log =
-        rotacal::acquire::read_fit_log(&std::fs::read_to_string(&r.paths.fits).unwrap(), "fits")
-            .unwrap();
-    let x = rotacal::crosscheck::crosscheck(&rec, &log, 0.01).unwrap();
-    assert!(x.passed, "{}", rotacal::crosscheck::render(&x));
+    let log = rotacal::recording::from_device::read_fit_log(
+        &std::fs::read_to_string(&r.paths.fits).unwrap(),
+        "fits",
+    )
+    .unwrap();
+    let x = rotacal::verify::recorded::crosscheck(&rec, &log, 0.01).unwrap();
+    assert!(x.passed, "{}", rotacal::verify::recorded::render(&x));
     // Periodic reports every 160 samples once the fit has a result (1.5 periods), and
     // the final one: 12, as in the QEMU session (36 for three conditions).
     assert_eq!(x.fits.len(), 12);

@@ -158,7 +158,7 @@ fn the_report_and_the_json_agree_for_the_same_options() {
     let agree = |md: &[(f64, f64)]| {
         md.iter().zip(&expected).all(|((vm, um), (vj, uj))| {
             // The report rounds U to two significant digits and the value to match.
-            let d = rotacal::calibrate_recording::decimals(*uj);
+            let d = rotacal::calibrate::table::decimals(*uj);
             let tol = 0.5001 * 10f64.powi(-(d as i32));
             (vm - vj).abs() <= tol && (um - uj).abs() <= tol
         })

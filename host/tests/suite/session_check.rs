@@ -1,6 +1,6 @@
 //! The session check on the host's own run of the device logic (the QEMU run is compared
 //! with it in scripts/test-all), and its refusal of damaged or incomplete logs.
-use rotacal::session_check::{check, host_packets, parse_log};
+use rotacal::verify::session::{check, host_packets, parse_log};
 
 fn log_of(packets: &[Vec<u8>]) -> String {
     let mut s = String::from("booting\n");

@@ -7,7 +7,7 @@
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::StandardNormal;
-use rotacal::calibrate_recording::{self, Options};
+use rotacal::calibrate::{self, Options};
 use rotacal::recording::{Group, Recording};
 use rotacal::simulate::{Config, Simulation};
 use statrs::distribution::{ChiSquared, ContinuousCDF};
@@ -437,7 +437,7 @@ fn presets_calibrate_to_their_truth() {
     for name in ["paper-10mhz", "paper-multirate", "metrologia-static"] {
         let s = Simulation::new(Config::preset(name).unwrap()).unwrap();
         let r = rec(&s);
-        let cal = calibrate_recording::calibrate(&r, &Options::default()).unwrap();
+        let cal = calibrate::calibrate(&r, &Options::default()).unwrap();
         let t = s.truth();
         let expect_rates = if name == "paper-multirate" { 4 } else { 1 };
         assert_eq!(cal.by_rate.len(), expect_rates, "{name}");

@@ -6,9 +6,9 @@
 
 use rand::{Rng, SeedableRng};
 use rand_distr::{Distribution, Normal};
-use rotacal::calibrate::static_method;
-use rotacal::geometry::{mounted, rotation};
-use rotacal::orientation::StaticCondition;
+use rotacal::calibrate::methods::static_method;
+use rotacal::calibrate::poses::StaticCondition;
+use rotacal::simulate::geometry::{mounted, rotation};
 use rotacal_shared::Condition;
 
 /// Seed 001's g_loc, m/s².
@@ -148,7 +148,7 @@ fn simulate(s: &[[f64; 3]; 3], o: &[f64; 3], sigma: f64, rng: &mut impl Rng) -> 
         .collect()
 }
 
-fn calibrate(data: &[[Vec<f64>; 3]]) -> rotacal::calibrate::StaticCalibration {
+fn calibrate(data: &[[Vec<f64>; 3]]) -> rotacal::calibrate::methods::StaticCalibration {
     let a = angles();
     let conds: Vec<StaticCondition> = Condition::ALL
         .iter()

@@ -70,7 +70,7 @@ pub fn locate(data: &Data, fit: &Fit) -> Vec<Finding> {
                 name
             );
             // Amplitudes at k·ω; a coefficient's variance is ≈ 2σ²/n under white noise.
-            let amps = crate::harmonics::harmonic_amplitudes(&alpha, r);
+            let amps = crate::fit::harmonics::harmonic_amplitudes(&alpha, r);
             for k in [2, 3] {
                 let se = sd_at(k as f64 * omega) * (2.0 / r.len() as f64).sqrt();
                 let amp = amps.get(k - 1).copied().unwrap_or(f64::NAN);

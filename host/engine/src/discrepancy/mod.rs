@@ -15,7 +15,7 @@ pub mod model;
 pub mod noise;
 pub mod trials;
 
-use crate::calibration_file::Quantity;
+use crate::calibrate::json::Quantity;
 use crate::recording::{Method, Recording};
 use model::{Data, Effect, Fit, GroupData};
 use rotacal_shared::intrinsic::{self, ConditionFit};

@@ -26,7 +26,7 @@
 //! a reading the model puts at a rail (fixed by the rail: no residual degree of freedom)
 //! are left out, and not counted in the degrees of freedom.
 
-use crate::noise::NoiseModel;
+use crate::fit::noise::NoiseModel;
 use nalgebra::{DMatrix, DVector};
 use rotacal_shared::Condition;
 use std::f64::consts::TAU;
@@ -639,7 +639,7 @@ fn gauss_newton_step(data: &Data, p: &Params, l: &Layout, s: [f64; 3]) -> Result
         let undetermined = "the model's parameters are not all determined by the data";
         let qt = c.q.transpose();
         let rr = &c.rr;
-        let mut cj = crate::batch::unscaled_cov(rr).map_err(|_| undetermined)?;
+        let mut cj = crate::fit::batch::unscaled_cov(rr).map_err(|_| undetermined)?;
         let beta = rr
             .solve_upper_triangular(&(&qt * &rhs))
             .ok_or(undetermined)?;

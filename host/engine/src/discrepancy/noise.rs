@@ -1,17 +1,17 @@
 //! The noise model without the physical model: for each group (condition × rate) and
-//! channel, an AR(p) model ([`crate::noise::NoiseModel`]: Yule–Walker, order by BIC) of the
+//! channel, an AR(p) model ([`crate::fit::noise::NoiseModel`]: Yule–Walker, order by BIC) of the
 //! residuals of a generic fit (a straight line, harmonics 1–4 of the nominal rate, τ·sin ωτ
 //! and τ·cos ωτ, and the temperature where it varies), which takes out what the physical
 //! model may leave (a drift, nonlinearity, a rate error's growing quadrature, a temperature
 //! coefficient), so a missing effect does not read as noise. Readings at a rail
-//! ([`crate::noise::clipped`]) are left out of the generic fit and of the estimate, and the
+//! ([`crate::fit::noise::clipped`]) are left out of the generic fit and of the estimate, and the
 //! level is rescaled for what the generic fit removed ([`NoiseModel::rescaled`]).
 //!
 //! The models are estimated once, before any physical model is fitted, and held fixed
 //! through the baseline and every step, so nested tests compare like with like.
 
 use super::model::Data;
-use crate::noise::{self, NoiseModel};
+use crate::fit::noise::{self, NoiseModel};
 use nalgebra::{DMatrix, DVector};
 
 /// How the estimate is made (for the JSON's `source`).

@@ -16,12 +16,13 @@
 //! Seeded (ChaCha8), so the same configuration and seed give the same file.
 
 pub mod config;
+pub mod geometry;
 
 pub use config::{Config, ConfigError, Noise, NoiseSd, StepError, PRESETS};
 
-use crate::geometry::sensitivity_from_intrinsic;
-use crate::geometry::{mounted, rotation};
 use crate::recording::{self, Columns, Metadata, Method, Recording, Row, Writer};
+use crate::simulate::geometry::sensitivity_from_intrinsic;
+use crate::simulate::geometry::{mounted, rotation};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::StandardNormal;

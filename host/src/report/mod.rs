@@ -11,9 +11,11 @@
 //!
 //! SVG needs no fonts at build or run time; the viewer renders the text.
 
-use crate::calibrate_recording::{self, calibrate, CalibrateError, Options, CLOCK};
-use crate::calibration_file::{CalibrationJson, FitJson, Quantity, RateJson};
-use crate::harmonics::{harmonic_amplitudes, HARMONICS};
+pub mod discrepancy;
+
+use crate::calibrate::json::{CalibrationJson, FitJson, Quantity, RateJson};
+use crate::calibrate::{self, calibrate, CalibrateError, Options, CLOCK};
+use crate::fit::harmonics::{harmonic_amplitudes, HARMONICS};
 use crate::recording::{Group, Method, Recording};
 use plotters::prelude::*;
 use rotacal_shared::PhaseStep;
@@ -58,7 +60,7 @@ fn series(rec: &Recording, g: &Group, entry: &RateJson) -> Result<Series, Report
     let coefs = ["u", "v", "w"].map(|ch| coef(&entry.fits, cond, ch));
     let (x, alpha, x_label, rotation) = match rec.method {
         Method::Rotation => {
-            let s = calibrate_recording::samples(rec, g)?;
+            let s = calibrate::samples(rec, g)?;
             let rate = entry
                 .fits
                 .iter()
@@ -389,8 +391,8 @@ fn plot_rates(cal: &CalibrationJson, path: &Path) -> Result<(), ReportError> {
 }
 
 fn q(x: &Quantity, unit: &str) -> String {
-    let d = calibrate_recording::decimals(x.expanded_unc);
-    let k = if (x.k - crate::calibration_file::K).abs() > 1e-12 {
+    let d = calibrate::table::decimals(x.expanded_unc);
+    let k = if (x.k - crate::calibrate::json::K).abs() > 1e-12 {
         format!(" (k = {:.2})", x.k)
     } else {
         String::new()
@@ -422,9 +424,9 @@ pub fn write(rec: &Recording, opts: &Options, dir: &Path) -> Result<PathBuf, Rep
         let _ = writeln!(
             md,
             "| property | value ± U (k = {} unless stated) |\n| --- | --- |",
-            crate::calibration_file::K
+            crate::calibrate::json::K
         );
-        let names = crate::calibration_file::PROPERTY_NAMES;
+        let names = crate::calibrate::json::PROPERTY_NAMES;
         for (i, x) in props(entry).iter().enumerate() {
             let _ = writeln!(
                 md,
@@ -484,7 +486,7 @@ pub fn write(rec: &Recording, opts: &Options, dir: &Path) -> Result<PathBuf, Rep
                     md,
                     "| {} | {} | {} | {std} | {:+.2e}, {:+.2e}, {:+.2e} |",
                     q.name,
-                    crate::orientation::direction_name(&q.gravity),
+                    crate::calibrate::poses::direction_name(&q.gravity),
                     q.n,
                     q.residual[0],
                     q.residual[1],

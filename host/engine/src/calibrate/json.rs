@@ -2,9 +2,9 @@
 //! ../shared/docs/formats.md (a contract with tests outside the project: keys may be
 //! added, never renamed or removed).
 
-use crate::calibrate::{RotationCalibration, StaticCalibration};
-use crate::correction::Correction;
-use crate::orientation::{self, OffsetEstimator, Weights};
+use crate::calibrate::correction::Correction;
+use crate::calibrate::methods::{RotationCalibration, StaticCalibration};
+use crate::calibrate::poses::{self, OffsetEstimator, Weights};
 use rotacal_shared::intrinsic::Estimate;
 use serde::Serialize;
 
@@ -81,7 +81,7 @@ fn pairs_k(e: [Estimate; 3], k: f64) -> Pairs {
 /// `correction` (an extension of formats.md): how to turn readings into m/s².
 #[derive(Clone, Debug, Serialize, serde::Deserialize, PartialEq)]
 pub struct CorrectionJson {
-    /// [`crate::correction::CONVENTION`], in the file itself.
+    /// [`crate::calibrate::correction::CONVENTION`], in the file itself.
     pub convention: String,
     /// The readings' units.
     pub units_in: String,
@@ -108,7 +108,7 @@ impl CorrectionJson {
         offset_source: &str,
     ) -> Self {
         CorrectionJson {
-            convention: crate::correction::CONVENTION.to_string(),
+            convention: crate::calibrate::correction::CONVENTION.to_string(),
             units_in: units_in.to_string(),
             units_out: "m/s^2".to_string(),
             device_frame: device,
@@ -138,7 +138,7 @@ pub struct PoseJson {
     /// effective number of readings), with at least 100 readings; null for a channel whose
     /// model could not be made.
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub noise: Option<[Option<crate::orientation::PoseNoise>; 3]>,
+    pub noise: Option<[Option<crate::calibrate::poses::PoseNoise>; 3]>,
     /// Mean minus model.
     pub residual: [f64; 3],
     /// File line of its first reading; for stepped files, of its condition's first row
@@ -164,7 +164,7 @@ pub struct PosesJson {
     pub tau: [f64; 3],
     /// How the scatter beyond the poses' noise was modelled: `{"model": "none"}`,
     /// `{"model": "tilt", "sd_deg": x}` or `{"model": "per-channel"}`.
-    pub scatter: orientation::Scatter,
+    pub scatter: poses::Scatter,
     /// χ²/dof of the joint fit of the three channels (3P − 12 degrees of freedom) with
     /// the noise alone (no tilt estimated) or 1 (a tilt estimated); null when the channels
     /// were fitted alone.
@@ -188,7 +188,7 @@ pub struct PosesJson {
     pub list: Vec<PoseJson>,
 }
 
-fn poses_json(f: &orientation::PoseFit) -> PosesJson {
+fn poses_json(f: &poses::PoseFit) -> PosesJson {
     let finite = |x: f64| x.is_finite().then_some(x);
     PosesJson {
         weights: f.options.weights,
@@ -316,7 +316,8 @@ pub struct RateJson {
     /// With `--monte-carlo N` only (an extension of formats.md): the GUM Supplement 1
     /// propagation of the same inputs, keyed s_u, s_v, s_w, phi_uv, phi_vw, phi_wu.
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub monte_carlo: Option<std::collections::BTreeMap<String, crate::calibrate::McSummary>>,
+    pub monte_carlo:
+        Option<std::collections::BTreeMap<String, crate::calibrate::methods::McSummary>>,
     /// An extension of formats.md: how to apply the calibration (`rotacal apply`).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub correction: Option<CorrectionJson>,
@@ -329,7 +330,7 @@ pub struct RateJson {
     pub noise: Option<Vec<NoiseJson>>,
     /// An extension of formats.md: the GUM budget behind every uncertainty of `intrinsic`.
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub uncertainty_budget: Option<crate::budget::Budget>,
+    pub uncertainty_budget: Option<crate::calibrate::budget::Budget>,
 }
 
 /// One entry of `noise`: a channel's noise in one condition (docs/uncertainty.md).
@@ -364,14 +365,19 @@ pub struct NoiseJson {
 
 impl NoiseJson {
     /// From a model; `omega` is the rotation's angle per sample (rad).
-    pub fn new(condition: char, channel: char, m: &crate::noise::NoiseModel, omega: f64) -> Self {
+    pub fn new(
+        condition: char,
+        channel: char,
+        m: &crate::fit::noise::NoiseModel,
+        omega: f64,
+    ) -> Self {
         NoiseJson {
             condition: condition.to_string(),
             channel: channel.to_string(),
             model: format!(
                 "AR({}) by Yule–Walker on the fit residuals, order by BIC (≤ {})",
                 m.order(),
-                crate::noise::MAX_ORDER
+                crate::fit::noise::MAX_ORDER
             ),
             sd: m.sd(),
             innovation_sd: m.innovation_var.sqrt(),
@@ -391,8 +397,8 @@ pub const MC_KEYS: [&str; 6] = ["s_u", "s_v", "s_w", "phi_uv", "phi_vw", "phi_wu
 
 /// The `monte_carlo` map from the six summaries.
 pub fn mc_map(
-    s: [crate::calibrate::McSummary; 6],
-) -> std::collections::BTreeMap<String, crate::calibrate::McSummary> {
+    s: [crate::calibrate::methods::McSummary; 6],
+) -> std::collections::BTreeMap<String, crate::calibrate::methods::McSummary> {
     MC_KEYS.iter().map(|k| k.to_string()).zip(s).collect()
 }
 
@@ -410,7 +416,7 @@ pub struct CalibrationJson {
 }
 
 /// Property `i` of a budget as a [`Quantity`] with `value` and its combined uncertainty.
-fn budget_quantity(b: &crate::budget::Budget, i: usize, value: f64) -> Quantity {
+fn budget_quantity(b: &crate::calibrate::budget::Budget, i: usize, value: f64) -> Quantity {
     match b.combined.get(i) {
         Some(c) => Quantity {
             value,
@@ -430,7 +436,7 @@ fn budget_quantity(b: &crate::budget::Budget, i: usize, value: f64) -> Quantity 
 fn intrinsic_json(
     i: &rotacal_shared::intrinsic::Intrinsic,
     offsets: Option<&[Estimate; 3]>,
-    budget: &crate::budget::Budget,
+    budget: &crate::calibrate::budget::Budget,
 ) -> IntrinsicJson {
     let q = |k: usize, e: &Estimate| budget_quantity(budget, k, e.value);
     let uvw = |e: &[Estimate; 3], at: usize| Uvw {
@@ -455,7 +461,7 @@ fn intrinsic_json(
 pub fn rotation_entry(
     rate_hz: f64,
     cal: &RotationCalibration,
-    budget: &crate::budget::Budget,
+    budget: &crate::calibrate::budget::Budget,
     fits: Vec<FitJson>,
 ) -> RateJson {
     RateJson {
@@ -474,7 +480,10 @@ pub fn rotation_entry(
 
 /// The `by_rate` entry of a static calibration: the values, with the uncertainties of the
 /// budget (properties s_u … φ_wu, O_u, O_v, O_w).
-pub fn static_entry(cal: &StaticCalibration, budget: &crate::budget::Budget) -> RateJson {
+pub fn static_entry(
+    cal: &StaticCalibration,
+    budget: &crate::calibrate::budget::Budget,
+) -> RateJson {
     let mut fits = Vec::new();
     for (cond, per_ch) in ['x', 'y', 'z'].iter().zip(cal.fits.iter().flatten()) {
         for (ch, f) in ['u', 'v', 'w'].iter().zip(per_ch) {

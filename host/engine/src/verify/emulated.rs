@@ -2,11 +2,12 @@
 //!
 //! The emulated Cortex-M4F (tests/qemu `crosscheck`) prints its results as f32 bit
 //! patterns. Here the same records are regenerated (`rotacal_shared::synth`, bit-exact on
-//! both targets: the checksum proves it), fitted by [`crate::batch::fit`] in f64 and
+//! both targets: the checksum proves it), fitted by [`crate::fit::batch::fit`] in f64 and
 //! compared. The host also runs the f32 streaming fit itself: its bits must equal the
 //! device's, which shows that the device's numbers are reproducible off the device.
 
-use crate::batch;
+use crate::fit::batch;
+use crate::verify::sigma_crlb;
 use rotacal_shared::synth::{crosscheck, Checksum, Synth, SynthSpec};
 use rotacal_shared::{DoubleWord, FitConfig, Model, SineFit, Ticks};
 use serde::Serialize;
@@ -199,15 +200,6 @@ pub enum CheckError {
     /// A fit failed on the host.
     #[error("host fit of {0} failed: {1}")]
     Fit(String, String),
-}
-
-/// σ_CRLB of A, B and C for `n` samples of white noise `noise_sigma` quantised to whole
-/// counts (adding 1/12 count²): √(2σ²/N), √(2σ²/N), √(σ²/N) (method.md §5).
-pub fn sigma_crlb(noise_sigma: f64, n: usize) -> [f64; 3] {
-    let var = noise_sigma * noise_sigma + 1.0 / 12.0;
-    let n = n as f64;
-    let ab = (2.0 * var / n).sqrt();
-    [ab, ab, (var / n).sqrt()]
 }
 
 fn samples_of(spec: SynthSpec) -> (Vec<(Ticks, [i16; 3])>, Checksum) {

@@ -19,7 +19,10 @@
 //! the reader panic.
 //!
 //! [`Writer`] writes files that the reader reads back exactly (floats are written with
-//! Rust's shortest round-trip representation).
+//! the shortest representation that reads back exactly, by ryu).
+//!
+//! How rows get here: [`from_device`] (the device's packets and fit reports) and
+//! [`import`] (other tools' text logs).
 //!
 //! Extensions to formats.md, all of them lenient:
 //! - upper-case conditions (`X`, `Y`, `Z`) are accepted;
@@ -32,6 +35,9 @@
 //! `sample_rate_hz` must be positive, `noise_sigma` non-negative; a known metadata key given
 //! twice with different values is an error; `seq` must be a non-negative integer; the
 //! uncertainty keys `u_g_loc`, `u_time_s` and `u_angle_deg` must be numbers ≥ 0.
+
+pub mod from_device;
+pub mod import;
 
 use std::collections::BTreeMap;
 use std::fmt;

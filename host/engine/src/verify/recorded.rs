@@ -7,11 +7,10 @@
 //! standard deviation), and every window complete. The default threshold, 0.01, is the
 //! accuracy issue 2 requires of the device's f32 fit.
 
-use crate::acquire::{FitLine, LogLine};
-use crate::batch;
-use crate::fitcheck::sigma_crlb;
+use crate::recording::from_device::{FitLine, LogLine};
 use crate::recording::Recording;
-use rotacal_shared::{Condition, Model, PhaseStep, TickRate, Ticks};
+use crate::verify::compare;
+use rotacal_shared::{Condition, Ticks};
 use serde::Serialize;
 use std::fmt::Write as _;
 
@@ -52,38 +51,6 @@ pub struct CrosscheckReport {
     pub max_delta_crlb: f64,
     /// All passed (and there was at least one).
     pub passed: bool,
-}
-
-/// A device fit against the f64 QR fit of the same samples with its regressors.
-pub struct Comparison {
-    /// The host's fit.
-    pub host: batch::BatchFit,
-    /// max over channels and A, B, C of |device − host| / host standard error.
-    pub max_delta_se: f64,
-    /// … / σ_CRLB, from the host fit's σ̂.
-    pub max_delta_crlb: f64,
-}
-
-/// Fit `window` (ticks of the device clock, [u, v, w]) in f64 with the device's phase
-/// step and clock, and compare with its coefficients.
-pub fn compare(window: &[(Ticks, [f64; 3])], f: &FitLine) -> Result<Comparison, String> {
-    let clock = TickRate::new(f.tick_hz).ok_or("fit log: tick_hz 0")?;
-    let host = batch::fit(window, PhaseStep(f.step), clock, Model::SINE, Ticks(0))
-        .map_err(|e| format!("condition {}: host fit: {e}", f.condition))?;
-    let (mut max_se, mut max_crlb) = (0.0f64, 0.0f64);
-    for (h, device) in host.channels.iter().zip(&f.coef) {
-        let crlb = sigma_crlb(h.sigma, window.len());
-        for (k, bound) in crlb.iter().enumerate() {
-            let d = (device[k] - h.coef[k]).abs();
-            max_se = max_se.max(d / h.se[k]);
-            max_crlb = max_crlb.max(d / bound);
-        }
-    }
-    Ok(Comparison {
-        host,
-        max_delta_se: max_se,
-        max_delta_crlb: max_crlb,
-    })
 }
 
 fn check_one(rec: &Recording, f: &FitLine, threshold: f64) -> Result<FitCheck, String> {

@@ -1,7 +1,7 @@
 //! The discrepancy workflow's terminal summary and its report folder (Markdown and SVG:
 //! residuals and their spectrum at k·ω before and after the named effects).
 
-use super::{Analysis, Criterion, RateIntrinsic};
+use crate::discrepancy::{Analysis, Criterion, RateIntrinsic};
 use crate::report::{self, ReportError, Series};
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -39,7 +39,7 @@ fn test(c: &Criterion) -> String {
 }
 
 fn moved(before: &[RateIntrinsic], after: &[RateIntrinsic], o: &mut String) {
-    let names = crate::calibration_file::PROPERTY_NAMES;
+    let names = crate::calibrate::json::PROPERTY_NAMES;
     for (b, a) in before.iter().zip(after) {
         let _ = writeln!(o, "  at {} Hz:", b.rate_hz);
         let bq = b.sensitivity.iter().chain(&b.angle_deg);
@@ -109,7 +109,7 @@ pub fn render(a: &Analysis) -> String {
         let _ = writeln!(
             o,
             "Where the baseline disagrees (z > {}, largest first):",
-            super::locate::Z_LIST
+            crate::discrepancy::locate::Z_LIST
         );
         for f in a.findings.iter().take(10) {
             let _ = writeln!(o, "  {}: {} {:.4} (z = {:.0})", f.at, f.what, f.size, f.z);
@@ -219,7 +219,7 @@ pub fn write(a: &Analysis, dir: &Path, units: &str) -> Result<PathBuf, ReportErr
             report::plot_residuals(&s, &res, units)?;
             let amps: Vec<Vec<f64>> = (0..3)
                 .map(|ch| {
-                    crate::harmonics::harmonic_amplitudes(&s.alpha, &report::residuals(&s, ch))
+                    crate::fit::harmonics::harmonic_amplitudes(&s.alpha, &report::residuals(&s, ch))
                 })
                 .collect();
             let spec = dir.join(format!("spectrum_{}.svg", s.stem));

@@ -209,7 +209,8 @@ impl NoiseModel {
                 let s = t + k + 1;
                 if s < n && s >= p {
                     let (head, tail) = zs.split_at_mut(s * q);
-                    let (Some(row), Some(later)) = (head.get_mut(t * q..(t + 1) * q), tail.get(..q))
+                    let (Some(row), Some(later)) =
+                        (head.get_mut(t * q..(t + 1) * q), tail.get(..q))
                     else {
                         continue;
                     };

@@ -6,20 +6,32 @@
 //! streaming fit in f64, and the intrinsic properties come from the Gram matrix.
 //! Timestamps are converted to ticks of a 1 MHz clock (t_s has microsecond resolution in
 //! every writer we know of).
+//!
+//! The parts, each used by this pipeline: [`methods`] (rotation and stepped methods from
+//! fits, the static method from poses, their Monte Carlo), [`poses`] (the joint fit of S
+//! and O to known orientations), [`budget`] (the GUM budget), [`correction`] (the correction
+//! M·(y − O) and its covariance), [`json`] (the calibration JSON, docs/formats.md) and
+//! [`table`] (the terminal summary).
 
-use crate::batch;
-use crate::budget::{Budget, Kind};
-use crate::calibrate;
-use crate::calibration_file::{self, CalibrationJson, CorrectionJson, FitJson, NoiseJson};
-use crate::correction;
-use crate::noise::{self, NoiseError, NoiseModel};
-use crate::orientation::{self, StaticCondition};
+pub mod budget;
+pub mod correction;
+pub mod json;
+pub mod methods;
+pub mod poses;
+pub mod table;
+
+use crate::calibrate::budget::{Budget, Kind};
+use crate::fit::batch;
+
+use crate::calibrate::json::{CalibrationJson, CorrectionJson, FitJson, NoiseJson};
+
+use crate::calibrate::poses::StaticCondition;
+use crate::fit::noise::{self, NoiseError, NoiseModel};
 use crate::recording::{Group, Method, Recording};
 use nalgebra::DMatrix;
 use rotacal_shared::intrinsic::{self, ConditionFit};
 use rotacal_shared::{Condition, FitConfig, FitResult, Param, PhaseStep, SineFit, TickRate, Ticks};
 use std::f64::consts::TAU;
-use std::fmt::Write as _;
 
 /// Command-line choices, which override the file's metadata.
 #[derive(Clone, Debug, Default)]
@@ -33,7 +45,7 @@ pub struct Options {
     /// Also propagate by Monte Carlo (GUM Supplement 1) with this many trials.
     pub monte_carlo: Option<usize>,
     /// Static data: pose weighting and offset estimator.
-    pub poses: orientation::Options,
+    pub poses: poses::Options,
     /// Standard uncertainties of the type-B inputs (override the file's `u_*` keys).
     pub inputs: TypeB,
 }
@@ -102,7 +114,7 @@ pub fn samples(rec: &Recording, g: &Group) -> Result<Vec<(Ticks, [f64; 3])>, Cal
 
 /// One condition's fit at one rate: the coefficients of the streaming fit in f64, and
 /// their covariance under the noise estimated from the fit's own residuals
-/// ([`crate::noise`]).
+/// ([`crate::fit::noise`]).
 #[derive(Clone, Debug)]
 pub struct GroupFit {
     /// The platter axis.
@@ -412,11 +424,11 @@ pub fn calibrate(rec: &Recording, opts: &Options) -> Result<CalibrationJson, Cal
                 };
                 let cf = [0, 1, 2].map(|c| fits[c].condition_fit());
                 let at_rate = |e: String| err(rec, None, format!("at {nominal} Hz: {e}"));
-                let cal = calibrate::rotation(&cf, g).map_err(|e| at_rate(e.to_string()))?;
+                let cal = methods::rotation(&cf, g).map_err(|e| at_rate(e.to_string()))?;
                 let budget = rotation_budget(&fits, &group_samples, &cal, g, &inputs, &units)
                     .map_err(at_rate)?;
                 let json_fits = fits.iter().flat_map(fit_json).collect();
-                let mut entry = calibration_file::rotation_entry(nominal, &cal, &budget, json_fits);
+                let mut entry = json::rotation_entry(nominal, &cal, &budget, json_fits);
                 entry.noise = Some(fits.iter().flat_map(noise_json).collect());
                 entry.uncertainty_budget = Some(budget);
                 let device = rotation_correction(&fits, g).map_err(|e| at_rate(e.to_string()))?;
@@ -424,15 +436,15 @@ pub fn calibrate(rec: &Recording, opts: &Options) -> Result<CalibrationJson, Cal
                     &units,
                     device,
                     None,
-                    calibration_file::K,
+                    json::K,
                     "the mean of the three conditions' C at this rate: it includes the \
                      centripetal acceleration ω²·r of a sensor off the axis, which one rate \
                      cannot separate",
                 ));
                 if let Some(trials) = opts.monte_carlo {
-                    let mc = calibrate::monte_carlo_rotation(&cf, g, trials, 1)
+                    let mc = methods::monte_carlo_rotation(&cf, g, trials, 1)
                         .map_err(|e| err(rec, None, format!("Monte Carlo at {nominal} Hz: {e}")))?;
-                    entry.monte_carlo = Some(calibration_file::mc_map(mc));
+                    entry.monte_carlo = Some(json::mc_map(mc));
                 }
                 by_rate.push(entry);
             }
@@ -444,17 +456,17 @@ pub fn calibrate(rec: &Recording, opts: &Options) -> Result<CalibrationJson, Cal
             let poses = rec
                 .oriented
                 .as_ref()
-                .map(orientation::poses_from_oriented)
+                .map(poses::poses_from_oriented)
                 .transpose()
                 .map_err(|e| {
                     let line = match &e {
-                        orientation::PoseError::PoseDirection { line, .. } => Some(*line),
+                        poses::PoseError::PoseDirection { line, .. } => Some(*line),
                         _ => None,
                     };
                     err(rec, line, e.to_string())
                 })?
                 .unwrap_or_default();
-            let cal = calibrate::from_poses(poses, g, pose_options(opts, &inputs))
+            let cal = methods::from_poses(poses, g, pose_options(opts, &inputs))
                 .map_err(|e| err(rec, None, e.to_string()))?;
             by_rate.push(static_json(rec, &cal, opts, (g, &inputs), &units)?);
         }
@@ -475,7 +487,7 @@ pub fn calibrate(rec: &Recording, opts: &Options) -> Result<CalibrationJson, Cal
                     first_line: grp.first_line,
                 });
             }
-            let cal = calibrate::static_method(&conds, g, pose_options(opts, &inputs))
+            let cal = methods::static_method(&conds, g, pose_options(opts, &inputs))
                 .map_err(|e| err(rec, None, e.to_string()))?;
             by_rate.push(static_json(rec, &cal, opts, (g, &inputs), &units)?);
         }
@@ -491,7 +503,7 @@ pub fn calibrate(rec: &Recording, opts: &Options) -> Result<CalibrationJson, Cal
 /// Multi-rate rotation: each condition's C_j against ω² is a line whose intercept is the
 /// offset at rest (the centripetal term grows as ω²·r); O_j is the mean of the three
 /// conditions' intercepts, and every rate's correction gets it.
-fn offsets_at_rest(by_rate: &mut [calibration_file::RateJson]) -> Result<(), String> {
+fn offsets_at_rest(by_rate: &mut [json::RateJson]) -> Result<(), String> {
     let mut offset = [0.0; 3];
     let mut var = [0.0; 3];
     for cond in ["x", "y", "z"] {
@@ -554,8 +566,8 @@ fn offsets_at_rest(by_rate: &mut [calibration_file::RateJson]) -> Result<(), Str
 }
 
 /// The pose fit's options with the stated table-angle uncertainty.
-fn pose_options(opts: &Options, inputs: &TypeB) -> orientation::Options {
-    orientation::Options {
+fn pose_options(opts: &Options, inputs: &TypeB) -> poses::Options {
+    poses::Options {
         u_angle_rad: inputs.u_angle_deg.map(f64::to_radians),
         ..opts.poses
     }
@@ -563,23 +575,23 @@ fn pose_options(opts: &Options, inputs: &TypeB) -> orientation::Options {
 
 fn static_json(
     rec: &Recording,
-    cal: &calibrate::StaticCalibration,
+    cal: &methods::StaticCalibration,
     opts: &Options,
     (g, inputs): (f64, &TypeB),
     units: &str,
-) -> Result<calibration_file::RateJson, CalibrateError> {
+) -> Result<json::RateJson, CalibrateError> {
     let budget = static_budget(cal, g, inputs, units).map_err(|e| err(rec, None, e))?;
-    let mut entry = calibration_file::static_entry(cal, &budget);
+    let mut entry = json::static_entry(cal, &budget);
     entry.uncertainty_budget = Some(budget);
     if let Some(trials) = opts.monte_carlo {
-        let mc = calibrate::monte_carlo_static(cal, trials, 1)
+        let mc = methods::monte_carlo_static(cal, trials, 1)
             .map_err(|e| err(rec, None, format!("Monte Carlo: {e}")))?;
-        entry.monte_carlo = Some(calibration_file::mc_map(mc));
+        entry.monte_carlo = Some(json::mc_map(mc));
     }
     let (device, platter) = static_correction(cal).map_err(|e| err(rec, None, e.to_string()))?;
     let source = match cal.pose_fit.options.offsets {
-        orientation::OffsetEstimator::Joint => "the joint fit of S and O to all poses",
-        orientation::OffsetEstimator::AxisPairs => {
+        poses::OffsetEstimator::Joint => "the joint fit of S and O to all poses",
+        poses::OffsetEstimator::AxisPairs => {
             "the up/down pair of each channel's own axis (imucal's estimator)"
         }
     };
@@ -597,10 +609,10 @@ fn static_json(
 /// imucal's offsets are taken as uncorrelated with S (with balanced up/down poses their
 /// correlation is zero).
 pub fn static_correction(
-    cal: &calibrate::StaticCalibration,
+    cal: &methods::StaticCalibration,
 ) -> Result<(correction::Correction, correction::Correction), correction::CorrectionError> {
     let mut cov = DMatrix::zeros(correction::PARAMS, correction::PARAMS);
-    let joint = cal.pose_fit.options.offsets == orientation::OffsetEstimator::Joint;
+    let joint = cal.pose_fit.options.offsets == poses::OffsetEstimator::Joint;
     let full = &cal.pose_fit.cov;
     for a in 0..12 {
         for b in 0..12 {
@@ -678,9 +690,9 @@ fn new_budget(units: &str, offsets: bool) -> Budget {
     unit_of.extend(["deg", "deg", "deg"].map(String::from));
     if offsets {
         unit_of.extend([units, units, units].map(String::from));
-        Budget::new(&calibration_file::PROPERTY_NAMES_WITH_OFFSETS, &unit_of)
+        Budget::new(&json::PROPERTY_NAMES_WITH_OFFSETS, &unit_of)
     } else {
-        Budget::new(&calibration_file::PROPERTY_NAMES, &unit_of)
+        Budget::new(&json::PROPERTY_NAMES, &unit_of)
     }
 }
 
@@ -688,7 +700,7 @@ fn new_budget(units: &str, offsets: bool) -> Budget {
 /// noise, the poses' tilt, the stated table angles; or each channel's own scatter) and
 /// g_loc (S ∝ 1/g_loc; angles and offsets do not depend on it).
 pub fn static_budget(
-    cal: &calibrate::StaticCalibration,
+    cal: &methods::StaticCalibration,
     g: f64,
     inputs: &TypeB,
     units: &str,
@@ -697,8 +709,8 @@ pub fn static_budget(
     let fit = &cal.pose_fit;
     let values = values6(&cal.intrinsic);
     // Each part's variance of the nine properties, and its degrees of freedom.
-    let forms = |part: &orientation::CovPart| -> Result<[f64; 9], String> {
-        let s_part = orientation::s_block(&part.theta);
+    let forms = |part: &poses::CovPart| -> Result<[f64; 9], String> {
+        let s_part = poses::s_block(&part.theta);
         let prop = intrinsic::from_matrix_cov(&cal.s, &s_part).map_err(|e| e.to_string())?;
         let mut var = [0.0; 9];
         for (q, v) in var.iter_mut().take(6).enumerate() {
@@ -719,7 +731,7 @@ pub fn static_budget(
         .collect::<Result<Vec<_>, String>>()?;
     let of = |q: usize| {
         let cache = &cache;
-        move |c: &orientation::CovPart| {
+        move |c: &poses::CovPart| {
             cache
                 .iter()
                 .find(|(p, _)| std::ptr::eq(*p, c))
@@ -727,7 +739,7 @@ pub fn static_budget(
         }
     };
     for (part, var) in &cache {
-        if part.source == orientation::PartSource::TableAngle {
+        if part.source == poses::PartSource::TableAngle {
             let u = inputs.u_angle_deg.unwrap_or(f64::NAN);
             let sd: Vec<f64> = var.iter().map(|v| v.max(0.0).sqrt()).collect();
             b.vector(
@@ -750,21 +762,21 @@ pub fn static_budget(
         })
         .unzip();
     let description = match fit.scatter {
-        orientation::Scatter::PerChannel => "the least-squares fit of S and O to the pose means \
+        poses::Scatter::PerChannel => "the least-squares fit of S and O to the pose means \
              (JSON poses), each channel alone with its variance from the poses' scatter and its \
              degrees of freedom"
             .to_string(),
-        orientation::Scatter::None
+        poses::Scatter::None
             if fit
                 .parts
                 .iter()
-                .any(|p| matches!(p.source, orientation::PartSource::Channel(_))) =>
+                .any(|p| matches!(p.source, poses::PartSource::Channel(_))) =>
         {
             "the least-squares fit of S and O to the pose means (JSON poses), each channel alone \
              with its variance from its readings' noise"
                 .to_string()
         }
-        orientation::Scatter::None => format!(
+        poses::Scatter::None => format!(
             "the readings' noise within each pose (JSON poses) through the joint fit of S and \
              O; no tilt estimated (joint χ²/dof = {}), so each quantity's share that a tilt \
              would move is scaled by χ²/dof with 3P − 12 degrees of freedom, the rest keeps \
@@ -772,7 +784,7 @@ pub fn static_budget(
             fit.chi2_dof
                 .map_or("undefined".to_string(), |q| format!("{q:.3}"))
         ),
-        orientation::Scatter::Tilt { sd_deg } => format!(
+        poses::Scatter::Tilt { sd_deg } => format!(
             "the readings' noise within each pose and a random tilt of each pose off its \
              nominal direction of {sd_deg:.2e}° per axis (standard deviation), estimated so that \
              the joint fit's χ² equals its 3P − 12 degrees of freedom; degrees of freedom \
@@ -829,7 +841,7 @@ fn gravity_source(b: &mut Budget, g: f64, u_g_loc: Option<f64>, cg: &[f64]) {
 fn rotation_budget(
     fits: &[GroupFit; 3],
     samples: &[Vec<(Ticks, [f64; 3])>; 3],
-    cal: &calibrate::RotationCalibration,
+    cal: &methods::RotationCalibration,
     g: f64,
     inputs: &TypeB,
     units: &str,
@@ -968,298 +980,4 @@ fn rotation_budget(
     );
     b.combine();
     Ok(b)
-}
-
-fn render_poses(p: &calibration_file::PosesJson, units: &str) -> String {
-    let mut o = String::new();
-    let tau = format!(
-        "τ = {:.2e} {:.2e} {:.2e} {units}",
-        p.tau[0], p.tau[1], p.tau[2]
-    );
-    let scatter = match (p.scatter, p.chi2_dof_joint) {
-        (orientation::Scatter::None, Some(q)) => format!("{} (joint χ²/dof = {q:.2})", p.scatter),
-        (orientation::Scatter::None, None) => p.scatter.to_string(),
-        _ => format!("{}: {tau}", p.scatter),
-    };
-    let _ = writeln!(
-        o,
-        "  {} poses, condition number {:.2}; weights {}; {scatter}",
-        p.list.len(),
-        p.condition_number,
-        match (
-            p.weights,
-            p.chi2_dof_joint.is_some() || p.scatter != orientation::Scatter::PerChannel
-        ) {
-            (orientation::Weights::Equal, _) => "equal",
-            (_, true) => "the inverse of each pose mean's covariance (u, v, w together)",
-            (_, false) => "1/(se² + τ²)",
-        },
-    );
-    if let Some(s) = &p.suggestion {
-        let _ = writeln!(
-            o,
-            "  WARNING: poorly conditioned (> {}): add a pose with gravity along {s}",
-            orientation::WELL_CONDITIONED
-        );
-    }
-    if !p.not_still.is_empty() {
-        let _ = writeln!(
-            o,
-            "  WARNING: not still (std > {}× the median pose's): {}",
-            orientation::NOT_STILL_FACTOR,
-            p.not_still.join(", ")
-        );
-    }
-    let _ = writeln!(
-        o,
-        "    {:<12} {:>9} {:>6}  {:<26}  {:<29}",
-        "pose", "ĝ", "n", "std u v w (how still)", "residual u v w (mean − model)"
-    );
-    for q in &p.list {
-        let std = q
-            .std
-            .map(|s| format!("{:.2e} {:.2e} {:.2e}", s[0], s[1], s[2]))
-            .unwrap_or_else(|| "single reading".into());
-        let _ = writeln!(
-            o,
-            "    {:<12} {:>9} {:>6}  {:<26}  {:+.2e} {:+.2e} {:+.2e}",
-            q.name,
-            orientation::direction_name(&q.gravity),
-            q.n,
-            std,
-            q.residual[0],
-            q.residual[1],
-            q.residual[2]
-        );
-    }
-    if let (Some(d), Some(a)) = (p.offsets_difference, &p.offsets_axis_pairs) {
-        let _ = writeln!(
-            o,
-            "  offsets, joint fit − up/down pair of each axis (imucal's): {:+.6} {:+.6} {:+.6} {units} \
-             (axis pairs: {:.6} {:.6} {:.6})",
-            d[0], d[1], d[2], a.u.value, a.v.value, a.w.value
-        );
-    }
-    o
-}
-
-/// The budget as a table: each source's contribution (standard uncertainty) per property,
-/// then the combined u, ν_eff, k and the dominant source; and a warning for what it lacks.
-pub fn render_budget(b: &Budget) -> String {
-    let mut o = String::new();
-    let _ = writeln!(
-        o,
-        "  uncertainty budget: each source's standard uncertainty in each property (JSON uncertainty_budget)"
-    );
-    let mut head = format!("    {:<12} {:<4} {:>16}", "source", "type", "u(input)");
-    for name in &b.quantities {
-        let _ = write!(head, " {name:>9}");
-    }
-    let _ = writeln!(o, "{head}");
-    for s in &b.sources {
-        let input = match (&s.std_unc, &s.unit) {
-            (Some(u), Some(unit)) => format!("{u:.2e} {unit}"),
-            _ => "(covariance)".into(),
-        };
-        let kind = match s.kind {
-            Kind::A => "A",
-            Kind::B => "B",
-        };
-        let mut line = format!("    {:<12} {kind:<4} {input:>16}", s.source);
-        for c in &s.contribution {
-            let _ = write!(line, " {c:>9.2e}");
-        }
-        let _ = writeln!(o, "{line}");
-    }
-    let row = |label: &str, f: &dyn Fn(&crate::budget::Combined) -> String| {
-        let mut line = format!("    {label:<12} {:<4} {:>16}", "", "");
-        for c in &b.combined {
-            let _ = write!(line, " {:>9}", f(c));
-        }
-        line + "\n"
-    };
-    o += &row("combined u", &|c| format!("{:.2e}", c.std_unc));
-    o += &row("ν_eff", &|c| match c.nu_eff {
-        Some(n) if n < 1e6 => format!("{n:.0}"),
-        _ => "∞".into(),
-    });
-    o += &row("k", &|c| format!("{:.2}", c.k));
-    o += &row("dominant", &|c| c.dominant.clone());
-    for n in &b.notes {
-        let _ = writeln!(o, "  WARNING: {n}");
-    }
-    o
-}
-
-/// The noise models, one line per condition and channel.
-fn render_noise(n: &[NoiseJson]) -> String {
-    let mut o = String::new();
-    let _ = writeln!(
-        o,
-        "  noise from the fit residuals (AR model, JSON noise): sd, lag-1 autocorrelation, variance factor at ω, n_eff"
-    );
-    for x in n {
-        let _ = writeln!(
-            o,
-            "    {} {}: sd {:.3}, ρ₁ {:+.3}, AR({}), factor {:.2}, n_eff {:.0} of {}{}",
-            x.condition,
-            x.channel,
-            x.sd,
-            x.lag1_autocorrelation,
-            x.ar.len(),
-            x.variance_factor,
-            x.n_eff,
-            x.n,
-            if x.n_excluded > 0 {
-                format!(" ({} at a rail left out)", x.n_excluded)
-            } else {
-                String::new()
-            }
-        );
-    }
-    o
-}
-
-/// Decimal places that show `u` to two significant digits (at most 12).
-pub fn decimals(u: f64) -> usize {
-    if !(u.is_finite() && u > 0.0) {
-        return 6;
-    }
-    (1.0 - u.log10().floor()).clamp(0.0, 12.0) as usize
-}
-
-/// The terminal table: value ± U (k = 2) with units, U to two significant digits.
-pub fn render(c: &CalibrationJson) -> String {
-    let mut o = String::new();
-    let su = format!("{} per m/s²", c.units);
-    let _ = writeln!(
-        o,
-        "method {}, g_loc = {} m/s²; ± is the expanded uncertainty U (95 %, k = 2 unless stated; k from the\n\
-         budget's effective degrees of freedom)",
-        c.method, c.g_loc
-    );
-    for r in &c.by_rate {
-        let rate = r
-            .rate_hz
-            .map(|f| format!("rotation at {f} Hz"))
-            .unwrap_or_else(|| "static".into());
-        let _ = writeln!(o, "\n{rate}");
-        if let Some(p) = &r.poses {
-            if (p.k - calibration_file::K).abs() > 1e-12 {
-                let nu = p.nu.iter().fold(f64::INFINITY, |a, b| a.min(*b));
-                let why = match p.scatter {
-                    orientation::Scatter::PerChannel => format!(
-                        "the poses' scatter about the model, estimated from {} poses − 4",
-                        p.list.len()
-                    ),
-                    _ if p.chi2_dof_joint.is_some() => format!(
-                        "the poses' scatter in the joint fit, 3 × {} poses − 12",
-                        p.list.len()
-                    ),
-                    _ => "the readings' scatter within the poses".to_string(),
-                };
-                let _ = writeln!(o, "  k = {:.2}: Student's t for ν = {nu} ({why})", p.k);
-            }
-        }
-        let q = |name: &str, x: &calibration_file::Quantity, unit: &str| {
-            let d = decimals(x.expanded_unc);
-            let k = if (x.k - calibration_file::K).abs() > 1e-12 {
-                format!(" (k = {:.2})", x.k)
-            } else {
-                String::new()
-            };
-            format!(
-                "  {name:<7} {:>16.d$} ± {:<12.d$} {unit}{k}\n",
-                x.value, x.expanded_unc
-            )
-        };
-        let s = &r.intrinsic.sensitivity;
-        let a = &r.intrinsic.angle_deg;
-        o += &q("s_u", &s.u, &su);
-        o += &q("s_v", &s.v, &su);
-        o += &q("s_w", &s.w, &su);
-        o += &q("φ_uv", &a.uv, "°");
-        o += &q("φ_vw", &a.vw, "°");
-        o += &q("φ_wu", &a.wu, "°");
-        if let Some(off) = &r.intrinsic.offset {
-            o += &q("O_u", &off.u, &c.units);
-            o += &q("O_v", &off.v, &c.units);
-            o += &q("O_w", &off.w, &c.units);
-        }
-        if let Some(b) = &r.uncertainty_budget {
-            o += &render_budget(b);
-        }
-        if let Some(n) = &r.noise {
-            o += &render_noise(n);
-        }
-        if let Some(p) = &r.poses {
-            o += &render_poses(p, &c.units);
-        }
-        if let Some(cj) = &r.correction {
-            let d = &cj.device_frame;
-            let _ = writeln!(
-                o,
-                "  correction a = M·(y − O) to m/s² (device frame; JSON 'correction'; rotacal apply/export):"
-            );
-            for (i, row) in d.matrix.iter().enumerate() {
-                let _ = writeln!(
-                    o,
-                    "    M[{i}] = [{:+.8} {:+.8} {:+.8}]  O[{i}] = {:+.6} {}",
-                    row[0], row[1], row[2], d.offset[i], cj.units_in
-                );
-            }
-        }
-        if let Some(p) = &r.angle_deg_phase_method {
-            let _ = writeln!(o, "  phase-difference angles (seed 000 eqs. 12–16, for comparison; biased when tilted):");
-            o += &q("φ_uv", &p.uv, "°");
-            o += &q("φ_vw", &p.vw, "°");
-            o += &q("φ_wu", &p.wu, "°");
-        }
-        if let Some(mc) = &r.monte_carlo {
-            let _ = writeln!(
-                o,
-                "  Monte Carlo (GUM S1) check of the type-A term: standard uncertainty and 95 % interval"
-            );
-            // The draws are of the fits (or the pose fit) only: compare with the budget's
-            // type-A line, not with the combined uncertainty.
-            let type_a = r.uncertainty_budget.as_ref().and_then(|b| {
-                b.sources
-                    .iter()
-                    .find(|x| x.kind == Kind::A && (x.source == "fits" || x.source == "poses"))
-            });
-            for (i, (key, q)) in calibration_file::MC_KEYS
-                .iter()
-                .zip([&s.u, &s.v, &s.w, &a.uv, &a.vw, &a.wu])
-                .enumerate()
-            {
-                let linear = type_a
-                    .and_then(|x| x.contribution.get(i).copied())
-                    .unwrap_or(q.std_unc);
-                if let Some(m) = mc.get(*key) {
-                    let _ = writeln!(
-                        o,
-                        "  {key:<7} u = {:.6} (linear {:.6}), [{:.6}, {:.6}]",
-                        m.std_unc, linear, m.low_95, m.high_95
-                    );
-                }
-            }
-        }
-        let fitted: Vec<String> = r
-            .fits
-            .iter()
-            .filter(|f| f.channel == "u")
-            .filter_map(|f| {
-                f.rate_hz_fitted
-                    .map(|h| format!("{} {h:.9} Hz", f.condition))
-            })
-            .collect();
-        if !fitted.is_empty() {
-            let _ = writeln!(
-                o,
-                "  rate differs from nominal; fitted: {}",
-                fitted.join(", ")
-            );
-        }
-    }
-    o
 }

@@ -14,8 +14,8 @@
 //!
 //! A last line without its newline (the host was killed while writing it) is ignored.
 
-use crate::acquire::{RecordSummary, Recorder, COLUMNS};
 use crate::link::Channel;
+use crate::recording::from_device::{RecordSummary, Recorder, COLUMNS};
 use crate::recording::{self, Metadata, Writer};
 use rotacal_shared::packet::Packet;
 use std::fmt::Write as _;
@@ -158,7 +158,7 @@ pub fn read(text: &str, source: &str) -> Result<Capture, String> {
             return Err(at("more than three fields"));
         }
         let bytes = || {
-            data.and_then(crate::acquire::from_hex)
+            data.and_then(crate::recording::from_device::from_hex)
                 .filter(|b| !b.is_empty())
                 .ok_or_else(|| at("bad or missing hex bytes"))
         };

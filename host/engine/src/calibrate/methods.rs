@@ -5,8 +5,8 @@
 //! properties and the phase-difference angles with their uncertainties
 //! (`rotacal_shared::intrinsic`); and the static stepped method (seed 001).
 
-use crate::batch::{self, BatchError};
-use crate::orientation::{self, PoseError, PoseFit, StaticCondition};
+use crate::calibrate::poses::{self, PoseError, PoseFit, StaticCondition};
+use crate::fit::batch::{self, BatchError};
 use nalgebra::{DMatrix, DVector};
 use rotacal_shared::intrinsic::{self, ConditionFit, Estimate, Intrinsic, IntrinsicError};
 
@@ -20,7 +20,7 @@ pub struct RotationCalibration {
 }
 
 /// Intrinsic properties from the (A, B) of conditions x, y, z and their covariances, in
-/// gravity `g` (its uncertainty is a term of the budget, `crate::budget`).
+/// gravity `g` (its uncertainty is a term of the budget, `crate::calibrate::budget`).
 pub fn rotation(cf: &[ConditionFit; 3], g: f64) -> Result<RotationCalibration, IntrinsicError> {
     Ok(RotationCalibration {
         intrinsic: intrinsic::from_gram(cf, g, 0.0)?,
@@ -45,7 +45,7 @@ pub struct SineFit3 {
 #[derive(Clone, Debug)]
 pub struct StaticCalibration {
     /// Sensitivity matrix S (rows u, v, w; columns platter x, y, z), output units per
-    /// m/s², from the least-squares fit of S and O to the poses (`crate::orientation`).
+    /// m/s², from the least-squares fit of S and O to the poses (`crate::calibrate::poses`).
     pub s: [[f64; 3]; 3],
     /// Standard uncertainties of S.
     pub s_std: [[f64; 3]; 3],
@@ -105,7 +105,7 @@ pub enum StaticError {
 pub fn static_method(
     conds: &[StaticCondition<'_>],
     g: f64,
-    opts: orientation::Options,
+    opts: poses::Options,
 ) -> Result<StaticCalibration, StaticError> {
     let mut by_cond: [Option<&StaticCondition<'_>>; 3] = [None; 3];
     for c in conds {
@@ -149,11 +149,7 @@ pub fn static_method(
         }
     }
 
-    let mut cal = from_poses(
-        orientation::poses_from_conditions(&ordered.map(|c| *c)),
-        g,
-        opts,
-    )?;
+    let mut cal = from_poses(poses::poses_from_conditions(&ordered.map(|c| *c)), g, opts)?;
 
     // Seed 001 eqs. 20–21: S_jx from A of y and z, S_jy from A of x and B of z, S_jz
     // from B of x and y; offsets averaged over the three conditions.
@@ -189,11 +185,11 @@ pub fn static_method(
 /// The static method from poses (any known orientations): the fit of S and O, and the
 /// intrinsic properties from the rows of S with their covariances.
 pub fn from_poses(
-    poses: Vec<orientation::Pose>,
+    poses: Vec<poses::Pose>,
     g: f64,
-    opts: orientation::Options,
+    opts: poses::Options,
 ) -> Result<StaticCalibration, StaticError> {
-    let fit = orientation::fit(poses, g, opts)?;
+    let fit = poses::fit(poses, g, opts)?;
     let (s, s_cov) = (fit.s(), fit.s_cov());
     let intrinsic = intrinsic::from_matrix_cov(&s, &s_cov)?;
     Ok(StaticCalibration {

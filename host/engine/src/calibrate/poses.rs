@@ -12,7 +12,7 @@
 //! squares with σ̂² = RSS/(P − 4). The expanded uncertainty uses Student's t for the
 //! degrees of freedom behind the variance: P − 4 when τ > 0, else those of the pose noise.
 
-use crate::budget::{coverage_factor, welch_satterthwaite};
+use crate::calibrate::budget::{coverage_factor, welch_satterthwaite};
 use crate::recording::Oriented;
 use nalgebra::{DMatrix, Matrix3, Matrix4, SMatrix, SVector, Vector3, Vector4};
 use rotacal_shared::intrinsic::Estimate;
@@ -58,7 +58,7 @@ pub struct Pose {
 }
 
 /// One channel's noise at one pose, from an AR model of its readings about their mean
-/// ([`crate::noise`]).
+/// ([`crate::fit::noise`]).
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
 pub struct PoseNoise {
     /// Lag-1 autocorrelation of the model.
@@ -480,7 +480,7 @@ fn pose_noise(rows: &[[f64; 3]], mean: &[f64; 3]) -> Option<[Option<PoseNoise>; 
     let ones = nalgebra::DMatrix::from_element(rows.len(), 1, 1.0);
     Some([0, 1, 2].map(|j| {
         let resid: Vec<f64> = rows.iter().map(|r| r[j] - mean[j]).collect();
-        let (m, cov) = crate::noise::NoiseModel::estimate(&resid, &[])
+        let (m, cov) = crate::fit::noise::NoiseModel::estimate(&resid, &[])
             .ok()?
             .regression_cov(&ones)
             .ok()?;

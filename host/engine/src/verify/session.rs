@@ -4,7 +4,7 @@
 //! equal an f64 batch fit (nalgebra QR, independent of the streaming fit) of exactly the
 //! samples of its window; the quick-look must equal the Gram form on those f64 fits.
 
-use crate::acquire::FitLine;
+use crate::recording::from_device::FitLine;
 use rotacal_shared::device::simulated::SessionSpec;
 use rotacal_shared::device::{Config, Device, RING};
 use rotacal_shared::intrinsic::{self, ConditionFit};
@@ -46,8 +46,8 @@ pub fn parse_log(text: &str, source_name: &str) -> Result<Vec<Vec<u8>>, LogError
                     format!("{} hex digits is not a packet", hex.len()),
                 ));
             }
-            let bytes =
-                crate::acquire::from_hex(hex).ok_or_else(|| err(i + 1, "not hex".into()))?;
+            let bytes = crate::recording::from_device::from_hex(hex)
+                .ok_or_else(|| err(i + 1, "not hex".into()))?;
             out.push(bytes);
         } else if line.starts_with("session done") {
             done = true;
@@ -67,7 +67,7 @@ pub fn host_packets() -> Vec<Vec<u8>> {
     let mut dev = Device::<RING>::new(Config::FEATHER);
     let mut out = Vec::new();
     SessionSpec::PAPER.run(&mut dev, &mut |p: Packet| {
-        out.push(crate::acquire::encode(&p))
+        out.push(crate::recording::from_device::encode(&p))
     });
     out
 }
@@ -140,7 +140,7 @@ pub fn check(device: &[Vec<u8>]) -> anyhow::Result<SessionReport> {
             .map(|s| (s.1, s.2))
             .collect();
         let line = FitLine::new(f, CLOCK.hz());
-        let c = crate::crosscheck::compare(&window, &line).map_err(anyhow::Error::msg)?;
+        let c = crate::verify::compare(&window, &line).map_err(anyhow::Error::msg)?;
         let r = &c.host;
         let worst = if window.len() == f.n as usize {
             c.max_delta_crlb

@@ -6,8 +6,8 @@
 //! columns `u_unc, v_unc, w_unc`: each value's standard uncertainty from the calibration.
 //! So `rotacal calibrate OUT.csv` checks the result: sensitivities 1 and angles 90°.
 
-use crate::calibration_file::CorrectionJson;
-use crate::correction::{Correction, Frame};
+use crate::calibrate::correction::{Correction, Frame};
+use crate::calibrate::json::CorrectionJson;
 use crate::recording::{Columns, Metadata, Recording, Row, Writer};
 use std::fmt::Write as _;
 use std::io::Write;
@@ -112,10 +112,10 @@ fn check(c: &Correction) -> Result<(), String> {
             c.frame.as_str()
         ));
     }
-    if c.covariance.len() != crate::correction::PARAMS
+    if c.covariance.len() != crate::calibrate::correction::PARAMS
         || c.covariance
             .iter()
-            .any(|r| r.len() != crate::correction::PARAMS)
+            .any(|r| r.len() != crate::calibrate::correction::PARAMS)
     {
         return Err(format!(
             "{} frame: the covariance must be 12×12",
@@ -302,7 +302,7 @@ pub fn apply<W: Write>(rec: &Recording, job: &Job<'_>, out: W) -> Result<Summary
             let name = o.pose.as_ref().and_then(|p| p.get(i)).cloned();
             row.pose = name.as_deref();
             w.write_row(&row).map_err(io)?;
-            let key = name.unwrap_or_else(|| crate::orientation::direction_name(gdir));
+            let key = name.unwrap_or_else(|| crate::calibrate::poses::direction_name(gdir));
             tally(Some(key), y, &a);
             rows += 1;
         }

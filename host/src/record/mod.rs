@@ -9,9 +9,11 @@
 //! `reconnect_for`. Files are flushed, and with `sync` synced, every second. Then stop,
 //! wait for the final fit report and any tail gap, and finish.
 
-use crate::acquire::{RecordSummary, Recorder};
-use crate::capture::{CaptureWriter, Entry};
+pub mod capture;
+
 use crate::link::{Channel, Link, LinkError};
+use crate::record::capture::{CaptureWriter, Entry};
+use crate::recording::from_device::{RecordSummary, Recorder};
 use rotacal_shared::packet::{
     Command, CommandError, DeviceInfo, Packet, RunState, SensorStatus, Status, VERSION,
 };
@@ -228,7 +230,7 @@ pub fn check_info(bytes: &[u8]) -> Result<DeviceInfo, RecordError> {
 }
 
 fn encode(cmd: Command) -> Vec<u8> {
-    crate::acquire::encode(&Packet::Command(cmd))
+    crate::recording::from_device::encode(&Packet::Command(cmd))
 }
 
 /// The files a recording writes.
@@ -717,7 +719,7 @@ pub fn open_files(
         // Nothing is cut before the files are known to be a recording and its capture.
         for (p, magic) in [
             (&paths.recording, "# rotacal recording v1"),
-            (&paths.capture, crate::capture::MAGIC),
+            (&paths.capture, crate::record::capture::MAGIC),
         ] {
             let text = std::fs::read(p).map_err(|e| named(p, e))?;
             if !text.starts_with(magic.as_bytes()) {

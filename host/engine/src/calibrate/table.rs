@@ -1,0 +1,303 @@
+//! The terminal summary of a calibration (`rotacal calibrate` without `--quiet`): the
+//! intrinsic properties with their expanded uncertainties, the correction, the noise model
+//! per channel, the pose fit's scatter and the uncertainty budget, all from the
+//! calibration JSON it summarises, so the table and the file cannot disagree.
+
+use super::budget::{Budget, Kind};
+use super::json::{self, CalibrationJson, NoiseJson};
+use super::poses;
+use std::fmt::Write as _;
+
+fn render_poses(p: &json::PosesJson, units: &str) -> String {
+    let mut o = String::new();
+    let tau = format!(
+        "τ = {:.2e} {:.2e} {:.2e} {units}",
+        p.tau[0], p.tau[1], p.tau[2]
+    );
+    let scatter = match (p.scatter, p.chi2_dof_joint) {
+        (poses::Scatter::None, Some(q)) => format!("{} (joint χ²/dof = {q:.2})", p.scatter),
+        (poses::Scatter::None, None) => p.scatter.to_string(),
+        _ => format!("{}: {tau}", p.scatter),
+    };
+    let _ = writeln!(
+        o,
+        "  {} poses, condition number {:.2}; weights {}; {scatter}",
+        p.list.len(),
+        p.condition_number,
+        match (
+            p.weights,
+            p.chi2_dof_joint.is_some() || p.scatter != poses::Scatter::PerChannel
+        ) {
+            (poses::Weights::Equal, _) => "equal",
+            (_, true) => "the inverse of each pose mean's covariance (u, v, w together)",
+            (_, false) => "1/(se² + τ²)",
+        },
+    );
+    if let Some(s) = &p.suggestion {
+        let _ = writeln!(
+            o,
+            "  WARNING: poorly conditioned (> {}): add a pose with gravity along {s}",
+            poses::WELL_CONDITIONED
+        );
+    }
+    if !p.not_still.is_empty() {
+        let _ = writeln!(
+            o,
+            "  WARNING: not still (std > {}× the median pose's): {}",
+            poses::NOT_STILL_FACTOR,
+            p.not_still.join(", ")
+        );
+    }
+    let _ = writeln!(
+        o,
+        "    {:<12} {:>9} {:>6}  {:<26}  {:<29}",
+        "pose", "ĝ", "n", "std u v w (how still)", "residual u v w (mean − model)"
+    );
+    for q in &p.list {
+        let std = q
+            .std
+            .map(|s| format!("{:.2e} {:.2e} {:.2e}", s[0], s[1], s[2]))
+            .unwrap_or_else(|| "single reading".into());
+        let _ = writeln!(
+            o,
+            "    {:<12} {:>9} {:>6}  {:<26}  {:+.2e} {:+.2e} {:+.2e}",
+            q.name,
+            poses::direction_name(&q.gravity),
+            q.n,
+            std,
+            q.residual[0],
+            q.residual[1],
+            q.residual[2]
+        );
+    }
+    if let (Some(d), Some(a)) = (p.offsets_difference, &p.offsets_axis_pairs) {
+        let _ = writeln!(
+            o,
+            "  offsets, joint fit − up/down pair of each axis (imucal's): {:+.6} {:+.6} {:+.6} {units} \
+             (axis pairs: {:.6} {:.6} {:.6})",
+            d[0], d[1], d[2], a.u.value, a.v.value, a.w.value
+        );
+    }
+    o
+}
+
+/// The budget as a table: each source's contribution (standard uncertainty) per property,
+/// then the combined u, ν_eff, k and the dominant source; and a warning for what it lacks.
+pub fn render_budget(b: &Budget) -> String {
+    let mut o = String::new();
+    let _ = writeln!(
+        o,
+        "  uncertainty budget: each source's standard uncertainty in each property (JSON uncertainty_budget)"
+    );
+    let mut head = format!("    {:<12} {:<4} {:>16}", "source", "type", "u(input)");
+    for name in &b.quantities {
+        let _ = write!(head, " {name:>9}");
+    }
+    let _ = writeln!(o, "{head}");
+    for s in &b.sources {
+        let input = match (&s.std_unc, &s.unit) {
+            (Some(u), Some(unit)) => format!("{u:.2e} {unit}"),
+            _ => "(covariance)".into(),
+        };
+        let kind = match s.kind {
+            Kind::A => "A",
+            Kind::B => "B",
+        };
+        let mut line = format!("    {:<12} {kind:<4} {input:>16}", s.source);
+        for c in &s.contribution {
+            let _ = write!(line, " {c:>9.2e}");
+        }
+        let _ = writeln!(o, "{line}");
+    }
+    let row = |label: &str, f: &dyn Fn(&crate::calibrate::budget::Combined) -> String| {
+        let mut line = format!("    {label:<12} {:<4} {:>16}", "", "");
+        for c in &b.combined {
+            let _ = write!(line, " {:>9}", f(c));
+        }
+        line + "\n"
+    };
+    o += &row("combined u", &|c| format!("{:.2e}", c.std_unc));
+    o += &row("ν_eff", &|c| match c.nu_eff {
+        Some(n) if n < 1e6 => format!("{n:.0}"),
+        _ => "∞".into(),
+    });
+    o += &row("k", &|c| format!("{:.2}", c.k));
+    o += &row("dominant", &|c| c.dominant.clone());
+    for n in &b.notes {
+        let _ = writeln!(o, "  WARNING: {n}");
+    }
+    o
+}
+
+/// The noise models, one line per condition and channel.
+fn render_noise(n: &[NoiseJson]) -> String {
+    let mut o = String::new();
+    let _ = writeln!(
+        o,
+        "  noise from the fit residuals (AR model, JSON noise): sd, lag-1 autocorrelation, variance factor at ω, n_eff"
+    );
+    for x in n {
+        let _ = writeln!(
+            o,
+            "    {} {}: sd {:.3}, ρ₁ {:+.3}, AR({}), factor {:.2}, n_eff {:.0} of {}{}",
+            x.condition,
+            x.channel,
+            x.sd,
+            x.lag1_autocorrelation,
+            x.ar.len(),
+            x.variance_factor,
+            x.n_eff,
+            x.n,
+            if x.n_excluded > 0 {
+                format!(" ({} at a rail left out)", x.n_excluded)
+            } else {
+                String::new()
+            }
+        );
+    }
+    o
+}
+
+/// Decimal places that show `u` to two significant digits (at most 12).
+pub fn decimals(u: f64) -> usize {
+    if !(u.is_finite() && u > 0.0) {
+        return 6;
+    }
+    (1.0 - u.log10().floor()).clamp(0.0, 12.0) as usize
+}
+
+/// The terminal table: value ± U (k = 2) with units, U to two significant digits.
+pub fn render(c: &CalibrationJson) -> String {
+    let mut o = String::new();
+    let su = format!("{} per m/s²", c.units);
+    let _ = writeln!(
+        o,
+        "method {}, g_loc = {} m/s²; ± is the expanded uncertainty U (95 %, k = 2 unless stated; k from the\n\
+         budget's effective degrees of freedom)",
+        c.method, c.g_loc
+    );
+    for r in &c.by_rate {
+        let rate = r
+            .rate_hz
+            .map(|f| format!("rotation at {f} Hz"))
+            .unwrap_or_else(|| "static".into());
+        let _ = writeln!(o, "\n{rate}");
+        if let Some(p) = &r.poses {
+            if (p.k - json::K).abs() > 1e-12 {
+                let nu = p.nu.iter().fold(f64::INFINITY, |a, b| a.min(*b));
+                let why = match p.scatter {
+                    poses::Scatter::PerChannel => format!(
+                        "the poses' scatter about the model, estimated from {} poses − 4",
+                        p.list.len()
+                    ),
+                    _ if p.chi2_dof_joint.is_some() => format!(
+                        "the poses' scatter in the joint fit, 3 × {} poses − 12",
+                        p.list.len()
+                    ),
+                    _ => "the readings' scatter within the poses".to_string(),
+                };
+                let _ = writeln!(o, "  k = {:.2}: Student's t for ν = {nu} ({why})", p.k);
+            }
+        }
+        let q = |name: &str, x: &json::Quantity, unit: &str| {
+            let d = decimals(x.expanded_unc);
+            let k = if (x.k - json::K).abs() > 1e-12 {
+                format!(" (k = {:.2})", x.k)
+            } else {
+                String::new()
+            };
+            format!(
+                "  {name:<7} {:>16.d$} ± {:<12.d$} {unit}{k}\n",
+                x.value, x.expanded_unc
+            )
+        };
+        let s = &r.intrinsic.sensitivity;
+        let a = &r.intrinsic.angle_deg;
+        o += &q("s_u", &s.u, &su);
+        o += &q("s_v", &s.v, &su);
+        o += &q("s_w", &s.w, &su);
+        o += &q("φ_uv", &a.uv, "°");
+        o += &q("φ_vw", &a.vw, "°");
+        o += &q("φ_wu", &a.wu, "°");
+        if let Some(off) = &r.intrinsic.offset {
+            o += &q("O_u", &off.u, &c.units);
+            o += &q("O_v", &off.v, &c.units);
+            o += &q("O_w", &off.w, &c.units);
+        }
+        if let Some(b) = &r.uncertainty_budget {
+            o += &render_budget(b);
+        }
+        if let Some(n) = &r.noise {
+            o += &render_noise(n);
+        }
+        if let Some(p) = &r.poses {
+            o += &render_poses(p, &c.units);
+        }
+        if let Some(cj) = &r.correction {
+            let d = &cj.device_frame;
+            let _ = writeln!(
+                o,
+                "  correction a = M·(y − O) to m/s² (device frame; JSON 'correction'; rotacal apply/export):"
+            );
+            for (i, row) in d.matrix.iter().enumerate() {
+                let _ = writeln!(
+                    o,
+                    "    M[{i}] = [{:+.8} {:+.8} {:+.8}]  O[{i}] = {:+.6} {}",
+                    row[0], row[1], row[2], d.offset[i], cj.units_in
+                );
+            }
+        }
+        if let Some(p) = &r.angle_deg_phase_method {
+            let _ = writeln!(o, "  phase-difference angles (seed 000 eqs. 12–16, for comparison; biased when tilted):");
+            o += &q("φ_uv", &p.uv, "°");
+            o += &q("φ_vw", &p.vw, "°");
+            o += &q("φ_wu", &p.wu, "°");
+        }
+        if let Some(mc) = &r.monte_carlo {
+            let _ = writeln!(
+                o,
+                "  Monte Carlo (GUM S1) check of the type-A term: standard uncertainty and 95 % interval"
+            );
+            // The draws are of the fits (or the pose fit) only: compare with the budget's
+            // type-A line, not with the combined uncertainty.
+            let type_a = r.uncertainty_budget.as_ref().and_then(|b| {
+                b.sources
+                    .iter()
+                    .find(|x| x.kind == Kind::A && (x.source == "fits" || x.source == "poses"))
+            });
+            for (i, (key, q)) in json::MC_KEYS
+                .iter()
+                .zip([&s.u, &s.v, &s.w, &a.uv, &a.vw, &a.wu])
+                .enumerate()
+            {
+                let linear = type_a
+                    .and_then(|x| x.contribution.get(i).copied())
+                    .unwrap_or(q.std_unc);
+                if let Some(m) = mc.get(*key) {
+                    let _ = writeln!(
+                        o,
+                        "  {key:<7} u = {:.6} (linear {:.6}), [{:.6}, {:.6}]",
+                        m.std_unc, linear, m.low_95, m.high_95
+                    );
+                }
+            }
+        }
+        let fitted: Vec<String> = r
+            .fits
+            .iter()
+            .filter(|f| f.channel == "u")
+            .filter_map(|f| {
+                f.rate_hz_fitted
+                    .map(|h| format!("{} {h:.9} Hz", f.condition))
+            })
+            .collect();
+        if !fitted.is_empty() {
+            let _ = writeln!(
+                o,
+                "  rate differs from nominal; fitted: {}",
+                fitted.join(", ")
+            );
+        }
+    }
+    o
+}

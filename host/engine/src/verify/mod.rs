@@ -1,0 +1,56 @@
+//! Checks of the device's own fits: each device fit against the f64 batch fit (nalgebra QR)
+//! of exactly its samples, in units of σ_CRLB. One [`compare`] and one [`sigma_crlb`],
+//! used by:
+//!
+//! - [`recorded`]: a recording and its fit log (`rotacal crosscheck`);
+//! - [`emulated`]: the emulated Cortex-M4F's f32 fits of synthetic records (QEMU);
+//! - [`session`]: the emulated device logic's packets for a whole simulated session.
+
+pub mod emulated;
+pub mod recorded;
+pub mod session;
+
+use crate::fit::batch;
+use crate::recording::from_device::FitLine;
+use rotacal_shared::{Model, PhaseStep, TickRate, Ticks};
+
+/// σ_CRLB of A, B and C for `n` samples of white noise `noise_sigma` quantised to whole
+/// counts (adding 1/12 count²): √(2σ²/N), √(2σ²/N), √(σ²/N) (method.md §5).
+pub fn sigma_crlb(noise_sigma: f64, n: usize) -> [f64; 3] {
+    let var = noise_sigma * noise_sigma + 1.0 / 12.0;
+    let n = n as f64;
+    let ab = (2.0 * var / n).sqrt();
+    [ab, ab, (var / n).sqrt()]
+}
+
+/// A device fit against the f64 QR fit of the same samples with its regressors.
+pub struct Comparison {
+    /// The host's fit.
+    pub host: batch::BatchFit,
+    /// max over channels and A, B, C of |device − host| / host standard error.
+    pub max_delta_se: f64,
+    /// … / σ_CRLB, from the host fit's σ̂.
+    pub max_delta_crlb: f64,
+}
+
+/// Fit `window` (ticks of the device clock, [u, v, w]) in f64 with the device's phase
+/// step and clock, and compare with its coefficients.
+pub fn compare(window: &[(Ticks, [f64; 3])], f: &FitLine) -> Result<Comparison, String> {
+    let clock = TickRate::new(f.tick_hz).ok_or("fit log: tick_hz 0")?;
+    let host = batch::fit(window, PhaseStep(f.step), clock, Model::SINE, Ticks(0))
+        .map_err(|e| format!("condition {}: host fit: {e}", f.condition))?;
+    let (mut max_se, mut max_crlb) = (0.0f64, 0.0f64);
+    for (h, device) in host.channels.iter().zip(&f.coef) {
+        let crlb = sigma_crlb(h.sigma, window.len());
+        for (k, bound) in crlb.iter().enumerate() {
+            let d = (device[k] - h.coef[k]).abs();
+            max_se = max_se.max(d / h.se[k]);
+            max_crlb = max_crlb.max(d / bound);
+        }
+    }
+    Ok(Comparison {
+        host,
+        max_delta_se: max_se,
+        max_delta_crlb: max_crlb,
+    })
+}
