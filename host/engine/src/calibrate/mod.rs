@@ -7,7 +7,7 @@
 //! Timestamps are converted to ticks of a 1 MHz clock (t_s has microsecond resolution in
 //! every writer we know of).
 //!
-//! The parts, each used by this pipeline: [`methods`] (rotation and stepped methods from
+//! Its parts: [`methods`] (rotation and stepped methods from
 //! fits, the static method from poses, their Monte Carlo), [`poses`] (the joint fit of S
 //! and O to known orientations), [`budget`] (the GUM budget), [`correction`] (the correction
 //! M·(y − O) and its covariance), [`json`] (the calibration JSON, docs/formats.md) and
