@@ -80,6 +80,9 @@ pub struct Demo {
     /// The calibration applied to the recording (device frame), written as
     /// recording-ms2.csv.
     pub applied: crate::correct::apply::Summary,
+    /// Mean over the recording's rows of 1/n, n the conversions a row averages: a
+    /// reading's noise variance is the fits' per-conversion variance times this.
+    pub mean_inv_count: f64,
     /// The paper's puzzle, worked by the discrepancy workflow.
     pub puzzle: Puzzle,
 }
@@ -259,6 +262,14 @@ pub fn run(seed: u64, dir: &Path, inject: Option<Inject>) -> anyhow::Result<Demo
     }
     let rec = crate::recording::read(rec_path)?;
     let calibration = crate::calibrate::calibrate(&rec, &Default::default())?;
+    let (inv_sum, rows) = rec.groups.iter().fold((0.0, 0usize), |(s, n), g| {
+        let inv: f64 = match &g.conversions {
+            Some(c) => c.iter().map(|a| 1.0 / a.len().max(1) as f64).sum(),
+            None => g.len() as f64,
+        };
+        (s + inv, n + g.len())
+    });
+    let mean_inv_count = inv_sum / rows.max(1) as f64;
     let log_text = std::fs::read_to_string(fits_path)?;
     let log =
         crate::recording::from_device::read_fit_log(&log_text, &fits_path.display().to_string())
@@ -305,6 +316,7 @@ pub fn run(seed: u64, dir: &Path, inject: Option<Inject>) -> anyhow::Result<Demo
         crosscheck,
         report,
         applied,
+        mean_inv_count,
         puzzle,
     })
 }
@@ -353,7 +365,8 @@ pub struct Check {
 struct Applied {
     /// RMS of |a| − g, m/s².
     after: f64,
-    /// The fits' pooled residual RMS, each channel through its own sensitivity, m/s².
+    /// The noise of one reading: the fits' pooled residual RMS (per conversion), each
+    /// channel through its own sensitivity, over the root of the conversions averaged, m/s².
     noise: f64,
     /// Three standard deviations of after / noise when only noise is left.
     tolerance: f64,
@@ -381,7 +394,7 @@ fn applied(d: &Demo) -> Option<Applied> {
     let rows = d.applied.rows as f64;
     Some(Applied {
         after,
-        noise: (ss / n).sqrt(),
+        noise: (ss / n * d.mean_inv_count).sqrt(),
         tolerance: 3.0 * (0.5 / rows + 0.5 / n).sqrt(),
     })
 }
@@ -664,7 +677,8 @@ pub fn render(d: &Demo) -> String {
             o,
             "\nApplied (rotacal apply, device frame, a = L⁻¹·(y − O) with G = L·Lᵀ): {} rows in m/s² with\n\
              their uncertainties in recording-ms2.csv; RMS of |a| − g = {:.2e} m/s², {:.3} times the\n\
-             noise of one reading (the fits' residual RMS, {:.2e} m/s²; 1 ± {:.3} expected, 3σ).",
+             noise of one reading ({:.2e} m/s²: the fits' residual RMS per conversion over √n for an\n\
+             average of n conversions; 1 ± {:.3} expected, 3σ).",
             d.applied.rows,
             a.after,
             a.after / a.noise,

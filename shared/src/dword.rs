@@ -117,6 +117,16 @@ impl<T: Real> DoubleWord<T> {
         self.hi.to_f64() + self.lo.to_f64()
     }
 
+    /// `self / x` for a plain `T` (the fit divides by a conversion count): the quotient
+    /// rounded, then the exact remainder divided again, so about `2u²` relative.
+    pub fn div_t(self, x: T) -> Self {
+        let q = self.hi / x;
+        let (p, e) = two_prod(q, x);
+        let r = ((self.hi - p) - e) + self.lo;
+        let (hi, lo) = fast_two_sum(q, r / x);
+        Self { hi, lo }
+    }
+
     /// `self · x` for a plain `T`.
     pub fn mul_t(self, x: T) -> Self {
         let (p, e) = two_prod(self.hi, x);

@@ -27,4 +27,4 @@ pub use dword::DoubleWord;
 pub use fit::{ChannelFit, FitConfig, FitError, FitResult, Model, Param, SineFit, MAX_PARAMS};
 pub use phase::{Phase, PhaseStep};
 pub use real::Real;
-pub use time::{TickExtender, TickRate, Ticks};
+pub use time::{Aperture, TickExtender, TickRate, Ticks, MAX_CONVERSIONS};

@@ -9,10 +9,18 @@
 //! everything else with a [`DecodeError`]; it never panics, on any input (property tests
 //! in `shared/tests/packet.rs`, and the fuzz target in `fuzz/`).
 
+use crate::time::{Aperture, Ticks, MAX_CONVERSIONS};
 use crate::Condition;
 
-/// The protocol version this code speaks. A decoder refuses other versions.
+/// The protocol version of every packet but averaged samples. A decoder refuses others.
 pub const VERSION: u8 = 1;
+
+/// The protocol version of [`AverageBatch`] (kind 0x01 with the averaged layout). Version
+/// 1 decoders refuse it by its version byte; this decoder reads both sample layouts.
+pub const VERSION_AVERAGES: u8 = 2;
+
+/// Averaged samples per [`AverageBatch`]: 16 + 30·7 = 226 bytes, inside one notification.
+pub const MAX_AVERAGES: usize = 7;
 
 /// Samples per [`SampleBatch`]: 16 + 11·20 = 236 bytes, inside one notification at the
 /// ATT MTU of 247 the device asks for (244 bytes of value).
@@ -46,11 +54,26 @@ impl SampleFlags {
     pub const ALL: u8 = Self::CLIPPED | Self::LATE_TIMESTAMP;
 }
 
-/// Consecutive samples: sample i has sequence number `first_seq + i` and timestamp
-/// `t0 + samples[i].dt` ticks of the device clock ([`DeviceInfo::tick_hz`]).
+/// A sample kind a [`Batch`] holds.
+pub trait BatchSample: Copy {
+    /// The filler of unused slots.
+    const EMPTY: Self;
+}
+
+impl BatchSample for Sample {
+    const EMPTY: Sample = Sample {
+        dt: 0,
+        counts: [0; 3],
+        flags: 0,
+    };
+}
+
+/// Consecutive samples of one condition, up to `N`: sample i has sequence number
+/// `first_seq + i`, and its time is `t0` plus its own `dt`, ticks of the device clock
+/// ([`DeviceInfo::tick_hz`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub struct SampleBatch {
+pub struct Batch<S, const N: usize> {
     /// The condition the device was running when it took them.
     pub condition: Condition,
     /// Sent again from the ring buffer on request (not live).
@@ -60,28 +83,30 @@ pub struct SampleBatch {
     /// Timestamp of the batch's reference, device ticks (64-bit, extended).
     pub t0: u64,
     len: u8,
-    samples: [Sample; MAX_SAMPLES],
+    samples: [S; N],
 }
 
-impl SampleBatch {
+/// Single conversions (protocol version 1).
+pub type SampleBatch = Batch<Sample, MAX_SAMPLES>;
+
+/// Averaged samples (protocol version 2).
+pub type AverageBatch = Batch<Average, MAX_AVERAGES>;
+
+impl<S: BatchSample, const N: usize> Batch<S, N> {
     /// An empty batch.
     pub const fn new(condition: Condition, replay: bool, first_seq: u32, t0: u64) -> Self {
-        SampleBatch {
+        Batch {
             condition,
             replay,
             first_seq,
             t0,
             len: 0,
-            samples: [Sample {
-                dt: 0,
-                counts: [0; 3],
-                flags: 0,
-            }; MAX_SAMPLES],
+            samples: [S::EMPTY; N],
         }
     }
 
     /// The samples.
-    pub fn samples(&self) -> &[Sample] {
+    pub fn samples(&self) -> &[S] {
         self.samples.get(..usize::from(self.len)).unwrap_or(&[])
     }
 
@@ -97,21 +122,28 @@ impl SampleBatch {
 
     /// True if no more fit.
     pub fn is_full(&self) -> bool {
-        usize::from(self.len) >= MAX_SAMPLES
+        usize::from(self.len) >= N
     }
 
-    /// Append a sample taken at absolute tick `t`; refused when the batch is full or `t`
-    /// is before `t0` or more than u32::MAX ticks after it (then start a new batch).
-    pub fn push(&mut self, t: u64, counts: [i16; 3], flags: u8) -> Result<(), BatchRefused> {
+    /// Append the sample `make(dt)` for absolute tick `t`; refused when the batch is full
+    /// or `t` is before `t0` or more than u32::MAX ticks after it (then start a new batch).
+    fn push_at(&mut self, t: u64, make: impl FnOnce(u32) -> S) -> Result<(), BatchRefused> {
         let dt = t.checked_sub(self.t0).ok_or(BatchRefused::TimeOutOfRange)?;
         let dt = u32::try_from(dt).map_err(|_| BatchRefused::TimeOutOfRange)?;
         let slot = self
             .samples
             .get_mut(usize::from(self.len))
             .ok_or(BatchRefused::Full)?;
-        *slot = Sample { dt, counts, flags };
+        *slot = make(dt);
         self.len += 1;
         Ok(())
+    }
+}
+
+impl SampleBatch {
+    /// Append a sample taken at absolute tick `t` (refused when the batch is full or `t` is out of its range).
+    pub fn push(&mut self, t: u64, counts: [i16; 3], flags: u8) -> Result<(), BatchRefused> {
+        self.push_at(t, |dt| Sample { dt, counts, flags })
     }
 
     /// Sequence number and absolute tick of each sample.
@@ -126,7 +158,64 @@ impl SampleBatch {
     }
 }
 
-/// Why [`SampleBatch::push`] refused a sample.
+/// One averaged sample as the device sends it (protocol version 2): the sums of the raw
+/// counts of the conversions in one slot and the conversions' instants.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Average {
+    /// Ticks from the batch's `t0` to the first conversion's data-ready edge.
+    pub dt: u32,
+    /// Ticks from each conversion to the next (`count − 1` entries used, the rest 0).
+    pub gaps: [u16; MAX_CONVERSIONS - 1],
+    /// Conversions summed, 1 to [`MAX_CONVERSIONS`].
+    pub count: u8,
+    /// Sums of the raw counts u, v, w.
+    pub sums: [i32; 3],
+    /// [`SampleFlags`] bits, set when any conversion has them.
+    pub flags: u8,
+}
+
+impl BatchSample for Average {
+    const EMPTY: Average = Average {
+        dt: 0,
+        gaps: [0; MAX_CONVERSIONS - 1],
+        count: 1,
+        sums: [0; 3],
+        flags: 0,
+    };
+}
+
+impl AverageBatch {
+    /// Append the average of the conversions at `ap`, timed by its first conversion;
+    /// refused when the batch is full or that is out of the batch's range.
+    pub fn push(&mut self, ap: &Aperture, sums: [i32; 3], flags: u8) -> Result<(), BatchRefused> {
+        let mut gaps = [0; MAX_CONVERSIONS - 1];
+        for (g, a) in gaps.iter_mut().zip(ap.gaps()) {
+            *g = *a;
+        }
+        let count = u8::try_from(ap.len()).unwrap_or(u8::MAX);
+        self.push_at(ap.first().0, |dt| Average {
+            dt,
+            gaps,
+            count,
+            sums,
+            flags,
+        })
+    }
+
+    /// Sequence number, conversion instants and sample of each sample.
+    pub fn iter(&self) -> impl Iterator<Item = (u32, Aperture, &Average)> + '_ {
+        self.samples().iter().zip(0u32..).map(move |(s, i)| {
+            let first = Ticks(self.t0.wrapping_add(u64::from(s.dt)));
+            let used = usize::from(s.count).saturating_sub(1);
+            let ap = Aperture::new(first, s.gaps.get(..used).unwrap_or(&[]))
+                .unwrap_or(Aperture::point(first));
+            (self.first_seq.wrapping_add(i), ap, s)
+        })
+    }
+}
+
+/// Why [`SampleBatch::push`] or [`AverageBatch::push`] refused a sample.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum BatchRefused {
@@ -337,8 +426,10 @@ pub enum CommandError {
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum Packet {
-    /// Stream characteristic.
+    /// Stream characteristic: single conversions (protocol version 1).
     Samples(SampleBatch),
+    /// Stream characteristic: averaged samples (protocol version 2).
+    Averages(AverageBatch),
     /// Stream characteristic.
     Temperature(Temperature),
     /// Fit-results characteristic.
@@ -394,7 +485,10 @@ impl core::fmt::Display for DecodeError {
                 write!(f, "packet too long: {got} bytes, its kind has {want}")
             }
             DecodeError::Version(v) => {
-                write!(f, "protocol version {v}, this decoder speaks {VERSION}")
+                write!(
+                    f,
+                    "protocol version {v}, this decoder speaks {VERSION} ({VERSION_AVERAGES} for averaged samples)"
+                )
             }
             DecodeError::Kind(k) => write!(f, "unknown packet kind 0x{k:02x}"),
             DecodeError::Field { offset, name } => {
@@ -475,6 +569,14 @@ impl Out<'_> {
             self.bytes(&x.to_le_bytes());
         }
     }
+    /// Kind, count, condition and replay, `first_seq`, `t0`: both sample layouts.
+    fn batch_head<S, const N: usize>(&mut self, b: &Batch<S, N>) {
+        self.u8(kind::SAMPLES);
+        self.u8(b.len);
+        self.u8(cond_code(b.condition) | if b.replay { 0x80 } else { 0 });
+        self.u32(b.first_seq);
+        self.u64(b.t0);
+    }
     fn f32s(&mut self, v: &[f32]) {
         for x in v {
             self.f32(*x);
@@ -538,6 +640,7 @@ mod size {
     pub const HEADER: usize = 4;
     pub const SAMPLES_HEAD: usize = 16;
     pub const SAMPLE: usize = 11;
+    pub const AVERAGE: usize = 4 + 1 + 1 + 3 * 4 + 2 * (super::MAX_CONVERSIONS - 1);
     pub const TEMPERATURE: usize = HEADER + 4 + 2;
     pub const FIT: usize = HEADER + 4 + 4 + 4 + 4 + 8 + 3 * (3 * 8 + 3 * 4) + 3 * 4;
     pub const QUICK_LOOK: usize = HEADER + 3 * 8 + 3 * 4 + 3 * 8 + 3 * 4 + 8;
@@ -555,6 +658,7 @@ impl Packet {
     pub fn encoded_len(&self) -> usize {
         match self {
             Packet::Samples(b) => size::SAMPLES_HEAD + size::SAMPLE * b.len(),
+            Packet::Averages(b) => size::SAMPLES_HEAD + size::AVERAGE * b.len(),
             Packet::Temperature(_) => size::TEMPERATURE,
             Packet::Fit(_) => size::FIT,
             Packet::QuickLook(_) => size::QUICK_LOOK,
@@ -575,14 +679,27 @@ impl Packet {
         let need = self.encoded_len();
         let buf = buf.get_mut(..need).ok_or(BufferTooSmall { need })?;
         let mut o = Out { buf, at: 0 };
-        o.u8(VERSION);
+        o.u8(match self {
+            Packet::Averages(_) => VERSION_AVERAGES,
+            _ => VERSION,
+        });
         match self {
+            Packet::Averages(b) => {
+                o.batch_head(b);
+                for s in b.samples() {
+                    o.u32(s.dt);
+                    o.u8(s.count);
+                    o.u8(s.flags);
+                    for v in s.sums {
+                        o.u32(v as u32);
+                    }
+                    for g in s.gaps {
+                        o.u16(g);
+                    }
+                }
+            }
             Packet::Samples(b) => {
-                o.u8(kind::SAMPLES);
-                o.u8(b.len);
-                o.u8(cond_code(b.condition) | if b.replay { 0x80 } else { 0 });
-                o.u32(b.first_seq);
-                o.u64(b.t0);
+                o.batch_head(b);
                 for s in b.samples() {
                     o.u32(s.dt);
                     for c in s.counts {
@@ -692,6 +809,9 @@ impl Packet {
                 })
             }
         };
+        if version == VERSION_AVERAGES && k == kind::SAMPLES {
+            return decode_averages(bytes, b2, b3);
+        }
         if version != VERSION {
             return Err(DecodeError::Version(version));
         }
@@ -926,4 +1046,77 @@ impl Packet {
         };
         Ok(packet)
     }
+}
+
+/// Kind 0x01 under version 2: a header as version 1's samples, then `count` × 30 bytes.
+fn decode_averages(bytes: &[u8], b2: u8, b3: u8) -> Result<Packet, DecodeError> {
+    let got = bytes.len();
+    let want = size::SAMPLES_HEAD + size::AVERAGE * usize::from(b2);
+    if got < want {
+        return Err(DecodeError::TooShort { need: want, got });
+    }
+    if got > want {
+        return Err(DecodeError::TooLong { want, got });
+    }
+    if b2 == 0 || usize::from(b2) > MAX_AVERAGES {
+        return Err(DecodeError::Field {
+            offset: 2,
+            name: "sample count",
+        });
+    }
+    if b3 & 0x7C != 0 {
+        return Err(DecodeError::Field {
+            offset: 3,
+            name: "batch flags",
+        });
+    }
+    let condition = cond_from(b3 & 0x03).ok_or(DecodeError::Field {
+        offset: 3,
+        name: "condition",
+    })?;
+    let mut i = In { buf: bytes, at: 4 };
+    let mut b = AverageBatch::new(condition, b3 & 0x80 != 0, i.u32(), i.u64());
+    for slot in b.samples.iter_mut().take(usize::from(b2)) {
+        let dt = i.u32();
+        let count = i.u8();
+        if count == 0 || usize::from(count) > MAX_CONVERSIONS {
+            return Err(i.field("conversion count"));
+        }
+        let flags = i.u8();
+        if flags & !SampleFlags::ALL != 0 {
+            return Err(i.field("sample flags"));
+        }
+        let mut sums = [0i32; 3];
+        for s in sums.iter_mut() {
+            *s = i.u32() as i32;
+            // A sum of `count` i16 readings.
+            let n = i64::from(count);
+            if !(n * i64::from(i16::MIN)..=n * i64::from(i16::MAX)).contains(&i64::from(*s)) {
+                return Err(DecodeError::Field {
+                    offset: i.at.saturating_sub(4),
+                    name: "sum of counts",
+                });
+            }
+        }
+        let mut gaps = [0u16; MAX_CONVERSIONS - 1];
+        for (k, g) in gaps.iter_mut().enumerate() {
+            *g = i.u16();
+            // Used gaps are at least one tick (conversions in order); unused ones are 0.
+            if (*g == 0) == (k + 1 < usize::from(count)) {
+                return Err(DecodeError::Field {
+                    offset: i.at.saturating_sub(2),
+                    name: "conversion gap",
+                });
+            }
+        }
+        *slot = Average {
+            dt,
+            gaps,
+            count,
+            sums,
+            flags,
+        };
+    }
+    b.len = b2;
+    Ok(Packet::Averages(b))
 }

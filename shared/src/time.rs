@@ -69,3 +69,95 @@ impl TickExtender {
         Ticks(self.last)
     }
 }
+
+/// Most sensor conversions one streamed sample averages. A 16 Hz slot holds 6 or 7 of the
+/// sensor's 104 Hz conversions, and 7 still holds every one with the sensor's clock up to
+/// 7 % fast; the sampler refuses sample rates whose slots could hold more.
+pub const MAX_CONVERSIONS: usize = 7;
+
+/// The instants of the conversions a streamed sample averages: the first one's tick and
+/// the ticks from each to the next (each at least 1). A plain sample is an aperture of one.
+///
+/// The expected value of an average is the average of the model over these instants, so
+/// the fit's regressors are rebuilt from them exactly (method: docs/protocol.md).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Aperture {
+    first: Ticks,
+    len: u8,
+    gaps: [u16; MAX_CONVERSIONS - 1],
+}
+
+impl Aperture {
+    /// One conversion at `t`.
+    pub const fn point(t: Ticks) -> Self {
+        Aperture {
+            first: t,
+            len: 1,
+            gaps: [0; MAX_CONVERSIONS - 1],
+        }
+    }
+
+    /// Conversions at `first`, then `gaps` ticks apart; `None` when there are more than
+    /// [`MAX_CONVERSIONS`] or a gap is 0 (two conversions at one tick).
+    pub fn new(first: Ticks, gaps: &[u16]) -> Option<Self> {
+        let mut a = Aperture::point(first);
+        for g in gaps {
+            a.push_gap(*g).ok()?;
+        }
+        Some(a)
+    }
+
+    /// The first conversion's tick.
+    pub const fn first(&self) -> Ticks {
+        self.first
+    }
+
+    /// Number of conversions (1 to [`MAX_CONVERSIONS`]).
+    pub const fn len(&self) -> usize {
+        self.len as usize
+    }
+
+    /// Never true: an aperture holds at least one conversion.
+    pub const fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+
+    /// Ticks from each conversion to the next (`len − 1` of them).
+    pub fn gaps(&self) -> &[u16] {
+        self.gaps.get(..self.len().saturating_sub(1)).unwrap_or(&[])
+    }
+
+    /// The tick of every conversion, in order.
+    pub fn ticks(&self) -> impl Iterator<Item = Ticks> + '_ {
+        let mut t = self.first.0;
+        core::iter::once(self.first).chain(self.gaps().iter().map(move |g| {
+            t = t.saturating_add(u64::from(*g));
+            Ticks(t)
+        }))
+    }
+
+    /// The last conversion's tick.
+    pub fn last(&self) -> Ticks {
+        let span: u64 = self.gaps().iter().map(|g| u64::from(*g)).sum();
+        Ticks(self.first.0.saturating_add(span))
+    }
+
+    /// Add a conversion `gap` ticks after the last. Refused (and nothing changed) when
+    /// the aperture is full or `gap` is 0.
+    pub fn push_gap(&mut self, gap: u16) -> Result<(), ApertureRefused> {
+        if gap == 0 {
+            return Err(ApertureRefused);
+        }
+        let i = self.len().saturating_sub(1);
+        let slot = self.gaps.get_mut(i).ok_or(ApertureRefused)?;
+        *slot = gap;
+        self.len += 1;
+        Ok(())
+    }
+}
+
+/// [`Aperture::push_gap`] refused a conversion: the aperture is full, or the gap is 0.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct ApertureRefused;

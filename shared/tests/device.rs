@@ -10,9 +10,9 @@ use rotacal_shared::device::simulated::SessionSpec;
 use rotacal_shared::device::{Config, Device};
 use rotacal_shared::packet::*;
 use rotacal_shared::synth::crosscheck;
-use rotacal_shared::{Condition, FitConfig, Param, PhaseStep, SineFit, TickRate, Ticks};
+use rotacal_shared::{Aperture, Condition, FitConfig, Param, PhaseStep, SineFit, TickRate};
 
-const RING: usize = 512;
+const RING: usize = rotacal_shared::device::RING;
 
 fn run_paper() -> (Vec<Packet>, Device<RING>) {
     let mut dev = Device::<RING>::new(Config::FEATHER);
@@ -30,49 +30,87 @@ fn run_paper() -> (Vec<Packet>, Device<RING>) {
     (packets, dev)
 }
 
-/// (seq, t, counts, condition) of every live sample.
-fn samples(packets: &[Packet]) -> Vec<(u32, u64, [i16; 3], Condition)> {
+/// (seq, conversion instants, sums, condition) of every live sample.
+fn samples(packets: &[Packet]) -> Vec<(u32, Aperture, [i32; 3], Condition)> {
     let mut out = Vec::new();
     for p in packets {
-        if let Packet::Samples(b) = p {
+        if let Packet::Averages(b) = p {
             assert!(!b.replay);
-            for (seq, t, s) in b.iter() {
-                out.push((seq, t, s.counts, b.condition));
+            for (seq, ap, s) in b.iter() {
+                out.push((seq, ap, s.sums, b.condition));
             }
         }
     }
     out
 }
 
+/// Streamed samples of the paper session: 4199 per condition (the slot open at stop is
+/// dropped), 16 Hz for 262.5 s.
+const STREAMED: u32 = 3 * 4199;
+
 #[test]
-fn paper_session_streams_every_sample_once_in_order() {
+fn paper_session_streams_every_conversion_once_in_order() {
     let (packets, dev) = run_paper();
     let s = samples(&packets);
-    assert_eq!(s.len(), 3 * 4200, "16 Hz for 262.5 s per condition");
+    assert_eq!(s.len(), STREAMED as usize);
     for (i, w) in s.windows(2).enumerate() {
         assert_eq!(w[1].0, w[0].0 + 1, "seq contiguous at {i}");
-        assert!(w[1].1 > w[0].1, "time increases at {i}");
+        assert!(w[1].1.first() > w[0].1.last(), "time increases at {i}");
         if w[0].3 == w[1].3 {
-            // Grid 62 500 µs; each sample is the sensor's edge nearest its grid point
-            // (sensor period 9615 µs), so spacing is within one sensor period of it.
-            let dt = w[1].1 - w[0].1;
+            // Slots of 62 500 µs on one grid: the first conversions of neighbours are
+            // within one sensor period (9615 µs) of 62 500 µs apart.
+            let dt = w[1].1.first().0 - w[0].1.first().0;
             assert!(
                 (62_500 - 9_616..=62_500 + 9_616).contains(&dt),
                 "spacing {dt} at {i}"
             );
         }
     }
-    // Across the counter's wrap (it starts at 0xFFFF_0000) time kept increasing: above.
-    assert!(s[0].1 >= 0xFFFF_0000);
+    // Every conversion the sensor made is in exactly one sample, with its own tick and
+    // counts, but for those of the slot still open at each stop (at most 7).
+    let spec = SessionSpec::PAPER;
+    for (k, cond) in Condition::ALL.into_iter().enumerate() {
+        let base = spec
+            .counter_start
+            .wrapping_add(spec.condition_spacing * k as u64);
+        let conv: Vec<(u64, [i16; 3])> = spec
+            .sensor(cond)
+            .unwrap()
+            .map(|x| (base + x.t.0, x.counts))
+            .collect();
+        let streamed: Vec<_> = s.iter().filter(|x| x.3 == cond).collect();
+        let mut at = 0;
+        for (_, ap, sums, _) in &streamed {
+            assert!((6..=7).contains(&ap.len()), "{} conversions", ap.len());
+            let mut want = [0i32; 3];
+            for t in ap.ticks() {
+                // The 32-bit counter wrapped once, in the first condition.
+                let t = t.0 & 0xFFFF_FFFF;
+                assert_eq!(conv[at].0 & 0xFFFF_FFFF, t);
+                for c in 0..3 {
+                    want[c] += i32::from(conv[at].1[c]);
+                }
+                at += 1;
+            }
+            assert_eq!(*sums, want);
+        }
+        assert!(
+            (1..=7).contains(&(conv.len() - at)),
+            "{} left",
+            conv.len() - at
+        );
+    }
+    assert!(s[0].1.first().0 >= 0xFFFF_0000);
     let st = dev.status();
     assert_eq!(st.state, RunState::Complete);
     assert_eq!(st.lost, 0);
     assert_eq!(
         (st.ring_oldest, st.ring_newest),
-        (12_600 - RING as u32, 12_599)
+        (STREAMED - RING as u32, STREAMED - 1)
     );
 }
 
+/// σ_CRLB of A, B, C for white noise over `n` conversions (quantisation included).
 fn sigma_crlb(n: usize) -> [f64; 3] {
     let s2 = crosscheck::noise_sigma(104_000).powi(2) + 1.0 / 12.0;
     let n = n as f64;
@@ -84,8 +122,9 @@ fn sigma_crlb(n: usize) -> [f64; 3] {
 }
 
 /// Every fit report, periodic and final, against an f64 fit of exactly the samples of its
-/// window, with the step it reports: within 0.01 σ_CRLB (the fit issue's bound). The final
-/// ones also equal a direct f32 fit bit for bit.
+/// window (their sums and conversion instants), with the step it reports: within 1e-5
+/// σ_CRLB of all the window's conversions. The final ones also equal a direct f32 fit bit
+/// for bit.
 #[test]
 fn fit_reports_match_f64_fits_of_their_windows() {
     let (packets, _) = run_paper();
@@ -109,11 +148,11 @@ fn fit_reports_match_f64_fits_of_their_windows() {
         let mut f64_fit = SineFit::<f64>::new(FitConfig::sine(step, TickRate::MHZ_1));
         let mut f32_fit = SineFit::<f32>::new(FitConfig::sine(step, TickRate::MHZ_1));
         for x in &window {
-            f64_fit.update(Ticks(x.1), x.2.map(f64::from)).unwrap();
-            f32_fit.update(Ticks(x.1), x.2.map(f32::from)).unwrap();
+            f64_fit.update_sum(&x.1, x.2.map(f64::from)).unwrap();
+            f32_fit.update_sum(&x.1, x.2.map(|v| v as f32)).unwrap();
         }
         let r = f64_fit.solve().unwrap();
-        let crlb = sigma_crlb(window.len());
+        let crlb = sigma_crlb(window.iter().map(|x| x.1.len()).sum());
         for ch in 0..3 {
             for (k, param) in [Param::A, Param::B, Param::C].into_iter().enumerate() {
                 let host = r.coef(ch, param).unwrap().to_f64();
@@ -145,10 +184,9 @@ fn fit_reports_match_f64_fits_of_their_windows() {
     }
     println!("worst |f32 − f64| / σ_CRLB over {finals} final and {periodic} periodic reports: {worst:.2e}");
     assert_eq!(finals, 3);
-    // 4200 samples per condition, a report every 160 once the fit spans 1.5 periods.
+    // 4199 samples per condition, a report every 160 once the fit spans 1.5 periods.
     assert!(periodic >= 3 * 10, "{periodic} periodic reports");
-    // The fit issue's bound is 0.01 (goal 0.001); its measured accuracy was 5.8e-6 at
-    // worst (bench/fit.json). Coefficients travel as exact f64, so that is the bound here.
+    // Issue 15's bound for averaged samples. Coefficients travel as exact f64.
     assert!(worst <= 1e-5, "{worst}");
 }
 
@@ -172,7 +210,7 @@ fn quick_look_matches_the_host_and_the_truth() {
             let step = PhaseStep::from_micro_hz(10_000, TickRate::MHZ_1).unwrap();
             let mut f = SineFit::<f64>::new(FitConfig::sine(step, TickRate::MHZ_1));
             for x in s.iter().filter(|x| x.3 == *c) {
-                f.update(Ticks(x.1), x.2.map(f64::from)).unwrap();
+                f.update_sum(&x.1, x.2.map(f64::from)).unwrap();
             }
             rotacal_shared::intrinsic::ConditionFit::from_fit(&f.solve().unwrap())
         })
@@ -300,7 +338,7 @@ fn backfill_resends_from_the_ring() {
     let seqs: Vec<u32> = p
         .iter()
         .filter_map(|x| {
-            if let Packet::Samples(b) = x {
+            if let Packet::Averages(b) = x {
                 Some(b)
             } else {
                 None
@@ -311,7 +349,7 @@ fn backfill_resends_from_the_ring() {
         .collect();
     assert_eq!(seqs, (12_500..12_560).collect::<Vec<_>>());
     // Older than the ring holds: what is left is sent, and the refusal says so.
-    let oldest = 12_600 - RING as u32;
+    let oldest = STREAMED - RING as u32;
     let p = collect(&mut dev, |d, o| {
         d.on_command(
             Command::Backfill {
@@ -325,7 +363,7 @@ fn backfill_resends_from_the_ring() {
     let n: usize = p
         .iter()
         .map(|x| {
-            if let Packet::Samples(b) = x {
+            if let Packet::Averages(b) = x {
                 b.len()
             } else {
                 0
@@ -350,21 +388,24 @@ fn a_part_filled_batch_waits_at_most_max_batch_age() {
     for i in 0..40u64 {
         dev.on_sample(i * 9_615, [0, 0, 16_000], false, &mut |x| p.push(x));
     }
-    // 40 sensor samples = 0.38 s: 7 streamed, not yet a second old.
+    // 40 conversions = 0.38 s: 5 slots closed (the sixth is open), not yet a second old.
     dev.poll(400_000, &mut |x| p.push(x));
     assert!(p.is_empty());
     dev.poll(1_000_000, &mut |x| p.push(x));
     match p.as_slice() {
-        [Packet::Samples(b)] => {
-            assert_eq!(b.len(), 7);
+        [Packet::Averages(b)] => {
+            assert_eq!(b.len(), 5);
             assert_eq!(b.samples()[0].flags, 0);
+            assert_eq!(b.samples()[0].sums, [0, 0, 7 * 16_000]);
         }
         other => panic!("{other:?}"),
     }
-    // A rail reading is flagged; a missed edge is flagged late.
+    // One rail reading flags its slot as clipped; one missed edge flags it late. The
+    // eighth conversion falls in the next slot and closes this one.
     p.clear();
-    for i in 0..7u64 {
-        dev.on_sample(2_000_000 + i * 9_615, [i16::MAX, 0, 0], i == 0, &mut |x| {
+    for i in 0..8u64 {
+        let rail = if i == 3 { i16::MAX } else { 0 };
+        dev.on_sample(2_000_000 + i * 9_615, [rail, 0, 0], i == 0, &mut |x| {
             p.push(x)
         });
     }
@@ -372,15 +413,18 @@ fn a_part_filled_batch_waits_at_most_max_batch_age() {
     let b = p
         .iter()
         .find_map(|x| {
-            if let Packet::Samples(b) = x {
+            if let Packet::Averages(b) = x {
                 Some(*b)
             } else {
                 None
             }
         })
         .unwrap();
+    let last = b.samples().last().unwrap();
+    assert_eq!(last.count, 7);
+    assert_eq!(last.sums, [i32::from(i16::MAX), 0, 0]);
     assert_eq!(
-        b.samples()[0].flags,
+        last.flags,
         SampleFlags::CLIPPED | SampleFlags::LATE_TIMESTAMP
     );
 }

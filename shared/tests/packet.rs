@@ -7,7 +7,7 @@
 
 use proptest::prelude::*;
 use rotacal_shared::packet::*;
-use rotacal_shared::Condition;
+use rotacal_shared::{Aperture, Condition, Ticks, MAX_CONVERSIONS};
 
 fn condition() -> impl Strategy<Value = Condition> {
     prop_oneof![Just(Condition::X), Just(Condition::Y), Just(Condition::Z)]
@@ -47,6 +47,35 @@ fn batch() -> impl Strategy<Value = SampleBatch> {
         .prop_filter("at least one sample", |b| !b.is_empty())
 }
 
+fn averages() -> impl Strategy<Value = AverageBatch> {
+    (
+        condition(),
+        any::<bool>(),
+        any::<u32>(),
+        any::<u64>(),
+        prop::collection::vec(
+            (
+                any::<u32>(),
+                prop::collection::vec(1..=u16::MAX, 0..MAX_CONVERSIONS),
+                prop::array::uniform3(any::<i16>()),
+                0..=SampleFlags::ALL,
+            ),
+            1..=MAX_AVERAGES,
+        ),
+    )
+        .prop_map(|(c, replay, seq, t0, samples)| {
+            let mut b = AverageBatch::new(c, replay, seq, t0);
+            for (dt, gaps, reading, flags) in samples {
+                let ap = Aperture::new(Ticks(t0.wrapping_add(u64::from(dt))), &gaps).unwrap();
+                // A sum of len readings: any value in that range.
+                let sums = reading.map(|r| i32::from(r) * ap.len() as i32);
+                b.push(&ap, sums, flags).ok();
+            }
+            b
+        })
+        .prop_filter("at least one sample", |b| !b.is_empty())
+}
+
 fn command() -> impl Strategy<Value = Command> {
     prop_oneof![
         (condition(), 1..=u32::MAX).prop_map(|(condition, rate_uhz)| Command::Start {
@@ -64,6 +93,7 @@ fn command() -> impl Strategy<Value = Command> {
 fn packet() -> impl Strategy<Value = Packet> {
     prop_oneof![
         batch().prop_map(Packet::Samples),
+        averages().prop_map(Packet::Averages),
         (any::<u32>(), any::<i16>())
             .prop_map(|(seq, centi_c)| Packet::Temperature(Temperature { seq, centi_c })),
         (
@@ -214,7 +244,13 @@ fn errors_say_what_and_where() {
         Packet::decode(&[]),
         Err(DecodeError::TooShort { need: 4, got: 0 })
     );
-    assert_eq!(Packet::decode(&[2, 1, 1, 1]), Err(DecodeError::Version(2)));
+    assert_eq!(Packet::decode(&[3, 1, 1, 1]), Err(DecodeError::Version(3)));
+    // Version 2 is the averaged samples' layout only.
+    assert_eq!(Packet::decode(&[2, 3, 1, 1]), Err(DecodeError::Version(2)));
+    assert_eq!(
+        Packet::decode(&[2, 1, 1, 1]),
+        Err(DecodeError::TooShort { need: 46, got: 4 })
+    );
     assert_eq!(
         Packet::decode(&[1, 0x7f, 0, 0]),
         Err(DecodeError::Kind(0x7f))
@@ -277,4 +313,45 @@ fn a_full_batch_has_the_documented_layout() {
     let mut c = SampleBatch::new(Condition::X, false, 0, 10);
     assert!(c.push(9, [0; 3], 0).is_err());
     assert!(c.push(10 + (1u64 << 32), [0; 3], 0).is_err());
+}
+
+#[test]
+fn an_averaged_batch_has_the_documented_layout() {
+    let mut b = AverageBatch::new(Condition::Y, false, 9, 5_000);
+    let ap = Aperture::new(Ticks(5_100), &[9_615, 9_616, 9_615, 9_615, 9_616, 9_615]).unwrap();
+    b.push(&ap, [7, -14, 114_688], SampleFlags::CLIPPED)
+        .unwrap();
+    let short = Aperture::new(Ticks(67_600), &[9_615]).unwrap();
+    b.push(&short, [-65_536, 0, 1], 0).unwrap();
+    let bytes = encode(&Packet::Averages(b));
+    assert_eq!(bytes.len(), 16 + 30 * 2);
+    assert_eq!(&bytes[..4], &[2, 0x01, 2, 0x02]);
+    assert_eq!(&bytes[4..8], &9u32.to_le_bytes());
+    assert_eq!(&bytes[8..16], &5_000u64.to_le_bytes());
+    // First sample: dt 100, 7 conversions, flags 1, sums, six gaps.
+    assert_eq!(&bytes[16..22], &[100, 0, 0, 0, 7, 1]);
+    assert_eq!(&bytes[22..26], &7i32.to_le_bytes());
+    assert_eq!(&bytes[26..30], &(-14i32).to_le_bytes());
+    assert_eq!(&bytes[30..34], &114_688i32.to_le_bytes());
+    assert_eq!(&bytes[34..36], &9_615u16.to_le_bytes());
+    // Second sample: two conversions, one gap, the other five 0.
+    assert_eq!(&bytes[46..52], &[0x88, 0xF4, 0, 0, 2, 0]);
+    assert_eq!(&bytes[64..76], &[0x8F, 0x25, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0]);
+    let back: Vec<_> = b.iter().map(|(seq, ap, s)| (seq, ap, s.sums)).collect();
+    assert_eq!(back[0], (9, ap, [7, -14, 114_688]));
+    assert_eq!(back[1], (10, short, [-65_536, 0, 1]));
+    // A sum beyond its conversions' range, an unused gap set or a used one 0, a count
+    // beyond 7: refused, naming the byte.
+    let refused = |at: usize, value: &[u8], offset: usize, name: &'static str| {
+        let mut bad = bytes.clone();
+        bad[at..at + value.len()].copy_from_slice(value);
+        assert_eq!(
+            Packet::decode(&bad),
+            Err(DecodeError::Field { offset, name })
+        );
+    };
+    refused(52, &(-65_537i32).to_le_bytes(), 52, "sum of counts");
+    refused(66, &[1], 66, "conversion gap");
+    refused(34, &[0, 0], 34, "conversion gap");
+    refused(20, &[8], 20, "conversion count");
 }

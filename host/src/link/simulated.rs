@@ -50,7 +50,7 @@ impl Default for Faults {
 }
 
 /// The firmware version the simulated device reports by default (the firmware crate's).
-pub const FIRMWARE: [u8; 3] = [0, 1, 0];
+pub const FIRMWARE: [u8; 3] = [0, 2, 0];
 
 /// One sensor conversion: seconds from the condition's start, raw counts, °C.
 #[derive(Clone, Copy, Debug)]
@@ -147,7 +147,7 @@ impl SimulatedDevice {
             return;
         }
         let ch = match p {
-            Packet::Samples(_) | Packet::Temperature(_) => Channel::Stream,
+            Packet::Samples(_) | Packet::Averages(_) | Packet::Temperature(_) => Channel::Stream,
             Packet::Info(_) => Channel::Info,
             _ => Channel::Results,
         };

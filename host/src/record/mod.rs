@@ -339,6 +339,7 @@ impl<L: Link, W: Durable, F: Durable, C: Durable, O: Observer> Session<'_, L, W,
         // the capture.
         let ours = match &p {
             Packet::Samples(b) => self.started && b.condition == self.plan.condition,
+            Packet::Averages(b) => self.started && b.condition == self.plan.condition,
             Packet::Fit(f) => self.started && f.condition == self.plan.condition,
             Packet::Temperature(_) | Packet::QuickLook(_) => self.started,
             Packet::Info(_) | Packet::Status(_) | Packet::Command(_) => true,
@@ -736,12 +737,17 @@ pub fn open_files(
             .map_err(|e| RecordError::Device(format!("cannot append: {e}")))?;
         let ours = rec.oriented.is_none()
             && rec.groups.iter().all(|g| {
-                g.seq.is_some() && g.temp_c.is_some() && !g.t_s.is_empty() && g.rate_hz.is_none()
+                g.seq.is_some()
+                    && g.temp_c.is_some()
+                    && g.conversions.is_some()
+                    && !g.t_s.is_empty()
+                    && g.rate_hz.is_none()
             });
         if !ours {
             return Err(RecordError::Device(format!(
                 "cannot append: {} does not have the recorder's columns \
-                 (condition, seq, t_s, u, v, w, temp_c)",
+                 (condition, seq, t_s, u, v, w, temp_c, conv_gaps; recordings of rotacal 0.1 \
+                 have no conv_gaps)",
                 paths.recording.display()
             )));
         }
@@ -761,6 +767,14 @@ pub fn open_files(
                     paths.recording.display()
                 )));
             }
+        }
+        let was = crate::recording::tick_hz(&rec.meta);
+        if was != Some(tick_hz) {
+            return Err(RecordError::Device(format!(
+                "cannot append: {} counts conv_gaps in ticks of {was:?} Hz, this device's clock \
+                 is {tick_hz} Hz; record into a new file",
+                paths.recording.display()
+            )));
         }
         if rec.groups.iter().any(|g| g.condition == condition) {
             return Err(RecordError::Device(format!(

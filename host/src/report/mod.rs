@@ -18,7 +18,7 @@ use crate::calibrate::{self, calibrate, CalibrateError, Options, CLOCK};
 use crate::fit::harmonics::{harmonic_amplitudes, HARMONICS};
 use crate::recording::{Group, Method, Recording};
 use plotters::prelude::*;
-use rotacal_shared::PhaseStep;
+use rotacal_shared::{PhaseStep, Ticks};
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
@@ -71,9 +71,16 @@ fn series(rec: &Recording, g: &Group, entry: &RateJson) -> Result<Series, Report
             let step = PhaseStep::from_hz(rate, CLOCK)
                 .ok_or_else(|| ReportError::Write(format!("rate {rate} Hz unusable")))?;
             let hz = f64::from(CLOCK.hz());
+            // An average is drawn at the mean instant of its conversions.
+            let mid = |ap: &rotacal_shared::Aperture| {
+                let n = ap.len().max(1) as u64;
+                Ticks(ap.ticks().map(|t| t.0).sum::<u64>() / n)
+            };
             (
-                s.iter().map(|(t, _)| t.0 as f64 / hz).collect(),
-                s.iter().map(|(t, _)| step.phase_at(*t).radians()).collect(),
+                s.iter().map(|(ap, _)| mid(ap).0 as f64 / hz).collect(),
+                s.iter()
+                    .map(|(ap, _)| step.phase_at(mid(ap)).radians())
+                    .collect(),
                 "time from the condition's first sample (s)",
                 true,
             )

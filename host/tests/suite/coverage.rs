@@ -119,17 +119,27 @@ fn paper_config(trial: usize, start_deg: [f64; 3]) -> Config {
     cfg
 }
 
-/// Cramér–Rao variance of s_j for one run (white noise of variance σ², known rate): the
-/// LS covariance σ²(HᵀH)⁻¹ of (A, B) per condition, from the exact regressors at the
-/// sample times the fit uses, pushed through s_j = √(Σ_c A_c² + B_c²) / (g√2) at the truth.
-fn crb_var(truth: &Truth, start_deg: [f64; 3], sigma2: f64, g: f64, n: usize, fs: f64) -> [f64; 3] {
-    let omega = TAU * 0.01;
+/// Cramér–Rao variance of s_j for one run (white noise of standard deviation `sd[j]` on
+/// channel j, known rate `rate_hz`, `n` samples at `fs` per condition): the LS covariance
+/// σ_j²(HᵀH)⁻¹ of (A, B) per condition, from the exact regressors at the sample times the
+/// fit uses, pushed through s_j = √(Σ_c A_c² + B_c²) / (g√2) at the truth.
+pub(crate) struct Crb {
+    pub sd: [f64; 3],
+    pub g: f64,
+    pub n: usize,
+    pub fs: f64,
+    pub rate_hz: f64,
+}
+
+pub(crate) fn crb_var(truth: &Truth, start_deg: [f64; 3], c: &Crb) -> [f64; 3] {
+    let omega = TAU * c.rate_hz;
+    let g = c.g;
     let mut var = [0.0; 3];
-    for c in 0..3 {
+    for cond in 0..3 {
         // HᵀH for regressors (sin ωt, cos ωt, 1), t from the condition's first sample.
         let mut m = [[0.0; 3]; 3];
-        for k in 0..n {
-            let (s, co) = (omega * k as f64 / fs).sin_cos();
+        for k in 0..c.n {
+            let (s, co) = (omega * k as f64 / c.fs).sin_cos();
             let h = [s, co, 1.0];
             for i in 0..3 {
                 for j in 0..3 {
@@ -138,8 +148,8 @@ fn crb_var(truth: &Truth, start_deg: [f64; 3], sigma2: f64, g: f64, n: usize, fs
             }
         }
         let inv = inverse3(&m);
-        let (p, q) = [(1, 2), (0, 2), (0, 1)][c];
-        let (sa, ca) = start_deg[c].to_radians().sin_cos();
+        let (p, q) = [(1, 2), (0, 2), (0, 1)][cond];
+        let (sa, ca) = start_deg[cond].to_radians().sin_cos();
         for j in 0..3 {
             let sp = truth.matrix_platter[j];
             // y = g(S_jp sin(α0 + ωt) + S_jq cos(α0 + ωt)) = A sin ωt + B cos ωt.
@@ -149,7 +159,7 @@ fn crb_var(truth: &Truth, start_deg: [f64; 3], sigma2: f64, g: f64, n: usize, fs
             let grad = [a / d, b / d];
             for x in 0..2 {
                 for y in 0..2 {
-                    var[j] += sigma2 * grad[x] * inv[x][y] * grad[y];
+                    var[j] += c.sd[j] * c.sd[j] * grad[x] * inv[x][y] * grad[y];
                 }
             }
         }
@@ -185,7 +195,17 @@ fn rotation_coverage_and_efficiency_through_the_simulator() {
         let entry = cal.by_rate.into_iter().next().unwrap();
         let cfg = sim.config();
         let sigma2 = sim.noise_floor().powi(2);
-        let crb = crb_var(sim.truth(), start, sigma2, cfg.g_loc, 4200, 16.0);
+        let crb = crb_var(
+            sim.truth(),
+            start,
+            &Crb {
+                sd: [sigma2.sqrt(); 3],
+                g: cfg.g_loc,
+                n: 4200,
+                fs: 16.0,
+                rate_hz: 0.01,
+            },
+        );
         (entry, crb, sim.truth().clone())
     });
     let truth = &results[0].2;

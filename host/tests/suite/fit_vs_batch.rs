@@ -5,7 +5,7 @@
 use proptest::prelude::*;
 use rotacal::fit::batch;
 use rotacal_shared::synth::{Synth, SynthSpec};
-use rotacal_shared::{FitConfig, Model, PhaseStep, SineFit, TickRate, Ticks};
+use rotacal_shared::{Aperture, FitConfig, Model, PhaseStep, SineFit, TickRate, Ticks};
 
 const MODELS: [Model; 4] = [
     Model {
@@ -26,6 +26,11 @@ const MODELS: [Model; 4] = [
     },
 ];
 
+/// Single conversions as the batch fits take them.
+fn batch_samples(s: &[(Ticks, [f64; 3])]) -> Vec<batch::Sample> {
+    s.iter().map(|(t, y)| (Aperture::point(*t), *y)).collect()
+}
+
 /// Largest relative parameter difference and SE difference between the two fits.
 fn compare(spec: SynthSpec, model: Model) -> Result<(f64, f64), TestCaseError> {
     let samples: Vec<(Ticks, [f64; 3])> = Synth::new(spec)
@@ -45,7 +50,8 @@ fn compare(spec: SynthSpec, model: Model) -> Result<(f64, f64), TestCaseError> {
         .solve()
         .map_err(|e| TestCaseError::fail(e.to_string()))?;
     let t_ref = s.t_ref.unwrap_or(Ticks(0));
-    let b = batch::fit(&samples, spec.step, spec.clock, model, t_ref)
+    let points = batch_samples(&samples);
+    let b = batch::fit(&points, spec.step, spec.clock, model, t_ref)
         .map_err(|e| TestCaseError::fail(e.to_string()))?;
     let span = batch::seconds_between(s.t_last, s.t_first, spec.clock).max(1e-9);
     let (mut worst_p, mut worst_se) = (0.0f64, 0.0f64);
@@ -137,6 +143,7 @@ fn four_parameter_fit_estimates_the_rate() {
     let samples: Vec<(Ticks, [f64; 3])> = Synth::new(spec)
         .map(|s| (s.t, s.counts.map(f64::from)))
         .collect();
+    let samples = batch_samples(&samples);
     let r = batch::fit_four_param(&samples, nominal, clock).unwrap();
     let truth = 0.100_04;
     assert!(

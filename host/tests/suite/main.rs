@@ -4,6 +4,7 @@
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
 mod apply;
+mod averaging;
 mod budget;
 mod calibrate_cli;
 mod common;

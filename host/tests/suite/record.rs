@@ -13,8 +13,9 @@ use rotacal_shared::Condition;
 use std::path::PathBuf;
 use std::time::Duration;
 
-/// Samples the device streams for condition x: 262.5 s at 16 Hz.
-const N: u64 = 4200;
+/// Samples the device streams for condition x: 262.5 s at 16 Hz, each the average of the
+/// conversions in its slot; the slot still open at Stop is dropped.
+const N: u64 = 4199;
 
 fn dir(name: &str) -> PathBuf {
     let d = std::env::temp_dir().join(format!("rotacal-rec-{}-{name}", std::process::id()));
@@ -148,7 +149,8 @@ fn an_outage_shorter_than_the_ring_is_backfilled() {
 
 #[test]
 fn an_outage_longer_than_the_ring_loses_only_what_left_it() {
-    // 60 s down: the device keeps the last 512 samples (32 s); the rest is reported lost.
+    // 60 s down: the device keeps the last 384 samples (24 s); the rest is reported lost.
+    let ring = rotacal_shared::device::RING as u64;
     let r = run("long-outage", "outage=100:60");
     let o = r.result.as_ref().unwrap();
     let s = &o.summary;
@@ -160,14 +162,14 @@ fn an_outage_longer_than_the_ring_loses_only_what_left_it() {
         "every sample written or reported lost"
     );
     // The loss starts where the link dropped (100 s, seq 1600, less the part-filled
-    // batch of at most 20 samples that went out into the void) and spans about 60 − 32 s.
-    assert!((1580..=1600).contains(&a), "lost from {a}");
+    // batch of at most 7 samples that went out into the void) and spans about 60 − 24 s.
+    assert!((1590..=1600).contains(&a), "lost from {a}");
     let lost_s = f64::from(b - a + 1) / 16.0;
-    assert!((27.0..=31.0).contains(&lost_s), "{lost_s} s lost");
-    // The ring's 512 samples, less those pushed out between the reconnection and the
-    // replay (the gap shows with the first live batch: at most 20 samples or 1 s later,
-    // so at most 2 s at 16 Hz).
-    assert!(s.recovered >= 512 - 32, "{}", s.recovered);
+    assert!((35.0..=39.0).contains(&lost_s), "{lost_s} s lost");
+    // The ring's samples, less those pushed out between the reconnection and the replay
+    // (the gap shows with the first live batch: at most 7 samples or 1 s later, so at
+    // most 2 s at 16 Hz).
+    assert!(s.recovered >= ring - 32, "{}", s.recovered);
     let q = seqs(&r.paths.recording);
     assert!(q.windows(2).all(|w| w[0] < w[1]), "seq increasing");
     assert!(r

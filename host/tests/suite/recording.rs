@@ -11,7 +11,7 @@ use proptest::prelude::*;
 use rotacal::recording::{
     self, Columns, Group, Metadata, Method, Recording, RecordingErrorKind, Row, Writer,
 };
-use rotacal_shared::Condition;
+use rotacal_shared::{Aperture, Condition, Ticks};
 
 fn data_dir(sub: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))
@@ -915,6 +915,8 @@ fn case() -> impl Strategy<Value = Case> {
                 seq,
                 temp_c,
                 rate_hz,
+                // Averaged rows' conversions, in some of the cases.
+                conv_gaps: seq && temp_c,
                 ..Columns::default()
             };
             let method = match m {
@@ -959,47 +961,59 @@ fn case() -> impl Strategy<Value = Case> {
                 prop::collection::vec(prop_oneof![Just(0.0), 0.0..10.0f64], n),
             )
         })
-        .prop_map(|((columns, method, meta, rates), keys, values, steps)| {
-            let mut clock: BTreeMap<(usize, usize), f64> = BTreeMap::new();
-            let rows = keys
-                .iter()
-                .zip(values)
-                .zip(steps)
-                .map(|(((c, r), (t, a, u, v, w, s, temp)), step)| {
-                    let condition = Condition::ALL[*c];
-                    let rate = rates[*r];
-                    let key = (*c, if columns.rate_hz { *r } else { 0 });
-                    let t_s = if method == Method::Rotation {
-                        // Non-decreasing within each group; groups start at random times.
-                        let now = clock.get(&key).map_or(t.clamp(-1e6, 1e6), |p| p + step);
-                        clock.insert(key, now);
-                        now
-                    } else {
-                        t
-                    };
-                    Row {
-                        condition,
-                        t_s: columns.t_s.then_some(t_s),
-                        angle_deg: columns.angle_deg.then_some(a),
-                        u,
-                        v,
-                        w,
-                        seq: columns.seq.then_some(s),
-                        temp_c: columns.temp_c.then_some(temp),
-                        rate_hz: columns.rate_hz.then_some(rate),
-                        gravity: None,
-                        pose: None,
-                        unc: None,
-                    }
-                })
-                .collect();
-            Case {
-                meta,
-                columns,
-                method,
-                rows,
-            }
-        })
+        .prop_map(
+            |((columns, method, mut meta, rates), keys, values, steps)| {
+                if columns.conv_gaps {
+                    meta.other.insert("tick_hz".into(), "1000000".into());
+                }
+                let mut clock: BTreeMap<(usize, usize), f64> = BTreeMap::new();
+                let rows = keys
+                    .iter()
+                    .zip(values)
+                    .zip(steps)
+                    .map(|(((c, r), (t, a, u, v, w, s, temp)), step)| {
+                        let condition = Condition::ALL[*c];
+                        let rate = rates[*r];
+                        let key = (*c, if columns.rate_hz { *r } else { 0 });
+                        let t_s = if method == Method::Rotation {
+                            // Non-decreasing within each group; groups start at random times.
+                            let now = clock.get(&key).map_or(t.clamp(-1e6, 1e6), |p| p + step);
+                            clock.insert(key, now);
+                            now
+                        } else {
+                            t
+                        };
+                        Row {
+                            condition,
+                            t_s: columns.t_s.then_some(t_s),
+                            angle_deg: columns.angle_deg.then_some(a),
+                            u,
+                            v,
+                            w,
+                            seq: columns.seq.then_some(s),
+                            temp_c: columns.temp_c.then_some(temp),
+                            rate_hz: columns.rate_hz.then_some(rate),
+                            gravity: None,
+                            pose: None,
+                            unc: None,
+                            // 0 to 6 gaps of 1 to 65535 ticks, from the seq's bits.
+                            conv_gaps: columns.conv_gaps.then(|| {
+                                let gaps: Vec<u16> = (0..(s % 7))
+                                    .map(|k| 1 + ((s >> (3 + 9 * k)) % 65_535) as u16)
+                                    .collect();
+                                Aperture::new(Ticks(0), &gaps).expect("at most 6 gaps, none 0")
+                            }),
+                        }
+                    })
+                    .collect();
+                Case {
+                    meta,
+                    columns,
+                    method,
+                    rows,
+                }
+            },
+        )
 }
 
 /// The groups a correct reader must return, worked out independently.
@@ -1028,6 +1042,7 @@ fn expected_groups(case: &Case, header_line: u64) -> Vec<Group> {
                     seq: case.columns.seq.then(Vec::new),
                     temp_c: case.columns.temp_c.then(Vec::new),
                     unc: None,
+                    conversions: case.columns.conv_gaps.then(Vec::new),
                     first_line: header_line + 1 + i as u64,
                 });
                 groups.last_mut().expect("just pushed")
@@ -1043,6 +1058,9 @@ fn expected_groups(case: &Case, header_line: u64) -> Vec<Group> {
         }
         if let (Some(v), Some(t)) = (g.temp_c.as_mut(), row.temp_c) {
             v.push(t);
+        }
+        if let (Some(v), Some(a)) = (g.conversions.as_mut(), row.conv_gaps) {
+            v.push(a);
         }
     }
     groups

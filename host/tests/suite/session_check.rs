@@ -21,7 +21,7 @@ fn the_hosts_run_passes_its_own_check() {
     assert_eq!(parsed, packets);
     let rep = check(&parsed).unwrap();
     assert!(rep.bit_identical_to_host && rep.seq_contiguous);
-    assert_eq!(rep.samples, 12_600);
+    assert_eq!(rep.samples, 12_597);
     assert_eq!(rep.fits.iter().filter(|f| f.is_final).count(), 3);
     assert!(rep.max_ratio_crlb <= 1e-5, "{}", rep.max_ratio_crlb);
     assert!(rep.quick_look_max_ratio_u.unwrap() <= 1e-4);
@@ -30,10 +30,11 @@ fn the_hosts_run_passes_its_own_check() {
 #[test]
 fn damage_is_found() {
     let mut packets = host_packets();
-    // One count changed in the tenth packet (a sample batch): no longer the host's bytes,
-    // and the fit of its window no longer matches the reported one exactly.
+    // One sum of counts changed in the tenth packet (a sample batch; byte 22 is the first
+    // sample's sum of u): no longer the host's bytes, and the fit of its window no longer
+    // matches the reported one exactly.
     let i = packets.iter().position(|p| p[1] == 0x01).unwrap() + 9;
-    packets[i][20] ^= 0x40;
+    packets[i][22] ^= 0x40;
     let rep = check(&packets).unwrap();
     assert!(!rep.bit_identical_to_host);
     assert_eq!(rep.first_difference, Some(i));

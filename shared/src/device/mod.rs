@@ -3,8 +3,8 @@
 //! The firmware crate only wires drivers, BLE and tasks to a [`Device`]; the same code
 //! runs in the host's tests and on the emulated Cortex-M4F (tests/qemu `session`).
 //!
-//! Data path: [`sampler`] (64-bit timestamps, decimation to the sample rate, sequence
-//! numbers) → [`ring`] (recent samples, for backfill) and [`packetiser`] (sample batches)
+//! Data path: [`sampler`] (64-bit timestamps, every conversion summed into the sample
+//! rate's slots, sequence numbers) → [`ring`] (recent samples, for backfill) and [`packetiser`] (sample batches)
 //! → [`session`] (the condition's streaming fit, fit reports, the quick-look).
 //! Output goes through a callback, so nothing here allocates or blocks.
 
@@ -24,8 +24,9 @@ use ring::Ring;
 use sampler::{Sampler, StreamSample};
 use session::Session;
 
-/// Samples the Feather keeps for backfill: 32 s at 16 Hz, 16 KiB of RAM.
-pub const RING: usize = 512;
+/// Samples the Feather keeps for backfill: 24 s at 16 Hz, 15 KiB of RAM (40 bytes each:
+/// an averaged sample carries its sums and its conversions' instants).
+pub const RING: usize = 384;
 
 /// How the device is set up.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -125,13 +126,19 @@ impl<const RING: usize> Device<RING> {
         }
     }
 
+    /// Samples streamed since power-up (the next sequence number).
+    pub fn streamed(&self) -> u32 {
+        self.sampler.streamed()
+    }
+
     /// The quick-look, once x, y and z are done.
     pub fn quick_look(&self) -> Option<crate::packet::QuickLook> {
         self.session.quick_look()
     }
 
-    /// A data-ready edge captured at raw counter value `capture`, and the sample read
-    /// after it. `late`: the edge was missed and `capture` is the read time.
+    /// A data-ready edge captured at raw counter value `capture`, and the conversion read
+    /// after it. `late`: the edge was missed and `capture` is the read time. Every
+    /// conversion goes in; a stream sample comes out when one closes a slot.
     pub fn on_sample(
         &mut self,
         capture: u64,
@@ -202,7 +209,9 @@ impl<const RING: usize> Device<RING> {
                 }
             }
             Command::Stop => {
-                // The condition's last samples go out before its final fit.
+                // The slot being filled is incomplete and dropped; the condition's last
+                // samples go out before its final fit.
+                self.sampler.discard();
                 self.live.flush(out);
                 self.session.stop(out)
             }

@@ -1,9 +1,9 @@
-//! Streamed samples into [`SampleBatch`]es: a batch holds consecutive samples of one
+//! Streamed samples into [`AverageBatch`]es: a batch holds consecutive samples of one
 //! condition, and goes out when full, when the next sample can't join it, or when it
 //! has waited long enough.
 
 use super::sampler::StreamSample;
-use crate::packet::{Packet, SampleBatch};
+use crate::packet::{AverageBatch, Packet};
 use crate::time::Ticks;
 use crate::Condition;
 
@@ -11,7 +11,7 @@ use crate::Condition;
 #[derive(Clone, Copy, Debug)]
 pub struct Packetiser {
     replay: bool,
-    batch: Option<SampleBatch>,
+    batch: Option<AverageBatch>,
 }
 
 impl Packetiser {
@@ -29,7 +29,7 @@ impl Packetiser {
             let next_seq = b.first_seq.wrapping_add(b.len() as u32);
             let joins = b.condition == condition
                 && next_seq == s.seq
-                && b.push(s.t.0, s.counts, s.flags).is_ok();
+                && b.push(&s.aperture, s.sums, s.flags).is_ok();
             if joins {
                 if b.is_full() {
                     self.flush(out);
@@ -38,9 +38,9 @@ impl Packetiser {
             }
             self.flush(out);
         }
-        let mut b = SampleBatch::new(condition, self.replay, s.seq, s.t.0);
+        let mut b = AverageBatch::new(condition, self.replay, s.seq, s.t().0);
         // A fresh batch always takes its first sample (dt = 0).
-        let _ = b.push(s.t.0, s.counts, s.flags);
+        let _ = b.push(&s.aperture, s.sums, s.flags);
         self.batch = Some(b);
     }
 
@@ -48,7 +48,7 @@ impl Packetiser {
     pub fn flush(&mut self, out: &mut impl FnMut(Packet)) {
         if let Some(b) = self.batch.take() {
             if !b.is_empty() {
-                out(Packet::Samples(b));
+                out(Packet::Averages(b));
             }
         }
     }

@@ -1,28 +1,50 @@
-//! From captured data-ready edges to the sample stream: 64-bit timestamps, decimation
-//! from the sensor's output rate to the sample rate, sequence numbers, flags.
+//! From captured data-ready edges to the sample stream: 64-bit timestamps, averaging of
+//! the sensor's conversions into the sample rate's slots, sequence numbers, flags.
 //!
-//! The LSM6DS33 has no 16 Hz output rate (method.md §7), so the sensor runs at a native
-//! rate with its anti-alias filter and this keeps, for each point of a grid at the sample
-//! rate, the sample whose edge is nearest it (within half a sensor period). Each kept
-//! sample carries its own conversion time, so the stream is not exactly uniform, and the
-//! fit doesn't need it to be.
+//! The LSM6DS33 has no 16 Hz output rate (method.md §7), so the sensor converts at a
+//! native rate (104 Hz) behind its anti-alias filter, and each streamed sample is the sum
+//! of every conversion whose data-ready edge falls in its slot of the sample-rate grid
+//! (6 or 7 at 104 Hz into 16 Hz), with the instants of those conversions
+//! ([`Aperture`]). The sum is exact in integers; the host divides by the count. Its
+//! expected value is the model summed over those instants, which the device's fit and
+//! the host's fits rebuild from the same ticks (docs/protocol.md), so the averaging costs
+//! no accuracy at any rotation rate and every conversion's noise is averaged.
 
 use super::Config;
 use crate::packet::{CommandError, SampleFlags};
-use crate::time::{TickExtender, Ticks};
+use crate::time::{Aperture, TickExtender, Ticks, MAX_CONVERSIONS};
 
-/// A sample of the stream.
+/// A sample of the stream: the sum of the conversions in one slot.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct StreamSample {
     /// Sequence number: consecutive over every sample streamed since power-up.
     pub seq: u32,
-    /// Time of the data-ready edge.
-    pub t: Ticks,
-    /// Raw counts u, v, w.
-    pub counts: [i16; 3],
-    /// [`SampleFlags`] bits.
+    /// The instants of the conversions summed (data-ready edges).
+    pub aperture: Aperture,
+    /// Sums of the raw counts u, v, w over those conversions.
+    pub sums: [i32; 3],
+    /// [`SampleFlags`] bits: set when any of the conversions has it.
     pub flags: u8,
+}
+
+impl StreamSample {
+    /// Time of the first conversion.
+    pub fn t(&self) -> Ticks {
+        self.aperture.first()
+    }
+}
+
+/// The slot being filled.
+#[derive(Clone, Copy, Debug)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+struct Open {
+    aperture: Aperture,
+    last: Ticks,
+    sums: [i32; 3],
+    flags: u8,
+    /// End of the slot, ticks × 1000.
+    end_milli: u64,
 }
 
 /// See the module documentation.
@@ -32,11 +54,12 @@ pub struct Sampler {
     clock_hz: u64,
     extender: TickExtender,
     sample_rate_mhz: u32,
-    /// Grid period and half a sensor period, in ticks × 1000 (to keep mHz rates exact).
+    /// Slot length, ticks × 1000 (to keep mHz rates exact).
     period_milli: u64,
-    half_sensor_milli: u64,
-    /// The next grid point, ticks × 1000; `None` until the first sample.
-    next_due_milli: Option<u64>,
+    open: Option<Open>,
+    /// End of the last slot closed, ticks × 1000: the next slot starts there unless the
+    /// stream paused.
+    last_end_milli: Option<u64>,
     next_seq: u32,
 }
 
@@ -49,8 +72,8 @@ impl Sampler {
             extender: TickExtender::new(cfg.counter_bits),
             sample_rate_mhz: 0,
             period_milli: 0,
-            half_sensor_milli: 0,
-            next_due_milli: None,
+            open: None,
+            last_end_milli: None,
             next_seq: 0,
         };
         if s.set_sample_rate(cfg.sample_rate_mhz, cfg.sensor_odr_mhz)
@@ -62,22 +85,37 @@ impl Sampler {
         s
     }
 
+    /// Samples streamed since power-up (the next sequence number).
+    pub fn streamed(&self) -> u32 {
+        self.next_seq
+    }
+
     /// The streamed sample rate, mHz.
     pub fn sample_rate_mhz(&self) -> u32 {
         self.sample_rate_mhz
     }
 
-    /// Change the sample rate (must be positive and at most the sensor's rate).
+    /// Change the sample rate: positive, at most the sensor's rate, and high enough that
+    /// a slot holds at most [`MAX_CONVERSIONS`] conversions (at 104 Hz: ≥ 14.86 Hz).
     pub fn set_sample_rate(&mut self, mhz: u32, sensor_odr_mhz: u32) -> Result<(), CommandError> {
         if mhz == 0 || sensor_odr_mhz == 0 || mhz > sensor_odr_mhz {
             return Err(CommandError::BadRate);
         }
+        if u64::from(sensor_odr_mhz) > MAX_CONVERSIONS as u64 * u64::from(mhz) {
+            return Err(CommandError::BadRate);
+        }
         // ticks per sample × 1000 = clock_hz · 10⁶ / mHz.
         self.period_milli = self.clock_hz * 1_000_000 / u64::from(mhz);
-        self.half_sensor_milli = self.clock_hz * 1_000_000 / u64::from(sensor_odr_mhz) / 2;
         self.sample_rate_mhz = mhz;
-        self.next_due_milli = None;
+        self.discard();
         Ok(())
+    }
+
+    /// Forget the slot being filled (at stop: its conversions are not streamed, and no
+    /// sequence number is spent on them) and restart the grid at the next conversion.
+    pub fn discard(&mut self) {
+        self.open = None;
+        self.last_end_milli = None;
     }
 
     /// The 64-bit time of a raw counter value read now (for timeouts); it also keeps the
@@ -86,8 +124,9 @@ impl Sampler {
         self.extender.extend(raw)
     }
 
-    /// A sensor sample; returns it as a stream sample if it is the one nearest the next
-    /// grid point and `streaming` is on (sequence numbers advance only for streamed
+    /// A sensor conversion. It joins the open slot if its edge falls in it; otherwise it
+    /// closes that slot, which is returned as a stream sample, and opens the next. While
+    /// not `streaming` nothing is kept (sequence numbers advance only for streamed
     /// samples, so the host sees a gap only where a sample was lost).
     pub fn accept(
         &mut self,
@@ -97,19 +136,8 @@ impl Sampler {
         streaming: bool,
     ) -> Option<StreamSample> {
         let t = self.extender.extend(capture);
-        let t_milli = t.0.saturating_mul(1000);
-        let due = *self.next_due_milli.get_or_insert(t_milli);
-        if t_milli.saturating_add(self.half_sensor_milli) < due {
-            return None;
-        }
-        // Next grid point; after a pause (idle, or edges missing) restart from here
-        // rather than emit a burst to catch up.
-        let mut next = due.saturating_add(self.period_milli);
-        if next <= t_milli {
-            next = t_milli.saturating_add(self.period_milli);
-        }
-        self.next_due_milli = Some(next);
         if !streaming {
+            self.discard();
             return None;
         }
         let mut flags = 0;
@@ -119,13 +147,43 @@ impl Sampler {
         if late {
             flags |= SampleFlags::LATE_TIMESTAMP;
         }
+        let t_milli = t.0.saturating_mul(1000);
+        if let Some(o) = &mut self.open {
+            if t_milli < o.end_milli {
+                let gap = t.since(o.last).and_then(|d| u16::try_from(d).ok());
+                if let Some(Ok(())) = gap.map(|g| o.aperture.push_gap(g)) {
+                    o.last = t;
+                    for (s, c) in o.sums.iter_mut().zip(counts) {
+                        *s = s.saturating_add(i32::from(c));
+                    }
+                    o.flags |= flags;
+                    return None;
+                }
+            }
+        }
+        // A new slot: the next of the grid, or, after a pause (or a conversion the open
+        // slot could not take), a grid restarted here.
+        let closed = self.open.take();
+        let start = match closed.map(|o| o.end_milli).or(self.last_end_milli) {
+            Some(end) if t_milli >= end && t_milli < end.saturating_add(self.period_milli) => end,
+            _ => t_milli,
+        };
+        self.open = Some(Open {
+            aperture: Aperture::point(t),
+            last: t,
+            sums: counts.map(i32::from),
+            flags,
+            end_milli: start.saturating_add(self.period_milli),
+        });
+        let o = closed?;
+        self.last_end_milli = Some(o.end_milli);
         let seq = self.next_seq;
         self.next_seq = self.next_seq.wrapping_add(1);
         Some(StreamSample {
             seq,
-            t,
-            counts,
-            flags,
+            aperture: o.aperture,
+            sums: o.sums,
+            flags: o.flags,
         })
     }
 }

@@ -161,7 +161,10 @@ impl Session {
         let Some(a) = &mut self.active else {
             return;
         };
-        if a.fit.update(s.t, s.counts.map(f32::from)).is_err() {
+        if a.fit
+            .update_sum(&s.aperture, s.sums.map(|v| v as f32))
+            .is_err()
+        {
             return;
         }
         a.first_seq.get_or_insert(s.seq);

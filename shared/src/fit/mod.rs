@@ -25,7 +25,7 @@ mod linalg;
 use crate::dword::{Accumulator, DoubleWord, Split};
 use crate::phase::PhaseStep;
 use crate::real::Real;
-use crate::time::{TickRate, Ticks};
+use crate::time::{Aperture, TickRate, Ticks};
 use linalg::{at, at_mut, el, el_mut, Cholesky, Mat, Vector};
 
 /// Most parameters any [`Model`] has.
@@ -317,7 +317,9 @@ pub struct SineFit<T, const CH: usize = 3> {
     n: u32,
     t_first: Ticks,
     t_last: Ticks,
-    /// Upper triangle of HᵀH, row by row, over the model's parameters.
+    /// Conversions in the samples (each sample's aperture length), for the centroid.
+    conversions: u64,
+    /// Upper triangle of HᵀH (weighted), row by row, over the model's parameters.
     info: [Accumulator<T>; PACKED],
     rhs: [[Accumulator<T>; MAX_PARAMS]; CH],
     yy: [Accumulator<T>; CH],
@@ -331,6 +333,7 @@ impl<T: Real, const CH: usize> SineFit<T, CH> {
             n: 0,
             t_first: Ticks(0),
             t_last: Ticks(0),
+            conversions: 0,
             info: [Accumulator::ZERO; PACKED],
             rhs: [[Accumulator::ZERO; MAX_PARAMS]; CH],
             yy: [Accumulator::ZERO; CH],
@@ -359,16 +362,33 @@ impl<T: Real, const CH: usize> SineFit<T, CH> {
 
     /// Add one sample: its tick and one value per channel.
     pub fn update(&mut self, t: Ticks, y: [T; CH]) -> Result<(), FitError> {
+        self.update_sum(&Aperture::point(t), y)
+    }
+
+    /// Add one averaged sample: the instants of the conversions it averages and, per
+    /// channel, the *sum* of their readings (on the device an exact integer).
+    ///
+    /// Its expected value is `H·x` with `H` the sum of the conversions' regressor rows,
+    /// each in double word from its exact integer phase; its variance under white
+    /// conversion noise is `n·σ²`, so it is weighted by `1/n`. That is the weighted fit of
+    /// the averages `Y/n` on the averaged regressors `H/n` with weights `n`, and σ̂ is the
+    /// noise of one conversion. The weighted sums `Σ H·Hᵀ/n`, `Σ H·Y/n` and `Σ Y²/n` are
+    /// formed from `G = H/n` in double word, so no product loses more than the
+    /// unweighted fit's; for `n = 1` every operation is the plain sample's.
+    pub fn update_sum(&mut self, ap: &Aperture, y: [T; CH]) -> Result<(), FitError> {
         if let Some(channel) = y.iter().position(|v| !v.is_finite()) {
             return Err(FitError::NonFiniteSample {
                 channel: u8::try_from(channel).unwrap_or(u8::MAX),
             });
         }
-        if let Some(channel) = y.iter().position(|v| v.abs() > T::MAX_SAMPLE) {
+        let count = ap.len().max(1) as u64;
+        let limit = T::MAX_SAMPLE * T::from_u64(count);
+        if let Some(channel) = y.iter().position(|v| v.abs() > limit) {
             return Err(FitError::SampleOutOfRange {
                 channel: u8::try_from(channel).unwrap_or(u8::MAX),
             });
         }
+        let t = ap.first();
         if self.n > 0 && t < self.t_last {
             return Err(FitError::TimeWentBackwards {
                 previous: self.t_last,
@@ -382,38 +402,63 @@ impl<T: Real, const CH: usize> SineFit<T, CH> {
             self.t_first = t;
         }
         let model = self.cfg.model;
-        let tau = if model.has_time_terms() {
-            self.tau(t)
-        } else {
-            T::ZERO
-        };
-        let (s, c) = self.cfg.step.phase_at(t).sin_cos::<T>();
         let p = model.n_params();
+        let mut sum: Option<Vector<DoubleWord<T>>> = None;
+        for ti in ap.ticks() {
+            let tau = if model.has_time_terms() {
+                self.tau(ti)
+            } else {
+                T::ZERO
+            };
+            let (s, c) = self.cfg.step.phase_at(ti).sin_cos::<T>();
+            let row = model.regressors(s, c, tau);
+            sum = Some(match sum {
+                None => row,
+                Some(mut acc) => {
+                    for (a, r) in acc.iter_mut().zip(row).take(p) {
+                        *a = *a + r;
+                    }
+                    acc
+                }
+            });
+        }
+        let h = sum.unwrap_or([DoubleWord::ZERO; MAX_PARAMS]);
+        let w = T::from_u64(count);
+        let g = if count == 1 { h } else { h.map(|x| x.div_t(w)) };
         // (leading part split for exact products, trailing part)
-        let h = model
-            .regressors(s, c, tau)
-            .map(|r| (Split::new(r.hi), r.lo));
+        let hs = h.map(|r| (Split::new(r.hi), r.lo));
+        let gs = if count == 1 {
+            hs
+        } else {
+            g.map(|r| (Split::new(r.hi), r.lo))
+        };
 
         let mut info = self.info.iter_mut();
-        for (i, (hi, li)) in h.iter().take(p).enumerate() {
-            for (hj, lj) in h.iter().take(p).skip(i) {
+        for (i, (gi, li)) in gs.iter().take(p).enumerate() {
+            for (hj, lj) in hs.iter().take(p).skip(i) {
                 if let Some(acc) = info.next() {
-                    let (prod, err) = hi.two_prod(*hj);
-                    acc.add_dw(prod, err + (hi.value() * *lj + *li * hj.value()));
+                    let (prod, err) = gi.two_prod(*hj);
+                    acc.add_dw(prod, err + (gi.value() * *lj + *li * hj.value()));
                 }
             }
         }
         for ((rhs, yy), yv) in self.rhs.iter_mut().zip(self.yy.iter_mut()).zip(y) {
             let ys = Split::new(yv);
-            for (acc, (hv, lv)) in rhs.iter_mut().zip(h).take(p) {
-                let (prod, err) = hv.two_prod(ys);
+            for (acc, (gv, lv)) in rhs.iter_mut().zip(gs).take(p) {
+                let (prod, err) = gv.two_prod(ys);
                 acc.add_dw(prod, err + lv * yv);
             }
-            let (sq, err) = ys.two_prod(ys);
-            yy.add_dw(sq, err);
+            let q = if count == 1 {
+                DoubleWord::from_t(yv)
+            } else {
+                DoubleWord::from_t(yv).div_t(w)
+            };
+            let (sq, err) = Split::new(q.hi).two_prod(ys);
+            yy.add_dw(sq, err + q.lo * yv);
         }
         self.n += 1;
-        self.t_last = t;
+        self.conversions = self.conversions.saturating_add(count);
+        self.t_last = ap.last();
         if self.n % RENORMALISE_EVERY == 0 {
             let sums = self.info.iter_mut().chain(self.yy.iter_mut());
             for acc in sums.chain(self.rhs.iter_mut().flatten()) {
@@ -468,7 +513,9 @@ impl<T: Real, const CH: usize> SineFit<T, CH> {
             } else {
                 at(&m, 0, 3)?.to_f64() + at(&m, 1, 4)?.to_f64()
             };
-            let mean_ticks = sum_tau / f64::from(self.n) * f64::from(self.cfg.clock.hz());
+            // Both sums run over every conversion (weight 1/n times n conversions).
+            let mean_ticks =
+                sum_tau / self.conversions.max(1) as f64 * f64::from(self.cfg.clock.hz());
             let t_ref = Ticks(
                 self.t_first
                     .0

@@ -30,7 +30,9 @@ use crate::fit::noise::{self, NoiseError, NoiseModel};
 use crate::recording::{Group, Method, Recording};
 use nalgebra::DMatrix;
 use rotacal_shared::intrinsic::{self, ConditionFit};
-use rotacal_shared::{Condition, FitConfig, FitResult, Param, PhaseStep, SineFit, TickRate, Ticks};
+use rotacal_shared::{
+    Aperture, Condition, FitConfig, FitResult, Param, PhaseStep, SineFit, TickRate, Ticks,
+};
 use std::f64::consts::TAU;
 
 /// Command-line choices, which override the file's metadata.
@@ -95,21 +97,45 @@ fn err(rec: &Recording, line: Option<u64>, message: impl Into<String>) -> Calibr
     }
 }
 
-/// A group's samples as (ticks of the 1 MHz clock from its first row, [u, v, w]): the
-/// times and phases every rotation fit here uses.
-pub fn samples(rec: &Recording, g: &Group) -> Result<Vec<(Ticks, [f64; 3])>, CalibrateError> {
+/// A group's samples: the instants of the conversions each row averages, in ticks of the
+/// 1 MHz clock from its first row (one, at `t_s`, without a `conv_gaps` column), and
+/// [u, v, w]. The times and phases every rotation fit here uses.
+pub fn samples(rec: &Recording, g: &Group) -> Result<Vec<batch::Sample>, CalibrateError> {
     let t0 = g.t_s.first().copied().unwrap_or(0.0);
-    g.t_s
+    // conv_gaps count device ticks; here they become ticks of CLOCK (exact at 1 MHz).
+    let scale = f64::from(CLOCK.hz())
+        / f64::from(crate::recording::tick_hz(&rec.meta).unwrap_or(CLOCK.hz()));
+    let out_of_range = || err(rec, Some(g.first_line), "t_s out of range");
+    let mut out = Vec::with_capacity(g.len());
+    for (i, (t, (u, (v, w)))) in g
+        .t_s
         .iter()
         .zip(g.u.iter().zip(g.v.iter().zip(g.w.iter())))
-        .map(|(t, (u, (v, w)))| {
-            let ticks = ((t - t0) * f64::from(CLOCK.hz())).round();
-            if !(0.0..1.8e19).contains(&ticks) {
-                return Err(err(rec, Some(g.first_line), "t_s out of range"));
+        .enumerate()
+    {
+        let ticks = ((t - t0) * f64::from(CLOCK.hz())).round();
+        if !(0.0..1.8e19).contains(&ticks) {
+            return Err(out_of_range());
+        }
+        let first = Ticks(ticks as u64);
+        let ap = match g.conversions.as_ref().and_then(|c| c.get(i)) {
+            Some(c) if c.len() > 1 => {
+                let gaps: Vec<u16> = c
+                    .gaps()
+                    .iter()
+                    .map(|d| (f64::from(*d) * scale).round())
+                    .map(|d| u16::try_from(d as u64).ok().filter(|d| *d > 0))
+                    .collect::<Option<_>>()
+                    .ok_or_else(|| {
+                        err(rec, Some(g.first_line), "conv_gaps beyond 65 ms at 1 MHz")
+                    })?;
+                Aperture::new(first, &gaps).ok_or_else(out_of_range)?
             }
-            Ok((Ticks(ticks as u64), [*u, *v, *w]))
-        })
-        .collect()
+            _ => Aperture::point(first),
+        };
+        out.push((ap, [*u, *v, *w]));
+    }
+    Ok(out)
 }
 
 /// One condition's fit at one rate: the coefficients of the streaming fit in f64, and
@@ -161,11 +187,13 @@ impl GroupFit {
     }
 }
 
-/// The streaming fit of (sin, cos, 1) at `step` in f64.
-fn fit_at(s: &[(Ticks, [f64; 3])], step: PhaseStep) -> Result<FitResult<f64>, String> {
+/// The streaming fit of (sin, cos, 1) at `step` in f64 (an average enters as its sum).
+fn fit_at(s: &[batch::Sample], step: PhaseStep) -> Result<FitResult<f64>, String> {
     let mut fit = SineFit::<f64>::new(FitConfig::sine(step, CLOCK));
-    for (t, y) in s {
-        fit.update(*t, *y).map_err(|e| e.to_string())?;
+    for (ap, y) in s {
+        let n = ap.len().max(1) as f64;
+        fit.update_sum(ap, y.map(|v| v * n))
+            .map_err(|e| e.to_string())?;
     }
     fit.solve().map_err(|e| e.to_string())
 }
@@ -179,25 +207,40 @@ const CLEANING_HARMONICS: std::ops::RangeInclusive<u32> = 2..=4;
 
 /// The noise model of each channel, from the residuals of the sine fit at `step` widened by
 /// [`CLEANING_HARMONICS`] and a trend, its level corrected for that wider fit.
-fn noise_models(s: &[(Ticks, [f64; 3])], step: PhaseStep) -> Result<[NoiseModel; 3], NoiseError> {
+fn noise_models(s: &[batch::Sample], step: PhaseStep) -> Result<[NoiseModel; 3], NoiseError> {
     let h = batch::design(s, step, CLOCK, rotacal_shared::Model::SINE, Ticks(0));
     let extra = 1 + 2 * CLEANING_HARMONICS.clone().count();
-    let t_end = s.last().map_or(1.0, |x| x.0 .0.max(1) as f64);
+    let t_end = s.last().map_or(1.0, |x| x.0.last().0.max(1) as f64);
+    const Q: usize = 1 + 2 * 3;
+    // The extra columns averaged over each sample's conversions and weighted as `h`'s.
+    let extra_rows: Vec<[f64; Q]> = s
+        .iter()
+        .map(|(ap, _)| {
+            let m = batch::mean_over(ap, |t| {
+                let mut r = [0.0; Q];
+                r[0] = t.0 as f64 / t_end - 0.5;
+                let alpha = step.phase_at(t).radians();
+                for (k, pair) in CLEANING_HARMONICS.clone().zip(r[1..].chunks_mut(2)) {
+                    let (sn, cs) = (f64::from(k) * alpha).sin_cos();
+                    if let [a, b] = pair {
+                        *a = sn;
+                        *b = cs;
+                    }
+                }
+                r
+            });
+            m.map(|v| v * batch::root_weight(ap))
+        })
+        .collect();
     let wide = DMatrix::from_fn(s.len(), 3 + extra, |i, j| {
         if j < 3 {
             return h[(i, j)];
         }
-        let t = s.get(i).map_or(0, |x| x.0 .0);
-        if j == 3 {
-            return t as f64 / t_end - 0.5;
-        }
-        let k = f64::from(*CLEANING_HARMONICS.start()) + ((j - 4) / 2) as f64;
-        let (sn, cs) = (k * step.phase_at(Ticks(t)).radians()).sin_cos();
-        if j % 2 == 0 {
-            sn
-        } else {
-            cs
-        }
+        extra_rows
+            .get(i)
+            .and_then(|r| r.get(j - 3))
+            .copied()
+            .unwrap_or(0.0)
     });
     // Normal equations: the columns are near-orthogonal (sines, a centred trend), so their
     // Cholesky solve is as good as QR here and needs no N × q factor. Readings on a rail are
@@ -205,8 +248,12 @@ fn noise_models(s: &[(Ticks, [f64; 3])], step: PhaseStep) -> Result<[NoiseModel;
     let full = wide.tr_mul(&wide);
     let mut models = Vec::with_capacity(3);
     for ch in 0..3 {
-        let y = nalgebra::DVector::from_iterator(s.len(), s.iter().map(|(_, y)| y[ch]));
-        let flags = noise::clipped(y.as_slice());
+        let plain: Vec<f64> = s.iter().map(|(_, y)| y[ch]).collect();
+        let flags = noise::clipped(&plain);
+        let y = nalgebra::DVector::from_iterator(
+            s.len(),
+            s.iter().map(|(ap, y)| batch::root_weight(ap) * y[ch]),
+        );
         let mut normal = full.clone();
         let mut rhs = wide.tr_mul(&y);
         for (i, _) in flags.iter().enumerate().filter(|(_, f)| **f) {
@@ -223,7 +270,7 @@ fn noise_models(s: &[(Ticks, [f64; 3])], step: PhaseStep) -> Result<[NoiseModel;
 
 /// The sandwich covariance of (A, B, C) per channel at `step` under `models`.
 fn sine_cov(
-    s: &[(Ticks, [f64; 3])],
+    s: &[batch::Sample],
     step: PhaseStep,
     models: &[NoiseModel; 3],
 ) -> Result<[[[f64; 3]; 3]; 3], NoiseError> {
@@ -243,7 +290,7 @@ fn sine_cov(
 fn fit_group(
     rec: &Recording,
     g: &Group,
-    s: &[(Ticks, [f64; 3])],
+    s: &[batch::Sample],
     nominal_hz: f64,
 ) -> Result<GroupFit, CalibrateError> {
     let cond = g.condition.letter();
@@ -263,7 +310,7 @@ fn fit_group(
     let fitted_step = PhaseStep::from_hz(four.rate_hz, CLOCK)
         .ok_or_else(|| err(rec, Some(g.first_line), "fitted rate unusable"))?;
     let span_s = match (s.first(), s.last()) {
-        (Some(a), Some(b)) => batch::seconds_between(b.0, a.0, CLOCK),
+        (Some(a), Some(b)) => batch::seconds_between(b.0.last(), a.0.first(), CLOCK),
         _ => 0.0,
     };
     let omega_per_sample = TAU * four.rate_hz * span_s / (s.len().max(2) - 1) as f64;
@@ -418,7 +465,7 @@ pub fn calibrate(rec: &Recording, opts: &Options) -> Result<CalibrationJson, Cal
                 }
                 let (Ok(fits), Ok(group_samples)) = (
                     <[GroupFit; 3]>::try_from(fits),
-                    <[Vec<(Ticks, [f64; 3])>; 3]>::try_from(group_samples),
+                    <[Vec<batch::Sample>; 3]>::try_from(group_samples),
                 ) else {
                     return Err(err(rec, None, "expected three conditions"));
                 };
@@ -840,7 +887,7 @@ fn gravity_source(b: &mut Budget, g: f64, u_g_loc: Option<f64>, cg: &[f64]) {
 /// the timestamps.
 fn rotation_budget(
     fits: &[GroupFit; 3],
-    samples: &[Vec<(Ticks, [f64; 3])>; 3],
+    samples: &[Vec<batch::Sample>; 3],
     cal: &methods::RotationCalibration,
     g: f64,
     inputs: &TypeB,

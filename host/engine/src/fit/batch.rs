@@ -7,7 +7,7 @@
 //! values without going through its transformation.
 
 use nalgebra::{DMatrix, DVector};
-use rotacal_shared::{Model, PhaseStep, TickRate, Ticks};
+use rotacal_shared::{Aperture, Model, PhaseStep, TickRate, Ticks};
 use std::f64::consts::TAU;
 
 /// One fitted channel.
@@ -51,18 +51,6 @@ pub enum BatchError {
     /// The iterated fit did not converge.
     #[error("four-parameter fit did not converge in {0} iterations")]
     NoConvergence(usize),
-}
-
-fn regressor_row(model: Model, s: f64, c: f64, tau: f64) -> Vec<f64> {
-    let mut h = vec![s, c, 1.0];
-    if model.offset_drift {
-        h.push(tau);
-    }
-    if model.rate_error {
-        h.push(tau * s);
-        h.push(tau * c);
-    }
-    h
 }
 
 /// Seconds from `t_ref` to `t` (negative before it).
@@ -211,10 +199,33 @@ impl IncrementalQr {
     }
 }
 
-/// Fit `model` to samples `(t, [u, v, w])` with rotation `step` per tick; τ terms are
-/// taken about `t_ref`.
+/// One streamed sample: the instants of the conversions it averages (ticks of the fit's
+/// clock) and each channel's average over them. A plain sample is an aperture of one.
+pub type Sample = (Aperture, [f64; 3]);
+
+/// √n for an average of `ap`'s n conversions: the factor its row and value are scaled by,
+/// so that least squares weights it by n (its variance is σ²/n for white conversions).
+pub fn root_weight(ap: &Aperture) -> f64 {
+    (ap.len().max(1) as f64).sqrt()
+}
+
+/// `f` averaged over the conversions of `ap` (a mean of n values, exactly the model of an
+/// average; for one conversion, `f` at it).
+pub fn mean_over<const K: usize>(ap: &Aperture, f: impl Fn(Ticks) -> [f64; K]) -> [f64; K] {
+    let mut acc = [0.0; K];
+    for t in ap.ticks() {
+        for (a, v) in acc.iter_mut().zip(f(t)) {
+            *a += v;
+        }
+    }
+    let n = ap.len().max(1) as f64;
+    acc.map(|a| a / n)
+}
+
+/// Fit `model` to samples with rotation `step` per tick; τ terms are taken about `t_ref`.
+/// Averages are weighted by their conversion counts: rows and values scaled by √n.
 pub fn fit(
-    samples: &[(Ticks, [f64; 3])],
+    samples: &[Sample],
     step: PhaseStep,
     clock: TickRate,
     model: Model,
@@ -222,18 +233,19 @@ pub fn fit(
 ) -> Result<BatchFit, BatchError> {
     let h = design(samples, step, clock, model, t_ref);
     let mut ys = vec![DVector::zeros(samples.len()); 3];
-    for (i, (_, y)) in samples.iter().enumerate() {
+    for (i, (ap, y)) in samples.iter().enumerate() {
+        let w = root_weight(ap);
         for (ch, v) in y.iter().enumerate() {
-            ys[ch][i] = *v;
+            ys[ch][i] = w * *v;
         }
     }
     solve_qr(h, &ys)
 }
 
-/// The regressor matrix of `model` at the sample times (the exact integer phase; τ terms
-/// about `t_ref`), one row per sample.
+/// The regressor matrix of `model` (the exact integer phase; τ terms about `t_ref`), one
+/// row per sample: the mean of the rows at its conversions, times √n (see [`fit`]).
 pub fn design(
-    samples: &[(Ticks, [f64; 3])],
+    samples: &[Sample],
     step: PhaseStep,
     clock: TickRate,
     model: Model,
@@ -241,14 +253,23 @@ pub fn design(
 ) -> DMatrix<f64> {
     let p = model.n_params();
     let mut h = DMatrix::zeros(samples.len(), p);
-    for (i, (t, _)) in samples.iter().enumerate() {
-        let (s, c) = step.phase_at(*t).sin_cos::<f64>();
-        let tau = seconds_between(*t, t_ref, clock);
-        for (j, v) in regressor_row(model, s.hi, c.hi, tau)
-            .into_iter()
-            .enumerate()
-        {
-            h[(i, j)] = v;
+    for (i, (ap, _)) in samples.iter().enumerate() {
+        let w = root_weight(ap);
+        let [s, c, tau, ts, tc] = mean_over(ap, |t| {
+            let (s, c) = step.phase_at(t).sin_cos::<f64>();
+            let tau = seconds_between(t, t_ref, clock);
+            [s.hi, c.hi, tau, tau * s.hi, tau * c.hi]
+        });
+        let mut row = vec![s, c, 1.0];
+        if model.offset_drift {
+            row.push(tau);
+        }
+        if model.rate_error {
+            row.push(ts);
+            row.push(tc);
+        }
+        for (j, v) in row.into_iter().enumerate() {
+            h[(i, j)] = w * v;
         }
     }
     h
@@ -276,35 +297,42 @@ pub struct FourParamFit {
 /// below 1e-3 of its standard error, or below the resolution of a [`PhaseStep`]. The starting rate (nominal) must be within about
 /// 1/(4·span) Hz of the truth, as for any IEEE 1057 fit.
 pub fn fit_four_param(
-    samples: &[(Ticks, [f64; 3])],
+    samples: &[Sample],
     nominal: PhaseStep,
     clock: TickRate,
 ) -> Result<FourParamFit, BatchError> {
     const MAX_ITER: usize = 50;
     let n = samples.len();
+    let (Some(first), Some(last_s)) = (samples.first(), samples.last()) else {
+        return Err(BatchError::TooFewSamples { n, needed: 8 });
+    };
     if n < 8 {
         return Err(BatchError::TooFewSamples { n, needed: 8 });
     }
-    let t_mid = Ticks((samples[0].0 .0 + samples[n - 1].0 .0) / 2);
+    let t_mid = Ticks((first.0.first().0 + last_s.0.last().0) / 2);
     let mut rate = nominal.to_hz(clock);
     let mut last = fit(samples, nominal, clock, Model::SINE, t_mid)?;
     for iter in 1..=MAX_ITER {
         let step = PhaseStep::from_hz(rate, clock).ok_or(BatchError::Singular)?;
         // Joint unknowns: (A, B, C) × 3 channels, then δω; 3N rows, folded in blocks.
         let mut joint = IncrementalQr::new(10);
-        for (t, v) in samples {
-            let (s, c) = step.phase_at(*t).sin_cos::<f64>();
-            let (s, c) = (s.hi, c.hi);
-            let tau = seconds_between(*t, t_mid, clock);
+        for (ap, v) in samples {
+            let w = root_weight(ap);
+            // Averages over the conversions of sin, cos, τ·sin and τ·cos.
+            let [s, c, ts, tc] = mean_over(ap, |t| {
+                let (s, c) = step.phase_at(t).sin_cos::<f64>();
+                let tau = seconds_between(t, t_mid, clock);
+                [s.hi, c.hi, tau * s.hi, tau * c.hi]
+            });
             for ch in 0..3 {
                 let a = last.channels[ch].coef[0];
                 let b = last.channels[ch].coef[1];
                 let mut h = [0.0; 10];
-                h[3 * ch] = s;
-                h[3 * ch + 1] = c;
-                h[3 * ch + 2] = 1.0;
-                h[9] = tau * (a * c - b * s);
-                joint.push(&h, v[ch]);
+                h[3 * ch] = w * s;
+                h[3 * ch + 1] = w * c;
+                h[3 * ch + 2] = w;
+                h[9] = w * (a * tc - b * ts);
+                joint.push(&h, w * v[ch]);
             }
         }
         let joint = joint.solve()?;

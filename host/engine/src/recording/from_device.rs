@@ -10,8 +10,9 @@
 //! Gaps: see [`Recorder`]. The BLE recorder (`record`) asks the device to replay what
 //! [`Recorder::missing`] lists and gives up what its ring no longer holds.
 
-use crate::recording::{Columns, Metadata, Row, Writer};
+use crate::recording::{Columns, Metadata, Row, Writer, TICK_HZ_KEY};
 use rotacal_shared::packet::{FitReport, Packet, QuickLook};
+use rotacal_shared::{Aperture, Ticks};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::io::{self, Write};
@@ -157,12 +158,17 @@ pub const COLUMNS: Columns = Columns {
     gravity: false,
     pose: false,
     unc: false,
+    conv_gaps: true,
 };
 
 impl<W: Write, F: Write> Recorder<W, F> {
     /// Start a recording with `meta`, timestamps in ticks of `tick_hz`.
     pub fn new(rows: W, fits: F, meta: &Metadata, tick_hz: u32) -> io::Result<Self> {
-        Self::with_writer(Writer::new(rows, meta, &COLUMNS)?, fits, tick_hz)
+        // `conv_gaps` counts ticks of this clock.
+        let mut meta = meta.clone();
+        meta.other
+            .insert(TICK_HZ_KEY.to_string(), tick_hz.to_string());
+        Self::with_writer(Writer::new(rows, &meta, &COLUMNS)?, fits, tick_hz)
     }
 
     /// Continue a recording whose preamble and header `rows` already hold.
@@ -307,6 +313,20 @@ impl<W: Write, F: Write> Recorder<W, F> {
                     let mut row = Row::new(b.condition, u, v, w);
                     row.seq = Some(u64::from(seq));
                     row.t_s = Some(t as f64 / f64::from(self.tick_hz));
+                    row.conv_gaps = Some(Aperture::point(Ticks(0)));
+                    self.sample(seq, row, b.replay)?;
+                }
+            }
+            Packet::Averages(b) => {
+                for (seq, ap, s) in b.iter() {
+                    // The average of the conversions: the sum is exact, and so is its
+                    // quotient's shortest decimal (the reader recovers the same f64).
+                    let n = ap.len().max(1) as f64;
+                    let [u, v, w] = s.sums.map(|x| f64::from(x) / n);
+                    let mut row = Row::new(b.condition, u, v, w);
+                    row.seq = Some(u64::from(seq));
+                    row.t_s = Some(ap.first().0 as f64 / f64::from(self.tick_hz));
+                    row.conv_gaps = Some(ap);
                     self.sample(seq, row, b.replay)?;
                 }
             }

@@ -312,6 +312,7 @@ pub fn import<W: Write>(
         gravity: spec.poses.is_some(),
         pose: spec.poses.is_some(),
         unc: false,
+        conv_gaps: false,
     };
     let mut meta = spec.meta.clone();
     meta.method = meta.method.or(Some(if spec.poses.is_some() {

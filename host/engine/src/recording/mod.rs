@@ -45,7 +45,7 @@ use std::fs::File;
 use std::io::{self, BufRead, BufReader, BufWriter, Read, Write};
 use std::path::Path;
 
-use rotacal_shared::Condition;
+use rotacal_shared::{Aperture, Condition, Ticks, MAX_CONVERSIONS};
 
 /// How the data were taken (formats.md `method`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
@@ -183,6 +183,9 @@ pub struct Group {
     pub temp_c: Option<Vec<f64>>,
     /// `u_unc, v_unc, w_unc` columns (written by `rotacal apply`), if the file has them.
     pub unc: Option<Vec<[f64; 3]>>,
+    /// `conv_gaps` column, if the file has one: the conversions each row averages, in
+    /// device ticks (`tick_hz`) with the first at tick 0 (it is `t_s`).
+    pub conversions: Option<Vec<Aperture>>,
     /// 1-based file line of the group's first row (for messages).
     pub first_line: u64,
 }
@@ -200,6 +203,7 @@ impl Group {
             seq: cols.seq.map(|_| Vec::new()),
             temp_c: cols.temp_c.map(|_| Vec::new()),
             unc: cols.unc.map(|_| Vec::new()),
+            conversions: cols.conv_gaps.map(|_| Vec::new()),
             first_line: line,
         }
     }
@@ -386,6 +390,8 @@ pub enum RecordingErrorKind {
     BadPose(&'static str),
     /// The file has `gx, gy, gz` columns, which only static calibration and `apply` use.
     NeedsConditions(String),
+    /// A `conv_gaps` field that is not a list of up to six tick counts from 1 to 65535.
+    BadConversions(String),
     /// A condition has no rows (at some rate, for a multi-rate file).
     MissingCondition {
         /// The missing condition.
@@ -475,6 +481,7 @@ impl fmt::Display for RecordingErrorKind {
                  length is {norm}"
             ),
             K::BadPose(why) => write!(f, "column pose: {why}"),
+            K::BadConversions(what) => write!(f, "conv_gaps {what}"),
             K::NeedsConditions(what) => write!(
                 f,
                 "{what} needs conditions x, y, z; this file gives gravity directions (gx, gy, \
@@ -491,7 +498,7 @@ impl fmt::Display for RecordingErrorKind {
 }
 
 /// The column names formats.md defines.
-pub const COLUMN_NAMES: [&str; 16] = [
+pub const COLUMN_NAMES: [&str; 17] = [
     "condition",
     "t_s",
     "angle_deg",
@@ -508,7 +515,12 @@ pub const COLUMN_NAMES: [&str; 16] = [
     "u_unc",
     "v_unc",
     "w_unc",
+    "conv_gaps",
 ];
+
+/// The metadata key giving the device clock's ticks per second, which `conv_gaps` counts
+/// (a positive integer; required with that column).
+pub const TICK_HZ_KEY: &str = "tick_hz";
 
 /// How far |(gx, gy, gz)| may be from 1 (rounding of written unit vectors).
 pub const UNIT_TOLERANCE: f64 = 1e-3;
@@ -620,6 +632,7 @@ struct ColumnIndex {
     seq: Option<usize>,
     temp_c: Option<usize>,
     rate_hz: Option<usize>,
+    conv_gaps: Option<usize>,
 }
 
 struct Parser<'a> {
@@ -791,6 +804,9 @@ impl Parser<'_> {
             }
             if let (Some(u), Some(v)) = (row.unc, g.unc.as_mut()) {
                 v.push(u);
+            }
+            if let (Some(a), Some(v)) = (row.conv_gaps, g.conversions.as_mut()) {
+                v.push(a);
             }
         }
 
@@ -1052,6 +1068,13 @@ impl Parser<'_> {
         let v = require("v")?;
         let w = require("w")?;
         let t_s = idx("t_s");
+        let conv_gaps = idx("conv_gaps");
+        if conv_gaps.is_some() && tick_hz(meta).is_none() {
+            return Err(at(RecordingErrorKind::BadMetadata(format!(
+                "column conv_gaps counts device ticks: it needs '# {TICK_HZ_KEY}=<ticks per \
+                 second>' (a positive integer)"
+            ))));
+        }
         let method = meta.method.unwrap_or(if gravity.is_some() {
             Method::Static
         } else if t_s.is_some() {
@@ -1089,6 +1112,7 @@ impl Parser<'_> {
                 seq: idx("seq"),
                 temp_c: idx("temp_c"),
                 rate_hz: idx("rate_hz"),
+                conv_gaps,
             },
             method,
         ))
@@ -1231,6 +1255,10 @@ fn parse_row<'r>(
     };
     let temp_c = parse_opt(rec, cols.temp_c, "temp_c")?;
     let rate_hz = parse_opt(rec, cols.rate_hz, "rate_hz")?;
+    let conv_gaps = match cols.conv_gaps {
+        Some(i) => Some(parse_gaps(field(rec, i))?),
+        None => None,
+    };
     if let Some(r) = rate_hz {
         if r <= 0.0 {
             return Err(RecordingErrorKind::NotPositive {
@@ -1251,6 +1279,7 @@ fn parse_row<'r>(
         rate_hz,
         gravity,
         pose,
+        conv_gaps,
         unc: match cols.unc {
             Some([a, b, c]) => Some([
                 parse_f64(rec, a, "u_unc")?,
@@ -1260,6 +1289,35 @@ fn parse_row<'r>(
             None => None,
         },
     })
+}
+
+/// A `conv_gaps` field: tick counts separated by single spaces (empty: one conversion).
+fn parse_gaps(f: &[u8]) -> Result<Aperture, RecordingErrorKind> {
+    let bad = |why: &str| RecordingErrorKind::BadConversions(format!("'{}': {why}", snippet(f)));
+    let text = std::str::from_utf8(f).map_err(|_| bad("not text"))?;
+    let mut gaps = Vec::new();
+    if !text.is_empty() {
+        for g in text.split(' ') {
+            let v: u16 = g
+                .parse()
+                .map_err(|_| bad("each gap is a whole number of ticks, 1 to 65535"))?;
+            gaps.push(v);
+        }
+    }
+    Aperture::new(Ticks(0), &gaps).ok_or_else(|| {
+        bad(&format!(
+            "at most {} gaps (conversions {MAX_CONVERSIONS}), none 0",
+            MAX_CONVERSIONS - 1
+        ))
+    })
+}
+
+/// The `tick_hz` metadata value, if it is a positive integer.
+pub fn tick_hz(meta: &Metadata) -> Option<u32> {
+    meta.other
+        .get(TICK_HZ_KEY)
+        .and_then(|v| v.parse::<u32>().ok())
+        .filter(|v| *v > 0)
 }
 
 /// The names the writer can write and the reader reads back unchanged.
@@ -1291,6 +1349,8 @@ pub struct Columns {
     /// `u_unc, v_unc, w_unc` after `w`: standard uncertainties of calibrated readings
     /// (`rotacal apply`; other readers ignore them).
     pub unc: bool,
+    /// `conv_gaps`, last: the conversions each row averages (needs `tick_hz` metadata).
+    pub conv_gaps: bool,
 }
 
 impl Columns {
@@ -1304,6 +1364,7 @@ impl Columns {
         gravity: false,
         pose: false,
         unc: false,
+        conv_gaps: false,
     };
     /// A plain static file: `condition,angle_deg,u,v,w`.
     pub const STATIC: Columns = Columns {
@@ -1315,6 +1376,7 @@ impl Columns {
         gravity: false,
         pose: false,
         unc: false,
+        conv_gaps: false,
     };
 
     /// The header line's names, in the order the writer puts them.
@@ -1341,6 +1403,9 @@ impl Columns {
         }
         if self.temp_c {
             out.push("temp_c");
+        }
+        if self.conv_gaps {
+            out.push("conv_gaps");
         }
         out
     }
@@ -1373,6 +1438,9 @@ pub struct Row<'a> {
     pub pose: Option<&'a str>,
     /// Standard uncertainties of u, v, w (calibrated readings).
     pub unc: Option<[f64; 3]>,
+    /// The conversions the row averages (only the gaps are written: the first is `t_s`),
+    /// in device ticks of the file's `tick_hz`.
+    pub conv_gaps: Option<Aperture>,
 }
 
 impl Row<'static> {
@@ -1391,6 +1459,7 @@ impl Row<'static> {
             gravity: None,
             pose: None,
             unc: None,
+            conv_gaps: None,
         }
     }
 }
@@ -1612,6 +1681,15 @@ impl<W: Write> Writer<W> {
         }
         if let Some(t) = opt(c.temp_c, "temp_c", row.temp_c)? {
             num(line, "temp_c", t)?;
+        }
+        if let Some(a) = opt(c.conv_gaps, "conv_gaps", row.conv_gaps)? {
+            line.push(',');
+            for (i, g) in a.gaps().iter().enumerate() {
+                if i > 0 {
+                    line.push(' ');
+                }
+                let _ = write!(line, "{g}");
+            }
         }
         line.push('\n');
         self.out.write_all(line.as_bytes())

@@ -16,6 +16,7 @@
 //! Seeded (ChaCha8), so the same configuration and seed give the same file.
 
 pub mod config;
+pub mod device;
 pub mod geometry;
 
 pub use config::{Config, ConfigError, Noise, NoiseSd, StepError, PRESETS};
@@ -603,6 +604,7 @@ impl Simulation {
             gravity: false,
             pose: false,
             unc: false,
+            conv_gaps: false,
         }
     }
 
@@ -813,6 +815,17 @@ impl Simulation {
     pub fn recording(&self) -> anyhow::Result<Recording> {
         let (_, buf) = self.write(Vec::new())?;
         Ok(recording::read_from(&buf[..], "simulated")?)
+    }
+
+    /// The recording the device would stream of this simulation, its conversions averaged
+    /// by the firmware's logic ([`device::record`]), read back as `calibrate` reads it.
+    pub fn recording_through_device(&self) -> anyhow::Result<Recording> {
+        let (mut rows, mut fits) = (Vec::new(), Vec::new());
+        device::record(self, &mut rows, &mut fits)?;
+        Ok(recording::read_from(
+            &rows[..],
+            "simulated through the device",
+        )?)
     }
 }
 

@@ -9,7 +9,7 @@
 use crate::fit::batch;
 use crate::verify::sigma_crlb;
 use rotacal_shared::synth::{crosscheck, Checksum, Synth, SynthSpec};
-use rotacal_shared::{DoubleWord, FitConfig, Model, SineFit, Ticks};
+use rotacal_shared::{Aperture, DoubleWord, FitConfig, Model, SineFit, Ticks};
 use serde::Serialize;
 use std::collections::BTreeMap;
 use std::time::Instant;
@@ -231,9 +231,9 @@ pub fn check(log: &DeviceLog) -> Result<Report, CheckError> {
             let spec =
                 crosscheck::spec(rec, axis).ok_or_else(|| CheckError::Missing(what.clone()))?;
             let (samples, sum) = samples_of(spec);
-            let samples_f64: Vec<(Ticks, [f64; 3])> = samples
+            let samples_f64: Vec<batch::Sample> = samples
                 .iter()
-                .map(|(t, c)| (*t, c.map(f64::from)))
+                .map(|(t, c)| (Aperture::point(*t), c.map(f64::from)))
                 .collect();
             rep.records
                 .insert(rec.name.to_string(), samples.len() as u32);
@@ -342,6 +342,7 @@ pub fn measure_throughput() -> Option<Throughput> {
         .iter()
         .map(|(t, c)| (*t, c.map(f64::from)))
         .collect();
+    let points: Vec<batch::Sample> = s64.iter().map(|(t, y)| (Aperture::point(*t), *y)).collect();
     let s32: Vec<(Ticks, [f32; 3])> = samples
         .iter()
         .map(|(t, c)| (*t, c.map(f32::from)))
@@ -351,7 +352,7 @@ pub fn measure_throughput() -> Option<Throughput> {
     let batch_rate = best(&|| {
         let start = Instant::now();
         let _ = std::hint::black_box(batch::fit(
-            &s64,
+            &points,
             spec.step,
             spec.clock,
             Model::SINE,

@@ -33,15 +33,17 @@ pub struct Comparison {
     pub max_delta_crlb: f64,
 }
 
-/// Fit `window` (ticks of the device clock, [u, v, w]) in f64 with the device's phase
-/// step and clock, and compare with its coefficients.
-pub fn compare(window: &[(Ticks, [f64; 3])], f: &FitLine) -> Result<Comparison, String> {
+/// Fit `window` (conversion instants in ticks of the device clock, averages of u, v, w) in
+/// f64 with the device's phase step and clock, weighted as the device weights, and
+/// compare with its coefficients. σ_CRLB counts every conversion.
+pub fn compare(window: &[batch::Sample], f: &FitLine) -> Result<Comparison, String> {
     let clock = TickRate::new(f.tick_hz).ok_or("fit log: tick_hz 0")?;
     let host = batch::fit(window, PhaseStep(f.step), clock, Model::SINE, Ticks(0))
         .map_err(|e| format!("condition {}: host fit: {e}", f.condition))?;
     let (mut max_se, mut max_crlb) = (0.0f64, 0.0f64);
+    let conversions: usize = window.iter().map(|(ap, _)| ap.len()).sum();
     for (h, device) in host.channels.iter().zip(&f.coef) {
-        let crlb = sigma_crlb(h.sigma, window.len());
+        let crlb = sigma_crlb(h.sigma, conversions);
         for (k, bound) in crlb.iter().enumerate() {
             let d = (device[k] - h.coef[k]).abs();
             max_se = max_se.max(d / h.se[k]);

@@ -9,7 +9,7 @@ use rotacal_shared::device::simulated::SessionSpec;
 use rotacal_shared::device::{Config, Device, RING};
 use rotacal_shared::intrinsic::{self, ConditionFit};
 use rotacal_shared::packet::{Packet, MAX_PACKET};
-use rotacal_shared::{TickRate, Ticks};
+use rotacal_shared::{Aperture, TickRate, Ticks};
 
 /// The device's clock in the simulated session (`Config::FEATHER`).
 const CLOCK: TickRate = Config::FEATHER.clock;
@@ -120,13 +120,18 @@ pub fn check(device: &[Vec<u8>]) -> anyhow::Result<SessionReport> {
     for (i, bytes) in device.iter().enumerate() {
         packets.push(Packet::decode(bytes).map_err(|e| anyhow::anyhow!("packet {i}: {e}"))?);
     }
-    let mut samples: Vec<(u32, Ticks, [f64; 3])> = Vec::new();
+    let mut samples: Vec<(u32, Aperture, [f64; 3])> = Vec::new();
     for p in &packets {
-        if let Packet::Samples(b) = p {
-            samples.extend(
+        match p {
+            Packet::Samples(b) => samples.extend(
                 b.iter()
-                    .map(|(seq, t, s)| (seq, Ticks(t), s.counts.map(f64::from))),
-            );
+                    .map(|(seq, t, s)| (seq, Aperture::point(Ticks(t)), s.counts.map(f64::from))),
+            ),
+            Packet::Averages(b) => samples.extend(b.iter().map(|(seq, ap, s)| {
+                let n = ap.len().max(1) as f64;
+                (seq, ap, s.sums.map(|v| f64::from(v) / n))
+            })),
+            _ => {}
         }
     }
     let seq_contiguous = samples.iter().enumerate().all(|(i, s)| s.0 as usize == i);
@@ -134,7 +139,7 @@ pub fn check(device: &[Vec<u8>]) -> anyhow::Result<SessionReport> {
     let mut finals: [Option<ConditionFit>; 3] = [None; 3];
     for p in &packets {
         let Packet::Fit(f) = p else { continue };
-        let window: Vec<(Ticks, [f64; 3])> = samples
+        let window: Vec<crate::fit::batch::Sample> = samples
             .iter()
             .filter(|s| s.0 >= f.first_seq && s.0 <= f.last_seq)
             .map(|s| (s.1, s.2))

@@ -9,8 +9,11 @@ use core::mem::size_of;
 use cortex_m_rt::entry;
 use panic_semihosting as _;
 use rotacal_qemu_tests::{exit, hprintln, Counter};
+use rotacal_shared::device::simulated::SessionSpec;
+use rotacal_shared::device::{Config, Device, RING};
+use rotacal_shared::packet::Command;
 use rotacal_shared::synth::{crosscheck, Synth};
-use rotacal_shared::{FitConfig, Model, SineFit, Ticks};
+use rotacal_shared::{Condition, FitConfig, Model, SineFit, Ticks};
 
 const N: usize = 4200;
 
@@ -78,10 +81,63 @@ fn main() -> ! {
         );
         hprintln!("bench solve_instructions[{}] {}", name, solve);
     }
+    ok &= device_costs(&mut counter);
     hprintln!("bench state_bytes_3ch {}", size_of::<SineFit<f32, 3>>());
     hprintln!(
         "bench result_bytes_3ch {}",
         size_of::<rotacal_shared::FitResult<f32, 3>>()
     );
     exit(ok)
+}
+
+/// The device logic at 104 Hz into 16 Hz (issue 15): instructions per conversion over a
+/// whole condition of the paper session (every conversion through `Device::on_sample` and
+/// `poll`, the averaging, the f32 fit of each averaged sample, batches, ring, reports), and
+/// the same split into the conversions that only join a slot and those that close one
+/// (and so carry the fit's update of an average of 6 or 7 conversions).
+fn device_costs(counter: &mut Counter) -> bool {
+    let spec = SessionSpec::PAPER;
+    let Some(sensor) = spec.sensor(Condition::X) else {
+        return false;
+    };
+    let mut dev = Device::<RING>::new(Config::FEATHER);
+    let mut packets = 0u32;
+    dev.on_command(
+        Command::Start {
+            condition: Condition::X,
+            rate_uhz: spec.rate_uhz,
+        },
+        &mut |_| packets += 1,
+    );
+    let (mut join, mut close, mut n_join, mut n_close) = (0u64, 0u64, 0u64, 0u64);
+    for s in sensor {
+        let before = dev.streamed();
+        let t0 = counter.now();
+        dev.on_sample(s.t.0, s.counts, false, &mut |_| packets += 1);
+        dev.poll(s.t.0, &mut |_| packets += 1);
+        let cost = counter.instructions(counter.now() - t0);
+        if dev.streamed() != before {
+            close += cost;
+            n_close += 1;
+        } else {
+            join += cost;
+            n_join += 1;
+        }
+    }
+    let n = n_join + n_close;
+    hprintln!(
+        "bench device_instructions_per_conversion {}",
+        (join + close) / n.max(1)
+    );
+    hprintln!(
+        "bench device_instructions_per_joining_conversion {}",
+        join / n_join.max(1)
+    );
+    hprintln!(
+        "bench device_instructions_per_closing_conversion {}",
+        close / n_close.max(1)
+    );
+    hprintln!("bench device_conversions {}", n);
+    hprintln!("bench device_samples {}", n_close);
+    packets > 0
 }
