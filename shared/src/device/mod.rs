@@ -24,9 +24,9 @@ use ring::Ring;
 use sampler::{Sampler, StreamSample};
 use session::Session;
 
-/// Samples the Feather keeps for backfill: 24 s at 16 Hz, 15 KiB of RAM (40 bytes each:
+/// Samples the Feather keeps for backfill: 20 s at 16 Hz, 15 KiB of RAM (48 bytes each:
 /// an averaged sample carries its sums and its conversions' instants).
-pub const RING: usize = 384;
+pub const RING: usize = 320;
 
 /// How the device is set up.
 #[derive(Clone, Copy, Debug, PartialEq)]

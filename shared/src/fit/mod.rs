@@ -362,7 +362,11 @@ impl<T: Real, const CH: usize> SineFit<T, CH> {
 
     /// Add one sample: its tick and one value per channel.
     pub fn update(&mut self, t: Ticks, y: [T; CH]) -> Result<(), FitError> {
-        self.update_sum(&Aperture::point(t), y)
+        self.admit(t, &y, T::MAX_SAMPLE)?;
+        let hs = self.row_at(t).map(|r| (Split::new(r.hi), r.lo));
+        self.accumulate(&hs, &hs, y, None);
+        self.advance(1, t);
+        Ok(())
     }
 
     /// Add one averaged sample: the instants of the conversions it averages and, per
@@ -374,21 +378,45 @@ impl<T: Real, const CH: usize> SineFit<T, CH> {
     /// the averages `Y/n` on the averaged regressors `H/n` with weights `n`, and σ̂ is the
     /// noise of one conversion. The weighted sums `Σ H·Hᵀ/n`, `Σ H·Y/n` and `Σ Y²/n` are
     /// formed from `G = H/n` in double word, so no product loses more than the
-    /// unweighted fit's; for `n = 1` every operation is the plain sample's.
+    /// unweighted fit's. An aperture of one is [`SineFit::update`].
     pub fn update_sum(&mut self, ap: &Aperture, y: [T; CH]) -> Result<(), FitError> {
+        let count = ap.len() as u64;
+        if count <= 1 {
+            return self.update(ap.first(), y);
+        }
+        let w = T::from_u64(count);
+        self.admit(ap.first(), &y, T::MAX_SAMPLE * w)?;
+        let p = self.cfg.model.n_params();
+        let mut h = self.row_at(ap.first());
+        for ti in ap.ticks().skip(1) {
+            for (a, r) in h.iter_mut().zip(self.row_at(ti)).take(p) {
+                *a = *a + r;
+            }
+        }
+        // (leading part split for exact products, trailing part)
+        let hs = h.map(|r| (Split::new(r.hi), r.lo));
+        let gs = h.map(|x| {
+            let g = x.div_t(w);
+            (Split::new(g.hi), g.lo)
+        });
+        self.accumulate(&gs, &hs, y, Some(w));
+        self.advance(count, ap.last());
+        Ok(())
+    }
+
+    /// Check a sample starting at `t` (values within `limit`) and take its time.
+    #[inline(always)]
+    fn admit(&mut self, t: Ticks, y: &[T; CH], limit: T) -> Result<(), FitError> {
         if let Some(channel) = y.iter().position(|v| !v.is_finite()) {
             return Err(FitError::NonFiniteSample {
                 channel: u8::try_from(channel).unwrap_or(u8::MAX),
             });
         }
-        let count = ap.len().max(1) as u64;
-        let limit = T::MAX_SAMPLE * T::from_u64(count);
         if let Some(channel) = y.iter().position(|v| v.abs() > limit) {
             return Err(FitError::SampleOutOfRange {
                 channel: u8::try_from(channel).unwrap_or(u8::MAX),
             });
         }
-        let t = ap.first();
         if self.n > 0 && t < self.t_last {
             return Err(FitError::TimeWentBackwards {
                 previous: self.t_last,
@@ -401,38 +429,47 @@ impl<T: Real, const CH: usize> SineFit<T, CH> {
         if self.n == 0 {
             self.t_first = t;
         }
-        let model = self.cfg.model;
-        let p = model.n_params();
-        let mut sum: Option<Vector<DoubleWord<T>>> = None;
-        for ti in ap.ticks() {
-            let tau = if model.has_time_terms() {
-                self.tau(ti)
-            } else {
-                T::ZERO
-            };
-            let (s, c) = self.cfg.step.phase_at(ti).sin_cos::<T>();
-            let row = model.regressors(s, c, tau);
-            sum = Some(match sum {
-                None => row,
-                Some(mut acc) => {
-                    for (a, r) in acc.iter_mut().zip(row).take(p) {
-                        *a = *a + r;
-                    }
-                    acc
-                }
-            });
-        }
-        let h = sum.unwrap_or([DoubleWord::ZERO; MAX_PARAMS]);
-        let w = T::from_u64(count);
-        let g = if count == 1 { h } else { h.map(|x| x.div_t(w)) };
-        // (leading part split for exact products, trailing part)
-        let hs = h.map(|r| (Split::new(r.hi), r.lo));
-        let gs = if count == 1 {
-            hs
-        } else {
-            g.map(|r| (Split::new(r.hi), r.lo))
-        };
+        Ok(())
+    }
 
+    /// The model's regressor row at tick `t`.
+    #[inline(always)]
+    fn row_at(&self, t: Ticks) -> Vector<DoubleWord<T>> {
+        let model = self.cfg.model;
+        let tau = if model.has_time_terms() {
+            self.tau(t)
+        } else {
+            T::ZERO
+        };
+        let (s, c) = self.cfg.step.phase_at(t).sin_cos::<T>();
+        model.regressors(s, c, tau)
+    }
+
+    /// One more sample of `count` conversions, its last at `t_last`.
+    #[inline(always)]
+    fn advance(&mut self, count: u64, t_last: Ticks) {
+        self.n += 1;
+        self.conversions = self.conversions.saturating_add(count);
+        self.t_last = t_last;
+        if self.n % RENORMALISE_EVERY == 0 {
+            let sums = self.info.iter_mut().chain(self.yy.iter_mut());
+            for acc in sums.chain(self.rhs.iter_mut().flatten()) {
+                acc.renormalise();
+            }
+        }
+    }
+
+    /// Add `G·Hᵀ`, `G·y` and `y·y/w` (w = 1 when `None`, then `G = H`) to the sums, each
+    /// product exact and summed in double word.
+    #[inline(always)]
+    fn accumulate(
+        &mut self,
+        gs: &Vector<(Split<T>, T)>,
+        hs: &Vector<(Split<T>, T)>,
+        y: [T; CH],
+        w: Option<T>,
+    ) {
+        let p = self.cfg.model.n_params();
         let mut info = self.info.iter_mut();
         for (i, (gi, li)) in gs.iter().take(p).enumerate() {
             for (hj, lj) in hs.iter().take(p).skip(i) {
@@ -446,26 +483,20 @@ impl<T: Real, const CH: usize> SineFit<T, CH> {
             let ys = Split::new(yv);
             for (acc, (gv, lv)) in rhs.iter_mut().zip(gs).take(p) {
                 let (prod, err) = gv.two_prod(ys);
-                acc.add_dw(prod, err + lv * yv);
+                acc.add_dw(prod, err + *lv * yv);
             }
-            let q = if count == 1 {
-                DoubleWord::from_t(yv)
-            } else {
-                DoubleWord::from_t(yv).div_t(w)
-            };
-            let (sq, err) = Split::new(q.hi).two_prod(ys);
-            yy.add_dw(sq, err + q.lo * yv);
-        }
-        self.n += 1;
-        self.conversions = self.conversions.saturating_add(count);
-        self.t_last = ap.last();
-        if self.n % RENORMALISE_EVERY == 0 {
-            let sums = self.info.iter_mut().chain(self.yy.iter_mut());
-            for acc in sums.chain(self.rhs.iter_mut().flatten()) {
-                acc.renormalise();
+            match w {
+                None => {
+                    let (sq, err) = ys.two_prod(ys);
+                    yy.add_dw(sq, err);
+                }
+                Some(w) => {
+                    let q = DoubleWord::from_t(yv).div_t(w);
+                    let (sq, err) = Split::new(q.hi).two_prod(ys);
+                    yy.add_dw(sq, err + q.lo * yv);
+                }
             }
         }
-        Ok(())
     }
 
     /// Seconds from the first sample to `t`, rounded to `T` the same way on every target.
