@@ -175,6 +175,14 @@ pub struct Average {
     pub flags: u8,
 }
 
+impl Average {
+    /// The mean of the conversions' raw counts u, v, w: the exact sums over the count.
+    pub fn mean(&self) -> [f64; 3] {
+        let n = f64::from(self.count.max(1));
+        self.sums.map(|x| f64::from(x) / n)
+    }
+}
+
 impl BatchSample for Average {
     const EMPTY: Average = Average {
         dt: 0,
@@ -809,14 +817,18 @@ impl Packet {
                 })
             }
         };
-        if version == VERSION_AVERAGES && k == kind::SAMPLES {
-            return decode_averages(bytes, b2, b3);
-        }
-        if version != VERSION {
+        // Version 2 is the averaged samples' layout; every other packet is version 1.
+        let averaged = version == VERSION_AVERAGES && k == kind::SAMPLES;
+        if version != VERSION && !averaged {
             return Err(DecodeError::Version(version));
         }
+        let (sample_size, max_samples) = if averaged {
+            (size::AVERAGE, MAX_AVERAGES)
+        } else {
+            (size::SAMPLE, MAX_SAMPLES)
+        };
         let want = match k {
-            kind::SAMPLES => size::SAMPLES_HEAD + size::SAMPLE * usize::from(b2),
+            kind::SAMPLES => size::SAMPLES_HEAD + sample_size * usize::from(b2),
             kind::TEMPERATURE => size::TEMPERATURE,
             kind::FIT => size::FIT,
             kind::QUICK_LOOK => size::QUICK_LOOK,
@@ -853,7 +865,7 @@ impl Packet {
         let mut i = In { buf: bytes, at: 4 };
         let packet = match k {
             kind::SAMPLES => {
-                if b2 == 0 || usize::from(b2) > MAX_SAMPLES {
+                if b2 == 0 || usize::from(b2) > max_samples {
                     return Err(DecodeError::Field {
                         offset: 2,
                         name: "sample count",
@@ -861,7 +873,12 @@ impl Packet {
                 }
                 zero(3, b3 & 0x7C, "batch flags")?;
                 let condition = cond(3, b3 & 0x03)?;
-                let mut b = SampleBatch::new(condition, b3 & 0x80 != 0, i.u32(), i.u64());
+                let (replay, first_seq, t0) = (b3 & 0x80 != 0, i.u32(), i.u64());
+                if averaged {
+                    let b = AverageBatch::new(condition, replay, first_seq, t0);
+                    return read_averages(&mut i, b, b2).map(Packet::Averages);
+                }
+                let mut b = SampleBatch::new(condition, replay, first_seq, t0);
                 for slot in b.samples.iter_mut().take(usize::from(b2)) {
                     let dt = i.u32();
                     let counts = [i.i16(), i.i16(), i.i16()];
@@ -1048,35 +1065,9 @@ impl Packet {
     }
 }
 
-/// Kind 0x01 under version 2: a header as version 1's samples, then `count` × 30 bytes.
-fn decode_averages(bytes: &[u8], b2: u8, b3: u8) -> Result<Packet, DecodeError> {
-    let got = bytes.len();
-    let want = size::SAMPLES_HEAD + size::AVERAGE * usize::from(b2);
-    if got < want {
-        return Err(DecodeError::TooShort { need: want, got });
-    }
-    if got > want {
-        return Err(DecodeError::TooLong { want, got });
-    }
-    if b2 == 0 || usize::from(b2) > MAX_AVERAGES {
-        return Err(DecodeError::Field {
-            offset: 2,
-            name: "sample count",
-        });
-    }
-    if b3 & 0x7C != 0 {
-        return Err(DecodeError::Field {
-            offset: 3,
-            name: "batch flags",
-        });
-    }
-    let condition = cond_from(b3 & 0x03).ok_or(DecodeError::Field {
-        offset: 3,
-        name: "condition",
-    })?;
-    let mut i = In { buf: bytes, at: 4 };
-    let mut b = AverageBatch::new(condition, b3 & 0x80 != 0, i.u32(), i.u64());
-    for slot in b.samples.iter_mut().take(usize::from(b2)) {
+/// The `n` samples of a version 2 batch (30 bytes each), after its header.
+fn read_averages(i: &mut In<'_>, mut b: AverageBatch, n: u8) -> Result<AverageBatch, DecodeError> {
+    for slot in b.samples.iter_mut().take(usize::from(n)) {
         let dt = i.u32();
         let count = i.u8();
         if count == 0 || usize::from(count) > MAX_CONVERSIONS {
@@ -1117,6 +1108,6 @@ fn decode_averages(bytes: &[u8], b2: u8, b3: u8) -> Result<Packet, DecodeError> 
             flags,
         };
     }
-    b.len = b2;
-    Ok(Packet::Averages(b))
+    b.len = n;
+    Ok(b)
 }

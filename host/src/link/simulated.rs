@@ -9,6 +9,7 @@
 //! protocol version.
 
 use super::{Channel, Link, LinkError};
+use crate::simulate::device::Conversion;
 use crate::simulate::Simulation;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -52,14 +53,6 @@ impl Default for Faults {
 /// The firmware version the simulated device reports by default (the firmware crate's).
 pub const FIRMWARE: [u8; 3] = [0, 2, 0];
 
-/// One sensor conversion: seconds from the condition's start, raw counts, °C.
-#[derive(Clone, Copy, Debug)]
-struct Conversion {
-    t: f64,
-    counts: [i16; 3],
-    temp_c: f64,
-}
-
 /// The counter value at the first connection: near 2³² so the 32-bit TIMER wraps early.
 const COUNTER_START: u64 = 0xFFF0_0000;
 const COUNTER_MASK: u64 = 0xFFFF_FFFF;
@@ -93,22 +86,7 @@ impl SimulatedDevice {
     /// A device whose sensor sees what `sim` simulates. `sim` should run at the sensor's
     /// output rate (104 Hz for the Feather's LSM6DS33), in counts, within i16.
     pub fn new(sim: &Simulation, faults: Faults) -> anyhow::Result<Self> {
-        let mut streams: [Vec<Conversion>; 3] = Default::default();
-        let mut starts: [Option<f64>; 3] = [None; 3];
-        sim.run(|row| {
-            let i = row.condition.index();
-            let t = row.t_s.unwrap_or(0.0);
-            let t0 = *starts[i].get_or_insert(t);
-            let count = |x: f64| x.round().clamp(-32768.0, 32767.0) as i16;
-            if let Some(s) = streams.get_mut(i) {
-                s.push(Conversion {
-                    t: t - t0,
-                    counts: [count(row.u), count(row.v), count(row.w)],
-                    temp_c: row.temp_c.unwrap_or(25.0),
-                });
-            }
-            Ok(())
-        })?;
+        let streams = crate::simulate::device::conversions(sim)?;
         Ok(SimulatedDevice {
             device: Device::new(Config::FEATHER),
             streams,

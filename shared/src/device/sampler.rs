@@ -40,7 +40,6 @@ impl StreamSample {
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 struct Open {
     aperture: Aperture,
-    last: Ticks,
     sums: [i32; 3],
     flags: u8,
     /// End of the slot, ticks × 1000.
@@ -150,9 +149,10 @@ impl Sampler {
         let t_milli = t.0.saturating_mul(1000);
         if let Some(o) = &mut self.open {
             if t_milli < o.end_milli {
-                let gap = t.since(o.last).and_then(|d| u16::try_from(d).ok());
+                let gap = t
+                    .since(o.aperture.last())
+                    .and_then(|d| u16::try_from(d).ok());
                 if let Some(Ok(())) = gap.map(|g| o.aperture.push_gap(g)) {
-                    o.last = t;
                     for (s, c) in o.sums.iter_mut().zip(counts) {
                         *s = s.saturating_add(i32::from(c));
                     }
@@ -170,7 +170,6 @@ impl Sampler {
         };
         self.open = Some(Open {
             aperture: Aperture::point(t),
-            last: t,
             sums: counts.map(i32::from),
             flags,
             end_milli: start.saturating_add(self.period_milli),

@@ -30,9 +30,7 @@ use crate::fit::noise::{self, NoiseError, NoiseModel};
 use crate::recording::{Group, Method, Recording};
 use nalgebra::DMatrix;
 use rotacal_shared::intrinsic::{self, ConditionFit};
-use rotacal_shared::{
-    Aperture, Condition, FitConfig, FitResult, Param, PhaseStep, SineFit, TickRate, Ticks,
-};
+use rotacal_shared::{Condition, FitConfig, FitResult, Param, PhaseStep, SineFit, TickRate, Ticks};
 use std::f64::consts::TAU;
 
 /// Command-line choices, which override the file's metadata.
@@ -105,7 +103,6 @@ pub fn samples(rec: &Recording, g: &Group) -> Result<Vec<batch::Sample>, Calibra
     // conv_gaps count device ticks; here they become ticks of CLOCK (exact at 1 MHz).
     let scale = f64::from(CLOCK.hz())
         / f64::from(crate::recording::tick_hz(&rec.meta).unwrap_or(CLOCK.hz()));
-    let out_of_range = || err(rec, Some(g.first_line), "t_s out of range");
     let mut out = Vec::with_capacity(g.len());
     for (i, (t, (u, (v, w)))) in g
         .t_s
@@ -115,24 +112,11 @@ pub fn samples(rec: &Recording, g: &Group) -> Result<Vec<batch::Sample>, Calibra
     {
         let ticks = ((t - t0) * f64::from(CLOCK.hz())).round();
         if !(0.0..1.8e19).contains(&ticks) {
-            return Err(out_of_range());
+            return Err(err(rec, Some(g.first_line), "t_s out of range"));
         }
-        let first = Ticks(ticks as u64);
-        let ap = match g.conversions.as_ref().and_then(|c| c.get(i)) {
-            Some(c) if c.len() > 1 => {
-                let gaps: Vec<u16> = c
-                    .gaps()
-                    .iter()
-                    .map(|d| (f64::from(*d) * scale).round())
-                    .map(|d| u16::try_from(d as u64).ok().filter(|d| *d > 0))
-                    .collect::<Option<_>>()
-                    .ok_or_else(|| {
-                        err(rec, Some(g.first_line), "conv_gaps beyond 65 ms at 1 MHz")
-                    })?;
-                Aperture::new(first, &gaps).ok_or_else(out_of_range)?
-            }
-            _ => Aperture::point(first),
-        };
+        let ap = g
+            .aperture(i, Ticks(ticks as u64), scale)
+            .ok_or_else(|| err(rec, Some(g.first_line), "conv_gaps beyond 65 ms at 1 MHz"))?;
         out.push((ap, [*u, *v, *w]));
     }
     Ok(out)
@@ -205,43 +189,36 @@ fn fit_at(s: &[batch::Sample], step: PhaseStep) -> Result<FitResult<f64>, String
 /// 170 at ω.
 const CLEANING_HARMONICS: std::ops::RangeInclusive<u32> = 2..=4;
 
+/// The cleaning fit's columns beyond the sine's: a trend, then sin and cos of each harmonic.
+const CLEANING_COLUMNS: usize =
+    1 + 2 * (*CLEANING_HARMONICS.end() - *CLEANING_HARMONICS.start() + 1) as usize;
+
 /// The noise model of each channel, from the residuals of the sine fit at `step` widened by
 /// [`CLEANING_HARMONICS`] and a trend, its level corrected for that wider fit.
 fn noise_models(s: &[batch::Sample], step: PhaseStep) -> Result<[NoiseModel; 3], NoiseError> {
     let h = batch::design(s, step, CLOCK, rotacal_shared::Model::SINE, Ticks(0));
-    let extra = 1 + 2 * CLEANING_HARMONICS.clone().count();
     let t_end = s.last().map_or(1.0, |x| x.0.last().0.max(1) as f64);
-    const Q: usize = 1 + 2 * 3;
-    // The extra columns averaged over each sample's conversions and weighted as `h`'s.
-    let extra_rows: Vec<[f64; Q]> = s
-        .iter()
-        .map(|(ap, _)| {
-            let m = batch::mean_over(ap, |t| {
-                let mut r = [0.0; Q];
-                r[0] = t.0 as f64 / t_end - 0.5;
-                let alpha = step.phase_at(t).radians();
-                for (k, pair) in CLEANING_HARMONICS.clone().zip(r[1..].chunks_mut(2)) {
-                    let (sn, cs) = (f64::from(k) * alpha).sin_cos();
-                    if let [a, b] = pair {
-                        *a = sn;
-                        *b = cs;
-                    }
+    // A trend and the harmonics' sines and cosines, averaged over each sample's conversions
+    // and weighted as `h`'s rows.
+    let mut wide = DMatrix::zeros(s.len(), 3 + CLEANING_COLUMNS);
+    wide.columns_mut(0, 3).copy_from(&h);
+    for (i, (ap, _)) in s.iter().enumerate() {
+        let extra = batch::mean_over(ap, |t| {
+            let mut r = [0.0; CLEANING_COLUMNS];
+            r[0] = t.0 as f64 / t_end - 0.5;
+            let alpha = step.phase_at(t).radians();
+            for (k, pair) in CLEANING_HARMONICS.zip(r[1..].chunks_mut(2)) {
+                if let [a, b] = pair {
+                    (*a, *b) = (f64::from(k) * alpha).sin_cos();
                 }
-                r
-            });
-            m.map(|v| v * batch::root_weight(ap))
-        })
-        .collect();
-    let wide = DMatrix::from_fn(s.len(), 3 + extra, |i, j| {
-        if j < 3 {
-            return h[(i, j)];
+            }
+            r
+        });
+        let w = batch::root_weight(ap);
+        for (j, v) in extra.into_iter().enumerate() {
+            wide[(i, 3 + j)] = w * v;
         }
-        extra_rows
-            .get(i)
-            .and_then(|r| r.get(j - 3))
-            .copied()
-            .unwrap_or(0.0)
-    });
+    }
     // Normal equations: the columns are near-orthogonal (sines, a centred trend), so their
     // Cholesky solve is as good as QR here and needs no N × q factor. Readings on a rail are
     // not measurements of the model: they are left out of this fit as of the estimate.

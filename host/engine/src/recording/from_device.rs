@@ -319,10 +319,8 @@ impl<W: Write, F: Write> Recorder<W, F> {
             }
             Packet::Averages(b) => {
                 for (seq, ap, s) in b.iter() {
-                    // The average of the conversions: the sum is exact, and so is its
-                    // quotient's shortest decimal (the reader recovers the same f64).
-                    let n = ap.len().max(1) as f64;
-                    let [u, v, w] = s.sums.map(|x| f64::from(x) / n);
+                    // The shortest decimal of the mean reads back as the same f64.
+                    let [u, v, w] = s.mean();
                     let mut row = Row::new(b.condition, u, v, w);
                     row.seq = Some(u64::from(seq));
                     row.t_s = Some(ap.first().0 as f64 / f64::from(self.tick_hz));

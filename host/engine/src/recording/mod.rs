@@ -213,6 +213,21 @@ impl Group {
         self.u.len()
     }
 
+    /// Row `i`'s conversions with the first at `first`, their gaps counted in a clock
+    /// `scale` times as fast as the file's `tick_hz` (1 for the file's own ticks): one
+    /// conversion without a `conv_gaps` column. `None` when a scaled gap leaves 1 to 65535.
+    pub fn aperture(&self, i: usize, first: Ticks, scale: f64) -> Option<Aperture> {
+        let mut ap = Aperture::point(first);
+        if let Some(c) = self.conversions.as_ref().and_then(|c| c.get(i)) {
+            for d in c.gaps() {
+                let scaled = (f64::from(*d) * scale).round();
+                let gap = u16::try_from(scaled as u64).ok()?;
+                ap.push_gap(gap).ok()?;
+            }
+        }
+        Some(ap)
+    }
+
     /// True if the group has no rows (never the case for a group the reader returns).
     pub fn is_empty(&self) -> bool {
         self.u.is_empty()

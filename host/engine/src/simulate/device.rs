@@ -11,15 +11,42 @@ use crate::recording::from_device::{RecordSummary, Recorder};
 use crate::recording::Method;
 use crate::simulate::Simulation;
 use rotacal_shared::device::{Config as DeviceConfig, Device, RING};
-use rotacal_shared::packet::{Command, Packet};
+use rotacal_shared::packet::Command;
 use rotacal_shared::Condition;
 use std::io::{self, Write};
 
-/// One sensor conversion: device ticks (1 MHz), counts, hundredths of °C.
-struct Conversion {
-    ticks: u64,
-    counts: [i16; 3],
-    centi_c: i16,
+/// One sensor conversion as the device reads it.
+#[derive(Clone, Copy, Debug)]
+pub struct Conversion {
+    /// Seconds from the start of its condition.
+    pub t: f64,
+    /// Session time, device ticks at 1 MHz.
+    pub ticks: u64,
+    /// Raw counts u, v, w (the simulated output rounded into i16).
+    pub counts: [i16; 3],
+    /// Die temperature, °C.
+    pub temp_c: f64,
+}
+
+/// The conversions of `sim` (run at the sensor's rate, in counts) per condition x, y, z.
+pub fn conversions(sim: &Simulation) -> io::Result<[Vec<Conversion>; 3]> {
+    let mut streams: [Vec<Conversion>; 3] = Default::default();
+    let mut starts: [Option<f64>; 3] = [None; 3];
+    let count = |x: f64| x.round().clamp(-32768.0, 32767.0) as i16;
+    sim.run(|row| {
+        let i = row.condition.index();
+        let t = row.t_s.unwrap_or(0.0);
+        if let (Some(s), Some(t0)) = (streams.get_mut(i), starts.get_mut(i)) {
+            s.push(Conversion {
+                t: t - *t0.get_or_insert(t),
+                ticks: (t * 1e6).round().max(0.0) as u64,
+                counts: [count(row.u), count(row.v), count(row.w)],
+                temp_c: row.temp_c.unwrap_or(25.0),
+            });
+        }
+        Ok(())
+    })?;
+    Ok(streams)
 }
 
 /// Why a simulation cannot go through the device.
@@ -49,31 +76,13 @@ pub fn record<W: Write, F: Write>(sim: &Simulation, rows: W, fits: F) -> io::Res
         sensor_odr_mhz: odr_mhz as u32,
         ..DeviceConfig::FEATHER
     };
-    let mut streams: [Vec<Conversion>; 3] = Default::default();
-    let count = |x: f64| x.round().clamp(-32768.0, 32767.0) as i16;
-    sim.run(|row| {
-        let ticks = (row.t_s.unwrap_or(0.0) * 1e6).round().max(0.0) as u64;
-        if let Some(s) = streams.get_mut(row.condition.index()) {
-            s.push(Conversion {
-                ticks,
-                counts: [count(row.u), count(row.v), count(row.w)],
-                centi_c: (row.temp_c.unwrap_or(25.0) * 100.0).round() as i16,
-            });
-        }
-        Ok(())
-    })?;
+    let streams = conversions(sim)?;
     let mut meta = sim.metadata();
     meta.sample_rate_hz = Some(f64::from(dev_cfg.sample_rate_mhz) / 1e3);
     // The stream's noise is not the conversions': nothing is stated.
     meta.noise_sigma = None;
     let mut rec = Recorder::new(rows, fits, &meta, dev_cfg.clock.hz())?;
     let mut device = Device::<RING>::new(dev_cfg);
-    let mut failed: Option<io::Error> = None;
-    let mut send = |p: Packet, rec: &mut Recorder<W, F>| {
-        if let Err(e) = rec.packet(&p) {
-            failed.get_or_insert(e);
-        }
-    };
     for (cond, stream) in Condition::ALL.into_iter().zip(&streams) {
         let mut out = Vec::new();
         device.on_command(
@@ -87,17 +96,15 @@ pub fn record<W: Write, F: Write>(sim: &Simulation, rows: W, fits: F) -> io::Res
             let capture = c.ticks & 0xFFFF_FFFF;
             device.on_sample(capture, c.counts, false, &mut |p| out.push(p));
             if k % 104 == 0 {
-                device.on_temperature(c.centi_c, &mut |p| out.push(p));
+                let centi_c = (c.temp_c * 100.0).round() as i16;
+                device.on_temperature(centi_c, &mut |p| out.push(p));
             }
             device.poll(capture, &mut |p| out.push(p));
         }
         device.on_command(Command::Stop, &mut |p| out.push(p));
-        for p in out {
-            send(p, &mut rec);
+        for p in &out {
+            rec.packet(p)?;
         }
-    }
-    if let Some(e) = failed {
-        return Err(e);
     }
     rec.finish()
 }

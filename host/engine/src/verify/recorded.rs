@@ -10,7 +10,7 @@
 use crate::recording::from_device::{FitLine, LogLine};
 use crate::recording::Recording;
 use crate::verify::compare;
-use rotacal_shared::{Aperture, Condition, Ticks};
+use rotacal_shared::{Condition, Ticks};
 use serde::Serialize;
 use std::fmt::Write as _;
 
@@ -72,12 +72,9 @@ fn check_one(rec: &Recording, f: &FitLine, threshold: f64) -> Result<FitCheck, S
                     return Err(format!("{}: t_s {t} out of range", rec.source));
                 }
                 // The conversions the row averages, in the same device ticks.
-                let first = Ticks(ticks as u64);
-                let ap = match g.conversions.as_ref().and_then(|c| c.get(i)) {
-                    Some(c) => Aperture::new(first, c.gaps())
-                        .ok_or_else(|| format!("{}: conv_gaps of seq {s}", rec.source))?,
-                    None => Aperture::point(first),
-                };
+                let ap = g
+                    .aperture(i, Ticks(ticks as u64), 1.0)
+                    .ok_or_else(|| format!("{}: conv_gaps of seq {s}", rec.source))?;
                 window.push((ap, [g.u[i], g.v[i], g.w[i]]));
             }
         }

@@ -127,10 +127,7 @@ pub fn check(device: &[Vec<u8>]) -> anyhow::Result<SessionReport> {
                 b.iter()
                     .map(|(seq, t, s)| (seq, Aperture::point(Ticks(t)), s.counts.map(f64::from))),
             ),
-            Packet::Averages(b) => samples.extend(b.iter().map(|(seq, ap, s)| {
-                let n = ap.len().max(1) as f64;
-                (seq, ap, s.sums.map(|v| f64::from(v) / n))
-            })),
+            Packet::Averages(b) => samples.extend(b.iter().map(|(seq, ap, s)| (seq, ap, s.mean()))),
             _ => {}
         }
     }
