@@ -9,6 +9,8 @@ pub enum MethodArg {
     Rotation,
     /// Stepped angles or known orientations (seed 001, poses).
     Static,
+    /// Still poses of unknown orientation, found in the readings (|a| = g).
+    Free,
 }
 
 /// `--pose-weights`.
@@ -66,6 +68,16 @@ pub struct Options {
     /// Static data: which offsets to report.
     #[arg(long, value_enum, default_value = "joint")]
     pub offsets: OffsetsArg,
+    /// Method free: window of the still detection, s.
+    #[arg(long, default_value_t = 0.5, value_name = "S")]
+    pub still_window_s: f64,
+    /// Method free: a window is still when its variance is below this many times the
+    /// noise variance measured in the data (averaged over the channels).
+    #[arg(long, default_value_t = 4.0, value_name = "RATIO")]
+    pub still_threshold: f64,
+    /// Method free: shortest still interval kept, s.
+    #[arg(long, default_value_t = 1.0, value_name = "S")]
+    pub min_still_s: f64,
 }
 
 impl From<Options> for rotacal::calibrate::Options {
@@ -74,7 +86,13 @@ impl From<Options> for rotacal::calibrate::Options {
             method: a.method.map(|m| match m {
                 MethodArg::Rotation => rotacal::recording::Method::Rotation,
                 MethodArg::Static => rotacal::recording::Method::Static,
+                MethodArg::Free => rotacal::recording::Method::Free,
             }),
+            still: rotacal::calibrate::still::Options {
+                window_s: a.still_window_s,
+                threshold: a.still_threshold,
+                min_still_s: a.min_still_s,
+            },
             rate_hz: a.rate_hz,
             g_loc: a.g_loc,
             monte_carlo: a.monte_carlo,
@@ -114,7 +132,7 @@ pub struct Args {
 /// Run it.
 pub fn run(a: Args) -> anyhow::Result<()> {
     let opts: rotacal::calibrate::Options = a.options.into();
-    let rec = rotacal::recording::read(&a.file)?;
+    let rec = rotacal::recording::read_as(&a.file, opts.method)?;
     let cal = rotacal::calibrate::calibrate(&rec, &opts)?;
     if let Some(path) = a.json {
         let text = serde_json::to_string_pretty(&cal)? + "\n";

@@ -85,6 +85,11 @@ fn series(rec: &Recording, g: &Group, entry: &RateJson) -> Result<Series, Report
                 true,
             )
         }
+        Method::Free => {
+            return Err(ReportError::Write(
+                "method free has no per-condition fits to plot".into(),
+            ))
+        }
         Method::Static => (
             g.angle_deg.clone(),
             g.angle_deg
@@ -547,9 +552,14 @@ pub fn write(rec: &Recording, opts: &Options, dir: &Path) -> Result<PathBuf, Rep
             );
         }
         let _ = writeln!(md);
+        // Method free fits no sines: its groups (if any) were searched for still poses.
+        let groups = if rec.method == Method::Free || entry.free.is_some() {
+            &[][..]
+        } else {
+            &rec.groups[..]
+        };
         // Single-rate and static files have no rate column: every group belongs to the entry.
-        for g in rec
-            .groups
+        for g in groups
             .iter()
             .filter(|g| g.rate_hz.is_none() || g.rate_hz == entry.rate_hz)
         {

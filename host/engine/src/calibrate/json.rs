@@ -324,6 +324,9 @@ pub struct RateJson {
     /// An extension of formats.md, static only: the poses and their fit.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub poses: Option<PosesJson>,
+    /// An extension of formats.md, method free only: the still intervals and the fit.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub free: Option<FreeJson>,
     /// An extension of formats.md: the noise model of each condition and channel,
     /// estimated from the fit residuals (rotation).
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -473,6 +476,7 @@ pub fn rotation_entry(
         monte_carlo: None,
         correction: None,
         poses: None,
+        free: None,
         noise: None,
         uncertainty_budget: None,
     }
@@ -514,6 +518,108 @@ pub fn static_entry(
         monte_carlo: None,
         correction: None,
         poses: Some(poses_json(&cal.pose_fit)),
+        free: None,
+        noise: None,
+        uncertainty_budget: None,
+    }
+}
+
+/// One candidate interval in `free.detection[].intervals`.
+#[derive(Clone, Debug, Serialize)]
+pub struct IntervalJson {
+    /// The interval, with its verdict.
+    #[serde(flatten)]
+    pub interval: crate::calibrate::still::Interval,
+    /// The verdict in a sentence.
+    pub reason: String,
+}
+
+/// One segment's detection in `free.detection`.
+#[derive(Clone, Debug, Serialize)]
+pub struct DetectionJson {
+    /// Which rows: empty for a whole free recording, else `condition x` (and its rate).
+    pub segment: String,
+    /// The detection's settings and noise (null when the poses were named in the file).
+    pub found: Option<crate::calibrate::still::Detection>,
+    /// Every candidate interval.
+    pub intervals: Vec<IntervalJson>,
+}
+
+/// `free` (method free only; an extension of formats.md).
+#[derive(Clone, Debug, Serialize)]
+pub struct FreeJson {
+    /// The residual minimised.
+    pub residual: crate::calibrate::free::Residual,
+    /// Per segment, the still intervals found.
+    pub detection: Vec<DetectionJson>,
+    /// The poses fitted: fitted ĝ in the device frame and |a| − g.
+    pub poses: Vec<crate::calibrate::free::PoseResult>,
+    /// χ² of the poses with their noise alone, and its degrees of freedom P − 9.
+    pub chi2: f64,
+    /// P − 9.
+    pub dof: usize,
+    /// Scatter beyond the noise per pose, m/s² (0: none needed).
+    pub tau_ms2: f64,
+    /// Degrees of freedom of the fit's covariance (null: infinite).
+    pub nu: Option<f64>,
+    /// Condition number of the unit design.
+    pub condition_number: f64,
+    /// When flagged, the directions to add.
+    pub suggestion: Option<String>,
+}
+
+/// The `by_rate` entry of a free calibration (properties s_u … φ_wu, O_u, O_v, O_w).
+pub fn free_entry(
+    intr: &rotacal_shared::intrinsic::Intrinsic,
+    offsets: &[Estimate; 3],
+    budget: &crate::calibrate::budget::Budget,
+    fit: &crate::calibrate::free::FreeFit,
+    detections: &[(
+        String,
+        Option<crate::calibrate::still::Detection>,
+        Vec<crate::calibrate::still::Interval>,
+    )],
+) -> RateJson {
+    let detection = detections
+        .iter()
+        .map(|(label, d, iv)| {
+            let min = d.as_ref().map_or(0.0, |d| d.options.min_still_s);
+            DetectionJson {
+                segment: label.clone(),
+                found: d.as_ref().map(|d| crate::calibrate::still::Detection {
+                    intervals: Vec::new(),
+                    ..d.clone()
+                }),
+                intervals: iv
+                    .iter()
+                    .map(|i| IntervalJson {
+                        interval: i.clone(),
+                        reason: i.verdict.reason(min),
+                    })
+                    .collect(),
+            }
+        })
+        .collect();
+    RateJson {
+        rate_hz: None,
+        intrinsic: intrinsic_json(intr, Some(offsets), budget),
+        angle_deg_phase_method: None,
+        sensitivity_matrix: None,
+        fits: Vec::new(),
+        monte_carlo: None,
+        correction: None,
+        poses: None,
+        free: Some(FreeJson {
+            residual: fit.residual,
+            detection,
+            poses: fit.poses.clone(),
+            chi2: fit.chi2,
+            dof: fit.dof,
+            tau_ms2: fit.tau_ms2,
+            nu: fit.nu.is_finite().then_some(fit.nu),
+            condition_number: fit.condition_number,
+            suggestion: fit.suggestion.clone(),
+        }),
         noise: None,
         uncertainty_budget: None,
     }

@@ -269,7 +269,24 @@ pub fn import<W: Write>(
         line: None,
         message,
     };
-    if c.condition.is_none() && spec.poses.is_none() && spec.conditions.len() != inputs.len() {
+    // Neither conditions nor a section list: a free recording (still poses of unknown
+    // orientation, found by `calibrate --method free`).
+    let free = c.condition.is_none()
+        && spec.poses.is_none()
+        && spec.conditions.is_empty()
+        && c.angle.is_none();
+    if free && (inputs.len() != 1 || c.t.is_none()) {
+        return Err(whole(
+            "without conditions or a section list the input is imported as a free recording \
+             (method free), which needs one input with a time column (t=)"
+                .into(),
+        ));
+    }
+    if !free
+        && c.condition.is_none()
+        && spec.poses.is_none()
+        && spec.conditions.len() != inputs.len()
+    {
         return Err(whole(format!(
             "{} input(s) but {} condition(s): give one --condition per input, or a condition column",
             inputs.len(),
@@ -315,7 +332,9 @@ pub fn import<W: Write>(
         conv_gaps: false,
     };
     let mut meta = spec.meta.clone();
-    meta.method = meta.method.or(Some(if spec.poses.is_some() {
+    meta.method = meta.method.or(Some(if free {
+        Method::Free
+    } else if spec.poses.is_some() {
         Method::Static
     } else if c.t.is_some() {
         Method::Rotation
@@ -372,7 +391,7 @@ pub fn import<W: Write>(
                 }
             };
             let condition = match c.condition {
-                _ if pose.is_some() => Condition::X,
+                _ if pose.is_some() || free => Condition::X,
                 Some(idx) => {
                     let f = field(idx, "condition")?;
                     let mut chars = f.chars();

@@ -55,6 +55,9 @@ pub enum Method {
     Rotation,
     /// Static steps (seed 001): rows carry the table angle `angle_deg`.
     Static,
+    /// Still poses of unknown orientation (docs/formats.md): the poses are found in the
+    /// readings (`t_s`), and only |a| = g is used.
+    Free,
 }
 
 impl Method {
@@ -63,6 +66,7 @@ impl Method {
         match self {
             Method::Rotation => "rotation",
             Method::Static => "static",
+            Method::Free => "free",
         }
     }
 }
@@ -75,16 +79,18 @@ impl fmt::Display for Method {
 
 impl std::str::FromStr for Method {
     type Err = String;
-    /// `rotation` or `static` (any case, surrounding spaces ignored).
+    /// `rotation`, `static` or `free` (any case, surrounding spaces ignored).
     fn from_str(s: &str) -> Result<Self, String> {
         let t = s.trim();
         if t.eq_ignore_ascii_case("rotation") {
             Ok(Method::Rotation)
         } else if t.eq_ignore_ascii_case("static") {
             Ok(Method::Static)
+        } else if t.eq_ignore_ascii_case("free") {
+            Ok(Method::Free)
         } else {
             Err(format!(
-                "expected 'rotation' or 'static', got '{}'",
+                "expected 'rotation', 'static' or 'free', got '{}'",
                 snippet(t.as_bytes())
             ))
         }
@@ -155,6 +161,24 @@ pub struct Oriented {
     pub temp_c: Option<Vec<f64>>,
     /// `u_unc, v_unc, w_unc` of each row, if the file has them.
     pub unc: Option<Vec<[f64; 3]>>,
+    /// 1-based file line of each row (for messages).
+    pub line: Vec<u64>,
+}
+
+/// The rows of a recording without conditions or orientations (`# method=free`): a
+/// continuous record in which the device was held still in several orientations.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Series {
+    /// Device time of each row, s (non-decreasing).
+    pub t_s: Vec<f64>,
+    /// Readings u, v, w of each row, output units.
+    pub y: Vec<[f64; 3]>,
+    /// The `pose` column, if the file has one: the poses are then these names, not found.
+    pub pose: Option<Vec<String>>,
+    /// `seq` of each row, if the file has that column.
+    pub seq: Option<Vec<u64>>,
+    /// `temp_c` of each row, if the file has that column.
+    pub temp_c: Option<Vec<f64>>,
     /// 1-based file line of each row (for messages).
     pub line: Vec<u64>,
 }
@@ -248,6 +272,8 @@ pub struct Recording {
     pub groups: Vec<Group>,
     /// The rows of a file with `gx, gy, gz` columns.
     pub oriented: Option<Oriented>,
+    /// The rows of a file with neither conditions nor orientations (`method=free`).
+    pub series: Option<Series>,
 }
 
 impl Recording {
@@ -280,19 +306,22 @@ impl Recording {
     pub fn rows(&self) -> usize {
         self.groups.iter().map(Group::len).sum::<usize>()
             + self.oriented.as_ref().map_or(0, |o| o.y.len())
+            + self.series.as_ref().map_or(0, |s| s.y.len())
     }
 
     /// An error unless the file has conditions (rotation, or static with `angle_deg`):
     /// for the commands that need them. `what` names the command.
     pub fn require_conditions(&self, what: &str) -> Result<(), RecordingError> {
-        match self.oriented {
-            Some(_) => Err(RecordingError {
-                source_name: self.source.clone(),
-                line: None,
-                kind: RecordingErrorKind::NeedsConditions(what.to_string()),
-            }),
-            None => Ok(()),
-        }
+        let kind = match (&self.oriented, &self.series) {
+            (Some(_), _) => RecordingErrorKind::NeedsConditions(what.to_string()),
+            (None, Some(_)) => RecordingErrorKind::NeedsConditionsFree(what.to_string()),
+            (None, None) => return Ok(()),
+        };
+        Err(RecordingError {
+            source_name: self.source.clone(),
+            line: None,
+            kind,
+        })
     }
 }
 
@@ -385,6 +414,13 @@ pub enum RecordingErrorKind {
         /// The value.
         value: f64,
     },
+    /// A free recording: `t_s` decreased.
+    TimeWentBackwardsFree {
+        /// The previous row's time.
+        previous: f64,
+        /// This row's time.
+        got: f64,
+    },
     /// Rotation: `t_s` decreased within one (condition, rate) group.
     TimeWentBackwards {
         /// The group's condition.
@@ -405,6 +441,8 @@ pub enum RecordingErrorKind {
     BadPose(&'static str),
     /// The file has `gx, gy, gz` columns, which only static calibration and `apply` use.
     NeedsConditions(String),
+    /// The file is a free recording (no conditions, no orientations).
+    NeedsConditionsFree(String),
     /// A `conv_gaps` field that is not a list of up to six tick counts from 1 to 65535.
     BadConversions(String),
     /// A condition has no rows (at some rate, for a multi-rate file).
@@ -441,7 +479,11 @@ impl fmt::Display for RecordingErrorKind {
             K::MissingColumn(c) => {
                 write!(f, "missing column '{c}'")?;
                 match *c {
-                    "t_s" => f.write_str(" (method rotation needs it)"),
+                    "condition" => f.write_str(
+                        " (or, for still poses of unknown orientation, '# method=free' or \
+                         --method free)",
+                    ),
+                    "t_s" => f.write_str(" (method rotation and method free need it)"),
                     "angle_deg" => f.write_str(
                         " (method static needs it; without a t_s column the method is static)",
                     ),
@@ -490,6 +532,9 @@ impl fmt::Display for RecordingErrorKind {
                 condition.letter(),
                 rate_suffix(*rate_hz)
             ),
+            K::TimeWentBackwardsFree { previous, got } => {
+                write!(f, "time went backwards: t_s={got} after t_s={previous}")
+            }
             K::NotUnitVector { norm } => write!(
                 f,
                 "gx, gy, gz must be a unit vector (the direction of gravity's reading); its \
@@ -501,6 +546,12 @@ impl fmt::Display for RecordingErrorKind {
                 f,
                 "{what} needs conditions x, y, z; this file gives gravity directions (gx, gy, \
                  gz columns), which only static calibration and apply use"
+            ),
+            K::NeedsConditionsFree(what) => write!(
+                f,
+                "{what} needs conditions x, y, z; this file is a free recording (method free: \
+                 still poses of unknown orientation), which only 'calibrate --method free' and \
+                 apply use"
             ),
             K::MissingCondition { condition, rate_hz } => write!(
                 f,
@@ -545,6 +596,27 @@ pub fn read(path: &Path) -> Result<Recording, RecordingError> {
     read_path(path, true)
 }
 
+/// Read the recording at `path` as `method` (a command line's `--method`, which overrides
+/// the file's): with [`Method::Free`], a file without a `condition` column is read as a
+/// free recording.
+pub fn read_as(path: &Path, method: Option<Method>) -> Result<Recording, RecordingError> {
+    let source = path.display().to_string();
+    match File::open(path) {
+        Ok(f) => Parser {
+            source: &source,
+            complete: true,
+            line_offset: 0,
+            method,
+        }
+        .run(f),
+        Err(e) => Err(RecordingError {
+            source_name: source,
+            line: None,
+            kind: RecordingErrorKind::Io(e),
+        }),
+    }
+}
+
 fn read_path(path: &Path, complete: bool) -> Result<Recording, RecordingError> {
     let source = path.display().to_string();
     match File::open(path) {
@@ -552,6 +624,7 @@ fn read_path(path: &Path, complete: bool) -> Result<Recording, RecordingError> {
             source: &source,
             complete,
             line_offset: 0,
+            method: None,
         }
         .run(f),
         Err(e) => Err(RecordingError {
@@ -568,6 +641,7 @@ pub fn read_from<R: Read>(reader: R, source: &str) -> Result<Recording, Recordin
         source,
         complete: true,
         line_offset: 0,
+        method: None,
     }
     .run(reader)
 }
@@ -590,6 +664,7 @@ pub fn read_preamble(
         source,
         complete: false,
         line_offset: lines_before,
+        method: None,
     };
     p.preamble(&mut BufReader::new(text.as_bytes()))
 }
@@ -656,6 +731,8 @@ struct Parser<'a> {
     complete: bool,
     /// Physical lines consumed before the csv reader took over.
     line_offset: u64,
+    /// The method to read as, overriding the file's (a command line's `--method`).
+    method: Option<Method>,
 }
 
 type Res<T> = Result<T, RecordingError>;
@@ -713,6 +790,15 @@ impl Parser<'_> {
         let (cols, method) = self.header(&rec, header_line, &meta)?;
 
         let mut groups: Vec<Group> = Vec::new();
+        let free = cols.condition.is_none() && cols.gravity.is_none();
+        let mut series = free.then(|| Series {
+            t_s: Vec::new(),
+            y: Vec::new(),
+            pose: cols.pose.map(|_| Vec::new()),
+            seq: cols.seq.map(|_| Vec::new()),
+            temp_c: cols.temp_c.map(|_| Vec::new()),
+            line: Vec::new(),
+        });
         let mut oriented = cols.gravity.map(|_| Oriented {
             gravity: Vec::new(),
             pose: cols.pose.map(|_| Vec::new()),
@@ -763,6 +849,34 @@ impl Parser<'_> {
                 }
                 if let (Some(v), Some(u)) = (o.unc.as_mut(), row.unc) {
                     v.push(u);
+                }
+                continue;
+            }
+            if let Some(s) = series.as_mut() {
+                let line = self.line_of(&rdr, &rec);
+                let t = row.t_s.unwrap_or(f64::NAN);
+                if let Some(&prev) = s.t_s.last() {
+                    if t < prev {
+                        return Err(self.err(
+                            Some(line),
+                            RecordingErrorKind::TimeWentBackwardsFree {
+                                previous: prev,
+                                got: t,
+                            },
+                        ));
+                    }
+                }
+                s.t_s.push(t);
+                s.y.push([row.u, row.v, row.w]);
+                s.line.push(line);
+                if let (Some(v), Some(p)) = (s.pose.as_mut(), row.pose) {
+                    v.push(p.to_string());
+                }
+                if let (Some(v), Some(x)) = (s.seq.as_mut(), row.seq) {
+                    v.push(x);
+                }
+                if let (Some(v), Some(x)) = (s.temp_c.as_mut(), row.temp_c) {
+                    v.push(x);
                 }
                 continue;
             }
@@ -835,6 +949,20 @@ impl Parser<'_> {
                 method,
                 groups,
                 oriented: Some(o),
+                series: None,
+            });
+        }
+        if let Some(s) = series {
+            if s.y.is_empty() {
+                return Err(self.err(None, RecordingErrorKind::NoData));
+            }
+            return Ok(Recording {
+                source: self.source.to_string(),
+                meta,
+                method,
+                groups,
+                oriented: None,
+                series: Some(s),
             });
         }
         if groups.is_empty() {
@@ -876,6 +1004,7 @@ impl Parser<'_> {
             method,
             groups,
             oriented: None,
+            series: None,
         })
     }
 
@@ -1063,8 +1192,12 @@ impl Parser<'_> {
         } else {
             None
         };
+        let free = self.method.or(meta.method) == Some(Method::Free);
         let condition = match gravity {
             Some(_) => idx("condition"),
+            // A free recording needs no condition; one that is there is used (each
+            // condition's rows are searched for poses on their own).
+            None if free => idx("condition"),
             None => Some(require("condition")?),
         };
         if gravity.is_some() {
@@ -1090,7 +1223,7 @@ impl Parser<'_> {
                  second>' (a positive integer)"
             ))));
         }
-        let method = meta.method.unwrap_or(if gravity.is_some() {
+        let method = self.method.or(meta.method).unwrap_or(if gravity.is_some() {
             Method::Static
         } else if t_s.is_some() {
             Method::Rotation
@@ -1110,14 +1243,23 @@ impl Parser<'_> {
                 require("angle_deg")?;
             }
             Method::Static => {}
+            Method::Free if gravity.is_none() && condition.is_none() => {
+                require("t_s")?;
+            }
+            Method::Free => {}
         }
         Ok((
             ColumnIndex {
                 n: names.len(),
                 condition,
                 gravity,
-                // A pose name means something only with a gravity direction.
-                pose: gravity.and(idx("pose")),
+                // A pose name means something only with a gravity direction, or in a free
+                // recording (then the names are the poses).
+                pose: if gravity.is_some() || (free && condition.is_none()) {
+                    idx("pose")
+                } else {
+                    None
+                },
                 unc,
                 u,
                 v,
@@ -1396,13 +1538,19 @@ impl Columns {
 
     /// The header line's names, in the order the writer puts them.
     pub fn names(&self) -> Vec<&'static str> {
-        let mut out = if self.gravity {
+        self.names_of(false)
+    }
+
+    /// The header's names; `free`: a free recording's (no `condition`, a `pose` column
+    /// allowed without gravity directions).
+    pub fn names_of(&self, free: bool) -> Vec<&'static str> {
+        let mut out = if self.gravity || free {
             vec![]
         } else {
             vec!["condition"]
         };
         let opt = [
-            (self.gravity && self.pose, "pose"),
+            ((self.gravity || free) && self.pose, "pose"),
             (self.rate_hz, "rate_hz"),
             (self.seq, "seq"),
             (self.t_s, "t_s"),
@@ -1487,6 +1635,8 @@ impl Row<'static> {
 pub struct Writer<W: Write> {
     out: BufWriter<W>,
     columns: Columns,
+    /// A free recording: no `condition` column.
+    free: bool,
     line: String,
 }
 
@@ -1525,11 +1675,20 @@ impl<W: Write> Writer<W> {
         } else {
             Method::Static
         });
+        let free = method == Method::Free && !columns.gravity;
         match method {
             Method::Rotation if !columns.t_s => {
                 return Err(invalid("method rotation needs the t_s column".into()))
             }
-            _ if columns.pose && !columns.gravity => {
+            Method::Free if free && !columns.t_s => {
+                return Err(invalid("a free recording needs the t_s column".into()))
+            }
+            Method::Free if free && (columns.angle_deg || columns.rate_hz) => {
+                return Err(invalid(
+                    "a free recording has neither angle_deg nor rate_hz".into(),
+                ))
+            }
+            _ if columns.pose && !columns.gravity && !free => {
                 return Err(invalid("a pose column needs the gx, gy, gz columns".into()))
             }
             _ if columns.gravity && (columns.angle_deg || columns.rate_hz) => {
@@ -1589,13 +1748,14 @@ impl<W: Write> Writer<W> {
             }
             kv(key, value)?;
         }
-        pre.push_str(&columns.names().join(","));
+        pre.push_str(&columns.names_of(free).join(","));
         pre.push('\n');
         let mut out = BufWriter::with_capacity(1 << 16, w);
         out.write_all(pre.as_bytes())?;
         Ok(Writer {
             out,
             columns: *columns,
+            free,
             line: String::with_capacity(128),
         })
     }
@@ -1606,6 +1766,7 @@ impl<W: Write> Writer<W> {
         Writer {
             out: BufWriter::with_capacity(1 << 16, w),
             columns: *columns,
+            free: false,
             line: String::with_capacity(128),
         }
     }
@@ -1646,10 +1807,10 @@ impl<W: Write> Writer<W> {
         }
         let line = &mut self.line;
         line.clear();
-        if !c.gravity {
+        if !c.gravity && !self.free {
             line.push(row.condition.letter());
         }
-        if let Some(p) = opt(c.gravity && c.pose, "pose", row.pose)? {
+        if let Some(p) = opt((c.gravity || self.free) && c.pose, "pose", row.pose)? {
             if !pose_name_ok(p) {
                 return Err(invalid(format!(
                     "pose name '{p}': use a non-empty name without commas, quotes, '#', line \

@@ -69,6 +69,78 @@ pub struct Config {
     /// Physical effects beyond the papers' model, each off unless given.
     #[serde(default)]
     pub effects: Effects,
+    /// Method `free`: still poses of unknown orientation, put down by hand.
+    #[serde(default)]
+    pub poses: Option<FreePoses>,
+}
+
+/// A session of still poses without a table (`method = "free"`): the device is put down
+/// in `count` orientations, turned from one to the next over `move_s` seconds (along the
+/// great circle, eased in and out), and left still for `still_s` seconds.
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct FreePoses {
+    /// Number of poses (ignored when `directions` is given).
+    #[serde(default = "default_pose_count")]
+    pub count: usize,
+    /// ĝ of each pose in the platter (fixture) frame; default: drawn uniformly over the
+    /// sphere from the seed.
+    #[serde(default)]
+    pub directions: Option<Vec<[f64; 3]>>,
+    /// Time still at each pose, s.
+    #[serde(default = "default_still_s")]
+    pub still_s: f64,
+    /// Time to turn from one pose to the next, s.
+    #[serde(default = "default_move_s")]
+    pub move_s: f64,
+    /// Each pose's noise is the sensor's times a factor drawn log-uniformly from
+    /// [1/spread, spread] (a hand, a bench, a fan: poses are not equally quiet). 1: none.
+    #[serde(default = "default_spread")]
+    pub noise_spread: f64,
+    /// A ring-down after each placement: amplitude of the specific force, m/s², along a
+    /// random direction, decaying with 0.1 s at 12 Hz.
+    #[serde(default)]
+    pub settle_ms2: f64,
+    /// One pose that is not still: it turns steadily through `deg` degrees.
+    #[serde(default)]
+    pub moved: Option<MovedPose>,
+}
+
+/// A pose that turns while it should be still.
+#[derive(Clone, Copy, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct MovedPose {
+    /// Which pose (0-based).
+    pub pose: usize,
+    /// How far it turns over its still time, degrees.
+    pub deg: f64,
+}
+
+fn default_pose_count() -> usize {
+    12
+}
+fn default_still_s() -> f64 {
+    4.0
+}
+fn default_move_s() -> f64 {
+    2.0
+}
+fn default_spread() -> f64 {
+    1.0
+}
+
+impl Default for FreePoses {
+    fn default() -> Self {
+        FreePoses {
+            count: default_pose_count(),
+            directions: None,
+            still_s: default_still_s(),
+            move_s: default_move_s(),
+            noise_spread: default_spread(),
+            settle_ms2: 0.0,
+            moved: None,
+        }
+    }
 }
 
 fn default_seed() -> u64 {
@@ -757,6 +829,9 @@ impl Config {
             super::NoiseProcess::new(nz, t.sample_rate_hz)?;
         }
         let tb = &self.table;
+        if self.method != Method::Free && self.poses.is_some() {
+            return bad("poses", "applies to method = \"free\" only");
+        }
         match self.method {
             Method::Rotation => {
                 let rates = self.rates_hz();
@@ -790,6 +865,58 @@ impl Config {
                         ("table.dwell_s", tb.dwell_s.is_some()),
                     ],
                 )?;
+            }
+            Method::Free => {
+                let fx = &self.effects;
+                only_for(
+                    "rotation or static",
+                    &[
+                        ("table.rates_hz", tb.rates_hz.is_some()),
+                        (
+                            "table.samples_per_condition",
+                            tb.samples_per_condition.is_some(),
+                        ),
+                        ("table.duration_s", tb.duration_s.is_some()),
+                        ("table.start_angle_deg", tb.start_angle_deg.is_some()),
+                        ("table.angles_deg", tb.angles_deg.is_some()),
+                        ("table.angle_step_deg", tb.angle_step_deg.is_some()),
+                        ("table.readings_per_angle", tb.readings_per_angle.is_some()),
+                        ("table.dwell_s", tb.dwell_s.is_some()),
+                        ("effects.rate_error", fx.rate_error.is_some()),
+                        ("effects.centripetal", fx.centripetal.is_some()),
+                        ("effects.axis_time_skew", fx.axis_time_skew.is_some()),
+                        ("effects.rate_ripple", fx.rate_ripple.is_some()),
+                        ("effects.step_error", fx.step_error.is_some()),
+                    ],
+                )?;
+                let p = self.poses.clone().unwrap_or_default();
+                let n = p.directions.as_ref().map_or(p.count, Vec::len);
+                if n == 0 {
+                    return bad("poses", "give at least one pose");
+                }
+                if let Some(d) = &p.directions {
+                    finite("poses.directions", d.as_flattened())?;
+                    if d.iter().any(|v| v.iter().map(|x| x * x).sum::<f64>() < 1e-12) {
+                        return bad("poses.directions", "each must be a non-zero vector");
+                    }
+                }
+                if !(p.still_s.is_finite() && p.still_s > 0.0) {
+                    return bad("poses.still_s", "must be positive");
+                }
+                if !(p.move_s.is_finite() && p.move_s >= 0.0) {
+                    return bad("poses.move_s", "must be ≥ 0");
+                }
+                if !(p.noise_spread.is_finite() && p.noise_spread >= 1.0) {
+                    return bad("poses.noise_spread", "must be ≥ 1");
+                }
+                if !(p.settle_ms2.is_finite() && p.settle_ms2 >= 0.0) {
+                    return bad("poses.settle_ms2", "must be ≥ 0");
+                }
+                if let Some(m) = p.moved {
+                    if m.pose >= n || !m.deg.is_finite() {
+                        return bad("poses.moved", "pose must be one of the poses, deg finite");
+                    }
+                }
             }
             Method::Static => {
                 let fx = &self.effects;

@@ -732,6 +732,9 @@ impl Simulation {
                     }
                 }
             }
+            Method::Free => {
+                t0 = self.run_free(&mut rng, &mut noise, &mut sum, &mut emit)?;
+            }
             Method::Static => {
                 let angles = c.static_angles();
                 let readings = c.table.readings_per_angle.unwrap_or(1);
@@ -766,6 +769,74 @@ impl Simulation {
         }
         sum.duration_s = (t0 - c.timing.gap_s).max(0.0);
         Ok(sum)
+    }
+
+    /// Method free: the poses one after the other (docs/simulator.md), each row through
+    /// `emit`; returns the session's length, s.
+    fn run_free(
+        &self,
+        rng: &mut ChaCha8Rng,
+        noise: &mut NoiseGen<'_>,
+        sum: &mut Summary,
+        emit: &mut impl FnMut(&mut Row, f64, &mut ChaCha8Rng, &mut Summary) -> io::Result<()>,
+    ) -> io::Result<f64> {
+        let c = &self.cfg;
+        let p = c.poses.clone().unwrap_or_default();
+        let fs = c.timing.sample_rate_hz;
+        let normal = |rng: &mut ChaCha8Rng| -> f64 { rng.sample(StandardNormal) };
+        let unit = |v: [f64; 3]| {
+            let n = v.iter().map(|x| x * x).sum::<f64>().sqrt();
+            v.map(|x| x / n)
+        };
+        let dirs: Vec<[f64; 3]> = match &p.directions {
+            Some(d) => d.iter().map(|v| unit(*v)).collect(),
+            None => (0..p.count)
+                .map(|_| unit([normal(rng), normal(rng), normal(rng)]))
+                .collect(),
+        };
+        let n_still = (p.still_s * fs).round().max(1.0) as u64;
+        let n_move = (p.move_s * fs).round() as u64;
+        let mut k: u64 = 0;
+        let mut prev: Option<[f64; 3]> = None;
+        let mut row_at = |g: [f64; 3], scale: f64, k: &mut u64, rng: &mut ChaCha8Rng, sum: &mut Summary| {
+            let t = *k as f64 / fs;
+            *k += 1;
+            let temp = self.temperature(t);
+            let f = g.map(|v| c.g_loc * v);
+            let mut y = noise.draw(rng);
+            for (j, yj) in y.iter_mut().enumerate() {
+                *yj = self.output(self.analog(j, f, t, temp) + scale * *yj, &mut sum.clipped);
+            }
+            let mut row = Row::new(Condition::X, y[0], y[1], y[2]);
+            emit(&mut row, t, rng, sum)
+        };
+        for (i, dir) in dirs.iter().enumerate() {
+            if let Some(from) = prev {
+                for m in 0..n_move {
+                    let x = 0.5 - 0.5 * (PI * m as f64 / n_move as f64).cos();
+                    row_at(slerp(from, *dir, x), 1.0, &mut k, rng, sum)?;
+                }
+            }
+            let scale = p.noise_spread.powf(2.0 * rng.gen::<f64>() - 1.0);
+            let ring = unit([normal(rng), normal(rng), normal(rng)]);
+            // A pose that turns: about an axis across its direction.
+            let axis = unit(cross(*dir, ring));
+            let mut end = *dir;
+            for m in 0..n_still {
+                let tau = m as f64 / fs;
+                let mut g = *dir;
+                if let Some(mv) = p.moved.filter(|mv| mv.pose == i) {
+                    let a = mv.deg.to_radians() * m as f64 / n_still as f64;
+                    g = rotate_about(*dir, axis, a);
+                }
+                end = g;
+                let amp = p.settle_ms2 / c.g_loc * (-tau / 0.1).exp() * (TAU * 12.0 * tau).sin();
+                let g = [0, 1, 2].map(|a| g[a] + amp * ring[a]);
+                row_at(g, scale, &mut k, rng, sum)?;
+            }
+            prev = Some(end);
+        }
+        Ok(k as f64 / fs + c.timing.gap_s)
     }
 
     /// Specific force on channel j's sample `tau` seconds into a condition (the channel's
@@ -874,6 +945,43 @@ pub fn render(sim: &Simulation, sum: &Summary, out: &Path) -> String {
         if sim.states_noise_sigma() { "stated" } else { "not stated" }
     );
     o
+}
+
+fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
+}
+
+/// `v` turned by `angle` (rad) about the unit `axis` (Rodrigues).
+fn rotate_about(v: [f64; 3], axis: [f64; 3], angle: f64) -> [f64; 3] {
+    let (s, c) = angle.sin_cos();
+    let k = cross(axis, v);
+    let d: f64 = (0..3).map(|i| axis[i] * v[i]).sum();
+    [0, 1, 2].map(|i| v[i] * c + k[i] * s + axis[i] * d * (1.0 - c))
+}
+
+/// The unit vector a fraction `x` of the way from `a` to `b` along the great circle.
+fn slerp(a: [f64; 3], b: [f64; 3], x: f64) -> [f64; 3] {
+    let d: f64 = (0..3).map(|i| a[i] * b[i]).sum::<f64>().clamp(-1.0, 1.0);
+    let omega = d.acos();
+    if omega < 1e-9 {
+        return b;
+    }
+    let c = cross(a, b);
+    let n = c.iter().map(|v| v * v).sum::<f64>().sqrt();
+    // Opposite directions: any axis across a will do.
+    let axis = if n < 1e-12 {
+        let t = if a[0].abs() < 0.9 { [1.0, 0.0, 0.0] } else { [0.0, 1.0, 0.0] };
+        let c = cross(a, t);
+        let n = c.iter().map(|v| v * v).sum::<f64>().sqrt();
+        c.map(|v| v / n)
+    } else {
+        c.map(|v| v / n)
+    };
+    rotate_about(a, axis, omega * x)
 }
 
 /// ĝ at one step of a stepped table with `step_error`: the angle off by a normal error, then

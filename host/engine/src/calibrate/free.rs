@@ -1,0 +1,709 @@
+//! Still poses of unknown orientation (method free, docs/calibration.md): the Gram matrix
+//! G = S·Sᵀ and the offsets O from |S⁻¹(y − O)| = g alone.
+//!
+//! Only G and O are identifiable (method.md §2): G is parameterised by its lower Cholesky
+//! factor L (S in the device frame, x′ along u, y′ in the plane of u and v), so the fit
+//! has exactly the nine intrinsic degrees of freedom and the correction a = L⁻¹(y − O)
+//! comes with it. For pose p with mean ȳ_p and the mean's covariance Σ_p:
+//!
+//! - a_p = L⁻¹(ȳ_p − O), n̂_p = a_p/|a_p|, w_p = L⁻ᵀn̂_p;
+//! - residual r_p = |a_p| − g − b_p, in m/s²: the distance of the corrected reading from
+//!   the sphere, not the algebraic |a|² − g², whose expectation is off by tr(C_p) (C_p =
+//!   L⁻¹Σ_pL⁻ᵀ), a bias that grows as the signal-to-noise ratio falls;
+//! - b_p = (tr C_p − n̂ᵀC_pn̂)/(2g): the second-order bias of |a_p| from the noise, taken
+//!   out so that E[r_p] = 0 to that order;
+//! - σ_p² = n̂ᵀC_pn̂ = w_pᵀΣ_pw_p (+ τ², the scatter of the poses beyond their noise when
+//!   χ² demands it), and the fit minimises Σ r_p²/σ_p².
+//!
+//! ∂|a|/∂L_ij = −w_i·a_j and ∂|a|/∂O = −w, so the Jacobian is analytic. The minimiser is
+//! the `levenberg-marquardt` crate (MINPACK's trust region); weights and biases are
+//! refreshed between its runs. The covariance of (L, O) is (JᵀWJ)⁻¹ at the solution.
+
+use crate::calibrate::budget::coverage_factor;
+use crate::calibrate::still::{Interval, Verdict};
+use levenberg_marquardt::{LeastSquaresProblem, LevenbergMarquardt};
+use nalgebra::{DMatrix, Dyn, Matrix3, OMatrix, OVector, SMatrix, SVector, Vector3, U9};
+use statrs::distribution::{ChiSquared, ContinuousCDF, Normal};
+
+/// The fit's parameters: L₀₀, L₁₀, L₁₁, L₂₀, L₂₁, L₂₂, O_u, O_v, O_w.
+pub const PARAMS: usize = 9;
+/// (row, column) of each of L's parameters.
+const L_INDEX: [(usize, usize); 6] = [(0, 0), (1, 0), (1, 1), (2, 0), (2, 1), (2, 2)];
+
+/// Condition numbers of the unit design above this are flagged (random poses: about 3 to
+/// 10; poses on a hemisphere: some hundreds).
+pub const WELL_CONDITIONED: f64 = 30.0;
+/// Above this the poses leave G or O under-determined.
+pub const SINGULAR: f64 = 1e6;
+/// Poses whose directions are closer than this (degrees) count as one orientation: a
+/// second pose there adds almost nothing about G.
+pub const DISTINCT_DEG: f64 = 10.0;
+/// A pose whose residual is this many robust standard deviations from the others', and
+/// beyond the normal quantile for its count, is taken out as not fitting.
+const OUTLIER_ROBUST_Z: f64 = 5.0;
+
+/// Which residual to minimise.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Residual {
+    /// |a| − g − b, weighted by its variance (the default).
+    #[default]
+    Geometric,
+    /// (|a|² − g²)/(2g) with the same weights: the peers' algebraic form, for comparison.
+    Algebraic,
+}
+
+/// One pose: the mean of a still interval and its covariance.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Pose {
+    /// Its name.
+    pub name: String,
+    /// Mean u, v, w.
+    pub mean: [f64; 3],
+    /// Standard error of each channel's mean (the channels taken as independent).
+    pub std_err: [f64; 3],
+}
+
+impl Pose {
+    /// From a kept interval.
+    pub fn from_interval(i: &Interval) -> Pose {
+        Pose {
+            name: i.name.clone(),
+            mean: i.mean,
+            std_err: i.std_err,
+        }
+    }
+}
+
+/// One pose in the result.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct PoseResult {
+    /// Its name.
+    pub name: String,
+    /// ĝ in the device frame, fitted: L⁻¹(ȳ − O) normalised.
+    pub direction: [f64; 3],
+    /// |a| − g − b, m/s².
+    pub residual_ms2: f64,
+    /// Its standard deviation, m/s² (noise and τ).
+    pub residual_std_ms2: f64,
+}
+
+/// Why the poses cannot be fitted.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum FreeError {
+    /// Fewer distinct orientations than parameters.
+    #[error(
+        "{poses} still pose(s) in {distinct} distinct orientation(s) ({orientations}; poses \
+         within {DISTINCT_DEG}° count as one): the nine intrinsic properties need at least \
+         nine; add poses with gravity near {add} (x, y, z: the sensor's u, v, w axes)"
+    )]
+    TooFew {
+        /// Poses.
+        poses: usize,
+        /// Distinct orientations among them.
+        distinct: usize,
+        /// Those orientations, named.
+        orientations: String,
+        /// Directions to add.
+        add: String,
+    },
+    /// Poses on a circle or in a plane, or the like.
+    #[error(
+        "the {poses} poses leave G or O under-determined (condition number {cond:.3e}; \
+         {why}): add poses with gravity near {add} (x, y, z: the sensor's u, v, w axes)"
+    )]
+    UnderDetermined {
+        /// Poses.
+        poses: usize,
+        /// Condition number of the unit design.
+        cond: f64,
+        /// What the poses have in common.
+        why: String,
+        /// Directions to add.
+        add: String,
+    },
+    /// The minimiser failed.
+    #[error("the fit of G and O did not converge: {0}")]
+    NoConvergence(String),
+}
+
+/// The result.
+#[derive(Clone, Debug)]
+pub struct FreeFit {
+    /// S in the device frame: L, lower triangular, output units per m/s².
+    pub l: [[f64; 3]; 3],
+    /// O, output units.
+    pub offsets: [f64; 3],
+    /// Covariance of (S row-major, O), 12 × 12 (zeros where L is zero).
+    pub cov: SMatrix<f64, 12, 12>,
+    /// The poses fitted.
+    pub poses: Vec<PoseResult>,
+    /// Poses taken out as not fitting: (name, verdict).
+    pub rejected: Vec<(String, Verdict)>,
+    /// χ² of the fit with the noise alone (τ = 0), and its degrees of freedom P − 9.
+    pub chi2: f64,
+    /// P − 9.
+    pub dof: usize,
+    /// Scatter of the poses beyond their noise, m/s² (0 unless χ² exceeds its 99th
+    /// percentile).
+    pub tau_ms2: f64,
+    /// Degrees of freedom behind the covariance: P − 9 with τ, else infinite.
+    pub nu: f64,
+    /// Coverage factor at `nu`.
+    pub k: f64,
+    /// Condition number of the unit design.
+    pub condition_number: f64,
+    /// When flagged, the directions to add.
+    pub suggestion: Option<String>,
+    /// What the user should know, each a sentence.
+    pub notes: Vec<String>,
+    /// The residual used.
+    pub residual: Residual,
+}
+
+/// L from the parameters.
+fn l_of(x: &[f64]) -> Matrix3<f64> {
+    let mut l = Matrix3::zeros();
+    for (k, (i, j)) in L_INDEX.iter().enumerate() {
+        l[(*i, *j)] = x.get(k).copied().unwrap_or(f64::NAN);
+    }
+    l
+}
+
+/// Per pose: what the residual needs at θ.
+struct At {
+    a: Vector3<f64>,
+    q: f64,
+    w: Vector3<f64>,
+    /// n̂ᵀCn̂ (without τ).
+    var: f64,
+    /// (tr C − n̂ᵀCn̂)/(2g).
+    bias: f64,
+}
+
+fn at(x: &[f64], pose: &Pose, g: f64) -> Option<At> {
+    let l = l_of(x);
+    let o = Vector3::new(x[6], x[7], x[8]);
+    let d = Vector3::from(pose.mean) - o;
+    let a = l.solve_lower_triangular(&d)?;
+    let q = a.norm();
+    if !(q.is_finite() && q > 0.0) {
+        return None;
+    }
+    let n = a / q;
+    let w = l.transpose().solve_upper_triangular(&n)?;
+    let linv = l.solve_lower_triangular(&Matrix3::identity())?;
+    let se2 = Vector3::from(pose.std_err.map(|s| s * s));
+    let var = (0..3).map(|k| w[k] * w[k] * se2[k]).sum::<f64>();
+    let tr = (0..3)
+        .flat_map(|i| (0..3).map(move |k| (i, k)))
+        .map(|(i, k)| linv[(i, k)].powi(2) * se2[k])
+        .sum::<f64>();
+    Some(At {
+        a,
+        q,
+        w,
+        var,
+        bias: (tr - var) / (2.0 * g),
+    })
+}
+
+/// The least-squares problem at fixed weights and biases.
+struct Problem<'a> {
+    x: OVector<f64, U9>,
+    poses: &'a [Pose],
+    g: f64,
+    /// Per pose: 1/σ and b.
+    weight: Vec<(f64, f64)>,
+    residual: Residual,
+}
+
+impl Problem<'_> {
+    fn row(&self, i: usize) -> Option<(f64, [f64; PARAMS])> {
+        let p = self.poses.get(i)?;
+        let (inv_sd, bias) = *self.weight.get(i)?;
+        let s = at(self.x.as_slice(), p, self.g)?;
+        let (r, scale) = match self.residual {
+            Residual::Geometric => (s.q - self.g - bias, 1.0),
+            Residual::Algebraic => ((s.q * s.q - self.g * self.g) / (2.0 * self.g), s.q / self.g),
+        };
+        let mut j = [0.0; PARAMS];
+        for (k, (a, b)) in L_INDEX.iter().enumerate() {
+            j[k] = -s.w[*a] * s.a[*b] * scale * inv_sd;
+        }
+        for k in 0..3 {
+            j[6 + k] = -s.w[k] * scale * inv_sd;
+        }
+        Some((r * inv_sd, j))
+    }
+}
+
+impl LeastSquaresProblem<f64, Dyn, U9> for Problem<'_> {
+    type ResidualStorage = nalgebra::VecStorage<f64, Dyn, nalgebra::U1>;
+    type JacobianStorage = nalgebra::VecStorage<f64, Dyn, U9>;
+    type ParameterStorage = nalgebra::ArrayStorage<f64, 9, 1>;
+
+    fn set_params(&mut self, x: &OVector<f64, U9>) {
+        self.x.copy_from(x);
+    }
+
+    fn params(&self) -> OVector<f64, U9> {
+        self.x
+    }
+
+    fn residuals(&self) -> Option<OVector<f64, Dyn>> {
+        let mut r = OVector::<f64, Dyn>::zeros(self.poses.len());
+        for i in 0..self.poses.len() {
+            r[i] = self.row(i)?.0;
+        }
+        Some(r)
+    }
+
+    fn jacobian(&self) -> Option<OMatrix<f64, Dyn, U9>> {
+        let mut m = OMatrix::<f64, Dyn, U9>::zeros(self.poses.len());
+        for i in 0..self.poses.len() {
+            let (_, j) = self.row(i)?;
+            for (k, v) in j.iter().enumerate() {
+                m[(i, k)] = *v;
+            }
+        }
+        Some(m)
+    }
+}
+
+/// A start: the sphere through the pose means (|y − c|² = R², linear in c and
+/// R² − |c|²), so L = (R/g)·I and O = c.
+fn start(poses: &[Pose], g: f64) -> Option<SVector<f64, 9>> {
+    let mut m = nalgebra::Matrix4::zeros();
+    let mut b = nalgebra::Vector4::zeros();
+    for p in poses {
+        let y = p.mean;
+        let h = nalgebra::Vector4::new(2.0 * y[0], 2.0 * y[1], 2.0 * y[2], 1.0);
+        m += h * h.transpose();
+        b += h * (y[0] * y[0] + y[1] * y[1] + y[2] * y[2]);
+    }
+    let c = m.try_inverse()? * b;
+    let r2 = c[3] + c[0] * c[0] + c[1] * c[1] + c[2] * c[2];
+    let s = (r2.max(0.0)).sqrt() / g;
+    (s > 0.0).then(|| SVector::from([s, 0.0, s, 0.0, 0.0, s, c[0], c[1], c[2]]))
+}
+
+/// The unit design: the Jacobian rows of L = I, O = 0, g = 1 at unit directions.
+fn unit_row(n: &[f64; 3]) -> [f64; PARAMS] {
+    let mut r = [0.0; PARAMS];
+    for (k, (i, j)) in L_INDEX.iter().enumerate() {
+        r[k] = n[*i] * n[*j];
+    }
+    r[6..].copy_from_slice(n);
+    r
+}
+
+fn cond_of(rows: &[[f64; PARAMS]]) -> (f64, SVector<f64, 9>) {
+    let m = DMatrix::from_fn(rows.len().max(PARAMS), PARAMS, |i, j| {
+        rows.get(i).map_or(0.0, |r| r[j])
+    });
+    let svd = m.svd(false, true);
+    let (mut imin, mut smin, mut smax) = (0, f64::INFINITY, 0.0f64);
+    for (i, s) in svd.singular_values.iter().enumerate() {
+        if *s < smin {
+            smin = *s;
+            imin = i;
+        }
+        smax = smax.max(*s);
+    }
+    let v = svd
+        .v_t
+        .as_ref()
+        .map(|vt| SVector::from_fn(|j, _| vt[(imin, j)]))
+        .unwrap_or_else(SVector::zeros);
+    let cond = if smin > smax * 1e-15 { smax / smin } else { f64::INFINITY };
+    (cond, v)
+}
+
+/// Candidate directions to suggest: the axes, the edges and the corners of a cube.
+fn candidates() -> Vec<([f64; 3], String)> {
+    let axis = ["x", "y", "z"];
+    let mut out = Vec::new();
+    for a in 0..3 {
+        for s in [1.0, -1.0] {
+            let mut v = [0.0; 3];
+            v[a] = s;
+            out.push((v, format!("{}{}", if s > 0.0 { "+" } else { "−" }, axis[a])));
+        }
+    }
+    for a in 0..3 {
+        for b in (a + 1)..3 {
+            for (sa, sb) in [(1.0, 1.0), (1.0, -1.0), (-1.0, 1.0), (-1.0, -1.0)] {
+                let mut v = [0.0; 3];
+                v[a] = sa / 2f64.sqrt();
+                v[b] = sb / 2f64.sqrt();
+                let sign = |s: f64| if s > 0.0 { "+" } else { "−" };
+                out.push((v, format!("({}{}{}{})/√2", sign(sa), axis[a], sign(sb), axis[b])));
+            }
+        }
+    }
+    out
+}
+
+/// log det(JᵀJ + εI) of unit design rows: the D-optimal criterion (ε keeps it finite
+/// while the rows do not yet determine every parameter).
+fn log_det(rows: &[[f64; PARAMS]]) -> f64 {
+    let mut m = SMatrix::<f64, PARAMS, PARAMS>::identity() * 1e-6;
+    for r in rows {
+        let v = SVector::<f64, PARAMS>::from_column_slice(r);
+        m += v * v.transpose();
+    }
+    m.symmetric_eigenvalues().iter().map(|l| l.max(1e-300).ln()).sum()
+}
+
+/// Directions that would make the design well conditioned, greedily: each time the
+/// candidate (an axis, edge or corner of a cube) that raises log det(JᵀJ) most, until the
+/// design is well conditioned (at most six). Named in the device frame: x′ ≈ u's axis,
+/// y′ ≈ v's, z′ ≈ w's.
+fn suggest(rows: &[[f64; PARAMS]]) -> String {
+    let mut rows = rows.to_vec();
+    let mut picked: Vec<String> = Vec::new();
+    let cands = candidates();
+    for _ in 0..6 {
+        if rows.len() >= PARAMS && cond_of(&rows).0 <= WELL_CONDITIONED {
+            break;
+        }
+        let best = cands
+            .iter()
+            .map(|(v, name)| {
+                let mut r = rows.clone();
+                r.push(unit_row(v));
+                (log_det(&r), v, name)
+            })
+            .max_by(|a, b| a.0.total_cmp(&b.0));
+        match best {
+            Some((_, v, name)) => {
+                rows.push(unit_row(v));
+                picked.push(name.clone());
+            }
+            None => break,
+        }
+    }
+    match picked.len() {
+        0 => "other directions".into(),
+        1 => picked.concat(),
+        _ => {
+            let last = picked.pop().unwrap_or_default();
+            format!("{} and {last}", picked.join(", "))
+        }
+    }
+}
+
+/// The poses' distinct orientations: (first direction of the group, count), grouping
+/// directions within [`DISTINCT_DEG`] of a group's first.
+fn distinct(dirs: &[[f64; 3]]) -> Vec<([f64; 3], usize)> {
+    let cos = DISTINCT_DEG.to_radians().cos();
+    let mut out: Vec<([f64; 3], usize)> = Vec::new();
+    for d in dirs {
+        match out
+            .iter_mut()
+            .find(|(c, _)| c[0] * d[0] + c[1] * d[1] + c[2] * d[2] >= cos)
+        {
+            Some(c) => c.1 += 1,
+            None => out.push((*d, 1)),
+        }
+    }
+    out
+}
+
+/// A direction as text: the nearest axis, edge or corner of a cube when within 10°,
+/// else the vector.
+pub fn name_direction(d: &[f64; 3]) -> String {
+    let near = candidates()
+        .into_iter()
+        .map(|(v, n)| (v[0] * d[0] + v[1] * d[1] + v[2] * d[2], n))
+        .max_by(|a, b| a.0.total_cmp(&b.0));
+    match near {
+        Some((c, n)) if c >= DISTINCT_DEG.to_radians().cos() => format!("near {n}"),
+        _ => format!("({:.2}, {:.2}, {:.2})", d[0], d[1], d[2]),
+    }
+}
+
+/// What degenerate poses have in common, for the message.
+fn why_degenerate(dirs: &[[f64; 3]]) -> String {
+    // The directions' plane: the smallest singular vector of [n, 1].
+    let m = DMatrix::from_fn(dirs.len().max(4), 4, |i, j| {
+        dirs.get(i).map_or(0.0, |d| if j < 3 { d[j] } else { 1.0 })
+    });
+    let svd = m.svd(false, true);
+    let smin = svd.singular_values.iter().fold(f64::INFINITY, |a, b| a.min(*b));
+    if smin < 1e-3 * (dirs.len() as f64).sqrt() {
+        let great = svd.v_t.as_ref().and_then(|vt| {
+            let i = svd.singular_values.iter().position(|s| *s == smin)?;
+            Some(vt[(i, 3)].abs() < 1e-2 * (vt[(i, 0)].hypot(vt[(i, 1)]).hypot(vt[(i, 2)])))
+        });
+        return match great {
+            Some(true) => "their directions lie on one great circle, as a rotation about one axis gives".into(),
+            _ => "their directions lie on one circle (one plane cuts them all)".into(),
+        };
+    }
+    "their directions do not span the ellipsoid".into()
+}
+
+/// Fit G and O to the poses in gravity `g`.
+pub fn fit(poses: &[Pose], g: f64, residual: Residual) -> Result<FreeFit, FreeError> {
+    let mut poses: Vec<Pose> = poses.to_vec();
+    let mut rejected = Vec::new();
+    let mut notes = Vec::new();
+    loop {
+        let x0 = start(&poses, g);
+        // Directions as the start sees them (the sphere fit): enough to judge the geometry.
+        let dirs: Vec<[f64; 3]> = poses
+            .iter()
+            .map(|p| {
+                let c = x0.map_or([0.0; 3], |x| [x[6], x[7], x[8]]);
+                let d = [0, 1, 2].map(|k| p.mean[k] - c[k]);
+                let n = d.iter().map(|v| v * v).sum::<f64>().sqrt().max(1e-300);
+                d.map(|v| v / n)
+            })
+            .collect();
+        let rows: Vec<[f64; PARAMS]> = dirs.iter().map(unit_row).collect();
+        let clusters = distinct(&dirs);
+        if clusters.len() < PARAMS {
+            let centres: Vec<[f64; 3]> = clusters.iter().map(|c| c.0).collect();
+            let one_each: Vec<[f64; PARAMS]> = centres.iter().map(unit_row).collect();
+            return Err(FreeError::TooFew {
+                poses: poses.len(),
+                distinct: clusters.len(),
+                orientations: clusters
+                    .iter()
+                    .map(|(c, n)| format!("{} ×{n}", name_direction(c)))
+                    .collect::<Vec<_>>()
+                    .join(", "),
+                add: suggest(&one_each),
+            });
+        }
+        let (cond, _) = cond_of(&rows);
+        let Some(x0) = x0.filter(|_| cond <= SINGULAR) else {
+            return Err(FreeError::UnderDetermined {
+                poses: poses.len(),
+                cond,
+                why: why_degenerate(&dirs),
+                add: suggest(&rows),
+            });
+        };
+        let mut fit = solve(&poses, g, residual, x0, 0.0)?;
+        fit.condition_number = cond;
+        if cond > WELL_CONDITIONED {
+            let add = suggest(&rows);
+            notes.push(format!(
+                "the poses are badly conditioned (condition number {cond:.1}, above \
+                 {WELL_CONDITIONED}): add poses with gravity near {add}"
+            ));
+            fit.suggestion = Some(add);
+        }
+        // A pose that does not fit: far out both against its own noise (Bonferroni over
+        // the poses) and against the others' scatter (robust).
+        let z: Vec<f64> = fit
+            .poses
+            .iter()
+            .map(|p| p.residual_ms2 / p.residual_std_ms2.max(1e-300))
+            .collect();
+        let mut abs_dev: Vec<f64> = {
+            let mut r: Vec<f64> = fit.poses.iter().map(|p| p.residual_ms2).collect();
+            let m = median_of(&mut r);
+            fit.poses.iter().map(|p| (p.residual_ms2 - m).abs()).collect()
+        };
+        let mad = 1.4826 * median_of(&mut abs_dev);
+        let z_crit = Normal::new(0.0, 1.0)
+            .map(|n| n.inverse_cdf(1.0 - 0.005 / poses.len() as f64))
+            .unwrap_or(4.0);
+        let worst = z
+            .iter()
+            .enumerate()
+            .max_by(|a, b| a.1.abs().total_cmp(&b.1.abs()))
+            .map(|(i, v)| (i, *v));
+        let significant = fit.dof > 0 && chi2_p(fit.chi2, fit.dof) < 0.01;
+        if let Some((i, zi)) = worst {
+            let r = fit.poses.get(i).map_or(0.0, |p| p.residual_ms2);
+            if significant && zi.abs() > z_crit && (r.abs() > OUTLIER_ROBUST_Z * mad) && poses.len() > PARAMS {
+                let name = poses.get(i).map(|p| p.name.clone()).unwrap_or_default();
+                rejected.push((name, Verdict::DoesNotFit { residual_ms2: r, z: zi }));
+                poses.remove(i);
+                continue;
+            }
+        }
+        // Scatter beyond the noise, when χ² demands it.
+        if significant {
+            let tau = tau_for(&fit, fit.dof);
+            let x: Vec<f64> = fit_params(&fit);
+            let mut with = solve(&poses, g, residual, SVector::from_column_slice(&x), tau)?;
+            with.condition_number = fit.condition_number;
+            with.suggestion = fit.suggestion.clone();
+            with.chi2 = fit.chi2;
+            notes.push(format!(
+                "the poses scatter beyond their noise (χ² = {:.1} on {} degrees of freedom, \
+                 p < 0.01): a scatter τ = {tau:.3e} m/s² per pose is added to each pose's \
+                 variance (estimated so that χ² equals its degrees of freedom), and the \
+                 coverage factor is Student's t at {} degrees of freedom",
+                fit.chi2, fit.dof, fit.dof
+            ));
+            fit = with;
+        }
+        fit.rejected = rejected;
+        fit.notes = notes;
+        return Ok(fit);
+    }
+}
+
+fn median_of(v: &mut [f64]) -> f64 {
+    v.sort_by(f64::total_cmp);
+    let n = v.len();
+    if n == 0 {
+        return f64::NAN;
+    }
+    if n % 2 == 1 {
+        v.get(n / 2).copied().unwrap_or(f64::NAN)
+    } else {
+        (v.get(n / 2 - 1).copied().unwrap_or(f64::NAN) + v.get(n / 2).copied().unwrap_or(f64::NAN)) / 2.0
+    }
+}
+
+/// Upper tail probability of χ² with `dof` degrees of freedom.
+fn chi2_p(chi2: f64, dof: usize) -> f64 {
+    ChiSquared::new(dof as f64).map_or(1.0, |d| 1.0 - d.cdf(chi2))
+}
+
+fn fit_params(f: &FreeFit) -> Vec<f64> {
+    let mut x: Vec<f64> = L_INDEX.iter().map(|(i, j)| f.l[*i][*j]).collect();
+    x.extend(f.offsets);
+    x
+}
+
+/// τ such that Σ r²/(σ² + τ²) = dof (bisection on τ²).
+fn tau_for(f: &FreeFit, dof: usize) -> f64 {
+    let chi = |t2: f64| {
+        f.poses
+            .iter()
+            .map(|p| p.residual_ms2.powi(2) / (p.residual_std_ms2.powi(2) + t2))
+            .sum::<f64>()
+    };
+    let target = dof as f64;
+    let mut hi = f.poses.iter().map(|p| p.residual_ms2.powi(2)).fold(0.0, f64::max).max(1e-300);
+    let mut lo = 0.0;
+    for _ in 0..200 {
+        let mid = 0.5 * (lo + hi);
+        if chi(mid) > target {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    (0.5 * (lo + hi)).sqrt()
+}
+
+/// The weighted fit from `x0` with scatter `tau` (m/s²): weights and biases refreshed
+/// between minimiser runs until the parameters settle.
+fn solve(
+    poses: &[Pose],
+    g: f64,
+    residual: Residual,
+    x0: SVector<f64, 9>,
+    tau: f64,
+) -> Result<FreeFit, FreeError> {
+    let mut x = x0;
+    // Noise-free poses (simulated) have no variance: every pose then weighs the same.
+    let weights_at = |x: &SVector<f64, 9>| -> Result<Vec<(f64, f64)>, FreeError> {
+        let mut w = Vec::with_capacity(poses.len());
+        for p in poses {
+            let s = at(x.as_slice(), p, g)
+                .ok_or_else(|| FreeError::NoConvergence("a pose maps to zero".into()))?;
+            w.push((s.var, s.bias));
+        }
+        let noiseless = w.iter().all(|(v, _)| *v <= 0.0);
+        Ok(w
+            .into_iter()
+            .map(|(v, b)| {
+                let var = if noiseless { 1.0 } else { v.max(1e-300) + tau * tau };
+                (1.0 / var.sqrt(), if residual == Residual::Geometric { b } else { 0.0 })
+            })
+            .collect())
+    };
+    let mut problem = Problem {
+        x,
+        poses,
+        g,
+        weight: weights_at(&x)?,
+        residual,
+    };
+    for _ in 0..6 {
+        let (solved, report) = LevenbergMarquardt::new().minimize(problem);
+        if !report.termination.was_successful() {
+            return Err(FreeError::NoConvergence(format!("{:?}", report.termination)));
+        }
+        problem = solved;
+        let moved = (problem.x - x).norm() / x.norm().max(1e-300);
+        x = problem.x;
+        problem.weight = weights_at(&x)?;
+        if moved < 1e-12 {
+            break;
+        }
+    }
+    let (solved, report) = LevenbergMarquardt::new().minimize(problem);
+    if !report.termination.was_successful() {
+        return Err(FreeError::NoConvergence(format!("{:?}", report.termination)));
+    }
+    problem = solved;
+    x = problem.x;
+    let j = problem
+        .jacobian()
+        .ok_or_else(|| FreeError::NoConvergence("no Jacobian at the solution".into()))?;
+    let jtj = j.tr_mul(&j);
+    let cov9 = jtj
+        .try_inverse()
+        .ok_or_else(|| FreeError::NoConvergence("singular normal matrix".into()))?;
+    // To (S row-major, O).
+    let index12 = |k: usize| match L_INDEX.get(k) {
+        Some((i, j)) => 3 * i + j,
+        None => 9 + (k - 6),
+    };
+    let mut cov = SMatrix::<f64, 12, 12>::zeros();
+    for a in 0..PARAMS {
+        for b in 0..PARAMS {
+            cov[(index12(a), index12(b))] = cov9[(a, b)];
+        }
+    }
+    let l = l_of(x.as_slice());
+    let mut results = Vec::with_capacity(poses.len());
+    let mut chi2 = 0.0;
+    for (i, p) in poses.iter().enumerate() {
+        let s = at(x.as_slice(), p, g)
+            .ok_or_else(|| FreeError::NoConvergence("a pose maps to zero".into()))?;
+        let (inv_sd, bias) = problem.weight.get(i).copied().unwrap_or((1.0, 0.0));
+        let r = s.q - g - bias;
+        let sd_noise = s.var.max(0.0).sqrt();
+        if sd_noise > 0.0 {
+            chi2 += (r / sd_noise).powi(2);
+        }
+        let n = s.a / s.q;
+        results.push(PoseResult {
+            name: p.name.clone(),
+            direction: [n[0], n[1], n[2]],
+            residual_ms2: r,
+            residual_std_ms2: 1.0 / inv_sd,
+        });
+    }
+    let dof = poses.len().saturating_sub(PARAMS);
+    let nu = if tau > 0.0 { dof as f64 } else { f64::INFINITY };
+    Ok(FreeFit {
+        l: [0, 1, 2].map(|i| [0, 1, 2].map(|j| l[(i, j)])),
+        offsets: [x[6], x[7], x[8]],
+        cov,
+        poses: results,
+        rejected: Vec::new(),
+        chi2,
+        dof,
+        tau_ms2: tau,
+        nu,
+        k: coverage_factor(nu),
+        condition_number: f64::NAN,
+        suggestion: None,
+        notes: Vec::new(),
+        residual,
+    })
+}
