@@ -7,11 +7,14 @@
 //!   first harmonics of ω (each from a least-squares fit of sin kα, cos kα and a constant
 //!   to the residuals, so it holds for records of any length);
 //! - for multi-rate files, the properties against rate relative to the lowest rate, with
-//!   U (k = 2) as error bars (like seed 000 Fig. 6).
+//!   U (k = 2) as error bars (like seed 000 Fig. 6);
+//! - for method free: |y| against time with the still intervals marked, the
+//!   fitted gravity directions, each pose's residual, and their tables.
 //!
 //! SVG needs no fonts at build or run time; the viewer renders the text.
 
 pub mod discrepancy;
+mod free;
 
 use crate::calibrate::json::{CalibrationJson, FitJson, Quantity, RateJson};
 use crate::calibrate::{self, calibrate, CalibrateError, Options, CLOCK};
@@ -428,10 +431,11 @@ pub fn write(rec: &Recording, opts: &Options, dir: &Path) -> Result<PathBuf, Rep
     );
     let su = format!("{units}/(m/s²)");
     for entry in &cal.by_rate {
-        let heading = entry
-            .rate_hz
-            .map(|r| format!("Rotation at {r} Hz"))
-            .unwrap_or_else(|| "Static".into());
+        let heading = match (entry.rate_hz, &entry.free) {
+            (Some(r), _) => format!("Rotation at {r} Hz"),
+            (None, Some(_)) => "Free poses (unknown orientation)".into(),
+            (None, None) => "Static".into(),
+        };
         let _ = writeln!(md, "## {heading}\n");
         let _ = writeln!(
             md,
@@ -540,6 +544,9 @@ pub fn write(rec: &Recording, opts: &Options, dir: &Path) -> Result<PathBuf, Rep
                     d.offset_std_unc[j]
                 );
             }
+        }
+        if let Some(f) = &entry.free {
+            free::write(rec, f, &units, dir, &mut md)?;
         }
         if !entry.fits.is_empty() {
             let _ = writeln!(md, "\nFits (A sin α + B cos α + C, {units}):\n\n| condition | channel | A ± se | B ± se | C ± se | rms residual | n |\n| --- | --- | --- | --- | --- | --- | --- |");

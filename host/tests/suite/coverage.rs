@@ -34,7 +34,7 @@ fn parallel<T: Send>(trial: impl Fn(usize) -> T + Sync) -> Vec<T> {
 }
 
 /// Runs `trial(i)` for i in 0..n on two threads.
-fn parallel_n<T: Send>(n: usize, trial: impl Fn(usize) -> T + Sync) -> Vec<T> {
+pub(crate) fn parallel_n<T: Send>(n: usize, trial: impl Fn(usize) -> T + Sync) -> Vec<T> {
     let half = n / 2;
     std::thread::scope(|s| {
         let a = s.spawn(|| (0..half).map(&trial).collect::<Vec<_>>());
@@ -45,7 +45,7 @@ fn parallel_n<T: Send>(n: usize, trial: impl Fn(usize) -> T + Sync) -> Vec<T> {
     })
 }
 
-struct Tally {
+pub(crate) struct Tally {
     names: Vec<&'static str>,
     truth: Vec<f64>,
     covered: Vec<u32>,
@@ -54,7 +54,7 @@ struct Tally {
 }
 
 impl Tally {
-    fn new(names: Vec<&'static str>, truth: Vec<f64>) -> Self {
+    pub(crate) fn new(names: Vec<&'static str>, truth: Vec<f64>) -> Self {
         let k = names.len();
         Tally {
             names,
@@ -65,7 +65,7 @@ impl Tally {
         }
     }
 
-    fn add(&mut self, qs: &[&Quantity]) {
+    pub(crate) fn add(&mut self, qs: &[&Quantity]) {
         assert_eq!(qs.len(), self.names.len());
         for (k, q) in qs.iter().enumerate() {
             assert!(q.k >= 2.0);
@@ -90,7 +90,7 @@ impl Tally {
     }
 
     /// Prints each property's coverage and spread; returns the failures.
-    fn check(&self) -> Vec<String> {
+    pub(crate) fn check(&self) -> Vec<String> {
         let mut failures = Vec::new();
         for k in 0..self.names.len() {
             let frac = f64::from(self.covered[k]) / self.values[k].len() as f64;

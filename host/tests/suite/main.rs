@@ -13,6 +13,7 @@ mod crosscheck_cli;
 mod demo;
 mod discrepancy;
 mod fit_vs_batch;
+mod free_method;
 mod import;
 mod imucal;
 mod intrinsic;

@@ -1,6 +1,7 @@
 //! `rotacal report`: every preset gives a Markdown report whose table is the calibration's,
 //! with its plots; the residual spectrum finds a simulated second-order nonlinearity at
-//! the second harmonic of the channel that has it; a bad file fails with its place.
+//! the second harmonic of the channel that has it; a bad file fails with its place; a
+//! free session shows its intervals and poses.
 use crate::common;
 use common::run;
 use rotacal::simulate::{Config, Simulation};
@@ -170,4 +171,118 @@ fn the_report_and_the_json_agree_for_the_same_options() {
         !agree(&without),
         "the options made no difference: {without:?}"
     );
+}
+
+/// Method free: the report shows the JSON's properties with U, every interval the
+/// detection found (a pose that turns is marked rejected), the poses, and its three plots.
+#[test]
+fn a_free_session_reports_its_intervals_and_poses() {
+    let d = dir("free");
+    let cfg = d.join("free.toml");
+    std::fs::write(
+        &cfg,
+        r#"seed = 7
+method = "free"
+g_loc = 9.80101
+units = "counts"
+[device]
+sensitivity = [1669.32, 1669.10, 1676.46]
+angles_deg = [90.077, 90.095, 89.910]
+offsets = [525.1, 99.6, 442.4]
+[sensor]
+lsb = 1.0
+full_scale = [-32768.0, 32767.0]
+[sensor.noise]
+ar = [0.6]
+sd = [10.6, 8.5, 12.5]
+[timing]
+sample_rate_hz = 104.0
+[poses]
+count = 12
+still_s = 4.0
+move_s = 2.0
+[poses.moved]
+pose = 3
+deg = 1.0
+"#,
+    )
+    .unwrap();
+    let rec = d.join("F.csv");
+    let out = d.join("report");
+    let json = d.join("cal.json");
+    let path = |p: &PathBuf| p.display().to_string();
+    for args in [
+        vec![
+            "simulate".to_string(),
+            path(&cfg),
+            "--out".into(),
+            path(&rec),
+        ],
+        vec!["report".to_string(), path(&rec), "--out".into(), path(&out)],
+        vec![
+            "calibrate".to_string(),
+            path(&rec),
+            "--json".into(),
+            path(&json),
+        ],
+    ] {
+        let (ok, stdout, stderr) = run(&args);
+        assert!(ok, "{args:?}\n{stdout}\n{stderr}");
+    }
+    let md = std::fs::read_to_string(out.join("report.md")).unwrap();
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let entry = &v["by_rate"][0];
+    assert!(md.contains("## Free poses (unknown orientation)"), "{md}");
+    let names = rotacal::calibrate::json::PROPERTY_NAMES_WITH_OFFSETS;
+    for (name, (g, k)) in names.iter().zip(common::PROPERTY_KEYS) {
+        let q = &entry["intrinsic"][g][k];
+        let (x, u) = (
+            q["value"].as_f64().unwrap(),
+            q["expanded_unc"].as_f64().unwrap(),
+        );
+        let dp = rotacal::calibrate::table::decimals(u);
+        let cell = format!("| {name} | {x:.dp$} ± {u:.dp$} ");
+        assert!(md.contains(&cell), "{cell}\n{md}");
+    }
+    for svg in ["magnitude.svg", "directions.svg", "pose_residuals.svg"] {
+        let text = std::fs::read_to_string(out.join(svg)).unwrap();
+        assert!(text.starts_with("<svg") && text.contains("</svg>"), "{svg}");
+        assert!(md.contains(&format!("]({svg})")), "{svg}\n{md}");
+    }
+    let free = &entry["free"];
+    let intervals: Vec<&serde_json::Value> = free["detection"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .flat_map(|d| d["intervals"].as_array().unwrap())
+        .collect();
+    let table = |header: &str| -> Vec<String> {
+        md.lines()
+            .skip_while(|l| !l.starts_with(header))
+            .skip(2)
+            .take_while(|l| l.starts_with('|'))
+            .map(String::from)
+            .collect()
+    };
+    let rows = table("| interval |");
+    assert_eq!(rows.len(), intervals.len(), "{md}");
+    for (row, i) in rows.iter().zip(&intervals) {
+        let name = i["name"].as_str().unwrap();
+        assert!(row.starts_with(&format!("| {name} |")), "{row}");
+        assert!(row.contains(&format!("| {} |", i["n"])), "{row}");
+        let verdict = i["verdict"].as_str().unwrap();
+        assert!(
+            row.contains(&format!("| {}", verdict.replace('-', " "))),
+            "{row}"
+        );
+    }
+    // The pose that turned is found, rejected and marked as such in the plot.
+    assert!(intervals.iter().any(|i| i["verdict"] == "moved"), "{md}");
+    let magnitude = std::fs::read_to_string(out.join("magnitude.svg")).unwrap();
+    assert!(magnitude.contains("rejected: moved") && magnitude.contains("kept"));
+    let poses = free["poses"].as_array().unwrap();
+    assert_eq!(table("| # | pose |").len(), poses.len(), "{md}");
+    let dof = free["dof"].as_u64().unwrap();
+    assert!(md.contains(&format!("on {dof} degrees of freedom")), "{md}");
 }

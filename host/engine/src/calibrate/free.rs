@@ -35,9 +35,12 @@ const L_INDEX: [(usize, usize); 6] = [(0, 0), (1, 0), (1, 1), (2, 0), (2, 1), (2
 pub const WELL_CONDITIONED: f64 = 30.0;
 /// Above this the poses leave G or O under-determined.
 pub const SINGULAR: f64 = 1e6;
+/// A pose's standard deviation of |a| is not taken below this fraction of g: below it
+/// lies the round-off of noise-free data.
+const ROUND_OFF: f64 = 1e-10;
 /// Poses whose directions are closer than this (degrees) count as one orientation: a
 /// second pose there adds almost nothing about G.
-pub const DISTINCT_DEG: f64 = 10.0;
+pub const DISTINCT_DEG: f64 = 3.0;
 /// A pose whose residual is this many robust standard deviations from the others', and
 /// beyond the normal quantile for its count, is taken out as not fitting.
 const OUTLIER_ROBUST_Z: f64 = 5.0;
@@ -208,6 +211,31 @@ fn at(x: &[f64], pose: &Pose, g: f64) -> Option<At> {
     })
 }
 
+/// Cov(|a|, ∂|a|/∂θ) of one pose to second order in its noise: with C = L⁻¹ΣL⁻ᵀ,
+/// m = C·n̂ and v = L⁻ᵀ(I − n̂n̂ᵀ)m/|a|, it is −v_k for O_k and −a_j·v_i − w_i·m_j for L_ij.
+fn score_cov(x: &[f64], pose: &Pose) -> Option<SVector<f64, 9>> {
+    let l = l_of(x);
+    let o = Vector3::new(x[6], x[7], x[8]);
+    let a = l.solve_lower_triangular(&(Vector3::from(pose.mean) - o))?;
+    let q = a.norm();
+    let n = a / q;
+    let w = l.transpose().solve_upper_triangular(&n)?;
+    let linv = l.solve_lower_triangular(&Matrix3::identity())?;
+    let sigma = Matrix3::from_diagonal(&Vector3::from(pose.std_err.map(|s| s * s)));
+    let c = linv * sigma * linv.transpose();
+    let m = c * n;
+    let proj = Matrix3::identity() - n * n.transpose();
+    let v = linv.transpose() * proj * m / q;
+    let mut out = SVector::<f64, 9>::zeros();
+    for (k, (i, j)) in L_INDEX.iter().enumerate() {
+        out[k] = -a[*j] * v[*i] - w[*i] * m[*j];
+    }
+    for k in 0..3 {
+        out[6 + k] = -v[k];
+    }
+    Some(out)
+}
+
 /// The least-squares problem at fixed weights and biases.
 struct Problem<'a> {
     x: OVector<f64, U9>,
@@ -316,7 +344,11 @@ fn cond_of(rows: &[[f64; PARAMS]]) -> (f64, SVector<f64, 9>) {
         .as_ref()
         .map(|vt| SVector::from_fn(|j, _| vt[(imin, j)]))
         .unwrap_or_else(SVector::zeros);
-    let cond = if smin > smax * 1e-15 { smax / smin } else { f64::INFINITY };
+    let cond = if smin > smax * 1e-15 {
+        smax / smin
+    } else {
+        f64::INFINITY
+    };
     (cond, v)
 }
 
@@ -338,7 +370,10 @@ fn candidates() -> Vec<([f64; 3], String)> {
                 v[a] = sa / 2f64.sqrt();
                 v[b] = sb / 2f64.sqrt();
                 let sign = |s: f64| if s > 0.0 { "+" } else { "−" };
-                out.push((v, format!("({}{}{}{})/√2", sign(sa), axis[a], sign(sb), axis[b])));
+                out.push((
+                    v,
+                    format!("({}{}{}{})/√2", sign(sa), axis[a], sign(sb), axis[b]),
+                ));
             }
         }
     }
@@ -353,7 +388,10 @@ fn log_det(rows: &[[f64; PARAMS]]) -> f64 {
         let v = SVector::<f64, PARAMS>::from_column_slice(r);
         m += v * v.transpose();
     }
-    m.symmetric_eigenvalues().iter().map(|l| l.max(1e-300).ln()).sum()
+    m.symmetric_eigenvalues()
+        .iter()
+        .map(|l| l.max(1e-300).ln())
+        .sum()
 }
 
 /// Directions that would make the design well conditioned, greedily: each time the
@@ -424,6 +462,53 @@ pub fn name_direction(d: &[f64; 3]) -> String {
     }
 }
 
+/// Pose means in one plane (smallest spread across it below [`PLANAR`] of the largest):
+/// their orientations lie on one circle, and no ellipsoid is fixed by them.
+fn planar(poses: &[Pose]) -> Option<FreeError> {
+    let n = poses.len() as f64;
+    if poses.len() < 3 {
+        return None;
+    }
+    let c = [0, 1, 2].map(|k| poses.iter().map(|p| p.mean[k]).sum::<f64>() / n);
+    let m = DMatrix::from_fn(poses.len(), 3, |i, k| {
+        poses.get(i).map_or(0.0, |p| p.mean[k] - c[k])
+    });
+    let svd = m.svd(false, true);
+    let sv = &svd.singular_values;
+    let (imin, smin) = sv
+        .iter()
+        .enumerate()
+        .min_by(|a, b| a.1.total_cmp(b.1))
+        .map(|(i, s)| (i, *s))?;
+    let smax = sv.iter().fold(0.0f64, |a, b| a.max(*b));
+    if smin > PLANAR * smax {
+        return None;
+    }
+    let normal = svd
+        .v_t
+        .as_ref()
+        .map(|vt| [vt[(imin, 0)], vt[(imin, 1)], vt[(imin, 2)]])?;
+    let flip = normal.map(|v| -v);
+    Some(FreeError::UnderDetermined {
+        poses: poses.len(),
+        cond: f64::INFINITY,
+        why: format!(
+            "their readings lie in one plane (spread across it {:.1e} of that along it), so \
+             their orientations are on one circle, as turning about one axis gives",
+            smin / smax
+        ),
+        add: format!(
+            "{} and {}",
+            name_direction(&normal).trim_start_matches("near "),
+            name_direction(&flip).trim_start_matches("near ")
+        ),
+    })
+}
+
+/// Pose means spread less than this across their best plane, relative to along it, count
+/// as planar (about 1° off a circle of poses).
+pub const PLANAR: f64 = 0.02;
+
 /// What degenerate poses have in common, for the message.
 fn why_degenerate(dirs: &[[f64; 3]]) -> String {
     // The directions' plane: the smallest singular vector of [n, 1].
@@ -431,14 +516,20 @@ fn why_degenerate(dirs: &[[f64; 3]]) -> String {
         dirs.get(i).map_or(0.0, |d| if j < 3 { d[j] } else { 1.0 })
     });
     let svd = m.svd(false, true);
-    let smin = svd.singular_values.iter().fold(f64::INFINITY, |a, b| a.min(*b));
+    let smin = svd
+        .singular_values
+        .iter()
+        .fold(f64::INFINITY, |a, b| a.min(*b));
     if smin < 1e-3 * (dirs.len() as f64).sqrt() {
         let great = svd.v_t.as_ref().and_then(|vt| {
             let i = svd.singular_values.iter().position(|s| *s == smin)?;
             Some(vt[(i, 3)].abs() < 1e-2 * (vt[(i, 0)].hypot(vt[(i, 1)]).hypot(vt[(i, 2)])))
         });
         return match great {
-            Some(true) => "their directions lie on one great circle, as a rotation about one axis gives".into(),
+            Some(true) => {
+                "their directions lie on one great circle, as a rotation about one axis gives"
+                    .into()
+            }
             _ => "their directions lie on one circle (one plane cuts them all)".into(),
         };
     }
@@ -451,6 +542,9 @@ pub fn fit(poses: &[Pose], g: f64, residual: Residual) -> Result<FreeFit, FreeEr
     let mut rejected = Vec::new();
     let mut notes = Vec::new();
     loop {
+        if let Some(e) = planar(&poses) {
+            return Err(e);
+        }
         let x0 = start(&poses, g);
         // Directions as the start sees them (the sphere fit): enough to judge the geometry.
         let dirs: Vec<[f64; 3]> = poses
@@ -507,7 +601,10 @@ pub fn fit(poses: &[Pose], g: f64, residual: Residual) -> Result<FreeFit, FreeEr
         let mut abs_dev: Vec<f64> = {
             let mut r: Vec<f64> = fit.poses.iter().map(|p| p.residual_ms2).collect();
             let m = median_of(&mut r);
-            fit.poses.iter().map(|p| (p.residual_ms2 - m).abs()).collect()
+            fit.poses
+                .iter()
+                .map(|p| (p.residual_ms2 - m).abs())
+                .collect()
         };
         let mad = 1.4826 * median_of(&mut abs_dev);
         let z_crit = Normal::new(0.0, 1.0)
@@ -521,9 +618,19 @@ pub fn fit(poses: &[Pose], g: f64, residual: Residual) -> Result<FreeFit, FreeEr
         let significant = fit.dof > 0 && chi2_p(fit.chi2, fit.dof) < 0.01;
         if let Some((i, zi)) = worst {
             let r = fit.poses.get(i).map_or(0.0, |p| p.residual_ms2);
-            if significant && zi.abs() > z_crit && (r.abs() > OUTLIER_ROBUST_Z * mad) && poses.len() > PARAMS {
+            if significant
+                && zi.abs() > z_crit
+                && (r.abs() > OUTLIER_ROBUST_Z * mad)
+                && poses.len() > PARAMS
+            {
                 let name = poses.get(i).map(|p| p.name.clone()).unwrap_or_default();
-                rejected.push((name, Verdict::DoesNotFit { residual_ms2: r, z: zi }));
+                rejected.push((
+                    name,
+                    Verdict::DoesNotFit {
+                        residual_ms2: r,
+                        z: zi,
+                    },
+                ));
                 poses.remove(i);
                 continue;
             }
@@ -560,7 +667,8 @@ fn median_of(v: &mut [f64]) -> f64 {
     if n % 2 == 1 {
         v.get(n / 2).copied().unwrap_or(f64::NAN)
     } else {
-        (v.get(n / 2 - 1).copied().unwrap_or(f64::NAN) + v.get(n / 2).copied().unwrap_or(f64::NAN)) / 2.0
+        (v.get(n / 2 - 1).copied().unwrap_or(f64::NAN) + v.get(n / 2).copied().unwrap_or(f64::NAN))
+            / 2.0
     }
 }
 
@@ -584,7 +692,12 @@ fn tau_for(f: &FreeFit, dof: usize) -> f64 {
             .sum::<f64>()
     };
     let target = dof as f64;
-    let mut hi = f.poses.iter().map(|p| p.residual_ms2.powi(2)).fold(0.0, f64::max).max(1e-300);
+    let mut hi = f
+        .poses
+        .iter()
+        .map(|p| p.residual_ms2.powi(2))
+        .fold(0.0, f64::max)
+        .max(1e-300);
     let mut lo = 0.0;
     for _ in 0..200 {
         let mid = 0.5 * (lo + hi);
@@ -616,11 +729,21 @@ fn solve(
             w.push((s.var, s.bias));
         }
         let noiseless = w.iter().all(|(v, _)| *v <= 0.0);
-        Ok(w
-            .into_iter()
+        Ok(w.into_iter()
             .map(|(v, b)| {
-                let var = if noiseless { 1.0 } else { v.max(1e-300) + tau * tau };
-                (1.0 / var.sqrt(), if residual == Residual::Geometric { b } else { 0.0 })
+                let var = if noiseless {
+                    1.0
+                } else {
+                    v.max((ROUND_OFF * g).powi(2)) + tau * tau
+                };
+                (
+                    1.0 / var.sqrt(),
+                    if residual == Residual::Geometric {
+                        b
+                    } else {
+                        0.0
+                    },
+                )
             })
             .collect())
     };
@@ -634,7 +757,10 @@ fn solve(
     for _ in 0..6 {
         let (solved, report) = LevenbergMarquardt::new().minimize(problem);
         if !report.termination.was_successful() {
-            return Err(FreeError::NoConvergence(format!("{:?}", report.termination)));
+            return Err(FreeError::NoConvergence(format!(
+                "{:?}",
+                report.termination
+            )));
         }
         problem = solved;
         let moved = (problem.x - x).norm() / x.norm().max(1e-300);
@@ -646,7 +772,10 @@ fn solve(
     }
     let (solved, report) = LevenbergMarquardt::new().minimize(problem);
     if !report.termination.was_successful() {
-        return Err(FreeError::NoConvergence(format!("{:?}", report.termination)));
+        return Err(FreeError::NoConvergence(format!(
+            "{:?}",
+            report.termination
+        )));
     }
     problem = solved;
     x = problem.x;
@@ -657,6 +786,21 @@ fn solve(
     let cov9 = jtj
         .try_inverse()
         .ok_or_else(|| FreeError::NoConvergence("singular normal matrix".into()))?;
+    if residual == Residual::Geometric {
+        // The Jacobian depends on the noisy mean too, so E[r·J] ≠ 0 even with E[r] = 0:
+        // the estimating equation's expectation β = Σ Cov(r_p, J_p)/σ_p², to second order
+        // in the noise, biases θ by −(JᵀWJ)⁻¹β. Taken out in one step.
+        let mut beta = SVector::<f64, 9>::zeros();
+        for (i, p) in poses.iter().enumerate() {
+            let (inv_sd, _) = problem.weight.get(i).copied().unwrap_or((1.0, 0.0));
+            if let Some(c) = score_cov(x.as_slice(), p) {
+                beta += c * inv_sd * inv_sd;
+            }
+        }
+        let step = cov9 * beta;
+        problem.x += step;
+        x = problem.x;
+    }
     // To (S row-major, O).
     let index12 = |k: usize| match L_INDEX.get(k) {
         Some((i, j)) => 3 * i + j,
@@ -676,7 +820,7 @@ fn solve(
             .ok_or_else(|| FreeError::NoConvergence("a pose maps to zero".into()))?;
         let (inv_sd, bias) = problem.weight.get(i).copied().unwrap_or((1.0, 0.0));
         let r = s.q - g - bias;
-        let sd_noise = s.var.max(0.0).sqrt();
+        let sd_noise = s.var.max((ROUND_OFF * g).powi(2)).sqrt();
         if sd_noise > 0.0 {
             chi2 += (r / sd_noise).powi(2);
         }

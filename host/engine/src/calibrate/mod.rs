@@ -548,7 +548,11 @@ fn segments(rec: &Recording) -> Result<Vec<Segment>, CalibrateError> {
             Some(t) if t.len() == n => Ok(t.clone()),
             _ => {
                 let fs = rec.meta.sample_rate_hz.ok_or_else(|| {
-                    err(rec, Some(line), "finding still poses needs t_s or '# sample_rate_hz='")
+                    err(
+                        rec,
+                        Some(line),
+                        "finding still poses needs t_s or '# sample_rate_hz='",
+                    )
                 })?;
                 Ok((0..n).map(|i| i as f64 / fs).collect())
             }
@@ -582,9 +586,7 @@ fn segments(rec: &Recording) -> Result<Vec<Segment>, CalibrateError> {
             label: format!("condition {}{rate}", g.condition.letter()),
             t_s: clock(n, t, g.first_line)?,
             y: (0..n)
-                .map(|i| {
-                    [&g.u, &g.v, &g.w].map(|c| c.get(i).copied().unwrap_or(f64::NAN))
-                })
+                .map(|i| [&g.u, &g.v, &g.w].map(|c| c.get(i).copied().unwrap_or(f64::NAN)))
                 .collect(),
             // Rows of a group are consecutive lines unless the file interleaves them.
             line: (0..n as u64).map(|i| g.first_line + i).collect(),
@@ -613,10 +615,17 @@ fn free_json(
                 Err(e) => (None, Err(e)),
             },
         };
-        let (det, intervals) = (found.0, found.1.map_err(|e| {
-            let at = if seg.label.is_empty() { String::new() } else { format!("{}: ", seg.label) };
-            err(rec, seg.line.first().copied(), format!("{at}{e}"))
-        })?);
+        let (det, intervals) = (
+            found.0,
+            found.1.map_err(|e| {
+                let at = if seg.label.is_empty() {
+                    String::new()
+                } else {
+                    format!("{}: ", seg.label)
+                };
+                err(rec, seg.line.first().copied(), format!("{at}{e}"))
+            })?,
+        );
         let intervals = intervals
             .into_iter()
             .map(|mut i| {
@@ -634,8 +643,13 @@ fn free_json(
         .filter(|i| i.verdict == still::Verdict::Kept)
         .map(free::Pose::from_interval)
         .collect();
-    let fit = free::fit(&poses, g, free::Residual::Geometric)
-        .map_err(|e| err(rec, None, format!("{e}.\n{}", detection_summary(&detections, opts.still))))?;
+    let fit = free::fit(&poses, g, free::Residual::Geometric).map_err(|e| {
+        err(
+            rec,
+            None,
+            format!("{e}.\n{}", detection_summary(&detections, opts.still)),
+        )
+    })?;
     // The fit's rejections, on the intervals.
     for (_, _, iv) in &mut detections {
         for i in iv.iter_mut() {
@@ -671,7 +685,7 @@ fn free_json(
             fit.dof
         )
     };
-    b.vector("poses", Kind::A, description, &contribution, &vec![nu; 9]);
+    b.vector("poses", Kind::A, description, &contribution, &[nu; 9]);
     b.notes.extend(fit.notes.iter().cloned());
     let values = values6(&intr);
     let mut cg = vec![0.0; 9];
@@ -700,7 +714,11 @@ fn free_json(
     ));
     entry.uncertainty_budget = Some(b);
     if opts.monte_carlo.is_some() {
-        return Err(err(rec, None, "--monte-carlo is not available for method free"));
+        return Err(err(
+            rec,
+            None,
+            "--monte-carlo is not available for method free",
+        ));
     }
     Ok(entry)
 }
@@ -713,10 +731,18 @@ pub fn detection_summary(
 ) -> String {
     let mut out = String::new();
     for (label, det, iv) in detections {
-        let kept = iv.iter().filter(|i| i.verdict == still::Verdict::Kept).count();
-        let at = if label.is_empty() { String::new() } else { format!("{label}: ") };
+        let kept = iv
+            .iter()
+            .filter(|i| i.verdict == still::Verdict::Kept)
+            .count();
+        let at = if label.is_empty() {
+            String::new()
+        } else {
+            format!("{label}: ")
+        };
         match det {
-            Some(d) => out += &format!(
+            Some(d) => {
+                out += &format!(
                 "{at}{} still interval(s) found, {kept} kept: windows of {} s ({} rows), still \
                  when their variance is below {}× the noise variance (noise sd per channel \
                  {:.3e}, {:.3e}, {:.3e}, measured in the still windows; {:.0} % of the windows \
@@ -730,7 +756,8 @@ pub fn detection_summary(
                 d.noise_sd[2],
                 100.0 * d.still_fraction,
                 opts.min_still_s
-            ),
+            )
+            }
             None => out += &format!("{at}{} named pose(s), {kept} kept\n", iv.len()),
         }
         for i in iv.iter().filter(|i| i.verdict != still::Verdict::Kept) {

@@ -147,7 +147,11 @@ fn median(v: &mut [f64]) -> f64 {
     match v.len() {
         0 => f64::NAN,
         n if n % 2 == 1 => v.get(n / 2).copied().unwrap_or(f64::NAN),
-        n => (v.get(n / 2 - 1).copied().unwrap_or(f64::NAN) + v.get(n / 2).copied().unwrap_or(f64::NAN)) / 2.0,
+        n => {
+            (v.get(n / 2 - 1).copied().unwrap_or(f64::NAN)
+                + v.get(n / 2).copied().unwrap_or(f64::NAN))
+                / 2.0
+        }
     }
 }
 
@@ -165,7 +169,11 @@ pub fn detect(
             "still detection: the window must be positive and the threshold above 1".into(),
         ));
     }
-    let mut dt: Vec<f64> = t_s.windows(2).map(|w| w[1] - w[0]).filter(|d| *d > 0.0).collect();
+    let mut dt: Vec<f64> = t_s
+        .windows(2)
+        .map(|w| w[1] - w[0])
+        .filter(|d| *d > 0.0)
+        .collect();
     let step = median(&mut dt);
     if !(step.is_finite() && step > 0.0) {
         return Err(StillError::Data(
@@ -197,25 +205,38 @@ pub fn detect(
     let score = |v: &[f64; 3]| v.iter().map(|x| x.max(1e-300).ln()).sum::<f64>();
     order.sort_by(|a, b| score(&var[*a]).total_cmp(&score(&var[*b])));
     let quiet: Vec<usize> = order.iter().take((blocks / 10).max(1)).copied().collect();
-    let mut noise = [0, 1, 2].map(|j| median(&mut quiet.iter().map(|b| var[*b][j]).collect::<Vec<_>>()));
+    // Below 1e-10 of the readings' size the data are noise-free: that is the floor.
+    let scale = y
+        .iter()
+        .map(|r| r.iter().map(|v| v * v).sum::<f64>())
+        .sum::<f64>()
+        / n.max(1) as f64;
+    let floor = 1e-20 * scale;
+    let mut noise = [0, 1, 2]
+        .map(|j| median(&mut quiet.iter().map(|b| var[*b][j]).collect::<Vec<_>>()).max(floor));
     let ratio = |v: &[f64; 3], noise: &[f64; 3]| {
         (0..3).map(|j| v[j] / noise[j].max(1e-300)).sum::<f64>() / 3.0
     };
     let mut still: Vec<bool> = vec![false; blocks];
     for _ in 0..50 {
-        let next: Vec<bool> = var.iter().map(|v| ratio(v, &noise) < opts.threshold).collect();
+        let next: Vec<bool> = var
+            .iter()
+            .map(|v| ratio(v, &noise) < opts.threshold)
+            .collect();
         let count = next.iter().filter(|s| **s).count();
         if count == 0 {
             break;
         }
-        noise = [0, 1, 2].map(|j| {
-            var.iter()
-                .zip(&next)
-                .filter(|(_, s)| **s)
-                .map(|(v, _)| v[j])
-                .sum::<f64>()
-                / count as f64
-        });
+        noise = [0, 1, 2]
+            .map(|j| {
+                var.iter()
+                    .zip(&next)
+                    .filter(|(_, s)| **s)
+                    .map(|(v, _)| v[j])
+                    .sum::<f64>()
+                    / count as f64
+            })
+            .map(|v| v.max(floor));
         let done = next == still;
         still = next;
         if done {
@@ -243,7 +264,11 @@ pub fn detect(
         let name = format!("still {}", intervals.len() + 1);
         let trimmed = b - start > 2;
         let mut iv = interval(name, t_s, y, line, (lo, hi))?;
-        let duration = if trimmed { iv.span_s.1 - iv.span_s.0 + step } else { 0.0 };
+        let duration = if trimmed {
+            iv.span_s.1 - iv.span_s.0 + step
+        } else {
+            0.0
+        };
         if duration < opts.min_still_s {
             iv.verdict = Verdict::TooShort {
                 duration_s: duration,
@@ -329,7 +354,10 @@ fn interval(
         });
         let hth = h.tr_mul(&h);
         let inv = hth.try_inverse().ok_or_else(|| {
-            StillError::Data(format!("interval at line {}: times do not advance", line.get(lo).copied().unwrap_or(0)))
+            StillError::Data(format!(
+                "interval at line {}: times do not advance",
+                line.get(lo).copied().unwrap_or(0)
+            ))
         })?;
         let mut change = [0.0; 3];
         let mut z_max: f64 = 0.0;
@@ -337,17 +365,18 @@ fn interval(
             let yj = nalgebra::DVector::from_iterator(n, rows.iter().map(|r| r[j]));
             let beta = &inv * h.tr_mul(&yj);
             let resid = &yj - &h * &beta;
-            let Ok((_, cov)) = NoiseModel::estimate(resid.as_slice(), &[])
-                .and_then(|nm| nm.regression_cov(&h))
+            let Ok((_, cov)) =
+                NoiseModel::estimate(resid.as_slice(), &[]).and_then(|nm| nm.regression_cov(&h))
             else {
                 continue;
             };
             if let Some(se) = std_err.get_mut(j) {
                 *se = cov[(0, 0)].max(0.0).sqrt();
             }
-            // The line's change from the first to the last row: 2·slope.
+            // The line's change from the first to the last row: 2·slope (its error not
+            // below 1e-10 of the reading: round-off of noise-free data).
             let d = 2.0 * beta[1];
-            let se_d = 2.0 * cov[(1, 1)].max(0.0).sqrt();
+            let se_d = (2.0 * cov[(1, 1)].max(0.0).sqrt()).max(1e-10 * mean[j].abs());
             change[j] = d;
             if se_d > 0.0 {
                 z_max = z_max.max(d.abs() / se_d);

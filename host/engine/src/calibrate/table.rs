@@ -180,8 +180,43 @@ pub fn render(c: &CalibrationJson) -> String {
         let rate = r
             .rate_hz
             .map(|f| format!("rotation at {f} Hz"))
-            .unwrap_or_else(|| "static".into());
+            .unwrap_or_else(|| {
+                if r.free.is_some() {
+                    "free poses (unknown orientation)".into()
+                } else {
+                    "static".into()
+                }
+            });
         let _ = writeln!(o, "\n{rate}");
+        if let Some(f) = &r.free {
+            let found: usize = f.detection.iter().map(|d| d.intervals.len()).sum();
+            let _ = writeln!(
+                o,
+                "  {} poses fitted of {found} still intervals found (JSON free.detection); \
+                 χ² = {:.1} on {} degrees of freedom, τ = {:.2e} m/s², condition number {:.1}",
+                f.poses.len(),
+                f.chi2,
+                f.dof,
+                f.tau_ms2,
+                f.condition_number
+            );
+            for d in &f.detection {
+                for i in d
+                    .intervals
+                    .iter()
+                    .filter(|i| i.interval.verdict != crate::calibrate::still::Verdict::Kept)
+                {
+                    let _ = writeln!(
+                        o,
+                        "  left out: {} ({:.2}–{:.2} s): {}",
+                        i.interval.name, i.interval.span_s.0, i.interval.span_s.1, i.reason
+                    );
+                }
+            }
+            if let Some(s) = &f.suggestion {
+                let _ = writeln!(o, "  badly conditioned: add poses with gravity near {s}");
+            }
+        }
         if let Some(p) = &r.poses {
             if (p.k - json::K).abs() > 1e-12 {
                 let nu = p.nu.iter().fold(f64::INFINITY, |a, b| a.min(*b));

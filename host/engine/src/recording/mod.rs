@@ -90,7 +90,8 @@ impl std::str::FromStr for Method {
             Ok(Method::Free)
         } else {
             Err(format!(
-                "expected 'rotation', 'static' or 'free', got '{}'",
+                "expected 'rotation' or 'static', got '{}' (or 'free': still poses of unknown \
+                 orientation)",
                 snippet(t.as_bytes())
             ))
         }

@@ -896,7 +896,9 @@ impl Config {
                 }
                 if let Some(d) = &p.directions {
                     finite("poses.directions", d.as_flattened())?;
-                    if d.iter().any(|v| v.iter().map(|x| x * x).sum::<f64>() < 1e-12) {
+                    if d.iter()
+                        .any(|v| v.iter().map(|x| x * x).sum::<f64>() < 1e-12)
+                    {
                         return bad("poses.directions", "each must be a non-zero vector");
                     }
                 }

@@ -798,18 +798,19 @@ impl Simulation {
         let n_move = (p.move_s * fs).round() as u64;
         let mut k: u64 = 0;
         let mut prev: Option<[f64; 3]> = None;
-        let mut row_at = |g: [f64; 3], scale: f64, k: &mut u64, rng: &mut ChaCha8Rng, sum: &mut Summary| {
-            let t = *k as f64 / fs;
-            *k += 1;
-            let temp = self.temperature(t);
-            let f = g.map(|v| c.g_loc * v);
-            let mut y = noise.draw(rng);
-            for (j, yj) in y.iter_mut().enumerate() {
-                *yj = self.output(self.analog(j, f, t, temp) + scale * *yj, &mut sum.clipped);
-            }
-            let mut row = Row::new(Condition::X, y[0], y[1], y[2]);
-            emit(&mut row, t, rng, sum)
-        };
+        let mut row_at =
+            |g: [f64; 3], scale: f64, k: &mut u64, rng: &mut ChaCha8Rng, sum: &mut Summary| {
+                let t = *k as f64 / fs;
+                *k += 1;
+                let temp = self.temperature(t);
+                let f = g.map(|v| c.g_loc * v);
+                let mut y = noise.draw(rng);
+                for (j, yj) in y.iter_mut().enumerate() {
+                    *yj = self.output(self.analog(j, f, t, temp) + scale * *yj, &mut sum.clipped);
+                }
+                let mut row = Row::new(Condition::X, y[0], y[1], y[2]);
+                emit(&mut row, t, rng, sum)
+            };
         for (i, dir) in dirs.iter().enumerate() {
             if let Some(from) = prev {
                 for m in 0..n_move {
@@ -974,7 +975,11 @@ fn slerp(a: [f64; 3], b: [f64; 3], x: f64) -> [f64; 3] {
     let n = c.iter().map(|v| v * v).sum::<f64>().sqrt();
     // Opposite directions: any axis across a will do.
     let axis = if n < 1e-12 {
-        let t = if a[0].abs() < 0.9 { [1.0, 0.0, 0.0] } else { [0.0, 1.0, 0.0] };
+        let t = if a[0].abs() < 0.9 {
+            [1.0, 0.0, 0.0]
+        } else {
+            [0.0, 1.0, 0.0]
+        };
         let c = cross(a, t);
         let n = c.iter().map(|v| v * v).sum::<f64>().sqrt();
         c.map(|v| v / n)
