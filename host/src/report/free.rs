@@ -18,64 +18,24 @@ const REJECTED: [(RGBColor, &str); 3] = [
     (RGBColor(140, 20, 90), "rejected: does not fit"),
 ];
 
-/// One segment's rows as the detection saw them: times (s), or row numbers when the file
-/// gives no clock, and |y|.
+/// One segment's rows as the detection saw them (`calibrate::segments`): times (s) and |y|.
 struct Trace {
     x: Vec<f64>,
-    timed: bool,
     magnitude: Vec<f64>,
 }
 
-fn norm(y: &[f64; 3]) -> f64 {
-    y.iter().map(|v| v * v).sum::<f64>().sqrt()
-}
-
-/// Times as the engine's segments take them: `t_s` when every row has one, else rows
-/// `1/fs` apart (the metadata's rate, else the detection's).
-fn trace(y: Vec<f64>, t: Option<&Vec<f64>>, fs: Option<f64>) -> Trace {
-    let n = y.len();
-    let (x, timed) = match (t.filter(|t| t.len() == n), fs.filter(|f| *f > 0.0)) {
-        (Some(t), _) => (t.clone(), true),
-        (None, Some(fs)) => ((0..n).map(|i| i as f64 / fs).collect(), true),
-        (None, None) => ((0..n).map(|i| i as f64).collect(), false),
-    };
-    Trace {
-        x,
-        timed,
-        magnitude: y,
-    }
-}
-
-/// The segments in the engine's order (`calibrate::segments`): a free recording whole, a
-/// file with orientations whole, else one per group.
-fn traces(rec: &Recording, detection: &[DetectionJson]) -> Vec<Trace> {
-    let fs = |i: usize| {
-        rec.meta.sample_rate_hz.or_else(|| {
-            detection
-                .get(i)
-                .and_then(|d| d.found.as_ref())
-                .map(|f| f.sample_rate_hz)
-        })
-    };
-    if let Some(s) = &rec.series {
-        return vec![trace(s.y.iter().map(norm).collect(), Some(&s.t_s), fs(0))];
-    }
-    if let Some(o) = &rec.oriented {
-        return vec![trace(o.y.iter().map(norm).collect(), o.t_s.as_ref(), fs(0))];
-    }
-    rec.groups
+fn traces(rec: &Recording) -> Result<Vec<Trace>, ReportError> {
+    Ok(crate::calibrate::segments(rec)?
         .iter()
-        .enumerate()
-        .map(|(i, g)| {
-            let y =
-                g.u.iter()
-                    .zip(&g.v)
-                    .zip(&g.w)
-                    .map(|((u, v), w)| norm(&[*u, *v, *w]))
-                    .collect();
-            trace(y, (!g.t_s.is_empty()).then_some(&g.t_s), fs(i))
+        .map(|s| Trace {
+            x: s.t_s.to_vec(),
+            magnitude: s
+                .y
+                .iter()
+                .map(|y| y.iter().map(|v| v * v).sum::<f64>().sqrt())
+                .collect(),
         })
-        .collect()
+        .collect())
 }
 
 /// Index into [`REJECTED`], or `None` for a kept interval.
@@ -104,7 +64,6 @@ fn plot_magnitude(
     } else {
         format!("{}: |y| and the still intervals", d.segment)
     };
-    let x_desc = if t.timed { "t (s)" } else { "row" };
     let mut c = chart(
         &root,
         path,
@@ -112,18 +71,10 @@ fn plot_magnitude(
         18,
         (x0, x1),
         (y0, y1),
-        x_desc,
+        "t (s)",
         &format!("|y| ({units})"),
     )?;
-    // The band's ends: the interval's span when the rows have times, else its rows.
-    let ends = |i: &IntervalJson| {
-        let iv = &i.interval;
-        if t.timed {
-            iv.span_s
-        } else {
-            (iv.rows.0 as f64, iv.rows.1.saturating_sub(1) as f64)
-        }
-    };
+    let ends = |i: &IntervalJson| i.interval.span_s;
     let classes = [(KEPT, "kept", None)].into_iter().chain(
         REJECTED
             .iter()
@@ -352,11 +303,7 @@ pub(crate) fn write(
     }
     let _ = writeln!(md);
     let many = free.detection.len() > 1;
-    for (k, (t, d)) in traces(rec, &free.detection)
-        .iter()
-        .zip(&free.detection)
-        .enumerate()
-    {
+    for (k, (t, d)) in traces(rec)?.iter().zip(&free.detection).enumerate() {
         let name = if many {
             format!("magnitude_{}.svg", k + 1)
         } else {

@@ -189,7 +189,7 @@ fn intrinsic_properties_do_not_depend_on_the_mounting() {
     for trial in 0..8 {
         let m = random_rotation(&mut rng);
         let s = sim(&format!(
-            "seed = 3\n[sensor]\nlsb = 0.0\nnoise_sigma = 0.0\n[mounting]\nmatrix = {}\n[poses]\ndirections = [{}]\nstill_s = 3.0\nmove_s = 1.5\n",
+            "seed = 3\n[sensor]\nlsb = 0.0\n[sensor.noise]\nsd = 0.0\nstate = false\n[mounting]\nmatrix = {}\n[poses]\ndirections = [{}]\nstill_s = 3.0\nmove_s = 1.5\n",
             matrix_toml(&m),
             dirs.join(", ")
         ));

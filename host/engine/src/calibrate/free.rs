@@ -20,7 +20,7 @@
 //! refreshed between its runs. The covariance of (L, O) is (JᵀWJ)⁻¹ at the solution.
 
 use crate::calibrate::budget::coverage_factor;
-use crate::calibrate::still::{Interval, Verdict};
+use crate::calibrate::still::{median, Interval, Verdict};
 use levenberg_marquardt::{LeastSquaresProblem, LevenbergMarquardt};
 use nalgebra::{DMatrix, Dyn, Matrix3, OMatrix, OVector, SMatrix, SVector, Vector3, U9};
 use statrs::distribution::{ChiSquared, ContinuousCDF, Normal};
@@ -173,39 +173,48 @@ fn l_of(x: &[f64]) -> Matrix3<f64> {
     l
 }
 
-/// Per pose: what the residual needs at θ.
-struct At {
+/// A pose's corrected mean at θ: a = L⁻¹(ȳ − O), q = |a|, n̂ = a/q and w = L⁻ᵀn̂ (what
+/// the residual and its Jacobian need).
+struct Geometry {
+    l: Matrix3<f64>,
     a: Vector3<f64>,
     q: f64,
+    n: Vector3<f64>,
     w: Vector3<f64>,
-    /// n̂ᵀCn̂ (without τ).
-    var: f64,
-    /// (tr C − n̂ᵀCn̂)/(2g).
-    bias: f64,
 }
 
-fn at(x: &[f64], pose: &Pose, g: f64) -> Option<At> {
+fn geometry(x: &[f64], pose: &Pose) -> Option<Geometry> {
     let l = l_of(x);
     let o = Vector3::new(x[6], x[7], x[8]);
-    let d = Vector3::from(pose.mean) - o;
-    let a = l.solve_lower_triangular(&d)?;
+    let a = l.solve_lower_triangular(&(Vector3::from(pose.mean) - o))?;
     let q = a.norm();
     if !(q.is_finite() && q > 0.0) {
         return None;
     }
     let n = a / q;
     let w = l.transpose().solve_upper_triangular(&n)?;
-    let linv = l.solve_lower_triangular(&Matrix3::identity())?;
+    Some(Geometry { l, a, q, n, w })
+}
+
+/// Per pose at θ, its noise's effect on |a|: the geometry, σ² = n̂ᵀCn̂ (without τ) and
+/// the bias b = (tr C − n̂ᵀCn̂)/(2g), C = L⁻¹ΣL⁻ᵀ.
+struct At {
+    geo: Geometry,
+    var: f64,
+    bias: f64,
+}
+
+fn at(x: &[f64], pose: &Pose, g: f64) -> Option<At> {
+    let geo = geometry(x, pose)?;
+    let linv = geo.l.solve_lower_triangular(&Matrix3::identity())?;
     let se2 = Vector3::from(pose.std_err.map(|s| s * s));
-    let var = (0..3).map(|k| w[k] * w[k] * se2[k]).sum::<f64>();
+    let var = (0..3).map(|k| geo.w[k] * geo.w[k] * se2[k]).sum::<f64>();
     let tr = (0..3)
         .flat_map(|i| (0..3).map(move |k| (i, k)))
         .map(|(i, k)| linv[(i, k)].powi(2) * se2[k])
         .sum::<f64>();
     Some(At {
-        a,
-        q,
-        w,
+        geo,
         var,
         bias: (tr - var) / (2.0 * g),
     })
@@ -214,12 +223,7 @@ fn at(x: &[f64], pose: &Pose, g: f64) -> Option<At> {
 /// Cov(|a|, ∂|a|/∂θ) of one pose to second order in its noise: with C = L⁻¹ΣL⁻ᵀ,
 /// m = C·n̂ and v = L⁻ᵀ(I − n̂n̂ᵀ)m/|a|, it is −v_k for O_k and −a_j·v_i − w_i·m_j for L_ij.
 fn score_cov(x: &[f64], pose: &Pose) -> Option<SVector<f64, 9>> {
-    let l = l_of(x);
-    let o = Vector3::new(x[6], x[7], x[8]);
-    let a = l.solve_lower_triangular(&(Vector3::from(pose.mean) - o))?;
-    let q = a.norm();
-    let n = a / q;
-    let w = l.transpose().solve_upper_triangular(&n)?;
+    let Geometry { l, a, q, n, w } = geometry(x, pose)?;
     let linv = l.solve_lower_triangular(&Matrix3::identity())?;
     let sigma = Matrix3::from_diagonal(&Vector3::from(pose.std_err.map(|s| s * s)));
     let c = linv * sigma * linv.transpose();
@@ -250,7 +254,7 @@ impl Problem<'_> {
     fn row(&self, i: usize) -> Option<(f64, [f64; PARAMS])> {
         let p = self.poses.get(i)?;
         let (inv_sd, bias) = *self.weight.get(i)?;
-        let s = at(self.x.as_slice(), p, self.g)?;
+        let s = geometry(self.x.as_slice(), p)?;
         let (r, scale) = match self.residual {
             Residual::Geometric => (s.q - self.g - bias, 1.0),
             Residual::Algebraic => ((s.q * s.q - self.g * self.g) / (2.0 * self.g), s.q / self.g),
@@ -600,13 +604,13 @@ pub fn fit(poses: &[Pose], g: f64, residual: Residual) -> Result<FreeFit, FreeEr
             .collect();
         let mut abs_dev: Vec<f64> = {
             let mut r: Vec<f64> = fit.poses.iter().map(|p| p.residual_ms2).collect();
-            let m = median_of(&mut r);
+            let m = median(&mut r);
             fit.poses
                 .iter()
                 .map(|p| (p.residual_ms2 - m).abs())
                 .collect()
         };
-        let mad = 1.4826 * median_of(&mut abs_dev);
+        let mad = 1.4826 * median(&mut abs_dev);
         let z_crit = Normal::new(0.0, 1.0)
             .map(|n| n.inverse_cdf(1.0 - 0.005 / poses.len() as f64))
             .unwrap_or(4.0);
@@ -655,20 +659,6 @@ pub fn fit(poses: &[Pose], g: f64, residual: Residual) -> Result<FreeFit, FreeEr
         fit.rejected = rejected;
         fit.notes = notes;
         return Ok(fit);
-    }
-}
-
-fn median_of(v: &mut [f64]) -> f64 {
-    v.sort_by(f64::total_cmp);
-    let n = v.len();
-    if n == 0 {
-        return f64::NAN;
-    }
-    if n % 2 == 1 {
-        v.get(n / 2).copied().unwrap_or(f64::NAN)
-    } else {
-        (v.get(n / 2 - 1).copied().unwrap_or(f64::NAN) + v.get(n / 2).copied().unwrap_or(f64::NAN))
-            / 2.0
     }
 }
 
@@ -754,7 +744,10 @@ fn solve(
         weight: weights_at(&x)?,
         residual,
     };
-    for _ in 0..6 {
+    // Up to six refreshes of the weights and biases, each followed by a run; the last run
+    // after the parameters have settled.
+    let mut last = false;
+    for pass in 0..7 {
         let (solved, report) = LevenbergMarquardt::new().minimize(problem);
         if !report.termination.was_successful() {
             return Err(FreeError::NoConvergence(format!(
@@ -765,20 +758,12 @@ fn solve(
         problem = solved;
         let moved = (problem.x - x).norm() / x.norm().max(1e-300);
         x = problem.x;
-        problem.weight = weights_at(&x)?;
-        if moved < 1e-12 {
+        if last {
             break;
         }
+        problem.weight = weights_at(&x)?;
+        last = moved < 1e-12 || pass == 5;
     }
-    let (solved, report) = LevenbergMarquardt::new().minimize(problem);
-    if !report.termination.was_successful() {
-        return Err(FreeError::NoConvergence(format!(
-            "{:?}",
-            report.termination
-        )));
-    }
-    problem = solved;
-    x = problem.x;
     let j = problem
         .jacobian()
         .ok_or_else(|| FreeError::NoConvergence("no Jacobian at the solution".into()))?;
@@ -819,12 +804,12 @@ fn solve(
         let s = at(x.as_slice(), p, g)
             .ok_or_else(|| FreeError::NoConvergence("a pose maps to zero".into()))?;
         let (inv_sd, bias) = problem.weight.get(i).copied().unwrap_or((1.0, 0.0));
-        let r = s.q - g - bias;
+        let r = s.geo.q - g - bias;
         let sd_noise = s.var.max((ROUND_OFF * g).powi(2)).sqrt();
         if sd_noise > 0.0 {
             chi2 += (r / sd_noise).powi(2);
         }
-        let n = s.a / s.q;
+        let n = s.geo.n;
         results.push(PoseResult {
             name: p.name.clone(),
             direction: [n[0], n[1], n[2]],

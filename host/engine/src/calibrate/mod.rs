@@ -33,6 +33,7 @@ use crate::recording::{Group, Method, Recording};
 use nalgebra::DMatrix;
 use rotacal_shared::intrinsic::{self, ConditionFit};
 use rotacal_shared::{Condition, FitConfig, FitResult, Param, PhaseStep, SineFit, TickRate, Ticks};
+use std::borrow::Cow;
 use std::f64::consts::TAU;
 
 /// Command-line choices, which override the file's metadata.
@@ -529,23 +530,34 @@ pub fn calibrate(rec: &Recording, opts: &Options) -> Result<CalibrationJson, Cal
     })
 }
 
-/// One continuous stretch of readings searched for still intervals.
-struct Segment {
-    /// What it is, for names and messages (empty for a whole free recording).
-    label: String,
-    t_s: Vec<f64>,
-    y: Vec<[f64; 3]>,
-    line: Vec<u64>,
-    names: Option<Vec<String>>,
+/// One continuous stretch of readings searched for still intervals: borrowed from the
+/// recording where it holds the rows as they are (a free recording), built otherwise.
+pub struct Segment<'a> {
+    /// What it is, for names and messages (empty for a whole recording).
+    pub label: String,
+    /// Time of each row, s.
+    pub t_s: Cow<'a, [f64]>,
+    /// Readings u, v, w of each row.
+    pub y: Cow<'a, [[f64; 3]]>,
+    /// File line of each row.
+    pub line: Cow<'a, [u64]>,
+    /// The `pose` column of a free recording: the poses are named, not found.
+    pub names: Option<&'a [String]>,
 }
 
 /// The recording's continuous stretches: a free recording whole; a file with conditions
 /// one per condition (and rate); a file with gravity directions whole, in file order (its
 /// directions unused). Without `t_s`, the rows are `1/sample_rate_hz` apart.
-fn segments(rec: &Recording) -> Result<Vec<Segment>, CalibrateError> {
-    let clock = |n: usize, t: Option<&Vec<f64>>, line: u64| -> Result<Vec<f64>, CalibrateError> {
+pub fn segments(rec: &Recording) -> Result<Vec<Segment<'_>>, CalibrateError> {
+    // The rows' times: `t` when every row has one, else 1/sample_rate_hz apart.
+    fn clock<'t>(
+        rec: &Recording,
+        n: usize,
+        t: Option<&'t Vec<f64>>,
+        line: u64,
+    ) -> Result<Cow<'t, [f64]>, CalibrateError> {
         match t {
-            Some(t) if t.len() == n => Ok(t.clone()),
+            Some(t) if t.len() == n => Ok(Cow::Borrowed(t.as_slice())),
             _ => {
                 let fs = rec.meta.sample_rate_hz.ok_or_else(|| {
                     err(
@@ -554,26 +566,26 @@ fn segments(rec: &Recording) -> Result<Vec<Segment>, CalibrateError> {
                         "finding still poses needs t_s or '# sample_rate_hz='",
                     )
                 })?;
-                Ok((0..n).map(|i| i as f64 / fs).collect())
+                Ok(Cow::Owned((0..n).map(|i| i as f64 / fs).collect()))
             }
         }
-    };
+    }
     if let Some(s) = &rec.series {
         return Ok(vec![Segment {
             label: String::new(),
-            t_s: s.t_s.clone(),
-            y: s.y.clone(),
-            line: s.line.clone(),
-            names: s.pose.clone(),
+            t_s: Cow::Borrowed(&s.t_s),
+            y: Cow::Borrowed(&s.y),
+            line: Cow::Borrowed(&s.line),
+            names: s.pose.as_deref(),
         }]);
     }
     if let Some(o) = &rec.oriented {
         let first = o.line.first().copied().unwrap_or(0);
         return Ok(vec![Segment {
             label: String::new(),
-            t_s: clock(o.y.len(), o.t_s.as_ref(), first)?,
-            y: o.y.clone(),
-            line: o.line.clone(),
+            t_s: clock(rec, o.y.len(), o.t_s.as_ref(), first)?,
+            y: Cow::Borrowed(&o.y),
+            line: Cow::Borrowed(&o.line),
             names: None,
         }]);
     }
@@ -584,12 +596,14 @@ fn segments(rec: &Recording) -> Result<Vec<Segment>, CalibrateError> {
         let rate = g.rate_hz.map(|r| format!(" at {r} Hz")).unwrap_or_default();
         out.push(Segment {
             label: format!("condition {}{rate}", g.condition.letter()),
-            t_s: clock(n, t, g.first_line)?,
-            y: (0..n)
-                .map(|i| [&g.u, &g.v, &g.w].map(|c| c.get(i).copied().unwrap_or(f64::NAN)))
-                .collect(),
+            t_s: clock(rec, n, t, g.first_line)?,
+            y: Cow::Owned(
+                (0..n)
+                    .map(|i| [&g.u, &g.v, &g.w].map(|c| c.get(i).copied().unwrap_or(f64::NAN)))
+                    .collect(),
+            ),
             // Rows of a group are consecutive lines unless the file interleaves them.
-            line: (0..n as u64).map(|i| g.first_line + i).collect(),
+            line: Cow::Owned((0..n as u64).map(|i| g.first_line + i).collect()),
             names: None,
         });
     }
@@ -603,9 +617,16 @@ fn free_json(
     (g, inputs): (f64, &TypeB),
     units: &str,
 ) -> Result<json::RateJson, CalibrateError> {
+    if opts.monte_carlo.is_some() {
+        return Err(err(
+            rec,
+            None,
+            "--monte-carlo is not available for method free",
+        ));
+    }
     let mut detections: Vec<(String, Option<still::Detection>, Vec<still::Interval>)> = Vec::new();
     for seg in segments(rec)? {
-        let found = match &seg.names {
+        let found = match seg.names {
             Some(names) => (None, still::named(&seg.t_s, &seg.y, &seg.line, names)),
             None => match still::detect(&seg.t_s, &seg.y, &seg.line, opts.still) {
                 Ok(d) => {
