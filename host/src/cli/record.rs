@@ -89,7 +89,13 @@ impl Observer for Bar {
     }
 
     fn message(&mut self, m: &str) {
-        self.0.println(m);
+        // A hidden bar (stderr not a terminal: a script, a log file) prints nothing, but
+        // the messages (link lost, samples given up, the device's identity) must reach it.
+        if self.0.is_hidden() {
+            eprintln!("{m}");
+        } else {
+            self.0.println(m);
+        }
     }
 }
 
@@ -140,13 +146,23 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         Some(cfg) => {
             let sim = rotacal::simulate::Simulation::new(rotacal::simulate::Config::load(cfg)?)?;
             let mut link = SimulatedDevice::new(&sim, a.faults.clone().unwrap_or_default())?;
-            rt.block_on(session(&mut link, &a, plan, opts))
+            rt.block_on(closing(&mut link, &a, plan, opts))
         }
-        None => {
+        // The link is made and dropped inside the runtime: bluez-async's streams remove
+        // their D-Bus match rules in a task when dropped, which panics (and, in a
+        // destructor, aborts the process) outside a runtime.
+        None => rt.block_on(async {
             let mut link = BleLink::new(Target::parse(&a.device), a.scan_timeout);
-            rt.block_on(session(&mut link, &a, plan, opts))
-        }
+            closing(&mut link, &a, plan, opts).await
+        }),
     }
+}
+
+/// The session, then the link closed whatever its outcome.
+async fn closing<L: Link>(link: &mut L, a: &Args, plan: Plan, opts: Options) -> anyhow::Result<()> {
+    let result = session(link, a, plan, opts).await;
+    link.close().await;
+    result
 }
 
 async fn session<L: Link>(link: &mut L, a: &Args, plan: Plan, opts: Options) -> anyhow::Result<()> {

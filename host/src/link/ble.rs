@@ -232,6 +232,15 @@ impl Link for BleLink {
         }
     }
 
+    async fn close(&mut self) {
+        self.notifications = None;
+        self.control = None;
+        if let Some(p) = &self.peripheral {
+            // Best effort: the session's outcome is already decided.
+            let _ = p.disconnect().await;
+        }
+    }
+
     fn describe(&self) -> String {
         match (&self.peripheral, &self.target) {
             (Some(p), _) => format!("BLE device {}", p.address()),

@@ -10,37 +10,7 @@ pub mod simulated;
 use std::fmt;
 use std::time::Duration;
 
-/// The characteristic a value came from (docs/protocol.md, GATT).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Channel {
-    /// Samples and temperatures.
-    Stream,
-    /// Fit reports, the quick-look and status.
-    Results,
-    /// The device-info value (read on connect).
-    Info,
-}
-
-impl Channel {
-    /// One letter, for the capture file.
-    pub fn letter(self) -> char {
-        match self {
-            Channel::Stream => 's',
-            Channel::Results => 'r',
-            Channel::Info => 'i',
-        }
-    }
-
-    /// From [`Channel::letter`].
-    pub fn from_letter(c: char) -> Option<Self> {
-        match c {
-            's' => Some(Channel::Stream),
-            'r' => Some(Channel::Results),
-            'i' => Some(Channel::Info),
-            _ => None,
-        }
-    }
-}
+pub use rotacal_engine::recording::from_device::Channel;
 
 /// Why a link operation failed.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -72,6 +42,9 @@ pub trait Link {
     async fn write(&mut self, command: &[u8]) -> Result<(), LinkError>;
     /// The next notification, or `Ok(None)` if none came within `timeout`.
     async fn next(&mut self, timeout: Duration) -> Result<Option<(Channel, Vec<u8>)>, LinkError>;
+    /// Close the connection at the end of a session, so that the device advertises
+    /// again (BlueZ keeps a link up after the client that made it has exited).
+    async fn close(&mut self);
     /// What the link is, for messages (name and address).
     fn describe(&self) -> String;
 }

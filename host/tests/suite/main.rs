@@ -5,6 +5,7 @@
 
 mod apply;
 mod averaging;
+mod bluez;
 mod budget;
 mod calibrate_cli;
 mod common;

@@ -17,6 +17,51 @@ use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::io::{self, Write};
 
+/// The GATT characteristic a value came from or goes to (docs/protocol.md, GATT).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Channel {
+    /// Samples and temperatures (notify).
+    Stream,
+    /// Fit reports, the quick-look and status (notify, read).
+    Results,
+    /// The device-info value (read on connect).
+    Info,
+}
+
+impl Channel {
+    /// The characteristic on which the device sends `p` (none for a command, which the
+    /// host writes to the control characteristic).
+    pub fn of(p: &Packet) -> Option<Channel> {
+        match p {
+            Packet::Samples(_) | Packet::Averages(_) | Packet::Temperature(_) => {
+                Some(Channel::Stream)
+            }
+            Packet::Info(_) => Some(Channel::Info),
+            Packet::Fit(_) | Packet::QuickLook(_) | Packet::Status(_) => Some(Channel::Results),
+            Packet::Command(_) => None,
+        }
+    }
+
+    /// One letter, for the capture file.
+    pub fn letter(self) -> char {
+        match self {
+            Channel::Stream => 's',
+            Channel::Results => 'r',
+            Channel::Info => 'i',
+        }
+    }
+
+    /// From [`Channel::letter`].
+    pub fn from_letter(c: char) -> Option<Self> {
+        match c {
+            's' => Some(Channel::Stream),
+            'r' => Some(Channel::Results),
+            'i' => Some(Channel::Info),
+            _ => None,
+        }
+    }
+}
+
 /// One line of the fit log: a device fit report. It mirrors `packet::FitReport` field by
 /// field (rotacal-shared is no_std, without serde), with the standard errors widened to
 /// f64 and the device's tick rate added, so that the line stands alone.

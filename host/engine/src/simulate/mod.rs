@@ -17,6 +17,7 @@
 
 pub mod config;
 pub mod device;
+pub mod emulated;
 pub mod geometry;
 
 pub use config::{Config, ConfigError, Noise, NoiseSd, StepError, PRESETS};

@@ -1,0 +1,388 @@
+//! A rotacal device on the host: the firmware's logic (`rotacal_shared::device::Device`,
+//! the same code the Feather runs) fed by the simulator's sensor stream at the sensor's
+//! output rate, on an explicit device clock. The link shells drive it: the recorder's
+//! simulated [`Link`](../../../rotacal/link/trait.Link.html) on tokio's clock, and the
+//! BlueZ stand-in (`host/bluez-standin`) on the wall clock behind D-Bus.
+//!
+//! Faults on demand: link outages (the device keeps sampling; what it sends meanwhile is
+//! lost, as when the firmware's queue finds no connection), dropped notifications (one at
+//! a time or in bursts), garbage notifications, a wrong firmware or protocol version, a
+//! different unit after the first outage, and a device that stops answering commands.
+
+use crate::recording::from_device::{encode, Channel};
+use crate::simulate::device::Conversion;
+use crate::simulate::Simulation;
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use rotacal_shared::device::{Config, Device, RING};
+use rotacal_shared::packet::{Chip, Command, Packet, RunState};
+use rotacal_shared::Condition;
+use std::collections::VecDeque;
+use std::io;
+use std::time::Duration;
+
+/// What goes wrong, and when.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Faults {
+    /// Link outages (start, length), seconds after the first connection.
+    pub outages: Vec<(f64, f64)>,
+    /// Fraction of stream notifications lost while connected.
+    pub drop_probability: f64,
+    /// Mean length of a run of lost notifications (1: each lost on its own).
+    pub burst: Option<f64>,
+    /// After every this many notifications, one of random bytes.
+    pub garbage_every: Option<u32>,
+    /// The firmware version the device-info value reports.
+    pub firmware: [u8; 3],
+    /// Byte 0 (the protocol version) of every packet, if not the real one.
+    pub protocol_version: Option<u8>,
+    /// After the first outage, a different unit answers: this firmware version.
+    pub replaced: Option<[u8; 3]>,
+    /// The device answers this many commands, then none (it takes no more either).
+    pub mute_after: Option<u32>,
+    /// Seed of the drops and the garbage.
+    pub seed: u64,
+}
+
+impl Default for Faults {
+    fn default() -> Self {
+        Faults {
+            outages: Vec::new(),
+            drop_probability: 0.0,
+            burst: None,
+            garbage_every: None,
+            firmware: FIRMWARE,
+            protocol_version: None,
+            replaced: None,
+            mute_after: None,
+            seed: 1,
+        }
+    }
+}
+
+/// The firmware version the simulated device reports by default (the firmware crate's).
+pub const FIRMWARE: [u8; 3] = [0, 2, 0];
+
+/// The counter value at the first connection: near 2³² so the 32-bit TIMER wraps early.
+const COUNTER_START: u64 = 0xFFF0_0000;
+const COUNTER_MASK: u64 = 0xFFFF_FFFF;
+/// How often the firmware reads the die temperature, and polls for aged batches.
+const TEMPERATURE_EVERY: Duration = Duration::from_secs(1);
+const POLL_EVERY: Duration = Duration::from_millis(100);
+
+/// See the module documentation. Device time runs from the first connection.
+pub struct EmulatedDevice {
+    device: Device<RING>,
+    /// The sensor's conversions per condition (x, y, z), from the simulator.
+    streams: [Vec<Conversion>; 3],
+    faults: Faults,
+    rng: ChaCha8Rng,
+    connected: bool,
+    /// Device time processed up to.
+    now: Duration,
+    /// The running condition's stream, its start time and the next conversion.
+    running: Option<(usize, Duration, usize)>,
+    next_temperature: Duration,
+    next_poll: Duration,
+    out: VecDeque<(Channel, Vec<u8>)>,
+    notifications: u64,
+    /// In a burst of lost notifications.
+    losing: bool,
+    commands: u32,
+}
+
+impl EmulatedDevice {
+    /// A device whose sensor sees what `sim` simulates. `sim` should run at the sensor's
+    /// output rate (104 Hz for the Feather's LSM6DS33), in counts, within i16.
+    pub fn new(sim: &Simulation, faults: Faults) -> io::Result<Self> {
+        let streams = crate::simulate::device::conversions(sim)?;
+        Ok(EmulatedDevice {
+            device: Device::new(Config::FEATHER),
+            streams,
+            rng: ChaCha8Rng::seed_from_u64(faults.seed),
+            faults,
+            connected: false,
+            now: Duration::ZERO,
+            running: None,
+            next_temperature: Duration::ZERO,
+            next_poll: Duration::ZERO,
+            out: VecDeque::new(),
+            notifications: 0,
+            losing: false,
+            commands: 0,
+        })
+    }
+
+    /// The outage covering device time `t`, if any.
+    fn outage_at(&self, t: Duration) -> Option<usize> {
+        let s = t.as_secs_f64();
+        self.faults
+            .outages
+            .iter()
+            .position(|&(a, len)| s >= a && s < a + len)
+    }
+
+    /// Whether the device can be reached (advertises, accepts a connection) at `t`.
+    pub fn reachable(&self, t: Duration) -> bool {
+        self.outage_at(t).is_none()
+    }
+
+    /// Whether the link is up (as of the last [`advance`](Self::advance)).
+    pub fn connected(&self) -> bool {
+        self.connected
+    }
+
+    /// The next instant the device does something by itself (a poll of its batches): a
+    /// link shell need not look before it.
+    pub fn next_wake(&self) -> Duration {
+        self.next_poll
+    }
+
+    /// The firmware version the device reports at `t`.
+    fn firmware_at(&self, t: Duration) -> [u8; 3] {
+        let s = t.as_secs_f64();
+        match self.faults.replaced {
+            Some(f) if self.faults.outages.iter().any(|&(a, len)| s >= a + len) => f,
+            _ => self.faults.firmware,
+        }
+    }
+
+    fn capture(t: Duration) -> u64 {
+        (COUNTER_START + t.as_micros() as u64) & COUNTER_MASK
+    }
+
+    fn lost(&mut self) -> bool {
+        let p = self.faults.drop_probability;
+        if p <= 0.0 {
+            return false;
+        }
+        match self.faults.burst {
+            None => self.rng.gen::<f64>() < p,
+            // Gilbert's two states: a burst ends with probability 1/L per notification, and
+            // one starts with the probability that makes the long-run fraction lost p.
+            Some(len) => {
+                let len = len.max(1.0);
+                let (stay, start) = (1.0 - 1.0 / len, p / (len * (1.0 - p)));
+                let u = self.rng.gen::<f64>();
+                self.losing = if self.losing { u < stay } else { u < start };
+                self.losing
+            }
+        }
+    }
+
+    fn send(&mut self, p: Packet) {
+        let Some(ch) = Channel::of(&p) else {
+            return;
+        };
+        if !self.connected || (ch == Channel::Stream && self.lost()) {
+            return;
+        }
+        self.out.push_back((ch, self.encode(&p)));
+        self.notifications += 1;
+        if let Some(n) = self.faults.garbage_every {
+            if n > 0 && self.notifications % u64::from(n) == 0 {
+                let len = self.rng.gen_range(1..40);
+                let junk = (0..len).map(|_| self.rng.gen()).collect();
+                self.out.push_back((Channel::Stream, junk));
+            }
+        }
+    }
+
+    fn encode(&self, p: &Packet) -> Vec<u8> {
+        let mut v = encode(p);
+        if let (Some(b), Some(ver)) = (v.first_mut(), self.faults.protocol_version) {
+            *b = ver;
+        }
+        v
+    }
+
+    /// Run the device up to device time `t`: conversions, temperatures, polls. The link
+    /// goes down where an outage starts.
+    pub fn advance(&mut self, t: Duration) {
+        loop {
+            let conv = self.running.and_then(|(c, start, k)| {
+                let x = self.streams.get(c)?.get(k)?;
+                Some(start + Duration::from_secs_f64(x.t))
+            });
+            let next = [Some(self.next_poll), conv]
+                .into_iter()
+                .flatten()
+                .chain(self.running.map(|_| self.next_temperature))
+                .min()
+                .unwrap_or(t);
+            if next > t {
+                break;
+            }
+            self.now = next;
+            self.connected &= self.outage_at(next).is_none();
+            let mut packets = Vec::new();
+            if conv == Some(next) {
+                if let Some((c, start, k)) = self.running {
+                    if let Some(x) = self.streams.get(c).and_then(|s| s.get(k)).copied() {
+                        self.device
+                            .on_sample(Self::capture(next), x.counts, false, &mut |p| {
+                                packets.push(p)
+                            });
+                        self.running = Some((c, start, k + 1));
+                    }
+                }
+            } else if next == self.next_poll {
+                self.device
+                    .poll(Self::capture(next), &mut |p| packets.push(p));
+                self.next_poll += POLL_EVERY;
+            } else {
+                if let Some((c, _, k)) = self.running {
+                    if let Some(x) = self.streams.get(c).and_then(|s| s.get(k.saturating_sub(1))) {
+                        let centi = (x.temp_c * 100.0).round() as i16;
+                        self.device.on_temperature(centi, &mut |p| packets.push(p));
+                    }
+                }
+                self.next_temperature += TEMPERATURE_EVERY;
+            }
+            for p in packets {
+                self.send(p);
+            }
+        }
+        self.now = self.now.max(t);
+        self.connected &= self.outage_at(t).is_none();
+    }
+
+    /// Connect at `t` (after [`advance`](Self::advance) to it): the device-info value, or
+    /// `None` while the device is out of reach. Nothing sent before is delivered.
+    pub fn connect(&mut self, t: Duration) -> Option<Vec<u8>> {
+        if !self.reachable(t) {
+            return None;
+        }
+        self.connected = true;
+        self.out.clear();
+        let info = self.device.info(Chip::Lsm6ds33, self.firmware_at(t));
+        Some(self.encode(&Packet::Info(info)))
+    }
+
+    /// The link closed by the host.
+    pub fn disconnect(&mut self) {
+        self.connected = false;
+        self.out.clear();
+    }
+
+    /// A write to the control characteristic at the current time; false when not connected.
+    pub fn write(&mut self, bytes: &[u8]) -> bool {
+        if !self.connected {
+            return false;
+        }
+        self.commands += 1;
+        if self.faults.mute_after.is_some_and(|n| self.commands > n) {
+            return true;
+        }
+        // The firmware ignores (and logs) a write that isn't a command.
+        let Ok(Packet::Command(cmd)) = Packet::decode(bytes) else {
+            return true;
+        };
+        let before = self.device.status().state;
+        let mut packets = Vec::new();
+        self.device.on_command(cmd, &mut |p| packets.push(p));
+        let status = self.device.status();
+        if let Command::Start { condition, .. } = cmd {
+            if status.state != before && status.last_error.is_none() {
+                self.start(condition);
+            }
+        }
+        if status.state != RunState::Running {
+            self.running = None;
+        }
+        for p in packets {
+            self.send(p);
+        }
+        true
+    }
+
+    /// The next value the device sent, in order.
+    pub fn pop(&mut self) -> Option<(Channel, Vec<u8>)> {
+        self.out.pop_front()
+    }
+
+    fn start(&mut self, condition: Condition) {
+        // The stream starts on a whole microsecond (a tick of the 1 MHz clock), so the
+        // conversions' ticks relative to it do not depend on the moment the Start came.
+        let start = Duration::from_micros(self.now.as_nanos().div_ceil(1000) as u64);
+        self.running = Some((condition.index(), start, 0));
+        self.next_temperature = start + TEMPERATURE_EVERY / 2;
+    }
+}
+
+fn version(v: &str, bad: &dyn Fn(&str) -> String) -> Result<[u8; 3], String> {
+    let parts: Vec<u8> = v
+        .split('.')
+        .map(|p| p.parse().map_err(|_| bad("expected A.B.C")))
+        .collect::<Result<_, _>>()?;
+    parts
+        .try_into()
+        .map_err(|_| bad("expected three numbers A.B.C"))
+}
+
+impl std::str::FromStr for Faults {
+    type Err = String;
+
+    /// `outage=AT:LEN` (seconds; repeatable), `drop=P`, `burst=L`, `garbage=N`,
+    /// `firmware=A.B.C`, `protocol=V`, `replaced=A.B.C`, `mute_after=N`, `seed=N`,
+    /// comma-separated.
+    fn from_str(s: &str) -> Result<Self, String> {
+        let mut f = Faults::default();
+        for item in s.split(',').map(str::trim).filter(|i| !i.is_empty()) {
+            let (k, v) = item
+                .split_once('=')
+                .ok_or_else(|| format!("'{item}': expected key=value"))?;
+            let bad = |what: &str| format!("'{item}': {what}");
+            let num = |x: &str| -> Result<f64, String> {
+                x.parse::<f64>()
+                    .ok()
+                    .filter(|x| x.is_finite() && *x >= 0.0)
+                    .ok_or_else(|| bad("not a non-negative number"))
+            };
+            match k {
+                "outage" => {
+                    let (a, l) = v.split_once(':').ok_or_else(|| bad("expected AT:LEN"))?;
+                    f.outages.push((num(a)?, num(l)?));
+                }
+                "drop" => {
+                    let p = num(v)?;
+                    if p >= 1.0 {
+                        return Err(bad("a probability below 1"));
+                    }
+                    f.drop_probability = p;
+                }
+                "burst" => {
+                    let l = num(v)?;
+                    if l < 1.0 {
+                        return Err(bad("a mean burst length of at least 1 notification"));
+                    }
+                    f.burst = Some(l);
+                }
+                "garbage" => {
+                    f.garbage_every = Some(
+                        v.parse()
+                            .ok()
+                            .filter(|n| *n > 0)
+                            .ok_or_else(|| bad("a positive whole number of notifications"))?,
+                    )
+                }
+                "firmware" => f.firmware = version(v, &bad)?,
+                "replaced" => f.replaced = Some(version(v, &bad)?),
+                "protocol" => {
+                    f.protocol_version = Some(v.parse().map_err(|_| bad("expected 0–255"))?)
+                }
+                "mute_after" => {
+                    f.mute_after = Some(v.parse().map_err(|_| bad("expected a whole number"))?)
+                }
+                "seed" => f.seed = v.parse().map_err(|_| bad("expected a whole number"))?,
+                _ => {
+                    return Err(format!(
+                        "'{k}': unknown fault (outage, drop, burst, garbage, firmware, protocol, \
+                         replaced, mute_after, seed)"
+                    ))
+                }
+            }
+        }
+        Ok(f)
+    }
+}

@@ -1,0 +1,299 @@
+//! `rotacal record`, the binary, through btleplug's real BlueZ backend: each test starts
+//! its own `dbus-daemon` as the system bus and the BlueZ stand-in (host/bluez-standin) on
+//! it, with the firmware's logic behind it fed by the simulator, and runs `rotacal` with
+//! `DBUS_SYSTEM_BUS_ADDRESS` pointing there. Real time: the table turns at 0.1 Hz and a
+//! condition lasts 20 s. docs/recording.md, "The BlueZ stand-in".
+use rotacal::recording::{self, Recording};
+use rotacal::simulate::emulated::{EmulatedDevice, Faults};
+use rotacal::simulate::{Config, Simulation};
+use rotacal_bluez_standin::bus::PrivateBus;
+use rotacal_bluez_standin::{Options, Report, Standin, Unit};
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+const ADDRESS: &str = "F1:23:45:67:89:AB";
+const OTHER: &str = "C4:56:78:9A:BC:DE";
+const RATE: &str = "0.1";
+/// The preset's local gravity, m/s².
+const G_LOC: &str = "9.80101";
+
+/// The session: seed 000's device and noise, its 104 Hz conversions averaged into 16 Hz by
+/// the firmware's logic, the table at 0.1 Hz, 45 s of conversions per condition.
+fn config_text(seed: u64) -> String {
+    format!(
+        "preset = \"paper-10mhz\"\nseed = {seed}\n[timing]\nsample_rate_hz = 104.0\n\
+         tick_hz = 1e6\n[table]\nrates_hz = [0.1]\nsamples_per_condition = 4680\n"
+    )
+}
+
+fn dir(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("rotacal-bluez-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+struct Rig {
+    dir: PathBuf,
+    config: PathBuf,
+    standin: Option<Standin>,
+    // Dropped last: the stand-in leaves the bus first.
+    bus: PrivateBus,
+}
+
+struct Run {
+    code: i32,
+    out: String,
+    err: String,
+}
+
+impl Rig {
+    /// A bus with the stand-in and one unit per (address, faults), each with the same
+    /// simulated sensor.
+    fn new(name: &str, seed: u64, units: &[(&str, &str)]) -> Rig {
+        let dir = dir(name);
+        let config = dir.join("session.toml");
+        std::fs::write(&config, config_text(seed)).unwrap();
+        let sim = Simulation::new(Config::load(config.to_str().unwrap()).unwrap()).unwrap();
+        let units = units
+            .iter()
+            .map(|(address, faults)| Unit {
+                address: address.to_string(),
+                device: EmulatedDevice::new(&sim, faults.parse::<Faults>().unwrap()).unwrap(),
+            })
+            .collect();
+        let bus = PrivateBus::start(&dir.join("bus")).unwrap();
+        let standin = Standin::spawn(&bus.address, units, Options::default()).unwrap();
+        Rig {
+            dir,
+            config,
+            standin: Some(standin),
+            bus,
+        }
+    }
+
+    fn rotacal(&self, args: &[&str]) -> Run {
+        let out = Command::new(env!("CARGO_BIN_EXE_rotacal"))
+            .args(args)
+            .env("DBUS_SYSTEM_BUS_ADDRESS", &self.bus.address)
+            .current_dir(&self.dir)
+            .output()
+            .unwrap();
+        Run {
+            code: out.status.code().unwrap_or(-1),
+            out: String::from_utf8_lossy(&out.stdout).into_owned(),
+            err: String::from_utf8_lossy(&out.stderr).into_owned(),
+        }
+    }
+
+    /// `rotacal record` of one condition through BLE.
+    fn record(&self, device: &str, condition: &str, seconds: u32, extra: &[&str]) -> Run {
+        let duration = format!("{seconds}s");
+        let mut args = vec![
+            "record",
+            "--device",
+            device,
+            "--condition",
+            condition,
+            "--rate-hz",
+            RATE,
+            "--duration",
+            &duration,
+            "--out",
+            "rec.csv",
+            "--scan-timeout",
+            "5s",
+            "--g-loc",
+            G_LOC,
+        ];
+        args.extend_from_slice(extra);
+        self.rotacal(&args)
+    }
+
+    fn stop(&mut self) -> Report {
+        self.standin.take().unwrap().stop().unwrap()
+    }
+}
+
+fn read(p: &Path) -> Recording {
+    recording::read(p).unwrap()
+}
+
+/// Rows of one condition: (seq, device ticks, the rest of the line as written).
+fn rows_of(p: &Path, condition: char) -> Vec<(u64, i64, String)> {
+    let text = std::fs::read_to_string(p).unwrap();
+    let mut lines = text.lines().filter(|l| !l.starts_with('#'));
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    let col = |n: &str| header.iter().position(|h| *h == n).unwrap();
+    let (c, s, t) = (col("condition"), col("seq"), col("t_s"));
+    lines
+        .map(|l| l.split(',').collect::<Vec<_>>())
+        .filter(|f| f[c] == condition.to_string())
+        .map(|f| {
+            let seq = f[s].parse().unwrap();
+            let ticks = (f[t].parse::<f64>().unwrap() * 1e6).round() as i64;
+            let rest: Vec<&str> = f
+                .iter()
+                .enumerate()
+                .filter(|(i, _)| *i != s && *i != t)
+                .map(|(_, v)| *v)
+                .collect();
+            (seq, ticks, rest.join(","))
+        })
+        .collect()
+}
+
+fn check_within_u(rig: &Rig, sim_seed: u64) -> String {
+    let r = rig.rotacal(&["calibrate", "rec.csv", "--json", "cal.json"]);
+    assert_eq!(r.code, 0, "{}\n{}", r.out, r.err);
+    let j: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(rig.dir.join("cal.json")).unwrap()).unwrap();
+    let sim = Simulation::new(Config::load(rig.config.to_str().unwrap()).unwrap()).unwrap();
+    let truth = sim.truth().properties();
+    let i = &j["by_rate"][0]["intrinsic"];
+    let quantities = [
+        ("s_u", &i["sensitivity"]["u"]),
+        ("s_v", &i["sensitivity"]["v"]),
+        ("s_w", &i["sensitivity"]["w"]),
+        ("φ_uv", &i["angle_deg"]["uv"]),
+        ("φ_vw", &i["angle_deg"]["vw"]),
+        ("φ_wu", &i["angle_deg"]["wu"]),
+    ];
+    let mut table = format!("seed {sim_seed}: property, error / U\n");
+    for ((name, q), t) in quantities.iter().zip(truth) {
+        let (v, u) = (
+            q["value"].as_f64().unwrap(),
+            q["expanded_unc"].as_f64().unwrap(),
+        );
+        table.push_str(&format!("  {name}: {:+.3}\n", (v - t) / u));
+        assert!(
+            (v - t).abs() <= u,
+            "{name}: {v} vs truth {t}, U {u}\n{table}"
+        );
+    }
+    table
+}
+
+/// Proof point 1: x by name, y by address, z by name with `--append`, through btleplug;
+/// the calibration within U of the truth; the recording the same as through the simulated
+/// link but for the device clock's origin and the row the host's stop time decides.
+#[test]
+fn a_clean_session_through_btleplug_calibrates_within_u() {
+    let mut rig = Rig::new("clean", 11, &[(ADDRESS, "")]);
+    // The same session through the simulated link, beside it, in real time.
+    let sim_dir = rig.dir.join("simulated");
+    std::fs::create_dir_all(&sim_dir).unwrap();
+    let cfg = rig.config.to_str().unwrap().to_string();
+    let sim_dir2 = sim_dir.clone();
+    let simulated = std::thread::spawn(move || {
+        for (i, c) in ["x", "y", "z"].into_iter().enumerate() {
+            let mut args = vec![
+                "record",
+                "--simulate",
+                &cfg,
+                "--condition",
+                c,
+                "--rate-hz",
+                RATE,
+                "--duration",
+                "20s",
+                "--out",
+                "rec.csv",
+                "--g-loc",
+                G_LOC,
+            ];
+            if i > 0 {
+                args.push("--append");
+            }
+            let out = Command::new(env!("CARGO_BIN_EXE_rotacal"))
+                .args(&args)
+                .current_dir(&sim_dir2)
+                .output()
+                .unwrap();
+            assert!(
+                out.status.success(),
+                "{}",
+                String::from_utf8_lossy(&out.stderr)
+            );
+        }
+    });
+    for (c, device, extra) in [
+        ("x", "rotacal", &[][..]),
+        ("y", ADDRESS, &["--append"][..]),
+        ("z", "rotacal", &["--append"][..]),
+    ] {
+        let r = rig.record(device, c, 20, extra);
+        assert_eq!(r.code, 0, "condition {c}: {}\n{}", r.out, r.err);
+        assert!(
+            r.out.contains(&format!("recorded condition {c}: "))
+                && r.out.contains(" 0 lost), ")
+                && r.out.contains(" 0 link drop(s), 0 undecodable"),
+            "{}",
+            r.out
+        );
+        assert!(
+            r.err.contains(&format!("BLE device {ADDRESS}")),
+            "{}",
+            r.err
+        );
+    }
+    let report = rig.stop();
+    simulated.join().unwrap();
+    println!("stand-in: {report:?}");
+    assert_eq!(report.oversize, 0, "{report:?}");
+    assert!(report.longest <= 244, "{report:?}");
+    assert_eq!(report.connections, 3, "{report:?}");
+    for call in [
+        "org.freedesktop.DBus.ObjectManager.GetManagedObjects",
+        "org.bluez.Adapter1.StartDiscovery",
+        "org.bluez.Device1.Connect",
+        "org.bluez.GattCharacteristic1.StartNotify",
+        "org.bluez.GattCharacteristic1.ReadValue",
+        "org.bluez.GattCharacteristic1.WriteValue",
+        "org.freedesktop.DBus.Introspectable.Introspect",
+    ] {
+        assert!(
+            report.calls.contains_key(call),
+            "{call} never called: {report:?}"
+        );
+    }
+
+    // It reads back as a recording (time increasing within each condition).
+    let rows = read(&rig.dir.join("rec.csv")).rows();
+    let by_condition: usize = ['x', 'y', 'z']
+        .map(|c| rows_of(&rig.dir.join("rec.csv"), c).len())
+        .iter()
+        .sum();
+    assert_eq!(rows, by_condition);
+    println!("{}", check_within_u(&rig, 11));
+
+    // Row by row against the simulated link's recording.
+    for c in ['x', 'y', 'z'] {
+        let ble = rows_of(&rig.dir.join("rec.csv"), c);
+        let sim = rows_of(&sim_dir.join("rec.csv"), c);
+        let n = ble.len().min(sim.len());
+        assert!(
+            n >= 318,
+            "condition {c}: {} and {} rows",
+            ble.len(),
+            sim.len()
+        );
+        assert!(
+            ble.len().abs_diff(sim.len()) <= 2,
+            "condition {c}: {} and {} rows",
+            ble.len(),
+            sim.len()
+        );
+        let (b0, s0) = (&ble[0], &sim[0]);
+        for (k, (b, s)) in ble.iter().zip(&sim).take(n).enumerate() {
+            assert_eq!(b.2, s.2, "condition {c}, row {k}");
+            assert_eq!(b.0 - b0.0, s.0 - s0.0, "condition {c}, row {k}: seq");
+            assert_eq!(b.1 - b0.1, s.1 - s0.1, "condition {c}, row {k}: ticks");
+        }
+        println!(
+            "condition {c}: {} rows through BlueZ, {} through the simulated link, {n} the same",
+            ble.len(),
+            sim.len()
+        );
+    }
+}
