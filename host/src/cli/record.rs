@@ -22,7 +22,8 @@ pub struct Args {
     /// time), fed by a simulator preset or TOML file: a dry run of the set-up.
     #[arg(long, value_name = "CONFIG")]
     pub simulate: Option<String>,
-    /// Faults for the simulated device, e.g. outage=60:5,drop=0.01,garbage=100.
+    /// Faults for the simulated device, e.g. outage=60:5,drop=0.01,burst=3,garbage=100
+    /// (also firmware=, protocol=, replaced=, mute_after=, seed=; docs/recording.md).
     #[arg(long, requires = "simulate")]
     pub faults: Option<Faults>,
     /// The platter axis the table turns about: x, y or z.

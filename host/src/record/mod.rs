@@ -465,7 +465,8 @@ impl<L: Link, W: Durable, F: Durable, C: Durable, O: Observer> Session<'_, L, W,
                 Err(LinkError::Disconnected(why)) => {
                     if since.elapsed() >= self.opts.reconnect_for {
                         return Err(RecordError::Link(LinkError::Disconnected(format!(
-                            "{why}; gave up after {:.0} s",
+                            "{}: {why}; gave up after {:.0} s",
+                            self.link.describe(),
                             since.elapsed().as_secs_f64()
                         ))));
                     }

@@ -267,6 +267,19 @@ fn a_clean_session_through_btleplug_calibrates_within_u() {
     assert_eq!(rows, by_condition);
     println!("{}", check_within_u(&rig, 11));
 
+    // The metadata: the same but for the link named in `device`.
+    let meta = |p: &Path| -> Vec<String> {
+        std::fs::read_to_string(p)
+            .unwrap()
+            .lines()
+            .filter(|l| l.starts_with('#') && !l.starts_with("# device="))
+            .map(String::from)
+            .collect()
+    };
+    assert_eq!(
+        meta(&rig.dir.join("rec.csv")),
+        meta(&sim_dir.join("rec.csv"))
+    );
     // Row by row against the simulated link's recording.
     for c in ['x', 'y', 'z'] {
         let ble = rows_of(&rig.dir.join("rec.csv"), c);
@@ -296,4 +309,147 @@ fn a_clean_session_through_btleplug_calibrates_within_u() {
             sim.len()
         );
     }
+}
+
+/// The recording's seq numbers of condition `c`, in file order.
+fn seqs(p: &Path, c: char) -> Vec<u64> {
+    rows_of(p, c).into_iter().map(|r| r.0).collect()
+}
+
+/// Proof point 2: a 5 s link drop and 2 % of stream notifications lost in bursts (mean
+/// length 3). Every sample the device streamed is in the recording or reported lost by
+/// seq, with exit 0 only if none is lost and 3 otherwise.
+#[test]
+fn a_5s_drop_and_2_percent_burst_loss_lose_nothing_delivered() {
+    let mut rig = Rig::new(
+        "faulty",
+        12,
+        &[(ADDRESS, "outage=8:5,drop=0.02,burst=3,seed=5")],
+    );
+    let r = rig.record("rotacal", "x", 30, &["--reconnect-for", "30s"]);
+    let report = rig.stop();
+    println!("{}\n{}\nstand-in: {report:?}", r.out, r.err);
+    assert!(r.err.contains("link lost"), "{}", r.err);
+    assert!(r.err.contains("reconnected after"), "{}", r.err);
+    assert!(r.out.contains(" 1 link drop(s)"), "{}", r.out);
+    assert_eq!(report.connections, 2, "{report:?}");
+    let seq = seqs(&rig.dir.join("rec.csv"), 'x');
+    // Written in seq order, each once.
+    assert!(seq.windows(2).all(|w| w[0] < w[1]));
+    let (first, last) = (seq[0], *seq.last().unwrap());
+    let recovered: u64 = number_before(&r.out, " recovered by replay");
+    let lost: u64 = number_before(&r.out, " lost");
+    // Replays did the work: the outage alone took 5 s of samples (80) off the air.
+    assert!(recovered >= 80, "{}", r.out);
+    assert_eq!(seq.len() as u64 + lost, last - first + 1, "{}", r.out);
+    // About 30 s at 16 Hz.
+    assert!((470..=490).contains(&seq.len()), "{} rows", seq.len());
+    if lost == 0 {
+        assert_eq!(r.code, 0, "{}", r.err);
+    } else {
+        assert_eq!(r.code, 3, "{}", r.err);
+        assert!(r.out.contains(": seq ["), "{}", r.out);
+    }
+}
+
+/// The whole number just before `tail` in `text` (its first occurrence).
+fn number_before(text: &str, tail: &str) -> u64 {
+    let i = text.find(tail).unwrap();
+    let head = &text[..i];
+    let start = head
+        .rfind(|c: char| !c.is_ascii_digit())
+        .map_or(0, |j| j + 1);
+    head[start..].parse().unwrap()
+}
+
+/// A different unit after the link came back: the same address with another firmware
+/// is refused by name; a unit at another address that advertises the same name is never
+/// used (the recorder waits for its own and gives up, naming it). Exit 1, and the rows
+/// recorded before are kept.
+#[test]
+fn a_different_unit_after_reconnecting_is_not_recorded() {
+    let mut same = Rig::new("replaced", 13, &[(ADDRESS, "outage=6:3,replaced=0.3.0")]);
+    let mut other = Rig::new("moved", 14, &[(ADDRESS, "outage=6:1000"), (OTHER, "")]);
+    let t = std::thread::spawn(move || {
+        let r = other.record("rotacal", "x", 20, &["--reconnect-for", "8s"]);
+        (r, other.stop(), other.dir.clone())
+    });
+    let r = same.record("rotacal", "x", 20, &["--reconnect-for", "20s"]);
+    let report = same.stop();
+    println!("{}\n{}\nstand-in: {report:?}", r.out, r.err);
+    assert_eq!(r.code, 1, "{}", r.err);
+    assert!(
+        r.err
+            .contains("reconnected to a different device (chip, firmware or clock differ)"),
+        "{}",
+        r.err
+    );
+    let kept = seqs(&same.dir.join("rec.csv"), 'x').len();
+    assert!(
+        kept >= 80 && r.err.contains(&format!("{kept} samples kept")),
+        "{}",
+        r.err
+    );
+
+    let (r, report, dir) = t.join().unwrap();
+    println!("{}\n{}\nstand-in: {report:?}", r.out, r.err);
+    assert_eq!(r.code, 1, "{}", r.err);
+    assert!(
+        r.err.contains(&format!("BLE device {ADDRESS}: ")),
+        "{}",
+        r.err
+    );
+    // It gives up at the first failed attempt past --reconnect-for (attempts take 2 s).
+    let after: u64 = r
+        .err
+        .split("gave up after ")
+        .nth(1)
+        .unwrap()
+        .split(' ')
+        .next()
+        .unwrap()
+        .parse()
+        .unwrap();
+    assert!((8..=13).contains(&after), "{}", r.err);
+    assert!(
+        r.err.contains("gave up after") && (8..=13).contains(&after),
+        "{}",
+        r.err
+    );
+    // One connection, to the first unit: the other was never connected.
+    assert_eq!(report.connections, 1, "{report:?}");
+    assert!(report.connect_attempts >= 3, "{report:?}");
+    let kept = seqs(&dir.join("rec.csv"), 'x').len();
+    assert!(
+        kept >= 80 && r.err.contains(&format!("{kept} samples kept")),
+        "{}",
+        r.err
+    );
+}
+
+/// A device that takes commands but never answers: the Start (exit 1 at once, nothing
+/// recorded) or, in a second run, only the Stop (exit 1, the samples kept).
+#[test]
+fn a_device_that_never_answers_is_named_and_what_came_is_kept() {
+    let mut never = Rig::new("mute", 15, &[(ADDRESS, "mute_after=0")]);
+    let r = never.record("rotacal", "x", 10, &[]);
+    let report = never.stop();
+    println!("{}\n{}\nstand-in: {report:?}", r.out, r.err);
+    assert_eq!(r.code, 1, "{}", r.err);
+    assert!(r.err.contains("no status reply to Start"), "{}", r.err);
+    assert_eq!(report.writes, 1, "{report:?}");
+    assert_eq!(seqs(&never.dir.join("rec.csv"), 'x').len(), 0);
+
+    let mut late = Rig::new("mute-stop", 16, &[(ADDRESS, "mute_after=1")]);
+    let r = late.record("rotacal", "x", 10, &[]);
+    let report = late.stop();
+    println!("{}\n{}\nstand-in: {report:?}", r.out, r.err);
+    assert_eq!(r.code, 1, "{}", r.err);
+    assert!(r.err.contains("no status reply to Stop"), "{}", r.err);
+    let kept = seqs(&late.dir.join("rec.csv"), 'x').len();
+    assert!(
+        kept >= 150 && r.err.contains(&format!("{kept} samples kept")),
+        "{}",
+        r.err
+    );
 }
