@@ -85,7 +85,7 @@ pub struct Report {
     pub unsubscribed: u64,
     /// Commands written to the control characteristic.
     pub writes: u64,
-    /// Connect calls that reached a device, and all connect calls.
+    /// Connections made (Connect calls that reached a device).
     pub connections: u64,
     /// Connect calls, including those that failed.
     pub connect_attempts: u64,

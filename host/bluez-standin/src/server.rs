@@ -65,7 +65,6 @@ pub(crate) struct Server {
     channel: Channel,
     tree: Tree,
     units: Vec<Live>,
-    /// The unit advertising now (the first not gone).
     options: Options,
     discovering: bool,
     /// Replies due later: (when, reply).
@@ -431,7 +430,11 @@ impl Server {
             (PROPERTIES, "GetAll") => match m.read1::<&str>() {
                 Ok(i) => match self.tree.get_all(&path, i) {
                     Some(all) => m.method_return().append1(all),
-                    None => m.method_return().append1(PropMap::new()),
+                    None => error(
+                        m,
+                        "org.freedesktop.DBus.Error.InvalidArgs",
+                        &format!("No such interface '{i}'"),
+                    ),
                 },
                 Err(e) => error(m, "org.freedesktop.DBus.Error.InvalidArgs", &e.to_string()),
             },
