@@ -218,26 +218,34 @@ impl Server {
         if !new.is_empty() {
             return;
         }
-        let left: Vec<String> = self
-            .units
-            .iter_mut()
-            .filter(|u| u.subscriber.as_deref() == Some(name))
-            .map(|u| {
-                u.subscriber = None;
-                u.notifying_stream = false;
-                u.notifying_results = false;
-                u.path.clone()
+        let left: Vec<usize> = (0..self.units.len())
+            .filter(|i| {
+                self.units
+                    .get(*i)
+                    .is_some_and(|u| u.subscriber.as_deref() == Some(name))
             })
             .collect();
-        for path in left {
-            for g in [Gatt::Stream, Gatt::Results] {
-                self.set(
-                    &gatt::path(&path, g),
-                    CHAR1,
-                    "Notifying",
-                    Value::Bool(false),
-                );
-            }
+        for i in left {
+            self.end_notify(i);
+        }
+    }
+
+    /// End unit `i`'s notify sessions (its client left, or the link went down).
+    fn end_notify(&mut self, i: usize) {
+        let Some(u) = self.units.get_mut(i) else {
+            return;
+        };
+        u.subscriber = None;
+        u.notifying_stream = false;
+        u.notifying_results = false;
+        let path = u.path.clone();
+        for g in [Gatt::Stream, Gatt::Results] {
+            self.set(
+                &gatt::path(&path, g),
+                CHAR1,
+                "Notifying",
+                Value::Bool(false),
+            );
         }
     }
 
@@ -329,8 +337,6 @@ impl Server {
             return;
         };
         u.radio = Radio::Down;
-        u.notifying_stream = false;
-        u.notifying_results = false;
         u.unit.device.disconnect();
         let stalled = std::mem::take(&mut u.stalled);
         let path = u.path.clone();
@@ -338,14 +344,7 @@ impl Server {
         for m in stalled {
             self.send(Some(failed(&m, "Not connected")));
         }
-        for g in [Gatt::Stream, Gatt::Results] {
-            self.set(
-                &gatt::path(&path, g),
-                CHAR1,
-                "Notifying",
-                Value::Bool(false),
-            );
-        }
+        self.end_notify(i);
         self.set(&path, DEVICE1, "ServicesResolved", Value::Bool(false));
         self.set(&path, DEVICE1, "Connected", Value::Bool(false));
     }

@@ -334,20 +334,8 @@ fn cond_of(rows: &[[f64; PARAMS]]) -> (f64, SVector<f64, 9>) {
     let m = DMatrix::from_fn(rows.len().max(PARAMS), PARAMS, |i, j| {
         rows.get(i).map_or(0.0, |r| r[j])
     });
-    let svd = m.svd(false, true);
-    let (mut imin, mut smin, mut smax) = (0, f64::INFINITY, 0.0f64);
-    for (i, s) in svd.singular_values.iter().enumerate() {
-        if *s < smin {
-            smin = *s;
-            imin = i;
-        }
-        smax = smax.max(*s);
-    }
-    let v = svd
-        .v_t
-        .as_ref()
-        .map(|vt| SVector::from_fn(|j, _| vt[(imin, j)]))
-        .unwrap_or_else(SVector::zeros);
+    let (smin, smax, v) = crate::calibrate::poses::weakest(m);
+    let v = SVector::from_fn(|j, _| v.get(j).copied().unwrap_or(0.0));
     let cond = if smin > smax * 1e-15 {
         smax / smin
     } else {

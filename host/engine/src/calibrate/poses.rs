@@ -14,7 +14,7 @@
 
 use crate::calibrate::budget::{coverage_factor, welch_satterthwaite};
 use crate::recording::Oriented;
-use nalgebra::{DMatrix, Matrix3, Matrix4, SMatrix, SVector, Vector3, Vector4};
+use nalgebra::{DMatrix, DVector, Matrix3, Matrix4, SMatrix, SVector, Vector3, Vector4};
 use rotacal_shared::intrinsic::Estimate;
 use rotacal_shared::Condition;
 
@@ -626,15 +626,7 @@ fn conditioning(poses: &[Pose]) -> (f64, String) {
         },
         None => 0.0,
     });
-    let svd = x.svd(false, true);
-    let (mut imin, mut smin, mut smax) = (0, f64::INFINITY, 0.0f64);
-    for (i, s) in svd.singular_values.iter().enumerate() {
-        if *s < smin {
-            smin = *s;
-            imin = i;
-        }
-        smax = smax.max(*s);
-    }
+    let (smin, smax, v) = weakest(x);
     let cond = if smin > 0.0 {
         smax / smin
     } else {
@@ -642,11 +634,7 @@ fn conditioning(poses: &[Pose]) -> (f64, String) {
     };
     // The right singular vector of the smallest singular value is the combination of
     // (S_j·ĝ, O_j) the poses see least; the axis pose that sees it most is the suggestion.
-    let v = svd
-        .v_t
-        .as_ref()
-        .map(|vt| [0, 1, 2, 3].map(|j| vt[(imin, j)]))
-        .unwrap_or([0.0; 4]);
+    let v = [0, 1, 2, 3].map(|j| v.get(j).copied().unwrap_or(0.0));
     let mut best = ([0.0; 3], -1.0);
     for k in 0..3 {
         for sign in [1.0, -1.0] {
@@ -1264,4 +1252,27 @@ fn axis_poses(poses: &[Pose]) -> Result<[[usize; 2]; 3], PoseError> {
         *o = [find(k, 1.0)?, find(k, -1.0)?];
     }
     Ok(out)
+}
+
+/// The smallest and largest singular values of `m`, and the right singular vector of the
+/// smallest: the parameter combination the data determine least (zeros if the SVD gave no
+/// V). Shared with the free method's geometry check.
+pub(crate) fn weakest(m: DMatrix<f64>) -> (f64, f64, DVector<f64>) {
+    let cols = m.ncols();
+    let svd = m.svd(false, true);
+    let (mut imin, mut smin, mut smax) = (0, f64::INFINITY, 0.0f64);
+    for (i, s) in svd.singular_values.iter().enumerate() {
+        if *s < smin {
+            smin = *s;
+            imin = i;
+        }
+        smax = smax.max(*s);
+    }
+    let v = svd
+        .v_t
+        .as_ref()
+        .filter(|vt| imin < vt.nrows())
+        .map(|vt| vt.row(imin).transpose())
+        .unwrap_or_else(|| DVector::zeros(cols));
+    (smin, smax, v)
 }

@@ -940,8 +940,14 @@ impl Parser<'_> {
             }
         }
 
-        if let Some(o) = oriented {
-            if o.y.is_empty() {
+        // Poses or a continuous series, when read as such, are the recording.
+        let series = series.filter(|_| oriented.is_none());
+        let rows = oriented
+            .as_ref()
+            .map(|o| o.y.len())
+            .or(series.as_ref().map(|s| s.y.len()));
+        if let Some(n) = rows {
+            if n == 0 {
                 return Err(self.err(None, RecordingErrorKind::NoData));
             }
             return Ok(Recording {
@@ -949,21 +955,8 @@ impl Parser<'_> {
                 meta,
                 method,
                 groups,
-                oriented: Some(o),
-                series: None,
-            });
-        }
-        if let Some(s) = series {
-            if s.y.is_empty() {
-                return Err(self.err(None, RecordingErrorKind::NoData));
-            }
-            return Ok(Recording {
-                source: self.source.to_string(),
-                meta,
-                method,
-                groups,
-                oriented: None,
-                series: Some(s),
+                oriented,
+                series,
             });
         }
         if groups.is_empty() {
