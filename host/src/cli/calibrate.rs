@@ -132,8 +132,7 @@ pub struct Args {
 /// Run it.
 pub fn run(a: Args) -> anyhow::Result<()> {
     let opts: rotacal::calibrate::Options = a.options.into();
-    let rec = rotacal::recording::read_as(&a.file, opts.method)?;
-    let cal = rotacal::calibrate::calibrate(&rec, &opts)?;
+    let cal = rotacal::calibrate::stream::calibrate_file(&a.file, &opts)?;
     if let Some(path) = a.json {
         let text = serde_json::to_string_pretty(&cal)? + "\n";
         std::fs::write(&path, text).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;

@@ -28,3 +28,4 @@ mod report;
 mod session_check;
 mod simulator;
 mod static_method;
+mod streaming;

@@ -20,10 +20,11 @@ pub mod json;
 pub mod methods;
 pub mod poses;
 pub mod still;
+pub mod stream;
 pub mod table;
 
 use crate::calibrate::budget::{Budget, Kind};
-use crate::fit::batch;
+use crate::fit::{batch, moments};
 
 use crate::calibrate::json::{CalibrationJson, CorrectionJson, FitJson, NoiseJson};
 
@@ -92,7 +93,11 @@ pub struct CalibrateError {
 /// The clock rotation timestamps are converted to (t_s has microsecond resolution).
 pub const CLOCK: TickRate = TickRate::MHZ_1;
 
-fn err(rec: &Recording, line: Option<u64>, message: impl Into<String>) -> CalibrateError {
+pub(crate) fn err(
+    rec: &Recording,
+    line: Option<u64>,
+    message: impl Into<String>,
+) -> CalibrateError {
     CalibrateError {
         source_name: rec.source.clone(),
         line,
@@ -115,13 +120,9 @@ pub fn samples(rec: &Recording, g: &Group) -> Result<Vec<batch::Sample>, Calibra
         .zip(g.u.iter().zip(g.v.iter().zip(g.w.iter())))
         .enumerate()
     {
-        let ticks = ((t - t0) * f64::from(CLOCK.hz())).round();
-        if !(0.0..1.8e19).contains(&ticks) {
-            return Err(err(rec, Some(g.first_line), "t_s out of range"));
-        }
-        let ap = g
-            .aperture(i, Ticks(ticks as u64), scale)
-            .ok_or_else(|| err(rec, Some(g.first_line), "conv_gaps beyond 65 ms at 1 MHz"))?;
+        let gaps = g.conversions.as_ref().and_then(|c| c.get(i));
+        let ap = moments::row_aperture(*t, t0, gaps, scale, CLOCK)
+            .map_err(|m| err(rec, Some(g.first_line), m))?;
         out.push((ap, [*u, *v, *w]));
     }
     Ok(out)
@@ -269,7 +270,38 @@ fn sine_cov(
     Ok(covs)
 }
 
-fn fit_group(
+/// The rate's standard error under the channels' noise, and whether the fitted rate
+/// differs from nominal (by more than 3 of it), from the IEEE 1057 fit's (rate, standard
+/// error) and coefficients (A, B, C per channel).
+///
+/// The rate's standard error is that of one unweighted joint fit with a pooled σ̂² (the
+/// mean of the channels' variances). Under the channels' own noise its variance is
+/// Σ f_j γ₀_j A_j² / (Σ A_j²)² against σ̄²/Σ A_j²: f_j the variance factor at ω, γ₀_j
+/// the level, A_j² the channel's share of the rate information.
+pub(crate) fn rate_choice(
+    (rate_hz, se_rate_hz): (f64, f64),
+    coef: &[[f64; 3]; 3],
+    noise: &[NoiseModel; 3],
+    omega_per_sample: f64,
+    nominal_hz: f64,
+) -> (f64, bool) {
+    let (mut num, mut den) = (0.0, 0.0);
+    for (m, c) in noise.iter().zip(coef) {
+        let amp2 = c[0] * c[0] + c[1] * c[1];
+        num += m.variance_factor(omega_per_sample) * m.var * amp2;
+        den += amp2;
+    }
+    let pooled = noise.iter().map(|m| m.var).sum::<f64>() / 3.0;
+    let factor = if den > 0.0 && pooled > 0.0 {
+        num / (den * pooled)
+    } else {
+        1.0
+    };
+    let se_rate = se_rate_hz * factor.max(1e-6).sqrt();
+    (se_rate, (rate_hz - nominal_hz).abs() > 3.0 * se_rate)
+}
+
+pub(crate) fn fit_group(
     rec: &Recording,
     g: &Group,
     s: &[batch::Sample],
@@ -296,10 +328,6 @@ fn fit_group(
         _ => 0.0,
     };
     let omega_per_sample = TAU * four.rate_hz * span_s / (s.len().max(2) - 1) as f64;
-    // The rate's standard error is that of one unweighted joint fit with a pooled σ̂² (the
-    // mean of the channels' variances). Under the channels' own noise its variance is
-    // Σ f_j γ₀_j A_j² / (Σ A_j²)² against σ̄²/Σ A_j²: f_j the variance factor at ω, γ₀_j
-    // the level, A_j² the channel's share of the rate information.
     let coef_of = |f: &batch::BatchFit| {
         [0, 1, 2].map(|ch| {
             let c = |i: usize| {
@@ -316,20 +344,13 @@ fn fit_group(
     // The noise is modelled once, about the fitted rate (the best description of the
     // data): at the nominal rate a rate error's growing quadrature would read as noise.
     let noise = noise_models(s, fitted_step).map_err(|e| fail(e.to_string()))?;
-    let (mut num, mut den) = (0.0, 0.0);
-    for (m, c) in noise.iter().zip(&four_coef) {
-        let amp2 = c[0] * c[0] + c[1] * c[1];
-        num += m.variance_factor(omega_per_sample) * m.var * amp2;
-        den += amp2;
-    }
-    let pooled = noise.iter().map(|m| m.var).sum::<f64>() / 3.0;
-    let factor = if den > 0.0 && pooled > 0.0 {
-        num / (den * pooled)
-    } else {
-        1.0
-    };
-    let se_rate = four.se_rate_hz * factor.max(1e-6).sqrt();
-    let differs = (four.rate_hz - nominal_hz).abs() > 3.0 * se_rate;
+    let (se_rate, differs) = rate_choice(
+        (four.rate_hz, four.se_rate_hz),
+        &four_coef,
+        &noise,
+        omega_per_sample,
+        nominal_hz,
+    );
     let (step, fit, rate_hz, rate_fitted, u_rate_hz) = if differs {
         let fit = fit_at(s, fitted_step).map_err(fail)?;
         (fitted_step, fit, four.rate_hz, Some(four.rate_hz), se_rate)
@@ -348,6 +369,68 @@ fn fit_group(
         noise,
         omega_per_sample,
     })
+}
+
+/// What a rotation entry needs beyond its fits.
+pub(crate) struct Setting<'a> {
+    /// Local gravity, m/s².
+    pub g: f64,
+    /// The type-B inputs.
+    pub inputs: &'a TypeB,
+    /// The output units.
+    pub units: &'a str,
+    /// Monte Carlo trials, if asked for.
+    pub monte_carlo: Option<usize>,
+}
+
+/// The sine fit of a condition refitted at another rate (the budget's sensitivity to the
+/// rate): from its samples, or from a streamed record's sums ([`stream`]).
+pub(crate) trait Refit {
+    /// (A, B) per channel of the sine fit at `rate_hz`.
+    fn refit(&self, rate_hz: f64) -> Result<ConditionFit, String>;
+}
+
+impl Refit for Vec<batch::Sample> {
+    fn refit(&self, rate_hz: f64) -> Result<ConditionFit, String> {
+        let step = PhaseStep::from_hz(rate_hz, CLOCK)
+            .ok_or_else(|| format!("rate {rate_hz} Hz unusable"))?;
+        Ok(ConditionFit::from_fit(&fit_at(self, step)?))
+    }
+}
+
+/// One rate's entry of a rotation calibration from its three conditions' fits.
+pub(crate) fn rotation_entry(
+    rec: &Recording,
+    nominal: f64,
+    fits: &[GroupFit; 3],
+    refits: [&dyn Refit; 3],
+    set: &Setting<'_>,
+) -> Result<json::RateJson, CalibrateError> {
+    let g = set.g;
+    let cf = [0, 1, 2].map(|c| fits[c].condition_fit());
+    let at_rate = |e: String| err(rec, None, format!("at {nominal} Hz: {e}"));
+    let cal = methods::rotation(&cf, g).map_err(|e| at_rate(e.to_string()))?;
+    let budget = rotation_budget(fits, refits, &cal, g, set.inputs, set.units).map_err(at_rate)?;
+    let json_fits = fits.iter().flat_map(fit_json).collect();
+    let mut entry = json::rotation_entry(nominal, &cal, &budget, json_fits);
+    entry.noise = Some(fits.iter().flat_map(noise_json).collect());
+    entry.uncertainty_budget = Some(budget);
+    let device = rotation_correction(fits, g).map_err(|e| at_rate(e.to_string()))?;
+    entry.correction = Some(CorrectionJson::new(
+        set.units,
+        device,
+        None,
+        json::K,
+        "the mean of the three conditions' C at this rate: it includes the \
+         centripetal acceleration ω²·r of a sensor off the axis, which one rate \
+         cannot separate",
+    ));
+    if let Some(trials) = set.monte_carlo {
+        let mc = methods::monte_carlo_rotation(&cf, g, trials, 1)
+            .map_err(|e| err(rec, None, format!("Monte Carlo at {nominal} Hz: {e}")))?;
+        entry.monte_carlo = Some(json::mc_map(mc));
+    }
+    Ok(entry)
 }
 
 fn fit_json(f: &GroupFit) -> Vec<FitJson> {
@@ -378,8 +461,12 @@ fn noise_json(f: &GroupFit) -> Vec<NoiseJson> {
         .collect()
 }
 
-/// Calibrate a recording.
-pub fn calibrate(rec: &Recording, opts: &Options) -> Result<CalibrationJson, CalibrateError> {
+/// What every calibration checks first: local gravity, the type-B inputs, the method and
+/// the units.
+pub(crate) fn preflight(
+    rec: &Recording,
+    opts: &Options,
+) -> Result<(f64, TypeB, Method, String), CalibrateError> {
     let g = opts.g_loc.or(rec.meta.g_loc).ok_or_else(|| {
         err(
             rec,
@@ -414,6 +501,12 @@ pub fn calibrate(rec: &Recording, opts: &Options) -> Result<CalibrationJson, Cal
         .units
         .clone()
         .unwrap_or_else(|| "output units".into());
+    Ok((g, inputs, method, units))
+}
+
+/// Calibrate a recording.
+pub fn calibrate(rec: &Recording, opts: &Options) -> Result<CalibrationJson, CalibrateError> {
+    let (g, inputs, method, units) = preflight(rec, opts)?;
     let mut by_rate = Vec::new();
     match method {
         Method::Rotation => {
@@ -451,30 +544,14 @@ pub fn calibrate(rec: &Recording, opts: &Options) -> Result<CalibrationJson, Cal
                 ) else {
                     return Err(err(rec, None, "expected three conditions"));
                 };
-                let cf = [0, 1, 2].map(|c| fits[c].condition_fit());
-                let at_rate = |e: String| err(rec, None, format!("at {nominal} Hz: {e}"));
-                let cal = methods::rotation(&cf, g).map_err(|e| at_rate(e.to_string()))?;
-                let budget = rotation_budget(&fits, &group_samples, &cal, g, &inputs, &units)
-                    .map_err(at_rate)?;
-                let json_fits = fits.iter().flat_map(fit_json).collect();
-                let mut entry = json::rotation_entry(nominal, &cal, &budget, json_fits);
-                entry.noise = Some(fits.iter().flat_map(noise_json).collect());
-                entry.uncertainty_budget = Some(budget);
-                let device = rotation_correction(&fits, g).map_err(|e| at_rate(e.to_string()))?;
-                entry.correction = Some(CorrectionJson::new(
-                    &units,
-                    device,
-                    None,
-                    json::K,
-                    "the mean of the three conditions' C at this rate: it includes the \
-                     centripetal acceleration ω²·r of a sensor off the axis, which one rate \
-                     cannot separate",
-                ));
-                if let Some(trials) = opts.monte_carlo {
-                    let mc = methods::monte_carlo_rotation(&cf, g, trials, 1)
-                        .map_err(|e| err(rec, None, format!("Monte Carlo at {nominal} Hz: {e}")))?;
-                    entry.monte_carlo = Some(json::mc_map(mc));
-                }
+                let refits = [0, 1, 2].map(|c| -> &dyn Refit { &group_samples[c] });
+                let setting = Setting {
+                    g,
+                    inputs: &inputs,
+                    units: &units,
+                    monte_carlo: opts.monte_carlo,
+                };
+                let entry = rotation_entry(rec, nominal, &fits, refits, &setting)?;
                 by_rate.push(entry);
             }
             if by_rate.len() >= 2 {
@@ -798,7 +875,7 @@ pub fn detection_summary(
 /// Multi-rate rotation: each condition's C_j against ω² is a line whose intercept is the
 /// offset at rest (the centripetal term grows as ω²·r); O_j is the mean of the three
 /// conditions' intercepts, and every rate's correction gets it.
-fn offsets_at_rest(by_rate: &mut [json::RateJson]) -> Result<(), String> {
+pub(crate) fn offsets_at_rest(by_rate: &mut [json::RateJson]) -> Result<(), String> {
     let mut offset = [0.0; 3];
     let mut var = [0.0; 3];
     for cond in ["x", "y", "z"] {
@@ -1135,7 +1212,7 @@ fn gravity_source(b: &mut Budget, g: f64, u_g_loc: Option<f64>, cg: &[f64]) {
 /// the timestamps.
 fn rotation_budget(
     fits: &[GroupFit; 3],
-    samples: &[Vec<batch::Sample>; 3],
+    refits: [&dyn Refit; 3],
     cal: &methods::RotationCalibration,
     g: f64,
     inputs: &TypeB,
@@ -1191,16 +1268,13 @@ fn rotation_budget(
         0.0,
     ];
     gravity_source(&mut b, g, inputs.u_g_loc, &cg);
-    for (c, (f, s)) in fits.iter().zip(samples).enumerate() {
+    for (c, (f, s)) in fits.iter().zip(refits).enumerate() {
         let u = f.u_rate_hz;
         let at = |rate: f64| -> Result<[f64; 6], String> {
-            let step = PhaseStep::from_hz(rate, CLOCK)
-                .ok_or_else(|| format!("rate {rate} Hz unusable"))?;
-            let r = fit_at(s, step)?;
             let mut moved = cf;
             moved[c] = ConditionFit {
                 cov: cf[c].cov,
-                ..ConditionFit::from_fit(&r)
+                ..s.refit(rate)?
             };
             Ok(values6(
                 &intrinsic::from_gram(&moved, g, 0.0).map_err(|e| e.to_string())?,

@@ -5,4 +5,5 @@
 
 pub mod batch;
 pub mod harmonics;
+pub mod moments;
 pub mod noise;

@@ -96,7 +96,19 @@ impl NoiseModel {
                     / used as f64
             })
             .collect();
-        let g0 = gamma[0];
+        Self::from_autocovariances(&gamma, n, used)
+    }
+
+    /// The model from the residuals' biased sample autocovariances γ̂₀ … γ̂_K (K ≥ the
+    /// largest order tried, min([`MAX_ORDER`], used/10)) over `n` samples of which `used`
+    /// entered them: the order of least BIC by Levinson–Durbin.
+    pub fn from_autocovariances(gamma: &[f64], n: usize, used: usize) -> Result<Self, NoiseError> {
+        if used < 20 {
+            return Err(NoiseError::TooFew(used));
+        }
+        let max_p = MAX_ORDER.min(used / 10).min(gamma.len().saturating_sub(1));
+        let gamma = gamma.get(..=max_p).unwrap_or(gamma);
+        let g0 = gamma.first().copied().unwrap_or(f64::NAN);
         if !(g0.is_finite() && g0 > 0.0) {
             return Err(NoiseError::Constant);
         }
@@ -106,7 +118,7 @@ impl NoiseModel {
         let mut v = g0;
         let mut best = (used as f64 * v.ln(), Vec::new(), v);
         for p in 1..=max_p {
-            let Some(next) = levinson_step(&mut phi, &gamma, v) else {
+            let Some(next) = levinson_step(&mut phi, gamma, v) else {
                 break;
             };
             v = next;
@@ -284,11 +296,23 @@ impl NoiseModel {
         // level by less than TOLERANCE: the next step moves it by about 1 % of that (on the
         // low-pass of the coverage proofs), 10⁻⁸ of the level, some 10⁶ times below the
         // estimate's own scatter (1/√ν).
+        let (n, q) = r.h.shape();
+        self.fixed_point(n, q, |m| m.expected_residual_autocov(r))
+    }
+
+    /// The model whose expected sample autocovariances, after a fit of `q` regressors to
+    /// `n` samples, match the observed ones: `expected` gives them for a model. Iterated
+    /// until a step moves the level by less than 10⁻⁶ of it (see [`NoiseModel::rescaled`]).
+    fn fixed_point(
+        self,
+        n: usize,
+        q: usize,
+        expected: impl Fn(&NoiseModel) -> Vec<f64>,
+    ) -> Result<NoiseModel, NoiseError> {
         const MAX_STEPS: usize = 100;
         const TOLERANCE: f64 = 1e-6;
         let p = self.order();
         let observed = self.observed.clone();
-        let (n, q) = r.h.shape();
         if p == 0 {
             // White noise: the fixed point in closed form, σ̂² = RSS/(N − q).
             let g0 = observed.first().copied().unwrap_or(self.var) * n as f64
@@ -298,7 +322,7 @@ impl NoiseModel {
         let white = (n as f64 / (n as f64 - q as f64).max(1.0), self.clone());
         let mut m = self;
         for _ in 0..MAX_STEPS {
-            let expected = m.expected_residual_autocov(r);
+            let expected = expected(&m);
             let next = (expected.first().copied().unwrap_or(0.0) >= 0.5 * m.var)
                 .then(|| {
                     let target: Vec<f64> = (0..=p)
@@ -317,6 +341,54 @@ impl NoiseModel {
             }
         }
         Ok(white.1.scaled(white.0))
+    }
+
+    /// [`NoiseModel::rescaled`] without the regressors, for a long record of `n` samples
+    /// whose regressors are sinusoids (and constants and trends) at `freqs` radians per
+    /// sample, one entry per column: a sinusoid is nearly an eigenvector of a stationary
+    /// covariance, with eigenvalue 2π·S(ω), so a fit removes from the residuals about
+    /// 2π·S(ω_c)·cos(ω_c·k) of the lag-k sum per column c, and E[γ̂_k]·N ≈ (N − k)γ_k −
+    /// Σ_c γ₀·f(ω_c)·cos(ω_c·k) (f the variance factor). Exact for white noise (it is then
+    /// RSS/(N − q)); for correlated noise its error is of order τ/N relative (τ the
+    /// correlation time in samples): docs/streaming.md.
+    pub fn rescaled_for_sinusoids(self, n: usize, freqs: &[f64]) -> Result<NoiseModel, NoiseError> {
+        let nf = n as f64;
+        self.fixed_point(n, freqs.len(), |m| {
+            (0..=m.order())
+                .map(|k| {
+                    let removed: f64 = freqs
+                        .iter()
+                        .map(|w| m.var * m.variance_factor(*w) * (w * k as f64).cos())
+                        .sum();
+                    ((nf - k as f64) * m.var * m.autocorrelation(k) - removed) / nf
+                })
+                .collect()
+        })
+    }
+
+    /// [`NoiseModel::sandwich`] from the regressors' Gram matrix HᵀH alone, for a long
+    /// record whose columns are sinusoids (or constants) at `freqs` radians per sample:
+    /// HᵀΣH ≈ γ₀·[HᵀH]_ij·(f(ω_i) + f(ω_j))/2 (sinusoids are nearly eigenvectors of Σ).
+    /// Exact for white noise; docs/streaming.md.
+    pub fn sandwich_for_sinusoids(
+        &self,
+        gram: &DMatrix<f64>,
+        freqs: &[f64],
+    ) -> Result<DMatrix<f64>, NoiseError> {
+        let inv = gram.clone().try_inverse().ok_or(NoiseError::Singular)?;
+        if inv.iter().any(|v| !v.is_finite()) || freqs.len() != gram.nrows() {
+            return Err(NoiseError::Singular);
+        }
+        let meat = if self.ar.is_empty() {
+            gram * self.innovation_var
+        } else {
+            let f: Vec<f64> = freqs.iter().map(|w| self.variance_factor(*w)).collect();
+            DMatrix::from_fn(gram.nrows(), gram.ncols(), |i, j| {
+                let (fi, fj) = (f.get(i).copied(), f.get(j).copied());
+                self.var * gram[(i, j)] * (fi.unwrap_or(1.0) + fj.unwrap_or(1.0)) / 2.0
+            })
+        };
+        Ok(&inv * meat * &inv)
     }
 
     /// The AR(p) model (same p) whose autocovariances at lags 0 … p are `gamma`, by
@@ -518,4 +590,333 @@ pub fn clipped(y: &[f64]) -> Vec<bool> {
     y.iter()
         .map(|&x| (lo_rail && x == lo) || (hi_rail && x == hi))
         .collect()
+}
+
+/// A channel's rails as [`clipped`] finds them, gathered one reading at a time: the
+/// smallest and largest values with their counts, and the next value inward on each side
+/// with its count.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Rails {
+    lo: (f64, u64),
+    lo_inner: (f64, u64),
+    hi: (f64, u64),
+    hi_inner: (f64, u64),
+}
+
+impl Default for Rails {
+    fn default() -> Self {
+        Rails {
+            lo: (f64::INFINITY, 0),
+            lo_inner: (f64::INFINITY, 0),
+            hi: (f64::NEG_INFINITY, 0),
+            hi_inner: (f64::NEG_INFINITY, 0),
+        }
+    }
+}
+
+impl Rails {
+    /// Add a reading.
+    pub fn add(&mut self, x: f64) {
+        // The low side; the high side is the same with the order reversed.
+        fn side(
+            x: f64,
+            end: &mut (f64, u64),
+            inner: &mut (f64, u64),
+            beyond: fn(f64, f64) -> bool,
+        ) {
+            if beyond(x, end.0) {
+                *inner = *end;
+                *end = (x, 1);
+            } else if x == end.0 {
+                end.1 += 1;
+            } else if beyond(x, inner.0) {
+                *inner = (x, 1);
+            } else if x == inner.0 {
+                inner.1 += 1;
+            }
+        }
+        side(x, &mut self.lo, &mut self.lo_inner, |a, b| a < b);
+        side(x, &mut self.hi, &mut self.hi_inner, |a, b| a > b);
+    }
+
+    /// The rails found (as [`clipped`]: at least three readings on the extreme value and
+    /// more than on the next value inward): the low and the high one, if any.
+    pub fn found(&self) -> (Option<f64>, Option<f64>) {
+        let rail = |end: (f64, u64), inner: (f64, u64)| {
+            (end.1 >= 3 && end.1 > inner.1 && end.0.is_finite()).then_some(end.0)
+        };
+        (rail(self.lo, self.lo_inner), rail(self.hi, self.hi_inner))
+    }
+
+    /// The rails of this channel's readings and `other`'s together.
+    pub fn merged(&self, other: &Rails) -> Rails {
+        // The two extreme values on each side, with their counts: those of either.
+        fn two(cands: [(f64, u64); 4], lower: bool) -> ((f64, u64), (f64, u64)) {
+            let mut merged: Vec<(f64, u64)> = Vec::with_capacity(4);
+            for (v, c) in cands {
+                if c == 0 {
+                    continue;
+                }
+                match merged.iter_mut().find(|(w, _)| *w == v) {
+                    Some((_, k)) => *k += c,
+                    None => merged.push((v, c)),
+                }
+            }
+            merged.sort_by(|a, b| {
+                if lower {
+                    a.0.total_cmp(&b.0)
+                } else {
+                    b.0.total_cmp(&a.0)
+                }
+            });
+            let far = if lower {
+                f64::INFINITY
+            } else {
+                f64::NEG_INFINITY
+            };
+            let mut it = merged.into_iter();
+            (it.next().unwrap_or((far, 0)), it.next().unwrap_or((far, 0)))
+        }
+        let (lo, lo_inner) = two([self.lo, self.lo_inner, other.lo, other.lo_inner], true);
+        let (hi, hi_inner) = two([self.hi, self.hi_inner, other.hi, other.hi_inner], false);
+        Rails {
+            lo,
+            lo_inner,
+            hi,
+            hi_inner,
+        }
+    }
+
+    /// Whether reading `x` is on a rail found.
+    pub fn flags(rails: (Option<f64>, Option<f64>), x: f64) -> bool {
+        rails.0 == Some(x) || rails.1 == Some(x)
+    }
+}
+
+/// The sample autocovariances of a series of residuals at lags 0 … [`MAX_ORDER`], gathered
+/// one residual at a time (as [`NoiseModel::estimate`] computes them from the whole
+/// series: about the mean of the samples used, pairs with a flagged sample left out,
+/// divided by the samples used).
+///
+/// The last lags' residuals sit in a window stored twice over, so that the newest
+/// [`LAGS`] are always contiguous and each sample's products are one vectorised loop.
+/// Without flagged samples, the sums that centre the products come from the series'
+/// total and its first and last [`LAGS`] values.
+#[derive(Clone, Debug)]
+pub struct LaggedSums {
+    /// Residuals (0 for a flagged one), each at two slots LAGS apart: from `pos` on, the
+    /// newest LAGS, newest first.
+    win: [f64; 2 * LAGS],
+    /// 1 for a sample used, 0 for a flagged one, stored as `win`.
+    ok: [f64; 2 * LAGS],
+    pos: usize,
+    /// Σ e_t e_{t−k} over pairs of samples used.
+    prod: [f64; LAGS],
+    /// With flagged samples: Σ e_{t−k}, Σ e_t and the count, over pairs used.
+    earlier: [f64; LAGS],
+    later: [f64; LAGS],
+    pairs: [f64; LAGS],
+    /// Whether a sample has been flagged: the centring sums are then kept pair by pair.
+    pairwise: bool,
+    /// The first LAGS residuals (for the centring sums without flags, and for joining a
+    /// series read in parts), and 1 or 0 for each as it was used or flagged.
+    head: Vec<f64>,
+    head_ok: Vec<f64>,
+    n: usize,
+    used: usize,
+    sum: f64,
+}
+
+/// Lags 0 … [`MAX_ORDER`].
+pub const LAGS: usize = MAX_ORDER + 1;
+
+impl Default for LaggedSums {
+    fn default() -> Self {
+        LaggedSums {
+            win: [0.0; 2 * LAGS],
+            ok: [0.0; 2 * LAGS],
+            pos: 0,
+            prod: [0.0; LAGS],
+            earlier: [0.0; LAGS],
+            later: [0.0; LAGS],
+            pairs: [0.0; LAGS],
+            pairwise: false,
+            head: Vec::with_capacity(LAGS),
+            head_ok: Vec::with_capacity(LAGS),
+            n: 0,
+            used: 0,
+            sum: 0.0,
+        }
+    }
+}
+
+impl LaggedSums {
+    /// Add the next residual; `flagged` leaves it out.
+    pub fn add(&mut self, e: f64, flagged: bool) {
+        if flagged && !self.pairwise {
+            // The first flagged sample: from here on the centring sums go pair by pair.
+            let (earlier, later, pairs) = self.centring_from_totals();
+            (self.earlier, self.later, self.pairs) = (earlier, later, pairs);
+            self.pairwise = true;
+        }
+        let (x, o) = if flagged { (0.0, 0.0) } else { (e, 1.0) };
+        // The new sample goes in front of the window (slot pos − 1 mod LAGS, twice), so
+        // that win[pos + k] is e_{t−k} (0 before the series began).
+        self.pos = (self.pos + LAGS - 1) % LAGS;
+        for slot in [self.pos, self.pos + LAGS] {
+            if let (Some(w), Some(k)) = (self.win.get_mut(slot), self.ok.get_mut(slot)) {
+                (*w, *k) = (x, o);
+            }
+        }
+        if self.head.len() < LAGS {
+            self.head.push(x);
+            self.head_ok.push(o);
+        }
+        self.n += 1;
+        if flagged {
+            return;
+        }
+        self.used += 1;
+        self.sum += x;
+        let (Some(lagged), Some(oks)) = (
+            self.win.get(self.pos..self.pos + LAGS),
+            self.ok.get(self.pos..self.pos + LAGS),
+        ) else {
+            return;
+        };
+        for (p, l) in self.prod.iter_mut().zip(lagged) {
+            *p += x * l;
+        }
+        if self.pairwise {
+            for (((a, b), c), (l, k)) in self
+                .earlier
+                .iter_mut()
+                .zip(self.later.iter_mut())
+                .zip(self.pairs.iter_mut())
+                .zip(lagged.iter().zip(oks))
+            {
+                *a += l;
+                *b += x * k;
+                *c += k;
+            }
+        }
+    }
+
+    /// Without a flagged sample so far: Σ e_{t−k}, Σ e_t and the pair count over t ≥ k,
+    /// from the total less the last (first) k samples.
+    fn centring_from_totals(&self) -> ([f64; LAGS], [f64; LAGS], [f64; LAGS]) {
+        let (mut earlier, mut later, mut pairs) = ([0.0; LAGS], [0.0; LAGS], [0.0; LAGS]);
+        let (mut last_k, mut first_k) = (0.0, 0.0);
+        let newest = self.win.get(self.pos..self.pos + LAGS).unwrap_or(&[]);
+        for (k, ((a, b), c)) in earlier
+            .iter_mut()
+            .zip(later.iter_mut())
+            .zip(pairs.iter_mut())
+            .enumerate()
+        {
+            if k >= self.n {
+                break;
+            }
+            *a = self.sum - last_k;
+            *b = self.sum - first_k;
+            *c = (self.n - k) as f64;
+            last_k += newest.get(k).copied().unwrap_or(0.0);
+            first_k += self.head.get(k).copied().unwrap_or(0.0);
+        }
+        (earlier, later, pairs)
+    }
+
+    /// Samples added, and those used (not flagged).
+    pub fn counts(&self) -> (usize, usize) {
+        (self.n, self.used)
+    }
+
+    /// The sums of this series followed by `later` (the same series read on, by another
+    /// thread from where this one stopped): the pairs that straddle the join added from
+    /// this one's last samples and `later`'s first. The result is for reading out, not
+    /// for adding to.
+    pub fn followed_by(&self, later: &LaggedSums) -> LaggedSums {
+        let totals = |a: &LaggedSums| {
+            if a.pairwise {
+                (a.earlier, a.later, a.pairs)
+            } else {
+                a.centring_from_totals()
+            }
+        };
+        let (mut earlier, mut lat, mut pairs) = totals(self);
+        let (e2, l2, p2) = totals(later);
+        let mut prod = self.prod;
+        for k in 0..LAGS {
+            if let (Some(p), Some(q)) = (prod.get_mut(k), later.prod.get(k)) {
+                *p += q;
+            }
+            let add = |a: &mut [f64; LAGS], b: &[f64; LAGS]| {
+                if let (Some(x), Some(y)) = (a.get_mut(k), b.get(k)) {
+                    *x += y;
+                }
+            };
+            add(&mut earlier, &e2);
+            add(&mut lat, &l2);
+            add(&mut pairs, &p2);
+        }
+        // This one's newest samples: win[pos + j] is e_{n−1−j}.
+        let newest = self.win.get(self.pos..self.pos + LAGS).unwrap_or(&[]);
+        let newest_ok = self.ok.get(self.pos..self.pos + LAGS).unwrap_or(&[]);
+        for k in 1..LAGS {
+            // Pairs (later's sample i, this one's sample k − i − 1 from its newest).
+            for i in 0..k.min(later.head.len()) {
+                let j = k - i - 1;
+                if j >= self.n.min(LAGS) {
+                    continue;
+                }
+                let (Some(h), Some(ho), Some(w), Some(wo)) = (
+                    later.head.get(i),
+                    later.head_ok.get(i),
+                    newest.get(j),
+                    newest_ok.get(j),
+                ) else {
+                    continue;
+                };
+                if let (Some(p), Some(a), Some(b), Some(c)) = (
+                    prod.get_mut(k),
+                    earlier.get_mut(k),
+                    lat.get_mut(k),
+                    pairs.get_mut(k),
+                ) {
+                    *p += h * w;
+                    *a += w * ho;
+                    *b += h * wo;
+                    *c += ho * wo;
+                }
+            }
+        }
+        let mut out = self.clone();
+        out.prod = prod;
+        out.earlier = earlier;
+        out.later = lat;
+        out.pairs = pairs;
+        out.pairwise = true;
+        out.n += later.n;
+        out.used += later.used;
+        out.sum += later.sum;
+        out
+    }
+
+    /// γ̂₀ … γ̂_K about the mean of the samples used, divided by the samples used.
+    pub fn autocovariances(&self) -> Vec<f64> {
+        let used = self.used.max(1) as f64;
+        let mean = self.sum / used;
+        let (earlier, later, pairs) = if self.pairwise {
+            (self.earlier, self.later, self.pairs)
+        } else {
+            self.centring_from_totals()
+        };
+        (0..LAGS)
+            .map(|k| {
+                let get = |a: &[f64; LAGS]| a.get(k).copied().unwrap_or(0.0);
+                let (p, f, s, c) = (get(&self.prod), get(&earlier), get(&later), get(&pairs));
+                (p - mean * (f + s) + mean * mean * c) / used
+            })
+            .collect()
+    }
 }

@@ -601,39 +601,33 @@ pub fn read(path: &Path) -> Result<Recording, RecordingError> {
 /// the file's): with [`Method::Free`], a file without a `condition` column is read as a
 /// free recording.
 pub fn read_as(path: &Path, method: Option<Method>) -> Result<Recording, RecordingError> {
-    let source = path.display().to_string();
-    match File::open(path) {
-        Ok(f) => Parser {
-            source: &source,
-            complete: true,
-            line_offset: 0,
-            method,
-        }
-        .run(f),
-        Err(e) => Err(RecordingError {
-            source_name: source,
-            line: None,
-            kind: RecordingErrorKind::Io(e),
-        }),
-    }
+    read_file(path, true, method)
 }
 
 fn read_path(path: &Path, complete: bool) -> Result<Recording, RecordingError> {
+    read_file(path, complete, None)
+}
+
+/// A file by the fast reader, or (a quote, a free or pose file, any problem) the csv one.
+fn read_file(
+    path: &Path,
+    complete: bool,
+    method: Option<Method>,
+) -> Result<Recording, RecordingError> {
     let source = path.display().to_string();
-    match File::open(path) {
-        Ok(f) => Parser {
-            source: &source,
-            complete,
-            line_offset: 0,
-            method: None,
-        }
-        .run(f),
-        Err(e) => Err(RecordingError {
-            source_name: source,
-            line: None,
-            kind: RecordingErrorKind::Io(e),
-        }),
+    let parser = || Parser {
+        source: &source,
+        complete,
+        line_offset: 0,
+        method,
+    };
+    let mut groups: Vec<Group> = Vec::new();
+    if let Some(Some(mut rec)) = parser().run_fast(open(path)?, &mut groups, false, Parse::All)? {
+        shrink(&mut groups);
+        rec.groups = groups;
+        return Ok(rec);
     }
+    parser().run(open(path)?)
 }
 
 /// Read a recording from `reader`; `source` names it in messages.
@@ -704,6 +698,571 @@ impl<R: Read> Read for FinalNewline<R> {
     }
 }
 
+/// Where the reader puts the rows of a file with conditions: kept as [`Group`]s in
+/// memory ([`read`]), or handed on one at a time ([`scan`]).
+trait GroupSink {
+    /// The file's metadata and method, once its header is read (before any row).
+    fn start(&mut self, _meta: &Metadata, _method: Method) {}
+    /// A new group, at file line `line`.
+    fn open(&mut self, condition: Condition, rate_hz: Option<f64>, cols: &ColumnIndex, line: u64);
+    /// A row of group `group` (in order of first appearance), at file line `line`.
+    fn push(&mut self, group: usize, row: &Row<'_>, line: u64);
+}
+
+/// Give back what the groups' columns grew beyond their rows.
+fn shrink(groups: &mut [Group]) {
+    for g in groups {
+        g.t_s.shrink_to_fit();
+        g.angle_deg.shrink_to_fit();
+        g.u.shrink_to_fit();
+        g.v.shrink_to_fit();
+        g.w.shrink_to_fit();
+    }
+}
+
+impl GroupSink for Vec<Group> {
+    fn start(&mut self, _meta: &Metadata, _method: Method) {
+        self.clear(); // a second reading starts afresh
+    }
+
+    fn open(&mut self, condition: Condition, rate_hz: Option<f64>, cols: &ColumnIndex, line: u64) {
+        self.push(Group::new(condition, rate_hz, cols, line));
+    }
+
+    fn push(&mut self, group: usize, row: &Row<'_>, _line: u64) {
+        let Some(g) = self.get_mut(group) else {
+            return; // cannot happen: the reader opens a group before its rows
+        };
+        if let Some(t) = row.t_s {
+            g.t_s.push(t);
+        }
+        if let Some(a) = row.angle_deg {
+            g.angle_deg.push(a);
+        }
+        g.u.push(row.u);
+        g.v.push(row.v);
+        g.w.push(row.w);
+        if let (Some(s), Some(v)) = (row.seq, g.seq.as_mut()) {
+            v.push(s);
+        }
+        if let (Some(t), Some(v)) = (row.temp_c, g.temp_c.as_mut()) {
+            v.push(t);
+        }
+        if let (Some(u), Some(v)) = (row.unc, g.unc.as_mut()) {
+            v.push(u);
+        }
+        if let (Some(a), Some(v)) = (row.conv_gaps, g.conversions.as_mut()) {
+            v.push(a);
+        }
+    }
+}
+
+/// What [`scan`] hands on, in file order.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Scanned {
+    /// The preamble's metadata and the method, before any group.
+    Start {
+        /// The metadata.
+        meta: Box<Metadata>,
+        /// The method (the file's, or the one it is read as).
+        method: Method,
+    },
+    /// A new group: its condition, its `rate_hz` column (if the file has one) and the
+    /// file line of its first row.
+    Group {
+        /// The platter axis.
+        condition: Condition,
+        /// The rows' `rate_hz`, if the file has that column.
+        rate_hz: Option<f64>,
+        /// 1-based file line of its first row.
+        first_line: u64,
+    },
+    /// A row of group `group` (groups numbered in order of first appearance).
+    Row {
+        /// The row's group.
+        group: usize,
+        /// Device time, s (`None` in a file without `t_s`).
+        t_s: Option<f64>,
+        /// u, v, w.
+        y: [f64; 3],
+        /// The conversions it averages, in the file's device ticks (`conv_gaps`).
+        conv_gaps: Option<Aperture>,
+    },
+}
+
+/// Which columns a reading parses.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Parse {
+    /// Every column, with every check.
+    All,
+    /// Only those a fit uses (a second reading of a checked file).
+    Fit,
+}
+
+struct ScanSink<F>(F);
+
+impl<F: FnMut(Scanned)> GroupSink for ScanSink<F> {
+    fn start(&mut self, meta: &Metadata, method: Method) {
+        (self.0)(Scanned::Start {
+            meta: Box::new(meta.clone()),
+            method,
+        });
+    }
+
+    fn open(&mut self, condition: Condition, rate_hz: Option<f64>, _: &ColumnIndex, line: u64) {
+        (self.0)(Scanned::Group {
+            condition,
+            rate_hz,
+            first_line: line,
+        });
+    }
+
+    fn push(&mut self, group: usize, row: &Row<'_>, _line: u64) {
+        (self.0)(Scanned::Row {
+            group,
+            t_s: row.t_s,
+            y: [row.u, row.v, row.w],
+            conv_gaps: row.conv_gaps,
+        });
+    }
+}
+
+/// Read a file with conditions one row at a time, with every check of [`read_as`], handing
+/// its groups and rows to `each` in file order: for a recording too long to hold in
+/// memory. Returns the recording without its rows (its metadata and method), or `None`
+/// for a file without conditions (poses or a free series), which is read no further than
+/// its header. `each` may already have seen rows when an error is returned. With
+/// [`Parse::Fit`] (a second reading of a checked file) only the columns a fit uses are
+/// parsed.
+pub fn scan(
+    path: &Path,
+    method: Option<Method>,
+    parse: Parse,
+    each: impl FnMut(Scanned),
+) -> Result<Option<Recording>, RecordingError> {
+    let columns = parse;
+    let mut sink = ScanSink(each);
+    let source = path.display().to_string();
+    let parser = || Parser {
+        source: &source,
+        complete: true,
+        line_offset: 0,
+        method,
+    };
+    if let Some(done) = parser().run_fast(open(path)?, &mut sink, true, columns)? {
+        return Ok(done);
+    }
+    // Read again by the csv reader (it starts with Scanned::Start again).
+    parser().run_into(open(path)?, &mut sink, true)
+}
+
+fn open(path: &Path) -> Result<File, RecordingError> {
+    File::open(path).map_err(|e| RecordingError {
+        source_name: path.display().to_string(),
+        line: None,
+        kind: RecordingErrorKind::Io(e),
+    })
+}
+
+/// Puts the rows of a file with conditions into their groups, with the checks that span
+/// rows: a group per (condition, nominal rate) in order of first appearance; rotation
+/// rows do not go back in time within a group; every rate has all three conditions.
+struct Router {
+    rotation: bool,
+    /// Each group's (condition, rate bits), and the time of its last row.
+    keys: Vec<(Condition, Option<u64>)>,
+    last_t: Vec<Option<f64>>,
+    /// (condition, rate bits) of the group the previous row went to, and its index.
+    last: Option<(Condition, Option<u64>, usize)>,
+}
+
+impl Router {
+    fn new(method: Method) -> Self {
+        Router {
+            rotation: method == Method::Rotation,
+            keys: Vec::new(),
+            last_t: Vec::new(),
+            last: None,
+        }
+    }
+
+    /// Hand `row`, at file line `line`, to its group in `sink` (opening it if new).
+    fn route<S: GroupSink>(
+        &mut self,
+        row: &Row<'_>,
+        line: u64,
+        cols: &ColumnIndex,
+        sink: &mut S,
+    ) -> Result<(), RecordingErrorKind> {
+        let rate = if self.rotation { row.rate_hz } else { None };
+        let key = rate.map(f64::to_bits);
+        let gi = match self.last {
+            Some((c, k, i)) if c == row.condition && k == key => i,
+            _ => {
+                let found = self.keys.iter().position(|g| *g == (row.condition, key));
+                let i = match found {
+                    Some(i) => i,
+                    None => {
+                        sink.open(row.condition, rate, cols, line);
+                        self.keys.push((row.condition, key));
+                        self.last_t.push(None);
+                        self.keys.len() - 1
+                    }
+                };
+                self.last = Some((row.condition, key, i));
+                i
+            }
+        };
+        if let (Some(t), Some(prev)) = (row.t_s, self.last_t.get_mut(gi)) {
+            if self.rotation {
+                if let Some(p) = *prev {
+                    if t < p {
+                        return Err(RecordingErrorKind::TimeWentBackwards {
+                            condition: row.condition,
+                            rate_hz: rate,
+                            previous: p,
+                            got: t,
+                        });
+                    }
+                }
+            }
+            *prev = Some(t);
+        }
+        sink.push(gi, row, line);
+        Ok(())
+    }
+
+    /// The checks at the end: some data, and (if `complete`) all three conditions at
+    /// every rate.
+    fn finish(&self, complete: bool) -> Result<(), RecordingErrorKind> {
+        if self.keys.is_empty() {
+            return Err(RecordingErrorKind::NoData);
+        }
+        let mut rates: Vec<Option<u64>> = Vec::new();
+        for (_, k) in &self.keys {
+            if !rates.contains(k) {
+                rates.push(*k);
+            }
+        }
+        for k in rates.into_iter().filter(|_| complete) {
+            for c in Condition::ALL {
+                if !self.keys.contains(&(c, k)) {
+                    return Err(RecordingErrorKind::MissingCondition {
+                        condition: c,
+                        rate_hz: k.map(f64::from_bits),
+                    });
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+/// A reader that counts the bytes it hands out.
+struct Counted<R> {
+    inner: R,
+    n: u64,
+}
+
+impl<R: Read> Read for Counted<R> {
+    fn read(&mut self, buf: &mut [u8]) -> io::Result<usize> {
+        let k = self.inner.read(buf)?;
+        self.n += k as u64;
+        Ok(k)
+    }
+}
+
+/// What the fast reader knows after the header.
+struct Head<R> {
+    meta: Metadata,
+    cols: ColumnIndex,
+    method: Method,
+    /// At the first line after the header.
+    reader: BufReader<Counted<R>>,
+    /// The header's line number.
+    line: u64,
+    /// The byte offset of the line after the header.
+    offset: u64,
+}
+
+/// `line`'s fields: where each starts and ends, at its commas.
+fn split_commas(line: &[u8], bounds: &mut Vec<(usize, usize)>) {
+    bounds.clear();
+    let mut start = 0;
+    // A plain loop: the fields are short, too short for memchr's set-up to pay.
+    for (i, b) in line.iter().enumerate() {
+        if *b == b',' {
+            bounds.push((start, i));
+            start = i + 1;
+        }
+    }
+    bounds.push((start, line.len()));
+}
+
+/// Whether every field of a split line is blank (the csv reader's blank record).
+fn is_blank_line(line: &[u8], bounds: &[(usize, usize)]) -> bool {
+    bounds
+        .iter()
+        .all(|(a, b)| line.get(*a..*b).is_none_or(|f| f.trim_ascii().is_empty()))
+}
+
+/// The data lines after a header at line `line`, by the fast reader: each row (with its
+/// line number) to `each`, which returns false to stop. `Ok(None)` when a line needs
+/// the csv reader (a quote, a wrong number of fields, a field that does not parse) or
+/// `each` stopped; else the number of the last line read.
+fn fast_rows<R: Read>(
+    reader: &mut R,
+    cols: &ColumnIndex,
+    columns: Parse,
+    line: u64,
+    mut each: impl FnMut(u64, &Row<'_>) -> bool,
+) -> io::Result<Option<u64>> {
+    let mut line_no = line;
+    let mut bounds: Vec<(usize, usize)> = Vec::with_capacity(16);
+    // Whole lines from a large buffer: a line cut by the buffer's end is moved to its
+    // front before the next read.
+    let mut chunk: Vec<u8> = vec![0; 1 << 20];
+    let mut filled = 0;
+    loop {
+        let got = reader.read(chunk.get_mut(filled..).unwrap_or(&mut []))?;
+        filled += got;
+        let data = chunk.get(..filled).unwrap_or(&[]);
+        // At the end the last line needs no newline; otherwise only whole lines.
+        let whole = if got == 0 {
+            filled
+        } else {
+            match memchr::memrchr(b'\n', data) {
+                Some(i) => i + 1,
+                None if filled < chunk.len() => continue,
+                None => return Ok(None), // a line longer than the buffer
+            }
+        };
+        let lines = data.get(..whole).unwrap_or(&[]);
+        if memchr::memchr(b'"', lines).is_some() {
+            return Ok(None);
+        }
+        // Every comma and line end of the buffer in one vectorised scan: a line's fields
+        // are cut at its commas as they come.
+        let (mut begin, mut field) = (0, 0);
+        bounds.clear();
+        let marks = memchr::memchr2_iter(b',', b'\n', lines).chain(
+            // The last line of a file without a final newline.
+            (got == 0 && lines.last().is_some_and(|b| *b != b'\n')).then_some(lines.len()),
+        );
+        for at in marks {
+            if lines.get(at) == Some(&b',') {
+                bounds.push((field - begin, at - begin));
+                field = at + 1;
+                continue;
+            }
+            bounds.push((field - begin, at - begin));
+            let line = lines.get(begin..at).unwrap_or(&[]);
+            (begin, field) = (at + 1, at + 1);
+            line_no += 1;
+            let keep = if line.is_empty() || line.first() == Some(&b'#') {
+                true // the csv reader skips empty lines and comments
+            } else if bounds.len() != cols.n {
+                is_blank_line(line, &bounds)
+            } else {
+                let fields = SplitLine {
+                    line,
+                    bounds: &bounds,
+                };
+                match parse_row(&fields, cols, columns) {
+                    Ok(row) => each(line_no, &row),
+                    Err(_) => false,
+                }
+            };
+            if !keep {
+                return Ok(None);
+            }
+            bounds.clear();
+        }
+        if got == 0 {
+            return Ok(Some(line_no));
+        }
+        chunk.copy_within(whole..filled, 0);
+        filled -= whole;
+    }
+}
+
+/// A record's fields, from the csv reader or from the fast line reader.
+trait Fields {
+    /// Field `i`, untrimmed (`None` past the last).
+    fn raw(&self, i: usize) -> Option<&[u8]>;
+}
+
+impl Fields for csv::ByteRecord {
+    fn raw(&self, i: usize) -> Option<&[u8]> {
+        self.get(i)
+    }
+}
+
+/// A line split at its commas: the fast reader's record.
+struct SplitLine<'a> {
+    line: &'a [u8],
+    /// Each field's start and end in `line`.
+    bounds: &'a [(usize, usize)],
+}
+
+impl Fields for SplitLine<'_> {
+    fn raw(&self, i: usize) -> Option<&[u8]> {
+        let (a, b) = *self.bounds.get(i)?;
+        self.line.get(a..b)
+    }
+}
+
+/// A file with conditions read in parts, each a range of whole lines that a thread of
+/// its own can read (the streaming calibration, on every core). Only files the fast
+/// reader takes (no quotes) are read this way; the rows of a part come without the
+/// checks that span rows (the caller makes them across parts, or reads the file with
+/// [`scan`] to have the reader name a problem).
+pub struct Parts {
+    path: std::path::PathBuf,
+    meta: Metadata,
+    method: Method,
+    cols: ColumnIndex,
+    /// Byte offset and line number of the line after the header; the file's length.
+    offset: u64,
+    line: u64,
+    len: u64,
+}
+
+/// A row of a part.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PartRow {
+    /// Its condition.
+    pub condition: Condition,
+    /// Its `rate_hz` column, if the file has one.
+    pub rate_hz: Option<f64>,
+    /// Its time, s (`None` without a `t_s` column).
+    pub t_s: Option<f64>,
+    /// u, v, w.
+    pub y: [f64; 3],
+    /// Its `conv_gaps`, in the file's device ticks.
+    pub conv_gaps: Option<Aperture>,
+}
+
+impl Parts {
+    /// The file at `path` for reading in parts: its preamble and header read and checked
+    /// (an error as [`read_as`] gives it), or `None` when it is not a file with
+    /// conditions or its header needs the csv reader.
+    pub fn open(path: &Path, method: Option<Method>) -> Result<Option<Parts>, RecordingError> {
+        let source = path.display().to_string();
+        let mut parser = Parser {
+            source: &source,
+            complete: true,
+            line_offset: 0,
+            method,
+        };
+        let file = open(path)?;
+        let len = file
+            .metadata()
+            .map(|m| m.len())
+            .map_err(|e| parser.err(None, RecordingErrorKind::Io(e)))?;
+        let Some(head) = parser.fast_head(file)? else {
+            return Ok(None);
+        };
+        if head.cols.condition.is_none() || head.cols.gravity.is_some() {
+            return Ok(None);
+        }
+        Ok(Some(Parts {
+            path: path.to_path_buf(),
+            meta: head.meta,
+            method: head.method,
+            cols: head.cols,
+            offset: head.offset,
+            line: head.line,
+            len,
+        }))
+    }
+
+    /// The preamble's metadata.
+    pub fn meta(&self) -> &Metadata {
+        &self.meta
+    }
+
+    /// The method (the file's, or the one it is read as).
+    pub fn method(&self) -> Method {
+        self.method
+    }
+
+    /// The header's line number: the first part's lines follow it.
+    pub fn header_line(&self) -> u64 {
+        self.line
+    }
+
+    /// The data cut into `n` byte ranges of about equal size, each from a line's start.
+    pub fn split(&self, n: usize) -> Result<Vec<(u64, u64)>, RecordingError> {
+        let io = |e: io::Error| RecordingError {
+            source_name: self.path.display().to_string(),
+            line: None,
+            kind: RecordingErrorKind::Io(e),
+        };
+        let mut cuts = vec![self.offset];
+        let mut f = open(&self.path)?;
+        let span = self.len.saturating_sub(self.offset);
+        for i in 1..n.max(1) {
+            let at = self.offset + span * i as u64 / n as u64;
+            std::io::Seek::seek(&mut f, io::SeekFrom::Start(at)).map_err(io)?;
+            let mut buf = vec![0u8; 1 << 16];
+            let mut cut = self.len;
+            let mut read = 0u64;
+            loop {
+                let k = f.read(&mut buf).map_err(io)?;
+                if k == 0 {
+                    break;
+                }
+                if let Some(p) = memchr::memchr(b'\n', buf.get(..k).unwrap_or(&[])) {
+                    cut = at + read + p as u64 + 1;
+                    break;
+                }
+                read += k as u64;
+            }
+            let last = cuts.last().copied().unwrap_or(self.offset);
+            cuts.push(cut.max(last));
+        }
+        cuts.push(self.len);
+        Ok(cuts
+            .windows(2)
+            .filter_map(|w| Some((*w.first()?, *w.get(1)?)))
+            .collect())
+    }
+
+    /// The rows of byte range `range` (from [`Parts::split`]), each with its line number
+    /// counted from the range's first line (1), to `each`, which returns false to stop.
+    /// `None` when a line needs the csv reader (a quote, a wrong number of fields, a field
+    /// that does not parse) or `each` stopped; else the number of lines in the range.
+    pub fn rows(
+        &self,
+        range: (u64, u64),
+        parse: Parse,
+        mut each: impl FnMut(u64, PartRow) -> bool,
+    ) -> Result<Option<u64>, RecordingError> {
+        let io = |e: io::Error| RecordingError {
+            source_name: self.path.display().to_string(),
+            line: None,
+            kind: RecordingErrorKind::Io(e),
+        };
+        let mut f = open(&self.path)?;
+        std::io::Seek::seek(&mut f, io::SeekFrom::Start(range.0)).map_err(io)?;
+        let mut part = f.take(range.1.saturating_sub(range.0));
+        fast_rows(&mut part, &self.cols, parse, 0, |line, row| {
+            each(
+                line,
+                PartRow {
+                    condition: row.condition,
+                    rate_hz: row.rate_hz,
+                    t_s: row.t_s,
+                    y: [row.u, row.v, row.w],
+                    conv_gaps: row.conv_gaps,
+                },
+            )
+        })
+        .map_err(io)
+    }
+}
+
 /// Where each known column is in the header.
 #[derive(Debug)]
 struct ColumnIndex {
@@ -760,6 +1319,25 @@ impl Parser<'_> {
     }
 
     fn run<R: Read>(mut self, reader: R) -> Res<Recording> {
+        let mut groups: Vec<Group> = Vec::new();
+        let Some(mut rec) = self.run_into(reader, &mut groups, false)? else {
+            return Err(self.err(None, RecordingErrorKind::NoData));
+        };
+        shrink(&mut groups);
+        rec.groups = groups;
+        Ok(rec)
+    }
+
+    /// Read the file, handing each row of a file with conditions to `sink`, with every
+    /// check of [`read`]; the recording returned has no groups of its own. With
+    /// `conditions_only`, a file without conditions (poses or a free series) is not read
+    /// past its header: `Ok(None)`.
+    fn run_into<R: Read, S: GroupSink>(
+        &mut self,
+        reader: R,
+        sink: &mut S,
+        conditions_only: bool,
+    ) -> Res<Option<Recording>> {
         let mut br = BufReader::with_capacity(
             1 << 16,
             FinalNewline {
@@ -789,9 +1367,12 @@ impl Parser<'_> {
             }
         };
         let (cols, method) = self.header(&rec, header_line, &meta)?;
-
-        let mut groups: Vec<Group> = Vec::new();
         let free = cols.condition.is_none() && cols.gravity.is_none();
+        if conditions_only && (free || cols.gravity.is_some()) {
+            return Ok(None);
+        }
+        sink.start(&meta, method);
+        let mut router = Router::new(method);
         let mut series = free.then(|| Series {
             t_s: Vec::new(),
             y: Vec::new(),
@@ -810,10 +1391,6 @@ impl Parser<'_> {
             unc: cols.unc.map(|_| Vec::new()),
             line: Vec::new(),
         });
-        // (condition, rate bits) of the group the previous row went to, and its index.
-        let mut last: Option<(Condition, Option<u64>, usize)> = None;
-        let rotation = method == Method::Rotation;
-
         while self.next(&mut rdr, &mut rec)? {
             if rec.len() != cols.n {
                 if is_blank(&rec) {
@@ -828,7 +1405,7 @@ impl Parser<'_> {
                     },
                 ));
             }
-            let row = match parse_row(&rec, &cols) {
+            let row = match parse_row(&rec, &cols, Parse::All) {
                 Ok(row) => row,
                 Err(kind) => return Err(self.err(Some(self.line_of(&rdr, &rec)), kind)),
             };
@@ -881,63 +1458,10 @@ impl Parser<'_> {
                 }
                 continue;
             }
-            let rate = if rotation { row.rate_hz } else { None };
-            let key = rate.map(f64::to_bits);
-            let gi = match last {
-                Some((c, k, i)) if c == row.condition && k == key => i,
-                _ => {
-                    let found = groups.iter().position(|g| {
-                        g.condition == row.condition && g.rate_hz.map(f64::to_bits) == key
-                    });
-                    let i = match found {
-                        Some(i) => i,
-                        None => {
-                            let line = self.line_of(&rdr, &rec);
-                            groups.push(Group::new(row.condition, rate, &cols, line));
-                            groups.len() - 1
-                        }
-                    };
-                    last = Some((row.condition, key, i));
-                    i
-                }
-            };
-            let Some(g) = groups.get_mut(gi) else {
-                continue; // cannot happen: gi indexes `groups`
-            };
-            if let Some(t) = row.t_s {
-                if rotation {
-                    if let Some(&prev) = g.t_s.last() {
-                        if t < prev {
-                            let kind = RecordingErrorKind::TimeWentBackwards {
-                                condition: row.condition,
-                                rate_hz: rate,
-                                previous: prev,
-                                got: t,
-                            };
-                            return Err(self.err(Some(self.line_of(&rdr, &rec)), kind));
-                        }
-                    }
-                }
-                g.t_s.push(t);
-            }
-            if let Some(a) = row.angle_deg {
-                g.angle_deg.push(a);
-            }
-            g.u.push(row.u);
-            g.v.push(row.v);
-            g.w.push(row.w);
-            if let (Some(s), Some(v)) = (row.seq, g.seq.as_mut()) {
-                v.push(s);
-            }
-            if let (Some(t), Some(v)) = (row.temp_c, g.temp_c.as_mut()) {
-                v.push(t);
-            }
-            if let (Some(u), Some(v)) = (row.unc, g.unc.as_mut()) {
-                v.push(u);
-            }
-            if let (Some(a), Some(v)) = (row.conv_gaps, g.conversions.as_mut()) {
-                v.push(a);
-            }
+            let line = self.line_of(&rdr, &rec);
+            router
+                .route(&row, line, &cols, sink)
+                .map_err(|kind| self.err(Some(line), kind))?;
         }
 
         // Poses or a continuous series, when read as such, are the recording.
@@ -950,56 +1474,122 @@ impl Parser<'_> {
             if n == 0 {
                 return Err(self.err(None, RecordingErrorKind::NoData));
             }
-            return Ok(Recording {
+            return Ok(Some(Recording {
                 source: self.source.to_string(),
                 meta,
                 method,
-                groups,
+                groups: Vec::new(),
                 oriented,
                 series,
-            });
+            }));
         }
-        if groups.is_empty() {
-            return Err(self.err(None, RecordingErrorKind::NoData));
-        }
-        // Every rate needs all three conditions (unless reading a recording in progress).
-        let mut rates: Vec<Option<u64>> = Vec::new();
-        for g in &groups {
-            let k = g.rate_hz.map(f64::to_bits);
-            if !rates.contains(&k) {
-                rates.push(k);
-            }
-        }
-        for k in rates.into_iter().filter(|_| self.complete) {
-            for c in Condition::ALL {
-                if !groups
-                    .iter()
-                    .any(|g| g.condition == c && g.rate_hz.map(f64::to_bits) == k)
-                {
-                    let kind = RecordingErrorKind::MissingCondition {
-                        condition: c,
-                        rate_hz: k.map(f64::from_bits),
-                    };
-                    return Err(self.err(None, kind));
-                }
-            }
-        }
-        for g in &mut groups {
-            g.t_s.shrink_to_fit();
-            g.angle_deg.shrink_to_fit();
-            g.u.shrink_to_fit();
-            g.v.shrink_to_fit();
-            g.w.shrink_to_fit();
-        }
+        router
+            .finish(self.complete)
+            .map_err(|kind| self.err(None, kind))?;
+        Ok(Some(self.without_rows(meta, method)))
+    }
 
-        Ok(Recording {
+    /// The recording of a file with conditions whose rows went to a sink.
+    fn without_rows(&self, meta: Metadata, method: Method) -> Recording {
+        Recording {
             source: self.source.to_string(),
             meta,
             method,
-            groups,
+            groups: Vec::new(),
             oriented: None,
             series: None,
+        }
+    }
+
+    /// The fast reader: lines split at their commas, for files without quotes. It gives
+    /// exactly what [`Parser::run_into`] gives (the same preamble, header and row
+    /// functions, on the same fields); on anything it does not handle (a quote, a
+    /// comment after the header, any problem in a row) it stops with `Ok(None)`, and the
+    /// caller reads the file again with the csv reader, which names the problem.
+    fn run_fast<R: Read, S: GroupSink>(
+        &mut self,
+        reader: R,
+        sink: &mut S,
+        conditions_only: bool,
+        columns: Parse,
+    ) -> Res<Option<Option<Recording>>> {
+        let Some(head) = self.fast_head(reader)? else {
+            return Ok(None);
+        };
+        let Head {
+            meta,
+            cols,
+            method,
+            mut reader,
+            line,
+            ..
+        } = head;
+        let free = cols.condition.is_none() && cols.gravity.is_none();
+        if free || cols.gravity.is_some() {
+            return Ok(if conditions_only { Some(None) } else { None });
+        }
+        sink.start(&meta, method);
+        let mut router = Router::new(method);
+        let read = fast_rows(&mut reader, &cols, columns, line, |line, row| {
+            router.route(row, line, &cols, sink).is_ok()
         })
+        .map_err(|e| self.err(None, RecordingErrorKind::Io(e)))?;
+        if read.is_none() || router.finish(self.complete).is_err() {
+            return Ok(None);
+        }
+        Ok(Some(Some(self.without_rows(meta, method))))
+    }
+
+    /// The preamble and the header by the fast reader (`None`: the header needs the csv
+    /// reader, or the file has none), leaving the reader at the first data line.
+    fn fast_head<R: Read>(&mut self, reader: R) -> Res<Option<Head<R>>> {
+        let io = |s: &Self, e: io::Error| s.err(None, RecordingErrorKind::Io(e));
+        let mut br = BufReader::with_capacity(
+            1 << 16,
+            Counted {
+                inner: reader,
+                n: 0,
+            },
+        );
+        let meta = self.preamble(&mut br)?;
+        let mut line_no = self.line_offset;
+        let mut buf: Vec<u8> = Vec::with_capacity(256);
+        let mut bounds: Vec<(usize, usize)> = Vec::with_capacity(16);
+        // The header: the first line that isn't blank.
+        let (cols, method) = loop {
+            buf.clear();
+            if br.read_until(b'\n', &mut buf).map_err(|e| io(self, e))? == 0 {
+                return Ok(None);
+            }
+            line_no += 1;
+            let line = buf.strip_suffix(b"\n").unwrap_or(&buf);
+            if line.is_empty() {
+                continue;
+            }
+            if line.first() == Some(&b'#') || line.contains(&b'"') {
+                return Ok(None);
+            }
+            split_commas(line, &mut bounds);
+            if is_blank_line(line, &bounds) {
+                continue;
+            }
+            let rec = csv::ByteRecord::from(
+                bounds
+                    .iter()
+                    .map(|(a, b)| line.get(*a..*b).unwrap_or(b""))
+                    .collect::<Vec<_>>(),
+            );
+            break self.header(&rec, line_no, &meta)?;
+        };
+        let offset = br.get_ref().n - br.buffer().len() as u64;
+        Ok(Some(Head {
+            meta,
+            cols,
+            method,
+            reader: br,
+            line: line_no,
+            offset,
+        }))
     }
 
     fn next<R: Read>(&self, rdr: &mut csv::Reader<R>, rec: &mut csv::ByteRecord) -> Res<bool> {
@@ -1305,23 +1895,20 @@ fn snippet(bytes: &[u8]) -> String {
     out
 }
 
-fn field(rec: &csv::ByteRecord, i: usize) -> &[u8] {
-    rec.get(i).unwrap_or(b"").trim_ascii()
+fn field<F: Fields + ?Sized>(rec: &F, i: usize) -> &[u8] {
+    rec.raw(i).unwrap_or(b"").trim_ascii()
 }
 
-fn parse_f64(
-    rec: &csv::ByteRecord,
+fn parse_f64<F: Fields + ?Sized>(
+    rec: &F,
     i: usize,
     column: &'static str,
 ) -> Result<f64, RecordingErrorKind> {
     let f = field(rec, i);
-    let x = std::str::from_utf8(f)
-        .ok()
-        .and_then(|s| s.parse::<f64>().ok())
-        .ok_or_else(|| RecordingErrorKind::NotANumber {
-            column,
-            text: snippet(f),
-        })?;
+    let x = parse_number(f).ok_or_else(|| RecordingErrorKind::NotANumber {
+        column,
+        text: snippet(f),
+    })?;
     if x.is_finite() {
         Ok(x)
     } else {
@@ -1329,18 +1916,65 @@ fn parse_f64(
     }
 }
 
-fn parse_opt(
-    rec: &csv::ByteRecord,
+/// A decimal number as `str::parse::<f64>` reads it (correctly rounded). Plain decimals
+/// of at most 15 significant digits (`-12.5`, `0.009615`), which are nearly all a
+/// recording holds, are read directly: their digits are an integer below 2⁵³ and the
+/// power of ten is exact, so one division rounds correctly (Clinger's fast path).
+/// Anything else goes to fast-float2.
+fn parse_number(f: &[u8]) -> Option<f64> {
+    const POW10: [f64; 16] = [
+        1e0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8, 1e9, 1e10, 1e11, 1e12, 1e13, 1e14, 1e15,
+    ];
+    let (neg, body) = match f.split_first() {
+        Some((b'-', rest)) => (true, rest),
+        _ => (false, f),
+    };
+    // One loop over the digits: the whole number, the integer part, the digits after the
+    // point and whether any of them is not 0 ("541.0" needs no division).
+    let (mut mant, mut int, mut frac, mut point, mut nonzero) = (0u64, 0u64, 0usize, false, false);
+    let mut ok = !body.is_empty() && body.len() <= 16;
+    for b in body {
+        let d = b.wrapping_sub(b'0');
+        if d <= 9 {
+            mant = mant * 10 + u64::from(d);
+            if point {
+                frac += 1;
+                nonzero |= d != 0;
+            } else {
+                int = mant;
+            }
+        } else if *b == b'.' && !point {
+            point = true;
+        } else {
+            ok = false;
+            break;
+        }
+    }
+    // A digit on each side of a point ("5." and ".5" go the long way), at most 15 digits.
+    let digits = body.len() - usize::from(point);
+    ok &= digits <= 15 && (!point || (frac > 0 && frac < digits));
+    let v = match (ok, nonzero, POW10.get(frac)) {
+        (true, false, _) => int as f64,
+        (true, true, Some(p)) => mant as f64 / p,
+        _ => return fast_float2::parse::<f64, _>(f).ok(),
+    };
+    Some(if neg { -v } else { v })
+}
+
+fn parse_opt<F: Fields + ?Sized>(
+    rec: &F,
     i: Option<usize>,
     column: &'static str,
 ) -> Result<Option<f64>, RecordingErrorKind> {
     i.map(|i| parse_f64(rec, i, column)).transpose()
 }
 
-fn parse_row<'r>(
-    rec: &'r csv::ByteRecord,
+fn parse_row<'r, F: Fields + ?Sized>(
+    rec: &'r F,
     cols: &ColumnIndex,
+    columns: Parse,
 ) -> Result<Row<'r>, RecordingErrorKind> {
+    let all = columns == Parse::All;
     // Files with gravity directions need no condition; one that is there is ignored.
     let condition = match (cols.condition, cols.gravity) {
         (Some(i), None) => {
@@ -1386,11 +2020,14 @@ fn parse_row<'r>(
         None => None,
     };
     let t_s = parse_opt(rec, cols.t_s, "t_s")?;
-    let angle_deg = parse_opt(rec, cols.angle_deg, "angle_deg")?;
+    let angle_deg = match all {
+        true => parse_opt(rec, cols.angle_deg, "angle_deg")?,
+        false => None,
+    };
     let u = parse_f64(rec, cols.u, "u")?;
     let v = parse_f64(rec, cols.v, "v")?;
     let w = parse_f64(rec, cols.w, "w")?;
-    let seq = match cols.seq {
+    let seq = match cols.seq.filter(|_| all) {
         Some(i) => {
             let f = field(rec, i);
             let s = std::str::from_utf8(f)
@@ -1404,7 +2041,7 @@ fn parse_row<'r>(
         }
         None => None,
     };
-    let temp_c = parse_opt(rec, cols.temp_c, "temp_c")?;
+    let temp_c = parse_opt(rec, cols.temp_c.filter(|_| all), "temp_c")?;
     let rate_hz = parse_opt(rec, cols.rate_hz, "rate_hz")?;
     let conv_gaps = match cols.conv_gaps {
         Some(i) => Some(parse_gaps(field(rec, i))?),
@@ -1431,7 +2068,7 @@ fn parse_row<'r>(
         gravity,
         pose,
         conv_gaps,
-        unc: match cols.unc {
+        unc: match cols.unc.filter(|_| all) {
             Some([a, b, c]) => Some([
                 parse_f64(rec, a, "u_unc")?,
                 parse_f64(rec, b, "v_unc")?,
@@ -1880,5 +2517,64 @@ impl<W: Write> Writer<W> {
         self.out
             .into_inner()
             .map_err(io::IntoInnerError::into_error)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::parse_number;
+    use proptest::prelude::*;
+
+    /// As `str::parse::<f64>` reads it, bit for bit (any NaN for a NaN).
+    fn same(s: &str) {
+        let ours = parse_number(s.as_bytes());
+        let std = s.parse::<f64>().ok();
+        match (ours, std) {
+            (Some(a), Some(b)) if a.is_nan() && b.is_nan() => {}
+            (a, b) => assert_eq!(a.map(f64::to_bits), b.map(f64::to_bits), "{s:?}"),
+        }
+    }
+
+    #[test]
+    fn numbers_read_as_the_standard_library_reads_them() {
+        for s in [
+            "0",
+            "-0",
+            "-0.0",
+            "541.0",
+            "0.009615",
+            "3599.990385",
+            "+1.5",
+            ".5",
+            "5.",
+            "1e3",
+            "1E-3",
+            "-1e-300",
+            "nan",
+            "inf",
+            "-",
+            "",
+            ".",
+            "1.2.3",
+            "00012.500",
+            "999999999999999",
+            "9999999999999999",
+            "0.000000000000001",
+            "123456789012345.6",
+            "1_0",
+            " 1",
+            "1 ",
+        ] {
+            same(s);
+        }
+    }
+
+    proptest! {
+        #[test]
+        fn any_decimal_reads_as_the_standard_library_reads_it(
+            s in "-?[0-9]{0,18}(\\.[0-9]{0,18})?([eE][-+]?[0-9]{1,3})?"
+        ) {
+            same(&s);
+        }
     }
 }

@@ -1,0 +1,718 @@
+//! The sufficient statistics of a record's sine fits, gathered in one pass without keeping
+//! the rows, and the fits at any rate near the pass's own (docs/streaming.md).
+//!
+//! A pass fixes a phase step S₀ (the expansion point). At a nearby step S the angle of a
+//! conversion at time u (s from the group's first row) is α + εu, with ε = (S − S₀)
+//! rad/s exactly, so every regressor is a Taylor series in ε whose coefficients are sums
+//! over the rows: for f(α) = (sin α, cos α, 1), f(α + εu) = Σ_m (εu)^m/m! · D^m f(α), D
+//! the derivative in α. Gathering v_m = mean over the row's conversions of u^m·f(α) and
+//! their cross products gives the normal equations at S, and the derivative in ε the IEEE
+//! 1057 rate fit needs, with an error of order (εT)³ (T the record's length): to second
+//! order for the sine (the rate fit and the budget's refits) and to first order for the
+//! noise model's widened fit, whose residuals are taken in a second pass at the exact step.
+//! [`Moments::within`] says whether a step is near enough for that.
+
+use crate::fit::batch::BatchError;
+use nalgebra::{DMatrix, Matrix3, SMatrix, SVector, Vector3};
+use rotacal_shared::{Aperture, PhaseStep, TickRate, Ticks};
+use std::f64::consts::TAU;
+
+/// Columns of the widened fit: sin α, cos α, 1, a trend (u, s), then sin kα, cos kα for
+/// k = 2, 3, 4 (the noise model's cleaning harmonics).
+pub const WIDE: usize = 10;
+
+/// The harmonic of each wide column (0 for the constant and the trend): its frequency in
+/// multiples of the rotation's.
+pub const WIDE_HARMONIC: [u32; WIDE] = [1, 1, 0, 0, 2, 2, 3, 3, 4, 4];
+
+const TWO_POW_64: f64 = 18_446_744_073_709_551_616.0;
+
+type M10 = SMatrix<f64, WIDE, WIDE>;
+type X10 = SMatrix<f64, WIDE, 3>;
+
+/// The rate of `a` less that of `b`, rad/s: exactly the difference of their phases per
+/// second (steps are exact fractions of a turn per tick).
+pub fn eps_between(a: PhaseStep, b: PhaseStep, clock: TickRate) -> f64 {
+    let d = a.0 as i128 - b.0 as i128;
+    d as f64 / TWO_POW_64 * TAU * f64::from(clock.hz())
+}
+
+/// The widened regressors of one conversion at angle α (its sine and cosine `s`, `c`)
+/// and time `u` s, in the order of [`WIDE_HARMONIC`] (harmonics by angle addition).
+fn wide_row(s: f64, c: f64, u: f64) -> [f64; WIDE] {
+    let (s2, c2) = (2.0 * s * c, c * c - s * s);
+    let (s3, c3) = (s2 * c + c2 * s, c2 * c - s2 * s);
+    let (s4, c4) = (2.0 * s2 * c2, c2 * c2 - s2 * s2);
+    [s, c, 1.0, u, s2, c2, s3, c3, s4, c4]
+}
+
+/// D, the derivative in α, as a matrix on the wide columns.
+fn wide_d() -> M10 {
+    let mut d = M10::zeros();
+    for (i, k) in WIDE_HARMONIC.iter().enumerate().step_by(2) {
+        if *k > 0 && i + 1 < WIDE {
+            let k = f64::from(*k);
+            d[(i, i + 1)] = k; // d/dα sin kα = k cos kα
+            d[(i + 1, i)] = -k; // d/dα cos kα = −k sin kα
+        }
+    }
+    d
+}
+
+/// D on the sine fit's columns (sin α, cos α, 1).
+fn sine_d() -> Matrix3<f64> {
+    Matrix3::new(0.0, 1.0, 0.0, -1.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+}
+
+/// The sums over a group's rows, each row weighted by its number of conversions (an
+/// average of n conversions has variance σ²/n): see the module's documentation.
+#[derive(Clone, Debug)]
+pub struct Moments {
+    /// The expansion point.
+    step: PhaseStep,
+    clock: TickRate,
+    /// Rows and conversions so far.
+    rows: u64,
+    /// Σ n·v₀v₀ᵀ, Σ n·v₀v₁ᵀ over the wide columns.
+    p00: M10,
+    p01: M10,
+    /// Σ n·v₀y, Σ n·v₁y (wide columns × channels).
+    x0: X10,
+    x1: X10,
+    /// Second order, sine columns only: Σ n·v₀v₂ᵀ, v₁v₁ᵀ, v₁v₂ᵀ, v₂v₂ᵀ and Σ n·v₂y.
+    p02: Matrix3<f64>,
+    p11: Matrix3<f64>,
+    p12: Matrix3<f64>,
+    p22: Matrix3<f64>,
+    x2: Matrix3<f64>,
+    /// Σ n·y² per channel.
+    yy: [f64; 3],
+    /// The last time seen, s: the record's extent for [`Moments::within`].
+    u_max: f64,
+    /// The rows of one conversion, as sums of u^p·cos mα, u^p·sin mα and u^p·g(α)·y:
+    /// every product of two columns is one of these (see [`Harmonic`]).
+    harm: Box<Harmonic>,
+}
+
+/// Sums over rows of one conversion (the usual row) from which every entry of the
+/// dense sums follows by the product-to-sum formulas: Σ u^p cos mα and Σ u^p sin mα for
+/// p ≤ 4 and m ≤ 8, and Σ u^p·g(α)·y for the columns' functions g (1, sin kα, cos kα,
+/// k ≤ 4) and p ≤ 2. About half the operations of the dense sums per row.
+#[derive(Clone, Debug, Default)]
+struct Harmonic {
+    cos: [[f64; 9]; 5],
+    sin: [[f64; 9]; 5],
+    /// [p][g][channel], g: 0 for 1, then sin kα and cos kα for k = 1 … 4 in turn.
+    y: [[[f64; 3]; 9]; 3],
+}
+
+/// What a wide column is: its function of α and its power of u.
+#[derive(Clone, Copy)]
+enum Col {
+    One(usize),
+    Sin(usize),
+    Cos(usize),
+}
+
+/// The wide columns (in the order of [`WIDE_HARMONIC`]).
+const COLS: [Col; WIDE] = [
+    Col::Sin(1),
+    Col::Cos(1),
+    Col::One(0),
+    Col::One(1),
+    Col::Sin(2),
+    Col::Cos(2),
+    Col::Sin(3),
+    Col::Cos(3),
+    Col::Sin(4),
+    Col::Cos(4),
+];
+
+impl Harmonic {
+    /// Σ u^e·a·b over the rows, for columns a and b.
+    fn product(&self, a: Col, b: Col, e: usize) -> f64 {
+        let c = |p: usize, m: usize| {
+            self.cos
+                .get(p)
+                .and_then(|r| r.get(m))
+                .copied()
+                .unwrap_or(0.0)
+        };
+        let s = |p: usize, m: isize| {
+            let v = self
+                .sin
+                .get(p)
+                .and_then(|r| r.get(m.unsigned_abs()))
+                .copied()
+                .unwrap_or(0.0);
+            if m < 0 {
+                -v
+            } else {
+                v
+            }
+        };
+        match (a, b) {
+            (Col::One(pa), Col::One(pb)) => c(pa + pb + e, 0),
+            (Col::One(pa), Col::Sin(l)) | (Col::Sin(l), Col::One(pa)) => s(pa + e, l as isize),
+            (Col::One(pa), Col::Cos(l)) | (Col::Cos(l), Col::One(pa)) => c(pa + e, l),
+            (Col::Sin(k), Col::Sin(l)) => (c(e, k.abs_diff(l)) - c(e, k + l)) / 2.0,
+            (Col::Cos(k), Col::Cos(l)) => (c(e, k.abs_diff(l)) + c(e, k + l)) / 2.0,
+            (Col::Sin(k), Col::Cos(l)) | (Col::Cos(l), Col::Sin(k)) => {
+                (s(e, (k + l) as isize) + s(e, k as isize - l as isize)) / 2.0
+            }
+        }
+    }
+
+    /// Σ u^e·a·y over the rows, per channel.
+    fn with_y(&self, a: Col, e: usize) -> [f64; 3] {
+        let (p, g) = match a {
+            Col::One(pa) => (pa + e, 0),
+            Col::Sin(k) => (e, 2 * k - 1),
+            Col::Cos(k) => (e, 2 * k),
+        };
+        self.y
+            .get(p)
+            .and_then(|r| r.get(g))
+            .copied()
+            .unwrap_or([0.0; 3])
+    }
+
+    /// Add a row of one conversion at angle (sin, cos) = (`s`, `c`), time `u`.
+    fn add(&mut self, s: f64, c: f64, u: f64, y: [f64; 3]) {
+        let (mut cm, mut sm) = ([1.0; 9], [0.0; 9]);
+        for m in 1..9 {
+            let (pc, ps) = (cm[m - 1], sm[m - 1]);
+            cm[m] = pc * c - ps * s;
+            sm[m] = ps * c + pc * s;
+        }
+        let pw = [1.0, u, u * u, u * u * u, u * u * u * u];
+        for ((rc, rs), p) in self.cos.iter_mut().zip(self.sin.iter_mut()).zip(pw) {
+            for ((a, b), (x, z)) in rc.iter_mut().zip(rs.iter_mut()).zip(cm.iter().zip(&sm)) {
+                *a += p * x;
+                *b += p * z;
+            }
+        }
+        let g = [1.0, sm[1], cm[1], sm[2], cm[2], sm[3], cm[3], sm[4], cm[4]];
+        for (rows, p) in self.y.iter_mut().zip(pw) {
+            for (acc, gv) in rows.iter_mut().zip(g) {
+                let w = p * gv;
+                for (a, v) in acc.iter_mut().zip(y) {
+                    *a += w * v;
+                }
+            }
+        }
+    }
+}
+
+/// The sine fit's normal equations at one step: Σ h hᵀ, Σ h dhᵀ and Σ dh dhᵀ (dh the
+/// derivative in the rate, rad/s), Σ h·y and Σ dh·y per channel (columns), Σ y².
+#[derive(Clone, Copy, Debug)]
+pub struct SineNormal {
+    /// Σ n·h hᵀ.
+    pub g: Matrix3<f64>,
+    /// Σ n·h dhᵀ.
+    pub k: Matrix3<f64>,
+    /// Σ n·dh dhᵀ.
+    pub l: Matrix3<f64>,
+    /// Σ n·h y (a column per channel).
+    pub xh: Matrix3<f64>,
+    /// Σ n·dh y (a column per channel).
+    pub xd: Matrix3<f64>,
+    /// Σ n·y² per channel.
+    pub yy: [f64; 3],
+    /// Rows.
+    pub rows: u64,
+}
+
+impl Moments {
+    /// Empty, expanded about `step` of a `clock`-tick clock.
+    pub fn new(step: PhaseStep, clock: TickRate) -> Self {
+        Moments {
+            step,
+            clock,
+            rows: 0,
+            p00: M10::zeros(),
+            p01: M10::zeros(),
+            x0: X10::zeros(),
+            x1: X10::zeros(),
+            p02: Matrix3::zeros(),
+            p11: Matrix3::zeros(),
+            p12: Matrix3::zeros(),
+            p22: Matrix3::zeros(),
+            x2: Matrix3::zeros(),
+            yy: [0.0; 3],
+            u_max: 0.0,
+            harm: Box::default(),
+        }
+    }
+
+    /// The expansion point.
+    pub fn step(&self) -> PhaseStep {
+        self.step
+    }
+
+    /// Rows added.
+    pub fn rows(&self) -> u64 {
+        self.rows
+    }
+
+    /// ε of `step` relative to the expansion point, rad/s.
+    pub fn eps(&self, step: PhaseStep) -> f64 {
+        eps_between(step, self.step, self.clock)
+    }
+
+    /// |ε|·T for `step`: how far it is, in radians over the record, from the expansion
+    /// point. The sine's normal equations carry an error of order (εT)³/6 relative, the
+    /// widened fit's (εT)²/2.
+    pub fn reach(&self, step: PhaseStep) -> f64 {
+        (self.eps(step) * self.u_max).abs()
+    }
+
+    /// Whether `step` is within `radius` (|ε|·T, rad) of the expansion point.
+    pub fn within(&self, step: PhaseStep, radius: f64) -> bool {
+        self.reach(step) <= radius
+    }
+
+    /// The per-conversion regressors of a row, averaged: v₀ (wide), v₁ (wide) and v₂
+    /// (sine columns), and the conversion count.
+    fn row_vectors(&self, ap: &Aperture) -> ([f64; WIDE], [f64; WIDE], [f64; 3], f64) {
+        let hz = f64::from(self.clock.hz());
+        let (mut v0, mut v1, mut v2) = ([0.0; WIDE], [0.0; WIDE], [0.0; 3]);
+        for t in ap.ticks() {
+            let (s, c) = self.step.phase_at(t).sin_cos::<f64>();
+            let u = t.0 as f64 / hz;
+            let f = wide_row(s.hi, c.hi, u);
+            for ((a, b), x) in v0.iter_mut().zip(v1.iter_mut()).zip(f) {
+                *a += x;
+                *b += u * x;
+            }
+            for (a, x) in v2.iter_mut().zip(f) {
+                *a += u * u * x;
+            }
+        }
+        let n = ap.len().max(1) as f64;
+        if n > 1.0 {
+            for v in v0.iter_mut().chain(v1.iter_mut()).chain(v2.iter_mut()) {
+                *v /= n;
+            }
+        }
+        (v0, v1, v2, n)
+    }
+
+    /// Add a row: the conversions it averages (ticks from the group's first row) and its
+    /// u, v, w.
+    pub fn add(&mut self, ap: &Aperture, y: [f64; 3]) {
+        let hz = f64::from(self.clock.hz());
+        if ap.len() == 1 {
+            let t = ap.first();
+            let (s, c) = self.step.phase_at(t).sin_cos::<f64>();
+            self.harm.add(s.hi, c.hi, t.0 as f64 / hz, y);
+            for (a, v) in self.yy.iter_mut().zip(y) {
+                *a += v * v;
+            }
+        } else {
+            let (v0, v1, v2, n) = self.row_vectors(ap);
+            self.accumulate(&v0, &v1, &v2, n, y, 1.0);
+        }
+        self.rows += 1;
+        self.u_max = self.u_max.max(ap.last().0 as f64 / hz);
+    }
+
+    /// The same sums with the rows of one conversion folded into the dense ones.
+    fn dense(&self) -> Moments {
+        let mut m = self.clone();
+        let h = std::mem::take(&mut *m.harm);
+        for (i, a) in COLS.iter().enumerate() {
+            for (j, b) in COLS.iter().enumerate() {
+                m.p00[(i, j)] += h.product(*a, *b, 0);
+                m.p01[(i, j)] += h.product(*a, *b, 1);
+            }
+            let (y0, y1) = (h.with_y(*a, 0), h.with_y(*a, 1));
+            for (ch, (a0, a1)) in y0.iter().zip(y1).enumerate() {
+                m.x0[(i, ch)] += a0;
+                m.x1[(i, ch)] += a1;
+            }
+        }
+        for (i, a) in COLS.iter().take(3).enumerate() {
+            for (j, b) in COLS.iter().take(3).enumerate() {
+                m.p02[(i, j)] += h.product(*a, *b, 2);
+                m.p11[(i, j)] += h.product(*a, *b, 2);
+                m.p12[(i, j)] += h.product(*a, *b, 3);
+                m.p22[(i, j)] += h.product(*a, *b, 4);
+            }
+            for (ch, a2) in h.with_y(*a, 2).iter().enumerate() {
+                m.x2[(i, ch)] += a2;
+            }
+        }
+        m
+    }
+
+    /// Add (`sign` 1) or take out (−1) a row's contributions.
+    fn accumulate(
+        &mut self,
+        v0: &[f64; WIDE],
+        v1: &[f64; WIDE],
+        v2: &[f64; 3],
+        n: f64,
+        y: [f64; 3],
+        sign: f64,
+    ) {
+        let w = sign * n;
+        let (v0m, v1m) = (SVector::from(*v0), SVector::from(*v1));
+        let (v03, v13, v2m) = (
+            v0m.fixed_rows::<3>(0).into_owned(),
+            v1m.fixed_rows::<3>(0).into_owned(),
+            Vector3::from(*v2),
+        );
+        let ym = Vector3::from(y);
+        // Rank-one updates on fixed-size matrices: unrolled and vectorised.
+        self.p00.ger(w, &v0m, &v0m, 1.0);
+        self.p01.ger(w, &v0m, &v1m, 1.0);
+        self.x0.ger(w, &v0m, &ym, 1.0);
+        self.x1.ger(w, &v1m, &ym, 1.0);
+        self.p02.ger(w, &v03, &v2m, 1.0);
+        self.p11.ger(w, &v13, &v13, 1.0);
+        self.p12.ger(w, &v13, &v2m, 1.0);
+        self.p22.ger(w, &v2m, &v2m, 1.0);
+        self.x2.ger(w, &v2m, &ym, 1.0);
+        for (a, v) in self.yy.iter_mut().zip(y) {
+            *a += w * v * v;
+        }
+    }
+
+    /// The sine fit's normal equations at `step`, to second order in its ε.
+    pub fn sine_at(&self, step: PhaseStep) -> SineNormal {
+        self.dense().sine_at_dense(step)
+    }
+
+    fn sine_at_dense(&self, step: PhaseStep) -> SineNormal {
+        let e = self.eps(step);
+        let d = sine_d();
+        let d2 = d * d;
+        let sub = |m: &M10| m.fixed_view::<3, 3>(0, 0).into_owned();
+        let (p00, p01) = (sub(&self.p00), sub(&self.p01));
+        // Blocks of Q = Σ n·V Vᵀ, V = (v₀, v₁, v₂) on the sine columns.
+        let q = |a: usize, b: usize| -> Matrix3<f64> {
+            match (a, b) {
+                (0, 0) => p00,
+                (0, 1) => p01,
+                (1, 0) => p01.transpose(),
+                (0, 2) => self.p02,
+                (2, 0) => self.p02.transpose(),
+                (1, 1) => self.p11,
+                (1, 2) => self.p12,
+                (2, 1) => self.p12.transpose(),
+                _ => self.p22,
+            }
+        };
+        // h = Σ_m T_h[m] v_m and dh = Σ_m T_d[m] v_m.
+        let th = [Matrix3::identity(), d * e, d2 * (e * e / 2.0)];
+        let td = [Matrix3::zeros(), d, d2 * e];
+        let xv = |m: usize| -> Matrix3<f64> {
+            match m {
+                0 => self.x0.fixed_view::<3, 3>(0, 0).into_owned(),
+                1 => self.x1.fixed_view::<3, 3>(0, 0).into_owned(),
+                _ => self.x2,
+            }
+        };
+        let mut out = SineNormal {
+            g: Matrix3::zeros(),
+            k: Matrix3::zeros(),
+            l: Matrix3::zeros(),
+            xh: Matrix3::zeros(),
+            xd: Matrix3::zeros(),
+            yy: self.yy,
+            rows: self.rows,
+        };
+        for a in 0..3 {
+            out.xh += th[a] * xv(a);
+            out.xd += td[a] * xv(a);
+            for b in 0..3 {
+                let qab = q(a, b);
+                out.g += th[a] * qab * th[b].transpose();
+                out.k += th[a] * qab * td[b].transpose();
+                out.l += td[a] * qab * td[b].transpose();
+            }
+        }
+        out
+    }
+
+    /// The widened fit's normal equations at `step`, to first order in its ε: Σ n·h hᵀ
+    /// and Σ n·h y (a column per channel).
+    pub fn wide_at(&self, step: PhaseStep) -> (DMatrix<f64>, DMatrix<f64>) {
+        let this = self.dense();
+        let e = this.eps(step);
+        let d = wide_d();
+        let g = this.p00 + (d * this.p01.transpose() + this.p01 * d.transpose()) * e;
+        let x = this.x0 + d * this.x1 * e;
+        (
+            DMatrix::from_iterator(WIDE, WIDE, g.iter().copied()),
+            DMatrix::from_iterator(WIDE, 3, x.iter().copied()),
+        )
+    }
+
+    /// The same sums over only the rows of `other` (gathered about the same step) taken
+    /// out: for readings left out of a channel's fit.
+    pub fn without(&self, other: &Moments) -> Moments {
+        let (mut m, other) = (self.dense(), other.dense());
+        m.rows = m.rows.saturating_sub(other.rows);
+        m.p00 -= other.p00;
+        m.p01 -= other.p01;
+        m.x0 -= other.x0;
+        m.x1 -= other.x1;
+        m.p02 -= other.p02;
+        m.p11 -= other.p11;
+        m.p12 -= other.p12;
+        m.p22 -= other.p22;
+        m.x2 -= other.x2;
+        for (a, b) in m.yy.iter_mut().zip(other.yy) {
+            *a -= b;
+        }
+        m
+    }
+}
+
+/// The widened regressors of a row at `step`, exactly (the residual pass): the mean over
+/// its conversions, in the order of [`WIDE_HARMONIC`]; and the sine's (sin, cos, 1) at
+/// `other`, a step `shift` rad/s below (by rotating each conversion's angle back by
+/// shift·u, in a series exact to rounding while shift·u ≤ 10⁻³; directly beyond).
+pub fn wide_regressors(
+    ap: &Aperture,
+    step: PhaseStep,
+    other: (PhaseStep, f64),
+    clock: TickRate,
+) -> ([f64; WIDE], [f64; 3]) {
+    let hz = f64::from(clock.hz());
+    let (mut v, mut o) = ([0.0; WIDE], [0.0, 0.0, 1.0]);
+    for t in ap.ticks() {
+        let (s, c) = step.phase_at(t).sin_cos::<f64>();
+        let u = t.0 as f64 / hz;
+        let f = wide_row(s.hi, c.hi, u);
+        for (a, b) in v.iter_mut().zip(f) {
+            *a += b;
+        }
+        let phi = other.1 * u;
+        let (so, co) = if phi.abs() <= 1e-3 {
+            let p2 = phi * phi;
+            let sin = phi * (1.0 - p2 / 6.0 * (1.0 - p2 / 20.0));
+            let cos = 1.0 - p2 / 2.0 * (1.0 - p2 / 12.0 * (1.0 - p2 / 30.0));
+            (s.hi * cos - c.hi * sin, c.hi * cos + s.hi * sin)
+        } else {
+            let (s, c) = other.0.phase_at(t).sin_cos::<f64>();
+            (s.hi, c.hi)
+        };
+        o[0] += so;
+        o[1] += co;
+    }
+    let n = ap.len().max(1) as f64;
+    (v.map(|a| a / n), [o[0] / n, o[1] / n, 1.0])
+}
+
+/// A row's conversions as an [`Aperture`] in ticks of `clock` from the group's first row:
+/// the row's time `t_s` against the group's first `t0_s`, and its `conv_gaps` (in device
+/// ticks, `scale` = clock ticks per device tick).
+pub fn row_aperture(
+    t_s: f64,
+    t0_s: f64,
+    gaps: Option<&Aperture>,
+    scale: f64,
+    clock: TickRate,
+) -> Result<Aperture, &'static str> {
+    let ticks = ((t_s - t0_s) * f64::from(clock.hz())).round();
+    if !(0.0..1.8e19).contains(&ticks) {
+        return Err("t_s out of range");
+    }
+    let mut ap = Aperture::point(Ticks(ticks as u64));
+    if let Some(c) = gaps {
+        for d in c.gaps() {
+            let scaled = (f64::from(*d) * scale).round();
+            let gap = u16::try_from(scaled as u64).map_err(|_| BEYOND)?;
+            ap.push_gap(gap).map_err(|_| BEYOND)?;
+        }
+    }
+    Ok(ap)
+}
+
+const BEYOND: &str = "conv_gaps beyond 65 ms at 1 MHz";
+
+/// A, B, C per channel of the sine fit at `step` from `m`'s sums (normal equations by
+/// Cholesky: the columns are near-orthogonal sines and a constant).
+pub fn sine_coefficients(m: &Moments, step: PhaseStep) -> Result<[[f64; 3]; 3], BatchError> {
+    let n = m.sine_at(step);
+    let chol = n.g.cholesky().ok_or(BatchError::Singular)?;
+    let mut out = [[0.0; 3]; 3];
+    for (ch, c) in out.iter_mut().enumerate() {
+        let b = chol.solve(&n.xh.column(ch).into_owned());
+        *c = [b[0], b[1], b[2]];
+    }
+    Ok(out)
+}
+
+/// The iterated four-parameter fit of IEEE Std 1057 ([`crate::fit::batch::fit_four_param`])
+/// from `m`'s sums, starting at `start`: each iteration solves the joint normal equations
+/// of (A, B, C) × 3 channels and δω, whose rows for channel j are (sin, cos, 1) and
+/// u·(A_j cos α − B_j sin α) (u from the group's start rather than its middle: the
+/// difference lies in the span of sin and cos, so δω and its standard error are the same).
+/// The caller checks that the rate reached is [`Moments::within`] the sums' reach.
+pub fn four_param(m: &Moments, start: PhaseStep, clock: TickRate) -> Result<FourParam, BatchError> {
+    const MAX_ITER: usize = 50;
+    let rows = m.rows();
+    if rows < 8 {
+        return Err(BatchError::TooFewSamples {
+            n: rows as usize,
+            needed: 8,
+        });
+    }
+    let mut rate = start.to_hz(clock);
+    let mut last = sine_coefficients(m, start)?;
+    for iter in 1..=MAX_ITER {
+        let step = PhaseStep::from_hz(rate, clock).ok_or(BatchError::Singular)?;
+        let s = m.sine_at(step);
+        let mut normal = DMatrix::<f64>::zeros(10, 10);
+        let mut rhs = DMatrix::<f64>::zeros(10, 1);
+        let mut yy = 0.0;
+        for (ch, c) in last.iter().enumerate() {
+            // g_j = (A_j, B_j, 0)·dh: its cross products from K = Σ h dhᵀ and L = Σ dh dhᵀ.
+            let ab = nalgebra::Vector3::new(c[0], c[1], 0.0);
+            let b = 3 * ch;
+            normal.view_mut((b, b), (3, 3)).copy_from(&s.g);
+            let cross = s.k * ab;
+            normal.view_mut((b, 9), (3, 1)).copy_from(&cross);
+            normal
+                .view_mut((9, b), (1, 3))
+                .copy_from(&cross.transpose());
+            normal[(9, 9)] += (ab.transpose() * s.l * ab)[0];
+            rhs.view_mut((b, 0), (3, 1)).copy_from(&s.xh.column(ch));
+            rhs[(9, 0)] += ab.dot(&s.xd.column(ch));
+            yy += s.yy.get(ch).copied().unwrap_or(0.0);
+        }
+        let chol = normal.cholesky().ok_or(BatchError::Singular)?;
+        let theta = chol.solve(&rhs);
+        let inv = chol.inverse();
+        let rss = (yy - theta.dot(&rhs)).max(0.0);
+        let dof = (3 * rows).saturating_sub(10).max(1) as f64;
+        let dw = theta[(9, 0)];
+        let se_dw = (rss / dof * inv[(9, 9)]).max(0.0).sqrt();
+        rate += dw / TAU;
+        let next = PhaseStep::from_hz(rate, clock).ok_or(BatchError::Singular)?;
+        last = sine_coefficients(m, next)?;
+        if dw.abs() <= 1e-3 * se_dw || next == step {
+            return Ok(FourParam {
+                rate_hz: rate,
+                se_rate_hz: se_dw / TAU,
+                coef: last,
+                iterations: iter,
+            });
+        }
+    }
+    Err(BatchError::NoConvergence(MAX_ITER))
+}
+
+/// What [`four_param`] gives.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct FourParam {
+    /// The rotation rate, Hz.
+    pub rate_hz: f64,
+    /// Its standard error, Hz.
+    pub se_rate_hz: f64,
+    /// A, B, C per channel at that rate.
+    pub coef: [[f64; 3]; 3],
+    /// Iterations used.
+    pub iterations: usize,
+}
+
+impl Moments {
+    /// The same sums about an origin `ticks` earlier: the rows' times (and the phase from
+    /// which their angles count) move by `ticks`. Rows gathered by another thread from its
+    /// own first row are brought to the group's first row so: each row's angle turns by
+    /// φ = step·ticks (exactly, as a fraction of a turn) and its time grows by Δ.
+    pub fn shifted(&self, ticks: u64) -> Moments {
+        self.dense().shifted_dense(ticks)
+    }
+
+    fn shifted_dense(&self, ticks: u64) -> Moments {
+        let hz = f64::from(self.clock.hz());
+        let delta = ticks as f64 / hz;
+        let (sp, cp) = self.step.phase_at(Ticks(ticks)).sin_cos::<f64>();
+        let (sp, cp) = (sp.hi, cp.hi);
+        // f' = A f: each harmonic pair turned by kφ, the trend moved by Δ times the constant.
+        let mut a = M10::zeros();
+        let mut k = 0usize;
+        while k < WIDE {
+            let h = WIDE_HARMONIC.get(k).copied().unwrap_or(0);
+            if h == 0 {
+                a[(k, k)] = 1.0;
+                k += 1;
+                continue;
+            }
+            // sin(kα + kφ) = sin kα cos kφ + cos kα sin kφ; cos(kα + kφ) = cos kα cos kφ − sin kα sin kφ.
+            let (mut sk, mut ck) = (0.0, 1.0);
+            for _ in 0..h {
+                (sk, ck) = (sk * cp + ck * sp, ck * cp - sk * sp);
+            }
+            a[(k, k)] = ck;
+            a[(k, k + 1)] = sk;
+            a[(k + 1, k)] = -sk;
+            a[(k + 1, k + 1)] = ck;
+            k += 2;
+        }
+        a[(3, 2)] = delta; // trend: u + Δ
+        let r3 = a.fixed_view::<3, 3>(0, 0).into_owned();
+        let mut m = self.clone();
+        // v₀' = A v₀, v₁' = A(v₁ + Δv₀); for the sine, v₂' = R(v₂ + 2Δv₁ + Δ²v₀).
+        m.p00 = a * self.p00 * a.transpose();
+        m.p01 = a * (self.p01 + self.p00 * delta) * a.transpose();
+        m.x0 = a * self.x0;
+        m.x1 = a * (self.x1 + self.x0 * delta);
+        let sub = |x: &M10| x.fixed_view::<3, 3>(0, 0).into_owned();
+        let (q00, q01) = (sub(&self.p00), sub(&self.p01));
+        let q10 = q01.transpose();
+        let d2 = delta * delta;
+        // With w₁ = v₁ + Δv₀ and w₂ = v₂ + 2Δv₁ + Δ²v₀ (before turning by R):
+        let w1w1 = self.p11 + (q10 + q01) * delta + q00 * d2;
+        let v0w2 = self.p02 + q01 * (2.0 * delta) + q00 * d2;
+        let w1w2 = self.p12
+            + self.p11 * (2.0 * delta)
+            + q10 * d2
+            + (self.p02 + q01 * (2.0 * delta) + q00 * d2) * delta;
+        let w2w2 = {
+            let (p02, p12) = (self.p02, self.p12);
+            let (p20, p21) = (p02.transpose(), p12.transpose());
+            self.p22
+                + (p21 + p12) * (2.0 * delta)
+                + (p20 + p02) * d2
+                + self.p11 * (4.0 * d2)
+                + (q10 + q01) * (2.0 * d2 * delta)
+                + q00 * (d2 * d2)
+        };
+        m.p11 = r3 * w1w1 * r3.transpose();
+        m.p02 = r3 * v0w2 * r3.transpose();
+        m.p12 = r3 * w1w2 * r3.transpose();
+        m.p22 = r3 * w2w2 * r3.transpose();
+        let x03 = self.x0.fixed_view::<3, 3>(0, 0).into_owned();
+        let x13 = self.x1.fixed_view::<3, 3>(0, 0).into_owned();
+        m.x2 = r3 * (self.x2 + x13 * (2.0 * delta) + x03 * d2);
+        m.u_max = self.u_max + delta;
+        m
+    }
+
+    /// These sums and `other`'s (about the same step and origin) together.
+    pub fn merged(&self, other: &Moments) -> Moments {
+        let (mut m, other) = (self.dense(), other.dense());
+        m.rows += other.rows;
+        m.p00 += other.p00;
+        m.p01 += other.p01;
+        m.x0 += other.x0;
+        m.x1 += other.x1;
+        m.p02 += other.p02;
+        m.p11 += other.p11;
+        m.p12 += other.p12;
+        m.p22 += other.p22;
+        m.x2 += other.x2;
+        for (a, b) in m.yy.iter_mut().zip(other.yy) {
+            *a += b;
+        }
+        m.u_max = m.u_max.max(other.u_max);
+        m
+    }
+}

@@ -1,0 +1,276 @@
+//! The streaming calibration (`calibrate::stream`, docs/streaming.md) against the engine
+//! that holds every row, on the same files; and the fast reader against the csv reader.
+//!
+//! Each file is calibrated twice by `stream::calibrate_file_holding`: holding every group
+//! (the rows in memory, the engine `rotacal calibrate` used before) and holding none (sums
+//! only). What may differ, and by how much, follows from how the sums are used:
+//! - the fits' normal equations are summed in another order and solved by Cholesky rather
+//!   than QR: values agree to rounding, 10⁻¹⁰ relative (N·ε·κ with N ≈ 6·10⁴ rows, ε the
+//!   double precision and κ ≲ 10² for sines and a constant);
+//! - the budget's rate line is a difference of two nearby fits divided by u_rate: its
+//!   rounding is that of the fits over a change of order u_rate·T ≈ 10⁻⁵, and it is a small
+//!   share of U: U agrees to 10⁻⁸ relative;
+//! - under correlated noise (an AR model of order p > 0) the streaming engine takes the
+//!   noise's effect on the sine fit and on the residuals from its spectrum at the fit's
+//!   frequencies rather than from the N × N covariance: an approximation of relative order
+//!   τ/N (τ the correlation time in samples). It must move U by less than a tenth of U's
+//!   own relative standard uncertainty as an estimate, 1/√(2ν_eff);
+//! - when the true rate differs from nominal, the two engines stop the IEEE 1057
+//!   iteration at different iterates, within 10⁻³ of its standard error of each other: the
+//!   fits move by that fraction of what one standard error of the rate moves them (about
+//!   10⁻⁵ relative here), 10⁻⁷ relative at most.
+
+use rotacal::calibrate::json::CalibrationJson;
+use rotacal::calibrate::{stream, Options};
+use rotacal::recording;
+use rotacal::simulate::config::{RateError, Saturation};
+use rotacal::simulate::{Config, Noise, NoiseSd, Simulation};
+use std::path::{Path, PathBuf};
+
+/// A rotation recording of `rows` rows per condition at 104 Hz, paper-10mhz's device,
+/// noise of a different level per channel and unstated (as on a real recording).
+fn config(seed: u64, rows: u64, ar: Option<Vec<f64>>, lowpass_hz: Option<f64>) -> Config {
+    let mut cfg = Config::preset("paper-10mhz").unwrap();
+    cfg.seed = seed;
+    cfg.table.rates_hz = Some(vec![0.25]);
+    cfg.table.samples_per_condition = Some(rows);
+    cfg.table.duration_s = None;
+    cfg.timing.sample_rate_hz = 104.0;
+    cfg.mounting.axis = [1.0, 2.0, 2.0];
+    cfg.mounting.angle_deg = 3.0;
+    cfg.sensor.noise = Some(Noise {
+        sd: Some(NoiseSd::PerChannel([10.6, 8.5, 12.5])),
+        ar,
+        lowpass_hz,
+        state: false,
+    });
+    cfg
+}
+
+/// A folder of this process's own for `test`.
+fn tmp(test: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("rotacal-streaming-{}-{test}", std::process::id()));
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+fn write(dir: &Path, name: &str, cfg: Config) -> PathBuf {
+    let path = dir.join(name);
+    Simulation::new(cfg).unwrap().write_file(&path).unwrap();
+    path
+}
+
+/// (held, streamed) calibrations of `path`.
+fn both(path: &Path, opts: &Options) -> (CalibrationJson, CalibrationJson) {
+    let held = stream::calibrate_file_holding(path, opts, usize::MAX).unwrap();
+    let streamed = stream::calibrate_file_holding(path, opts, 0).unwrap();
+    (held, streamed)
+}
+
+/// The largest relative differences of the six properties' values and of their standard
+/// uncertainties, and the smallest ν_eff, over every rate.
+fn differences(a: &CalibrationJson, b: &CalibrationJson) -> (f64, f64, f64) {
+    assert_eq!(a.by_rate.len(), b.by_rate.len());
+    let (mut dv, mut du, mut nu) = (0.0f64, 0.0f64, f64::INFINITY);
+    for (ra, rb) in a.by_rate.iter().zip(&b.by_rate) {
+        assert_eq!(ra.rate_hz, rb.rate_hz);
+        for (qa, qb) in ra
+            .intrinsic
+            .quantities()
+            .iter()
+            .zip(rb.intrinsic.quantities())
+        {
+            dv = dv.max((qa.value - qb.value).abs() / qa.value.abs());
+            du = du.max((qa.std_unc - qb.std_unc).abs() / qa.std_unc);
+        }
+        let budget = ra.uncertainty_budget.as_ref().unwrap();
+        for c in budget.combined.iter() {
+            if let Some(n) = c.nu_eff {
+                nu = nu.min(n);
+            }
+        }
+    }
+    (dv, du, nu)
+}
+
+/// The AR orders the streamed calibration chose, per channel and condition.
+fn orders(c: &CalibrationJson) -> Vec<usize> {
+    c.by_rate
+        .iter()
+        .flat_map(|r| r.noise.iter().flatten().map(|n| n.ar.len()))
+        .collect()
+}
+
+/// The two engines agree as the module's documentation says they must.
+fn agree(what: &str, path: &Path, opts: &Options) {
+    let (held, streamed) = both(path, opts);
+    let (dv, du, nu) = differences(&held, &streamed);
+    assert_eq!(orders(&held), orders(&streamed), "{what}: AR orders");
+    let correlated = orders(&streamed).iter().any(|p| *p > 0);
+    let bound_u = if correlated {
+        0.1 / (2.0 * nu).sqrt()
+    } else {
+        1e-8
+    };
+    println!("{what}: values {dv:.1e}, U {du:.1e} (bound {bound_u:.1e}, ν_eff ≥ {nu:.0})");
+    assert!(dv <= 1e-10, "{what}: values differ by {dv:e}");
+    assert!(du <= bound_u, "{what}: U differs by {du:e} > {bound_u:e}");
+}
+
+#[test]
+fn white_noise_gives_the_held_engines_figures() {
+    let dir = tmp("white");
+    let path = write(dir.as_path(), "white.csv", config(181, 20_000, None, None));
+    let (held, streamed) = both(&path, &Options::default());
+    assert!(
+        orders(&streamed).iter().all(|p| *p == 0),
+        "white noise read as AR"
+    );
+    agree("white", &path, &Options::default());
+    // The fits, noise levels and rms residuals too.
+    let (a, b) = (&held.by_rate[0], &streamed.by_rate[0]);
+    for (fa, fb) in a.fits.iter().zip(&b.fits) {
+        let amp = fa.a.hypot(fa.b).max(1.0);
+        for (x, y) in [(fa.a, fb.a), (fa.b, fb.b), (fa.c, fb.c)] {
+            assert!((x - y).abs() <= 1e-10 * amp, "fit {x} against {y}");
+        }
+        assert!((fa.rms_residual - fb.rms_residual).abs() <= 1e-10 * fa.rms_residual);
+        assert_eq!(fa.n, fb.n);
+    }
+    for (na, nb) in a.noise.iter().flatten().zip(b.noise.iter().flatten()) {
+        assert!(
+            (na.sd - nb.sd).abs() <= 1e-10 * na.sd,
+            "{} {}",
+            na.sd,
+            nb.sd
+        );
+    }
+}
+
+#[test]
+fn correlated_noise_moves_u_by_less_than_its_own_uncertainty_allows() {
+    let dir = tmp("correlated");
+    let ar = write(
+        dir.as_path(),
+        "ar.csv",
+        config(182, 20_000, Some(vec![0.6]), None),
+    );
+    agree("AR(1) 0.6", &ar, &Options::default());
+    let lp = write(
+        dir.as_path(),
+        "lowpass.csv",
+        config(183, 20_000, None, Some(11.6)),
+    );
+    agree("low-pass 11.6 Hz", &lp, &Options::default());
+}
+
+#[test]
+fn clipped_channels_take_the_correcting_pass() {
+    let dir = tmp("clipped");
+    let mut cfg = config(184, 20_000, None, None);
+    // Rails inside the ±16 000-count swing: some channels' peaks pile up on them.
+    cfg.effects.saturation = Some(Saturation {
+        rails: [-15_000.0, 15_000.0],
+    });
+    let path = write(dir.as_path(), "clipped.csv", cfg);
+    let streamed = stream::calibrate_file_holding(&path, &Options::default(), 0).unwrap();
+    let excluded: usize = streamed.by_rate[0]
+        .noise
+        .iter()
+        .flatten()
+        .map(|n| n.n_excluded)
+        .sum();
+    assert!(excluded > 0, "no reading was found on a rail");
+    agree("clipped", &path, &Options::default());
+}
+
+#[test]
+fn a_rate_off_nominal_is_fitted_and_refitted() {
+    let dir = tmp("rate");
+    let mut cfg = config(185, 20_000, None, None);
+    cfg.effects.rate_error = Some(RateError { relative: 2e-4 });
+    let path = write(dir.as_path(), "rate.csv", cfg);
+    let (held, streamed) = both(&path, &Options::default());
+    for c in [&held, &streamed] {
+        assert!(c.by_rate[0].fits.iter().all(|f| f.rate_hz_fitted.is_some()));
+    }
+    let (dv, du, _) = differences(&held, &streamed);
+    println!("rate off nominal: values {dv:.1e}, U {du:.1e}");
+    assert!(dv <= 1e-7 && du <= 1e-7, "values {dv:e}, U {du:e}");
+}
+
+#[test]
+fn averaged_rows_and_several_rates() {
+    let dir = tmp("averaged");
+    // Through the firmware's logic: rows that average several conversions (conv_gaps).
+    let sim = Simulation::new(config(186, 20_000, None, None)).unwrap();
+    let path = dir.as_path().join("device.csv");
+    let file = std::fs::File::create(&path).unwrap();
+    rotacal::simulate::device::record(&sim, file, std::io::sink()).unwrap();
+    let text = std::fs::read_to_string(&path).unwrap();
+    assert!(text.contains("conv_gaps"));
+    agree("averaged rows", &path, &Options::default());
+    // Two rates in one file.
+    let mut cfg = config(187, 12_000, None, None);
+    cfg.table.rates_hz = Some(vec![0.25, 0.5]);
+    let path = write(dir.as_path(), "two-rates.csv", cfg);
+    agree("two rates", &path, &Options::default());
+}
+
+#[test]
+fn a_file_the_fast_reader_hands_back_gives_the_same_figures() {
+    let dir = tmp("quoted");
+    let path = write(dir.as_path(), "plain.csv", config(188, 20_000, None, None));
+    // The same file with one field quoted: read by the csv reader, in one part.
+    let text = std::fs::read_to_string(&path).unwrap();
+    let quoted = text.replacen("\nx,0,", "\n\"x\",0,", 1);
+    assert_ne!(quoted, text);
+    let qpath = dir.as_path().join("quoted.csv");
+    std::fs::write(&qpath, quoted).unwrap();
+    let opts = Options::default();
+    let a = stream::calibrate_file_holding(&path, &opts, 0).unwrap();
+    let b = stream::calibrate_file_holding(&qpath, &opts, 0).unwrap();
+    let (dv, du, _) = differences(&a, &b);
+    assert!(dv <= 1e-10 && du <= 1e-8, "values {dv:e}, U {du:e}");
+}
+
+/// Text the fast reader must read exactly as the csv reader does (or hand back).
+const TEXTS: &[&str] = &[
+    "condition,t_s,u,v,w,seq\nx,1e-3,+1.5,-0,1E3,18446744073709551615\nx,2,.5,5.,-1e-300,0\n\
+     y,0,1,2,3,1\nz,0,1,2,3,2\n",
+    "condition,t_s,u,v,w\r\nx,0.000001,1.0,2.0,3.0\r\n\r\n  \r\ny, 1 ,2,3,4\r\nz,2,3,4,5",
+    "# rate_hz=0.1\ncondition,t_s,u,v,w\nx,0,1,2,3\n# a comment\n,,,,\ny,0,1,2,3\nz,0,1,2,3\n",
+    "condition,t_s,u,v,w\nx,0,1,2,3\nx,-1,1,2,3\ny,0,1,2,3\nz,0,1,2,3\n",
+    "condition,t_s,u,v,w\nx,0,1,2,3\nx,1,1,2\ny,0,1,2,3\nz,0,1,2,3\n",
+    "condition,t_s,u,v,w\nx,0,1,2,3\nx,1,1,2,nan\ny,0,1,2,3\nz,0,1,2,3\n",
+    "condition,t_s,u,v,w\nx,0,1,2,3\ny,0,1.23456789012345678,2,3\nz,0,1,2,3\n",
+    "condition,t_s,u,v,w\nx,0,1,2,3\ny,0,\"1\",2,3\nz,0,1,2,3\n",
+    "condition,t_s,u,v,w\nx,0,1,2,3\nq,0,1,2,3\nz,0,1,2,3\n",
+    "condition,t_s,u,v,w\nx,0,1,2,3\ny,0,1,2,3\n",
+    "condition,t_s,u,v,w,rate_hz\nx,0,1,2,3,0.1\ny,0,1,2,3,0.1\nz,0,1,2,3,0.1\nx,0,1,2,3,0.2\n",
+    "condition,t_s,u,v,w\nx,0,12345678901234567890,2,3\ny,0,-0.000000000000001,2,3\nz,0,1,2,3\n",
+];
+
+#[test]
+fn the_fast_reader_reads_as_the_csv_reader_does() {
+    let dir = tmp("reader");
+    let corpus = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data");
+    let mut paths: Vec<PathBuf> = ["recording/good", "recording/bad", "malformed"]
+        .iter()
+        .filter_map(|d| std::fs::read_dir(corpus.join(d)).ok())
+        .flatten()
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .collect();
+    for (i, t) in TEXTS.iter().enumerate() {
+        let p = dir.as_path().join(format!("text{i}.csv"));
+        std::fs::write(&p, t).unwrap();
+        paths.push(p);
+    }
+    assert!(paths.len() > TEXTS.len() + 10, "the corpus was not found");
+    for p in &paths {
+        let fast = recording::read(p).map_err(|e| e.to_string());
+        let file = std::fs::File::open(p).unwrap();
+        let csv = recording::read_from(file, &p.display().to_string()).map_err(|e| e.to_string());
+        assert_eq!(fast, csv, "{}", p.display());
+    }
+}
