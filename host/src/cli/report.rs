@@ -16,8 +16,7 @@ pub struct Args {
 /// Run it.
 pub fn run(a: Args) -> anyhow::Result<()> {
     let opts: rotacal::calibrate::Options = a.options.into();
-    let rec = rotacal::recording::read_as(&a.file, opts.method)?;
-    let path = rotacal::report::write(&rec, &opts, &a.out)?;
+    let path = rotacal::report::write_file(&a.file, &opts, &a.out)?;
     rotacal::output::emit(&format!("wrote {}\n", path.display()))?;
     Ok(())
 }

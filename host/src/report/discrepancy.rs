@@ -166,21 +166,22 @@ fn series(a: &Analysis, gi: usize, fit: usize, label: &str) -> Option<Series> {
     let g = a.data.groups.get(gi)?;
     let f = a.fits.get(fit)?;
     let r = f.residuals.get(gi)?;
-    let model = [0, 1, 2].map(|j| g.y[j].iter().zip(&r[j]).map(|(y, e)| y - e).collect());
-    Some(Series {
-        title: format!("{} at {} Hz, {label}", g.condition.letter(), g.rate_hz),
-        stem: format!(
+    let mut s = Series::new(
+        format!("{} at {} Hz, {label}", g.condition.letter(), g.rate_hz),
+        format!(
             "{}_{}mhz_{label}",
             g.condition.letter(),
             (g.rate_hz * 1e3).round()
         ),
-        x: g.tau.clone(),
-        x_label: "time in condition (s)",
-        alpha: g.tau.iter().map(|t| g.omega() * t).collect(),
-        y: g.y.clone(),
-        model,
-        rotation: true,
-    })
+        "time in condition (s)",
+        true,
+    );
+    for (i, t) in g.tau.iter().enumerate() {
+        let y = [0, 1, 2].map(|j| g.y[j].get(i).copied().unwrap_or(f64::NAN));
+        let e = [0, 1, 2].map(|j| r[j].get(i).copied().unwrap_or(f64::NAN));
+        s.add(*t, g.omega() * t, y, [0, 1, 2].map(|j| y[j] - e[j]));
+    }
+    Some(s)
 }
 
 /// Write `dir/discrepancy.md` and its plots; returns the Markdown's path.
@@ -217,11 +218,7 @@ pub fn write(a: &Analysis, dir: &Path, units: &str) -> Result<PathBuf, ReportErr
             };
             let res = dir.join(format!("residuals_{}.svg", s.stem));
             report::plot_residuals(&s, &res, units)?;
-            let amps: Vec<Vec<f64>> = (0..3)
-                .map(|ch| {
-                    crate::fit::harmonics::harmonic_amplitudes(&s.alpha, &report::residuals(&s, ch))
-                })
-                .collect();
+            let amps = s.amplitudes();
             let spec = dir.join(format!("spectrum_{}.svg", s.stem));
             report::plot_spectrum(&s, &amps, &spec, units)?;
             let name = |p: &Path| {

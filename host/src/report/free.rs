@@ -1,7 +1,7 @@
 //! Method free in the report: the still intervals over the readings' magnitude, the fitted
 //! gravity directions on the sphere, each pose's residual, and their tables.
 
-use super::{chart, decimate, err, legend, range, ReportError, COLOURS};
+use super::{chart, err, legend, range, Envelope, ReportError, COLOURS};
 use crate::calibrate::free::Residual;
 use crate::calibrate::json::{DetectionJson, FreeJson, IntervalJson};
 use crate::calibrate::still::Verdict;
@@ -102,13 +102,16 @@ fn plot_magnitude(
             Rectangle::new([(x + 2, y - 5), (x + 18, y + 5)], colour.mix(0.25).filled())
         });
     }
-    let step = decimate(t.x.len());
+    // Each pixel column's range of |y|, joined: the envelope of a long record.
+    let mut env = Envelope::default();
+    let t0 = t.x.first().copied().unwrap_or(0.0);
+    for (x, m) in t.x.iter().zip(&t.magnitude) {
+        env.add(x - t0, *m);
+    }
     let line = COLOURS[0];
     c.draw_series(LineSeries::new(
-        t.x.iter()
-            .copied()
-            .zip(t.magnitude.iter().copied())
-            .step_by(step),
+        env.points()
+            .flat_map(|(x, lo, hi)| [(x + t0, lo), (x + t0, hi)]),
         line.stroke_width(1),
     ))
     .map_err(err(path))?

@@ -18,15 +18,17 @@ mod free;
 
 use crate::calibrate::json::{CalibrationJson, FitJson, Quantity, RateJson};
 use crate::calibrate::{self, calibrate, CalibrateError, Options, CLOCK};
-use crate::fit::harmonics::{harmonic_amplitudes, HARMONICS};
-use crate::recording::{Group, Method, Recording};
+use crate::fit::harmonics::{HarmonicSums, HARMONICS};
+use crate::recording::{Group, Method, Recording, Scanned};
 use plotters::prelude::*;
 use rotacal_shared::{PhaseStep, Ticks};
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
-/// Most points drawn per series (the data are decimated evenly beyond that).
-const MAX_POINTS: usize = 3000;
+/// Most bins (pixel columns) a plotted series is reduced to: each keeps the smallest and
+/// the largest value of its rows, so a long record is drawn as its envelope, spikes
+/// included, in a file of fixed size.
+const MAX_BINS: usize = 900;
 
 /// What went wrong.
 #[derive(Debug, thiserror::Error)]
@@ -34,22 +36,158 @@ pub enum ReportError {
     /// The calibration failed (the message names file and line).
     #[error(transparent)]
     Calibrate(#[from] CalibrateError),
+    /// Reading the file failed.
+    #[error(transparent)]
+    Read(#[from] crate::recording::RecordingError),
     /// Writing failed.
     #[error("{0}")]
     Write(String),
 }
 
-/// One group's data, model and residuals.
+impl From<calibrate::stream::FileError> for ReportError {
+    fn from(e: calibrate::stream::FileError) -> Self {
+        match e {
+            calibrate::stream::FileError::Read(e) => ReportError::Read(e),
+            calibrate::stream::FileError::Calibrate(e) => ReportError::Calibrate(e),
+        }
+    }
+}
+
+/// One bin of an [`Envelope`]: its rows, the sum of their x, their least and greatest y.
+#[derive(Clone, Copy, Debug)]
+struct Bin {
+    n: usize,
+    x_sum: f64,
+    lo: f64,
+    hi: f64,
+}
+
+impl Bin {
+    fn join(a: Option<Bin>, b: Option<Bin>) -> Option<Bin> {
+        match (a, b) {
+            (Some(a), Some(b)) => Some(Bin {
+                n: a.n + b.n,
+                x_sum: a.x_sum + b.x_sum,
+                lo: a.lo.min(b.lo),
+                hi: a.hi.max(b.hi),
+            }),
+            (a, b) => a.or(b),
+        }
+    }
+}
+
+/// A series of (x ≥ 0, y) reduced as it comes to at most [`MAX_BINS`] bins of x: when an x
+/// lands past the last bin, the bins merge in pairs and their width doubles.
+#[derive(Clone, Debug)]
+pub(crate) struct Envelope {
+    width: f64,
+    bins: Vec<Option<Bin>>,
+}
+
+impl Default for Envelope {
+    fn default() -> Self {
+        Envelope {
+            width: 1e-6,
+            bins: vec![None; MAX_BINS],
+        }
+    }
+}
+
+impl Envelope {
+    pub(crate) fn add(&mut self, x: f64, y: f64) {
+        if !(x.is_finite() && y.is_finite()) {
+            return;
+        }
+        let x = x.max(0.0);
+        while (x / self.width) as usize >= MAX_BINS {
+            let at = |j: usize| self.bins.get(j).copied().flatten();
+            let merged: Vec<Option<Bin>> = (0..MAX_BINS)
+                .map(|i| {
+                    if 2 * i + 1 < MAX_BINS {
+                        Bin::join(at(2 * i), at(2 * i + 1))
+                    } else {
+                        None
+                    }
+                })
+                .collect();
+            self.bins = merged;
+            self.width *= 2.0;
+        }
+        let i = (x / self.width) as usize;
+        if let Some(slot) = self.bins.get_mut(i) {
+            let one = Bin {
+                n: 1,
+                x_sum: x,
+                lo: y,
+                hi: y,
+            };
+            *slot = Bin::join(*slot, Some(one));
+        }
+    }
+
+    /// Each bin's mean x, least and greatest y, in order of x.
+    pub(crate) fn points(&self) -> impl Iterator<Item = (f64, f64, f64)> + '_ {
+        self.bins
+            .iter()
+            .flatten()
+            .map(|b| (b.x_sum / b.n as f64, b.lo, b.hi))
+    }
+
+    fn values(&self) -> impl Iterator<Item = f64> + '_ {
+        self.points().flat_map(|(_, lo, hi)| [lo, hi])
+    }
+}
+
+/// One group's data, model and residuals, as envelopes, and its residuals' harmonic sums.
 pub(crate) struct Series {
     pub(crate) title: String,
     pub(crate) stem: String,
-    /// Time (s from the group's first row) or angle (deg).
-    pub(crate) x: Vec<f64>,
     pub(crate) x_label: &'static str,
-    pub(crate) alpha: Vec<f64>,
-    pub(crate) y: [Vec<f64>; 3],
-    pub(crate) model: [Vec<f64>; 3],
     pub(crate) rotation: bool,
+    data: [Envelope; 3],
+    model: [Envelope; 3],
+    resid: [Envelope; 3],
+    harmonics: [HarmonicSums; 3],
+    /// The x range of the rows.
+    x_range: (f64, f64),
+}
+
+impl Series {
+    pub(crate) fn new(title: String, stem: String, x_label: &'static str, rotation: bool) -> Self {
+        Series {
+            title,
+            stem,
+            x_label,
+            rotation,
+            data: Default::default(),
+            model: Default::default(),
+            resid: Default::default(),
+            harmonics: Default::default(),
+            x_range: (f64::INFINITY, f64::NEG_INFINITY),
+        }
+    }
+
+    /// A row at `x` (s or deg) and table angle `alpha` (rad): its readings and the model's.
+    pub(crate) fn add(&mut self, x: f64, alpha: f64, y: [f64; 3], model: [f64; 3]) {
+        self.x_range = (self.x_range.0.min(x), self.x_range.1.max(x));
+        for ch in 0..3 {
+            let r = y[ch] - model[ch];
+            self.data[ch].add(x, y[ch]);
+            self.model[ch].add(x, model[ch]);
+            self.resid[ch].add(x, r);
+            if self.rotation {
+                self.harmonics[ch].add(alpha, r);
+            }
+        }
+    }
+
+    /// The residual amplitude at each harmonic of ω, per channel.
+    pub(crate) fn amplitudes(&self) -> Vec<Vec<f64>> {
+        self.harmonics
+            .iter()
+            .map(HarmonicSums::amplitudes)
+            .collect()
+    }
 }
 
 fn coef(fits: &[FitJson], cond: char, ch: &str) -> Option<[f64; 3]> {
@@ -58,12 +196,17 @@ fn coef(fits: &[FitJson], cond: char, ch: &str) -> Option<[f64; 3]> {
         .map(|f| [f.a, f.b, f.c])
 }
 
-fn series(rec: &Recording, g: &Group, entry: &RateJson) -> Result<Series, ReportError> {
-    let cond = g.condition.letter();
-    let coefs = ["u", "v", "w"].map(|ch| coef(&entry.fits, cond, ch));
-    let (x, alpha, x_label, rotation) = match rec.method {
-        Method::Rotation => {
-            let s = calibrate::samples(rec, g)?;
+/// How a group's rows become points: the model's coefficients and, for rotation, the
+/// rate its angle turns at.
+struct GroupPlot {
+    coefs: [[f64; 3]; 3],
+    step: Option<PhaseStep>,
+}
+
+impl GroupPlot {
+    fn new(cond: char, entry: &RateJson, rotation: bool) -> Result<Self, ReportError> {
+        let coefs = ["u", "v", "w"].map(|ch| coef(&entry.fits, cond, ch).unwrap_or([f64::NAN; 3]));
+        let step = if rotation {
             let rate = entry
                 .fits
                 .iter()
@@ -71,76 +214,81 @@ fn series(rec: &Recording, g: &Group, entry: &RateJson) -> Result<Series, Report
                 .and_then(|f| f.rate_hz_fitted)
                 .or(entry.rate_hz)
                 .unwrap_or(0.0);
-            let step = PhaseStep::from_hz(rate, CLOCK)
-                .ok_or_else(|| ReportError::Write(format!("rate {rate} Hz unusable")))?;
-            let hz = f64::from(CLOCK.hz());
-            // An average is drawn at the mean instant of its conversions.
-            let mid = |ap: &rotacal_shared::Aperture| {
-                let n = ap.len().max(1) as u64;
-                Ticks(ap.ticks().map(|t| t.0).sum::<u64>() / n)
-            };
-            (
-                s.iter().map(|(ap, _)| mid(ap).0 as f64 / hz).collect(),
-                s.iter()
-                    .map(|(ap, _)| step.phase_at(mid(ap)).radians())
-                    .collect(),
-                "time from the condition's first sample (s)",
-                true,
+            Some(
+                PhaseStep::from_hz(rate, CLOCK)
+                    .ok_or_else(|| ReportError::Write(format!("rate {rate} Hz unusable")))?,
             )
-        }
+        } else {
+            None
+        };
+        Ok(GroupPlot { coefs, step })
+    }
+
+    /// The x, angle and model of a row: a rotation row by its conversions (an average is
+    /// drawn at their mean instant), a static one by its table angle (deg).
+    fn point(&self, ap: Option<&rotacal_shared::Aperture>, angle_deg: f64) -> (f64, f64, [f64; 3]) {
+        let (x, alpha) = match (self.step, ap) {
+            (Some(step), Some(ap)) => {
+                let n = ap.len().max(1) as u64;
+                let mid = Ticks(ap.ticks().map(|t| t.0).sum::<u64>() / n);
+                (
+                    mid.0 as f64 / f64::from(CLOCK.hz()),
+                    step.phase_at(mid).radians(),
+                )
+            }
+            _ => (angle_deg, angle_deg.to_radians()),
+        };
+        let model = self
+            .coefs
+            .map(|[a, b, c]| a * alpha.sin() + b * alpha.cos() + c);
+        (x, alpha, model)
+    }
+}
+
+/// The title and file stem of a group's plots.
+fn names(cond: char, rate_hz: Option<f64>) -> (String, String) {
+    let rate = rate_hz.map(|r| format!(" at {r} Hz")).unwrap_or_default();
+    let stem = match rate_hz {
+        Some(r) => format!("{cond}_{}mhz", (r * 1000.0).round()),
+        None => cond.to_string(),
+    };
+    (format!("condition {cond}{rate}"), stem)
+}
+
+fn x_label(rotation: bool) -> &'static str {
+    if rotation {
+        "time from the condition's first sample (s)"
+    } else {
+        "table angle α (deg)"
+    }
+}
+
+fn series(rec: &Recording, g: &Group, entry: &RateJson) -> Result<Series, ReportError> {
+    let cond = g.condition.letter();
+    let rotation = match rec.method {
+        Method::Rotation => true,
         Method::Free => {
             return Err(ReportError::Write(
                 "method free has no per-condition fits to plot".into(),
             ))
         }
-        Method::Static => (
-            g.angle_deg.clone(),
-            g.angle_deg
-                .iter()
-                .map(|a| a.to_radians())
-                .collect::<Vec<_>>(),
-            "table angle α (deg)",
-            false,
-        ),
+        Method::Static => false,
     };
-    let y = [g.u.clone(), g.v.clone(), g.w.clone()];
-    let model = [0, 1, 2].map(|ch| {
-        let [a, b, c] = coefs[ch].unwrap_or([f64::NAN; 3]);
-        alpha
-            .iter()
-            .map(|t: &f64| a * t.sin() + b * t.cos() + c)
-            .collect()
-    });
-    let rate = entry
-        .rate_hz
-        .map(|r| format!(" at {r} Hz"))
-        .unwrap_or_default();
-    let stem = match entry.rate_hz {
-        Some(r) => format!("{cond}_{}mhz", (r * 1000.0).round()),
-        None => cond.to_string(),
+    let plot = GroupPlot::new(cond, entry, rotation)?;
+    let (title, stem) = names(cond, entry.rate_hz);
+    let mut s = Series::new(title, stem, x_label(rotation), rotation);
+    let samples = if rotation {
+        calibrate::samples(rec, g)?
+    } else {
+        Vec::new()
     };
-    Ok(Series {
-        title: format!("condition {cond}{rate}"),
-        stem,
-        x,
-        x_label,
-        alpha,
-        y,
-        model,
-        rotation,
-    })
-}
-
-pub(crate) fn residuals(s: &Series, ch: usize) -> Vec<f64> {
-    s.y[ch]
-        .iter()
-        .zip(&s.model[ch])
-        .map(|(y, m)| y - m)
-        .collect()
-}
-
-fn decimate(n: usize) -> usize {
-    n.div_ceil(MAX_POINTS).max(1)
+    for i in 0..g.len() {
+        let ap = samples.get(i).map(|(ap, _)| ap);
+        let angle = g.angle_deg.get(i).copied().unwrap_or(f64::NAN);
+        let (x, alpha, model) = plot.point(ap, angle);
+        s.add(x, alpha, [g.u[i], g.v[i], g.w[i]], model);
+    }
+    Ok(s)
 }
 
 fn range(vals: impl Iterator<Item = f64>) -> (f64, f64) {
@@ -208,12 +356,21 @@ fn legend<'a, 'b: 'a>(c: &mut Chart<'a, 'b>, path: &Path) -> Result<(), ReportEr
         .map_err(err(path))
 }
 
-/// Raw data (points) and fitted sines (lines), three channels.
+/// An envelope's bins as marks: a bar from each bin's least to its greatest value (a dot
+/// for a bin of one value).
+fn marks(e: &Envelope, c: RGBColor) -> Vec<PathElement<(f64, f64)>> {
+    e.points()
+        .map(|(x, lo, hi)| PathElement::new(vec![(x, lo), (x, hi)], c.stroke_width(2)))
+        .collect()
+}
+
+/// Raw data (each pixel column's range) and the fitted sines (a line through each
+/// column's range), three channels.
 fn plot_fit(s: &Series, path: &Path, units: &str) -> Result<(), ReportError> {
     let root = SVGBackend::new(path, (900, 520)).into_drawing_area();
     root.fill(&WHITE).map_err(err(path))?;
-    let (x0, x1) = range(s.x.iter().copied());
-    let (y0, y1) = range(s.y.iter().flatten().copied());
+    let (x0, x1) = range([s.x_range.0, s.x_range.1].into_iter());
+    let (y0, y1) = range(s.data.iter().flat_map(Envelope::values));
     let mut chart = chart(
         &root,
         path,
@@ -224,30 +381,19 @@ fn plot_fit(s: &Series, path: &Path, units: &str) -> Result<(), ReportError> {
         s.x_label,
         units,
     )?;
-    let step = decimate(s.x.len());
     for ch in 0..3 {
         let c = COLOURS[ch];
         chart
-            .draw_series(
-                s.x.iter()
-                    .zip(&s.y[ch])
-                    .step_by(step)
-                    .map(|(x, y)| Circle::new((*x, *y), 1, c.filled())),
-            )
+            .draw_series(marks(&s.data[ch], c))
             .map_err(err(path))?
             .label(format!("{} data", CHANNELS[ch]))
             .legend(move |(x, y)| Circle::new((x + 10, y), 3, c.filled()));
-        let mut line: Vec<(f64, f64)> =
-            s.x.iter()
-                .copied()
-                .zip(s.model[ch].iter().copied())
-                .collect();
-        line.sort_by(|a, b| a.0.total_cmp(&b.0));
+        let line: Vec<(f64, f64)> = s.model[ch]
+            .points()
+            .flat_map(|(x, lo, hi)| [(x, lo), (x, hi)])
+            .collect();
         chart
-            .draw_series(LineSeries::new(
-                line.into_iter().step_by(step),
-                c.stroke_width(1),
-            ))
+            .draw_series(LineSeries::new(line, c.stroke_width(1)))
             .map_err(err(path))?
             .label(format!("{} fit", CHANNELS[ch]))
             .legend(move |(x, y)| PathElement::new([(x, y), (x + 20, y)], c));
@@ -256,13 +402,12 @@ fn plot_fit(s: &Series, path: &Path, units: &str) -> Result<(), ReportError> {
     root.present().map_err(err(path))
 }
 
-/// Residuals against time or angle, three channels.
+/// Residuals against time or angle (each pixel column's range), three channels.
 pub(crate) fn plot_residuals(s: &Series, path: &Path, units: &str) -> Result<(), ReportError> {
-    let r: Vec<Vec<f64>> = (0..3).map(|ch| residuals(s, ch)).collect();
     let root = SVGBackend::new(path, (900, 420)).into_drawing_area();
     root.fill(&WHITE).map_err(err(path))?;
-    let (x0, x1) = range(s.x.iter().copied());
-    let (y0, y1) = range(r.iter().flatten().copied());
+    let (x0, x1) = range([s.x_range.0, s.x_range.1].into_iter());
+    let (y0, y1) = range(s.resid.iter().flat_map(Envelope::values));
     let mut chart = chart(
         &root,
         path,
@@ -273,16 +418,10 @@ pub(crate) fn plot_residuals(s: &Series, path: &Path, units: &str) -> Result<(),
         s.x_label,
         &format!("data − fit ({units})"),
     )?;
-    let step = decimate(s.x.len());
-    for (ch, rc) in r.iter().enumerate() {
+    for (ch, e) in s.resid.iter().enumerate() {
         let c = COLOURS[ch];
         chart
-            .draw_series(
-                s.x.iter()
-                    .zip(rc)
-                    .step_by(step)
-                    .map(|(x, y)| Circle::new((*x, *y), 1, c.filled())),
-            )
+            .draw_series(marks(e, c))
             .map_err(err(path))?
             .label(CHANNELS[ch])
             .legend(move |(x, y)| Circle::new((x + 10, y), 3, c.filled()));
@@ -418,16 +557,167 @@ fn q(x: &Quantity, unit: &str) -> String {
 /// Write the report; returns the Markdown file's path.
 pub fn write(rec: &Recording, opts: &Options, dir: &Path) -> Result<PathBuf, ReportError> {
     let cal = calibrate(rec, opts)?;
+    let mut groups = |entry: &RateJson| -> Result<Vec<Series>, ReportError> {
+        // Method free fits no sines: its groups (if any) were searched for still poses.
+        if rec.method == Method::Free || entry.free.is_some() {
+            return Ok(Vec::new());
+        }
+        // Single-rate and static files have no rate column: every group belongs to the entry.
+        rec.groups
+            .iter()
+            .filter(|g| g.rate_hz.is_none() || g.rate_hz == entry.rate_hz)
+            .map(|g| series(rec, g, entry))
+            .collect()
+    };
+    let mut free = |f: &calibrate::json::FreeJson, units: &str, md: &mut String| {
+        free::write(rec, f, units, dir, md)
+    };
+    markdown(&cal, &rec.source, rec.rows(), dir, &mut groups, &mut free)
+}
+
+/// [`write`] for the recording at `path`: a rotation file streams (calibrated by
+/// [`calibrate::stream`], its plots reduced to pixel columns as the rows come), in
+/// memory that does not grow with its length; any other is read whole.
+pub fn write_file(path: &Path, opts: &Options, dir: &Path) -> Result<PathBuf, ReportError> {
+    let rotation = match opts.method {
+        Some(Method::Static | Method::Free) => false,
+        _ => crate::recording::Parts::open(path, opts.method)?
+            .is_some_and(|p| p.method() == Method::Rotation),
+    };
+    if !rotation {
+        let rec = crate::recording::read_as(path, opts.method)?;
+        return write(&rec, opts, dir);
+    }
+    let cal = calibrate::stream::calibrate_file(path, opts)?;
+    let (mut by_entry, rows) = streamed_series(path, opts, &cal)?;
+    let mut groups = |entry: &RateJson| -> Result<Vec<Series>, ReportError> {
+        let i = cal.by_rate.iter().position(|e| std::ptr::eq(e, entry));
+        Ok(i.and_then(|i| by_entry.get_mut(i))
+            .map(std::mem::take)
+            .unwrap_or_default())
+    };
+    let mut free = |_: &calibrate::json::FreeJson, _: &str, _: &mut String| Ok(());
+    markdown(
+        &cal,
+        &path.display().to_string(),
+        rows,
+        dir,
+        &mut groups,
+        &mut free,
+    )
+}
+
+/// Each rate entry's series, from one pass over a rotation file; and the rows read.
+fn streamed_series(
+    path: &Path,
+    opts: &Options,
+    cal: &CalibrationJson,
+) -> Result<(Vec<Vec<Series>>, usize), ReportError> {
+    /// A group's entry, its series' place among the entry's, how its points are made.
+    struct Open {
+        entry: usize,
+        slot: usize,
+        plot: GroupPlot,
+        t0: Option<f64>,
+    }
+    let mut out: Vec<Vec<Series>> = cal.by_rate.iter().map(|_| Vec::new()).collect();
+    let mut open: Vec<Option<Open>> = Vec::new();
+    let mut scale = 1.0;
+    let mut rows = 0usize;
+    let mut problem: Option<ReportError> = None;
+    crate::recording::scan(
+        path,
+        opts.method,
+        crate::recording::Parse::Fit,
+        |ev| match ev {
+            Scanned::Start { meta, .. } => {
+                // A second reading (the csv reader's) starts afresh.
+                out.iter_mut().for_each(Vec::clear);
+                open.clear();
+                rows = 0;
+                scale = f64::from(CLOCK.hz())
+                    / f64::from(crate::recording::tick_hz(&meta).unwrap_or(CLOCK.hz()));
+            }
+            Scanned::Group {
+                condition, rate_hz, ..
+            } => {
+                let entry = cal
+                    .by_rate
+                    .iter()
+                    .position(|e| rate_hz.is_none() || rate_hz == e.rate_hz);
+                let made = entry.and_then(|i| {
+                    let e = cal.by_rate.get(i)?;
+                    let cond = condition.letter();
+                    match GroupPlot::new(cond, e, true) {
+                        Ok(plot) => {
+                            let (title, stem) = names(cond, e.rate_hz);
+                            let list = out.get_mut(i)?;
+                            list.push(Series::new(title, stem, x_label(true), true));
+                            Some(Open {
+                                entry: i,
+                                slot: list.len() - 1,
+                                plot,
+                                t0: None,
+                            })
+                        }
+                        Err(e) => {
+                            problem = Some(e);
+                            None
+                        }
+                    }
+                });
+                open.push(made);
+            }
+            Scanned::Row {
+                group,
+                t_s: Some(t),
+                y,
+                conv_gaps,
+                ..
+            } => {
+                rows += 1;
+                let Some(Some(g)) = open.get_mut(group) else {
+                    return;
+                };
+                let t0 = *g.t0.get_or_insert(t);
+                let Ok(ap) =
+                    crate::fit::moments::row_aperture(t, t0, conv_gaps.as_ref(), scale, CLOCK)
+                else {
+                    return;
+                };
+                let (x, alpha, model) = g.plot.point(Some(&ap), f64::NAN);
+                if let Some(s) = out.get_mut(g.entry).and_then(|v| v.get_mut(g.slot)) {
+                    s.add(x, alpha, y, model);
+                }
+            }
+            Scanned::Row { .. } => rows += 1,
+        },
+    )?;
+    match problem {
+        Some(e) => Err(e),
+        None => Ok((out, rows)),
+    }
+}
+
+/// The report's Markdown and plots, from a calibration and each rate entry's series.
+#[allow(clippy::type_complexity)]
+fn markdown(
+    cal: &CalibrationJson,
+    source: &str,
+    rows: usize,
+    dir: &Path,
+    groups: &mut dyn FnMut(&RateJson) -> Result<Vec<Series>, ReportError>,
+    free: &mut dyn FnMut(&calibrate::json::FreeJson, &str, &mut String) -> Result<(), ReportError>,
+) -> Result<PathBuf, ReportError> {
     std::fs::create_dir_all(dir).map_err(err(dir))?;
     let units = cal.units.clone();
     let mut md = String::new();
-    let _ = writeln!(md, "# rotacal report: {}\n", rec.source);
+    let _ = writeln!(md, "# rotacal report: {source}\n");
     let _ = writeln!(
         md,
-        "Method {}, g_loc = {} m/s², units {units}, {} rows. Uncertainties are expanded, U (95 %, coverage factor k as stated).\n",
+        "Method {}, g_loc = {} m/s², units {units}, {rows} rows. Uncertainties are expanded, U (95 %, coverage factor k as stated).\n",
         cal.method,
         cal.g_loc,
-        rec.rows()
     );
     let su = format!("{units}/(m/s²)");
     for entry in &cal.by_rate {
@@ -546,7 +836,7 @@ pub fn write(rec: &Recording, opts: &Options, dir: &Path) -> Result<PathBuf, Rep
             }
         }
         if let Some(f) = &entry.free {
-            free::write(rec, f, &units, dir, &mut md)?;
+            free(f, &units, &mut md)?;
         }
         if !entry.fits.is_empty() {
             let _ = writeln!(md, "\nFits (A sin α + B cos α + C, {units}):\n\n| condition | channel | A ± se | B ± se | C ± se | rms residual | n |\n| --- | --- | --- | --- | --- | --- | --- |");
@@ -559,18 +849,7 @@ pub fn write(rec: &Recording, opts: &Options, dir: &Path) -> Result<PathBuf, Rep
             );
         }
         let _ = writeln!(md);
-        // Method free fits no sines: its groups (if any) were searched for still poses.
-        let groups = if rec.method == Method::Free || entry.free.is_some() {
-            &[][..]
-        } else {
-            &rec.groups[..]
-        };
-        // Single-rate and static files have no rate column: every group belongs to the entry.
-        for g in groups
-            .iter()
-            .filter(|g| g.rate_hz.is_none() || g.rate_hz == entry.rate_hz)
-        {
-            let s = series(rec, g, entry)?;
+        for s in groups(entry)? {
             let fit = dir.join(format!("fit_{}.svg", s.stem));
             let res = dir.join(format!("residuals_{}.svg", s.stem));
             plot_fit(&s, &fit, &units)?;
@@ -582,9 +861,7 @@ pub fn write(rec: &Recording, opts: &Options, dir: &Path) -> Result<PathBuf, Rep
                 stem = s.stem
             );
             if s.rotation {
-                let amps: Vec<Vec<f64>> = (0..3)
-                    .map(|ch| harmonic_amplitudes(&s.alpha, &residuals(&s, ch)))
-                    .collect();
+                let amps = s.amplitudes();
                 let spec = dir.join(format!("spectrum_{}.svg", s.stem));
                 plot_spectrum(&s, &amps, &spec, &units)?;
                 let _ = writeln!(md, "\n![residual spectrum](spectrum_{}.svg)\n", s.stem);
@@ -602,7 +879,7 @@ pub fn write(rec: &Recording, opts: &Options, dir: &Path) -> Result<PathBuf, Rep
         }
     }
     if cal.by_rate.len() > 1 {
-        plot_rates(&cal, &dir.join("rates.svg"))?;
+        plot_rates(cal, &dir.join("rates.svg"))?;
         let _ = writeln!(
             md,
             "## Properties against rate\n\n![properties against rate](rates.svg)\n"

@@ -353,7 +353,7 @@ struct PassOne<'a> {
 impl PassOne<'_> {
     fn take(&mut self, ev: Scanned) {
         match ev {
-            Scanned::Start { meta, method } => {
+            Scanned::Start { meta, method, .. } => {
                 // The start of a reading (a second one starts afresh).
                 self.groups.clear();
                 self.method = self.opts.method.unwrap_or(method);
@@ -379,6 +379,7 @@ impl PassOne<'_> {
                 t_s,
                 y,
                 conv_gaps,
+                ..
             } => {
                 if self.method != Method::Rotation {
                     return;
@@ -774,6 +775,7 @@ impl Engine<'_> {
                 t_s: Some(t),
                 y,
                 conv_gaps,
+                ..
             } if wanted.contains(&group) => {
                 if let (Some(t0), Some(r)) = (t0s.get_mut(group), rows.get_mut(group)) {
                     *r += 1;

@@ -8,7 +8,7 @@
 
 use crate::calibrate::correction::{Correction, Frame};
 use crate::calibrate::json::CorrectionJson;
-use crate::recording::{Columns, Metadata, Recording, Row, Writer};
+use crate::recording::{Columns, Metadata, Recording, Row, Scanned, Writer};
 use std::fmt::Write as _;
 use std::io::Write;
 use std::path::Path;
@@ -223,15 +223,19 @@ pub struct Job<'a> {
 /// `# calibration=` line) in the calibration's units: anything else would be corrected into
 /// nonsense.
 pub fn check_units(rec: &Recording, job: &Job<'_>) -> Result<(), ApplyError> {
-    if let Some(cal) = rec.meta.other.get("calibration") {
+    check_meta(&rec.meta, &rec.source, job)
+}
+
+fn check_meta(meta: &Metadata, source: &str, job: &Job<'_>) -> Result<(), ApplyError> {
+    if let Some(cal) = meta.other.get("calibration") {
         return Err(bad(
-            &rec.source,
+            source,
             format!("already corrected (by {cal}): apply a calibration to raw readings"),
         ));
     }
-    match &rec.meta.units {
+    match &meta.units {
         Some(u) if u.trim() != job.units_in.trim() => Err(bad(
-            &rec.source,
+            source,
             format!(
                 "units '{u}', but the calibration {} is for readings in '{}'",
                 job.cal_name, job.units_in
@@ -241,45 +245,172 @@ pub fn check_units(rec: &Recording, job: &Job<'_>) -> Result<(), ApplyError> {
     }
 }
 
+/// |y| − g and |a| − g of one pose's rows, gathered one at a time (Welford's mean and
+/// sum of squares for |a|).
+struct PoseTally {
+    name: String,
+    n: usize,
+    before: f64,
+    after: f64,
+    m2: f64,
+}
+
+/// Corrects rows one at a time into a writer, keeping only the summary's sums: memory
+/// does not grow with the recording.
+struct Corrector<'a, W: Write> {
+    job: &'a Job<'a>,
+    w: Writer<W>,
+    g: Option<f64>,
+    /// Static conditions: tally each (condition, angle) as a pose.
+    stat: bool,
+    ss_before: f64,
+    ss_after: f64,
+    rows: usize,
+    poses: Vec<PoseTally>,
+}
+
+/// One row to correct.
+struct RowIn<'r> {
+    condition: rotacal_shared::Condition,
+    y: [f64; 3],
+    t_s: Option<f64>,
+    angle_deg: Option<f64>,
+    seq: Option<u64>,
+    temp_c: Option<f64>,
+    rate_hz: Option<f64>,
+    gravity: Option<[f64; 3]>,
+    pose: Option<&'r str>,
+}
+
+impl<'a, W: Write> Corrector<'a, W> {
+    /// The output's metadata from the input's, then its header with `cols` (the input's
+    /// columns, with uncertainties).
+    fn new(
+        meta_in: &Metadata,
+        method: crate::recording::Method,
+        job: &'a Job<'a>,
+        cols: Columns,
+        out: W,
+    ) -> Result<Self, ApplyError> {
+        let corr = job.correction;
+        let mut meta = meta_in.clone();
+        meta.units = Some("m/s^2".into());
+        meta.noise_sigma = None;
+        meta.g_loc = job.g_loc.or(meta.g_loc);
+        meta.other
+            .insert("frame".into(), corr.frame.as_str().into());
+        meta.other.insert(
+            "calibration".into(),
+            job.cal_name.replace(['\n', '\r'], " "),
+        );
+        meta.other
+            .insert("coverage_factor".into(), format!("{}", job.k));
+        meta.method = Some(method);
+        let w = Writer::new(out, &meta, &Columns { unc: true, ..cols })
+            .map_err(|e| bad(job.out_name, e.to_string()))?;
+        Ok(Corrector {
+            job,
+            w,
+            g: meta.g_loc,
+            stat: method == crate::recording::Method::Static,
+            ss_before: 0.0,
+            ss_after: 0.0,
+            rows: 0,
+            poses: Vec::new(),
+        })
+    }
+
+    fn row(&mut self, r: &RowIn<'_>) -> Result<(), ApplyError> {
+        let (a, u) = self.job.correction.apply(r.y);
+        let mut row = Row::new(r.condition, a[0], a[1], a[2]);
+        row.unc = Some(u);
+        row.t_s = r.t_s;
+        row.angle_deg = r.angle_deg;
+        row.seq = r.seq;
+        row.temp_c = r.temp_c;
+        row.rate_hz = r.rate_hz;
+        row.gravity = r.gravity;
+        row.pose = r.pose;
+        self.w
+            .write_row(&row)
+            .map_err(|e| bad(self.job.out_name, e.to_string()))?;
+        self.rows += 1;
+        let Some(g) = self.g else {
+            return Ok(());
+        };
+        let (b, c) = (norm(&r.y) - g, norm(&a) - g);
+        self.ss_before += b * b;
+        self.ss_after += c * c;
+        let key = match (r.gravity, r.pose) {
+            (Some(_), Some(name)) => Some(name.to_string()),
+            (Some(gdir), None) => Some(crate::calibrate::poses::direction_name(&gdir)),
+            (None, _) if self.stat => Some(format!(
+                "{} {}°",
+                r.condition.letter(),
+                r.angle_deg.unwrap_or(f64::NAN)
+            )),
+            _ => None,
+        };
+        if let Some(name) = key {
+            let i = match self.poses.iter().position(|p| p.name == name) {
+                Some(i) => i,
+                None => {
+                    self.poses.push(PoseTally {
+                        name,
+                        n: 0,
+                        before: 0.0,
+                        after: 0.0,
+                        m2: 0.0,
+                    });
+                    self.poses.len() - 1
+                }
+            };
+            if let Some(p) = self.poses.get_mut(i) {
+                p.n += 1;
+                let n = p.n as f64;
+                p.before += (b - p.before) / n;
+                let d = c - p.after;
+                p.after += d / n;
+                p.m2 += d * (c - p.after);
+            }
+        }
+        Ok(())
+    }
+
+    fn finish(mut self) -> Result<Summary, ApplyError> {
+        self.w
+            .flush()
+            .map_err(|e| bad(self.job.out_name, e.to_string()))?;
+        let (rows, g) = (self.rows, self.g);
+        let rms = |ss: f64| (rows > 0 && g.is_some()).then(|| (ss / rows as f64).sqrt());
+        Ok(Summary {
+            rows,
+            frame: self.job.correction.frame,
+            g_loc: g,
+            rms_before: rms(self.ss_before),
+            rms_after: rms(self.ss_after),
+            poses: self
+                .poses
+                .into_iter()
+                .map(|p| PoseNorm {
+                    std_after: if p.n > 1 {
+                        (p.m2 / (p.n - 1) as f64).sqrt()
+                    } else {
+                        f64::NAN
+                    },
+                    name: p.name,
+                    n: p.n,
+                    before: p.before,
+                    after: p.after,
+                })
+                .collect(),
+        })
+    }
+}
+
 /// Correct every row of `rec` and write the result to `out`.
 pub fn apply<W: Write>(rec: &Recording, job: &Job<'_>, out: W) -> Result<Summary, ApplyError> {
     check_units(rec, job)?;
-    let corr = job.correction;
-    let io = |e: std::io::Error| bad(job.out_name, e.to_string());
-    let mut meta: Metadata = rec.meta.clone();
-    meta.units = Some("m/s^2".into());
-    meta.noise_sigma = None;
-    meta.g_loc = job.g_loc.or(meta.g_loc);
-    meta.other
-        .insert("frame".into(), corr.frame.as_str().into());
-    meta.other.insert(
-        "calibration".into(),
-        job.cal_name.replace(['\n', '\r'], " "),
-    );
-    meta.other
-        .insert("coverage_factor".into(), format!("{}", job.k));
-    meta.method = Some(rec.method);
-    let g = meta.g_loc;
-    let mut ss_before = 0.0;
-    let mut ss_after = 0.0;
-    let mut rows = 0usize;
-    let mut poses: Vec<(String, Vec<f64>, Vec<f64>)> = Vec::new();
-    let mut tally = |pose: Option<String>, y: &[f64; 3], a: &[f64; 3]| {
-        if let Some(g) = g {
-            let (b, c) = (norm(y) - g, norm(a) - g);
-            ss_before += b * b;
-            ss_after += c * c;
-            if let Some(name) = pose {
-                match poses.iter_mut().find(|p| p.0 == name) {
-                    Some(p) => {
-                        p.1.push(b);
-                        p.2.push(c);
-                    }
-                    None => poses.push((name, vec![b], vec![c])),
-                }
-            }
-        }
-    };
     if let Some(o) = &rec.oriented {
         let cols = Columns {
             t_s: o.t_s.is_some(),
@@ -287,94 +418,55 @@ pub fn apply<W: Write>(rec: &Recording, job: &Job<'_>, out: W) -> Result<Summary
             temp_c: o.temp_c.is_some(),
             gravity: true,
             pose: o.pose.is_some(),
-            unc: true,
             ..Columns::default()
         };
-        let mut w = Writer::new(out, &meta, &cols).map_err(io)?;
+        let mut c = Corrector::new(&rec.meta, rec.method, job, cols, out)?;
         for (i, (y, gdir)) in o.y.iter().zip(&o.gravity).enumerate() {
-            let (a, u) = corr.apply(*y);
-            let mut row = Row::new(rotacal_shared::Condition::X, a[0], a[1], a[2]);
-            row.gravity = Some(*gdir);
-            row.unc = Some(u);
-            row.t_s = o.t_s.as_ref().and_then(|t| t.get(i).copied());
-            row.seq = o.seq.as_ref().and_then(|t| t.get(i).copied());
-            row.temp_c = o.temp_c.as_ref().and_then(|t| t.get(i).copied());
-            let name = o.pose.as_ref().and_then(|p| p.get(i)).cloned();
-            row.pose = name.as_deref();
-            w.write_row(&row).map_err(io)?;
-            let key = name.unwrap_or_else(|| crate::calibrate::poses::direction_name(gdir));
-            tally(Some(key), y, &a);
-            rows += 1;
+            c.row(&RowIn {
+                condition: rotacal_shared::Condition::X,
+                y: *y,
+                t_s: o.t_s.as_ref().and_then(|t| t.get(i).copied()),
+                angle_deg: None,
+                seq: o.seq.as_ref().and_then(|t| t.get(i).copied()),
+                temp_c: o.temp_c.as_ref().and_then(|t| t.get(i).copied()),
+                rate_hz: None,
+                gravity: Some(*gdir),
+                pose: o.pose.as_ref().and_then(|p| p.get(i)).map(String::as_str),
+            })?;
         }
-        w.flush().map_err(io)?;
-    } else {
-        let first = rec.groups.first();
-        let cols = Columns {
-            t_s: first.is_some_and(|g| !g.t_s.is_empty()),
-            angle_deg: first.is_some_and(|g| !g.angle_deg.is_empty()),
-            seq: first.is_some_and(|g| g.seq.is_some()),
-            temp_c: first.is_some_and(|g| g.temp_c.is_some()),
-            rate_hz: rec.groups.iter().any(|g| g.rate_hz.is_some()),
-            unc: true,
-            ..Columns::default()
-        };
-        let mut w = Writer::new(out, &meta, &cols).map_err(io)?;
-        let stat = rec.method == crate::recording::Method::Static;
-        for grp in &rec.groups {
-            for i in 0..grp.len() {
-                let y = [grp.u[i], grp.v[i], grp.w[i]];
-                let (a, u) = corr.apply(y);
-                let mut row = Row::new(grp.condition, a[0], a[1], a[2]);
-                row.unc = Some(u);
-                row.t_s = grp.t_s.get(i).copied().filter(|_| cols.t_s);
-                row.angle_deg = grp.angle_deg.get(i).copied().filter(|_| cols.angle_deg);
-                row.seq = grp.seq.as_ref().and_then(|s| s.get(i).copied());
-                row.temp_c = grp.temp_c.as_ref().and_then(|s| s.get(i).copied());
-                row.rate_hz = grp.rate_hz.filter(|_| cols.rate_hz);
-                w.write_row(&row).map_err(io)?;
-                let key = stat.then(|| {
-                    format!(
-                        "{} {}°",
-                        grp.condition.letter(),
-                        grp.angle_deg.get(i).copied().unwrap_or(f64::NAN)
-                    )
-                });
-                tally(key, &y, &a);
-                rows += 1;
-            }
-        }
-        w.flush().map_err(io)?;
+        return c.finish();
     }
-    let rms = |ss: f64| (rows > 0 && g.is_some()).then(|| (ss / rows as f64).sqrt());
-    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
-    Ok(Summary {
-        rows,
-        frame: corr.frame,
-        g_loc: g,
-        rms_before: rms(ss_before),
-        rms_after: rms(ss_after),
-        poses: poses
-            .into_iter()
-            .map(|(name, b, a)| {
-                let m = mean(&a);
-                let sd = if a.len() > 1 {
-                    (a.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (a.len() - 1) as f64).sqrt()
-                } else {
-                    f64::NAN
-                };
-                PoseNorm {
-                    name,
-                    n: a.len(),
-                    before: mean(&b),
-                    after: m,
-                    std_after: sd,
-                }
-            })
-            .collect(),
-    })
+    let first = rec.groups.first();
+    let cols = Columns {
+        t_s: first.is_some_and(|g| !g.t_s.is_empty()),
+        angle_deg: first.is_some_and(|g| !g.angle_deg.is_empty()),
+        seq: first.is_some_and(|g| g.seq.is_some()),
+        temp_c: first.is_some_and(|g| g.temp_c.is_some()),
+        rate_hz: rec.groups.iter().any(|g| g.rate_hz.is_some()),
+        ..Columns::default()
+    };
+    let mut c = Corrector::new(&rec.meta, rec.method, job, cols, out)?;
+    for grp in &rec.groups {
+        for i in 0..grp.len() {
+            c.row(&RowIn {
+                condition: grp.condition,
+                y: [grp.u[i], grp.v[i], grp.w[i]],
+                t_s: grp.t_s.get(i).copied().filter(|_| cols.t_s),
+                angle_deg: grp.angle_deg.get(i).copied().filter(|_| cols.angle_deg),
+                seq: grp.seq.as_ref().and_then(|s| s.get(i).copied()),
+                temp_c: grp.temp_c.as_ref().and_then(|s| s.get(i).copied()),
+                rate_hz: grp.rate_hz.filter(|_| cols.rate_hz),
+                gravity: None,
+                pose: None,
+            })?;
+        }
+    }
+    c.finish()
 }
 
-/// Read `cal` and `recording`, correct, write `out`.
+/// Read `cal`, correct `recording` into `out`. A file with conditions streams through,
+/// row by row in file order, in constant memory; a file of poses is read whole. The output
+/// is written beside `out` and renamed to it at the end: a failure leaves no file behind.
 pub fn run(
     cal: &Path,
     recording: &Path,
@@ -387,7 +479,6 @@ pub fn run(
         correction: corr,
         g_loc: g,
     } = load(cal, rate_hz, frame)?;
-    let rec = crate::recording::read(recording)?;
     let (out_name, cal_name) = (out.display().to_string(), cal.display().to_string());
     let job = Job {
         correction: &corr,
@@ -397,10 +488,98 @@ pub fn run(
         g_loc: g,
         out_name: &out_name,
     };
-    // Checked before the output is created: a refused input leaves no file behind.
-    check_units(&rec, &job)?;
-    let file = std::fs::File::create(out).map_err(|e| bad(&out_name, e.to_string()))?;
-    let s = apply(&rec, &job, file)?;
+    let partial = std::path::PathBuf::from(format!("{out_name}.partial"));
+    let source = recording.display().to_string();
+    let mut groups: Vec<(rotacal_shared::Condition, Option<f64>)> = Vec::new();
+    let mut rate_col = false;
+    let mut state: Result<Option<Corrector<'_, std::fs::File>>, ApplyError> = Ok(None);
+    let scanned = crate::recording::scan(recording, None, crate::recording::Parse::All, |ev| {
+        match ev {
+            Scanned::Start {
+                meta,
+                method,
+                columns,
+            } => {
+                // A second reading (the csv reader's, to name a problem) starts afresh.
+                groups.clear();
+                rate_col = columns.rate_hz;
+                state = check_meta(&meta, &source, &job).and_then(|()| {
+                    let file = std::fs::File::create(&partial)
+                        .map_err(|e| bad(&out_name, e.to_string()))?;
+                    let cols = Columns {
+                        t_s: columns.t_s,
+                        angle_deg: columns.angle_deg,
+                        seq: columns.seq,
+                        temp_c: columns.temp_c,
+                        rate_hz: columns.rate_hz,
+                        ..Columns::default()
+                    };
+                    Ok(Some(Corrector::new(&meta, method, &job, cols, file)?))
+                });
+            }
+            Scanned::Group {
+                condition, rate_hz, ..
+            } => groups.push((condition, rate_hz)),
+            Scanned::Row {
+                group,
+                t_s,
+                y,
+                angle_deg,
+                seq,
+                temp_c,
+                ..
+            } => {
+                let (Ok(Some(c)), Some((condition, rate))) = (state.as_mut(), groups.get(group))
+                else {
+                    return;
+                };
+                let row = RowIn {
+                    condition: *condition,
+                    y,
+                    t_s,
+                    angle_deg,
+                    seq,
+                    temp_c,
+                    rate_hz: rate.filter(|_| rate_col),
+                    gravity: None,
+                    pose: None,
+                };
+                if let Err(e) = c.row(&row) {
+                    state = Err(e);
+                }
+            }
+        }
+    });
+    let discard = || {
+        let _ = std::fs::remove_file(&partial); // nothing to keep of a failed run
+    };
+    let s = match (scanned, state) {
+        (Err(e), _) => {
+            discard();
+            return Err(e.into());
+        }
+        (Ok(Some(_)), Ok(Some(c))) => {
+            let s = c.finish().inspect_err(|_| discard())?;
+            std::fs::rename(&partial, out).map_err(|e| {
+                discard();
+                bad(&out_name, e.to_string())
+            })?;
+            s
+        }
+        (Ok(Some(_)), Err(e)) => {
+            discard();
+            return Err(e.into());
+        }
+        (Ok(_), _) => {
+            // Poses, or a free series: read whole.
+            discard();
+            let rec = crate::recording::read(recording)?;
+            // Checked before the output is created: a refused input leaves no file.
+            check_units(&rec, &job)?;
+            let file = std::fs::File::create(out).map_err(|e| bad(&out_name, e.to_string()))?;
+            apply(&rec, &job, file)?
+        }
+    };
     Ok((s.clone(), render(&s, &json.units_in)))
 }
 

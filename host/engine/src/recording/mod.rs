@@ -701,8 +701,8 @@ impl<R: Read> Read for FinalNewline<R> {
 /// Where the reader puts the rows of a file with conditions: kept as [`Group`]s in
 /// memory ([`read`]), or handed on one at a time ([`scan`]).
 trait GroupSink {
-    /// The file's metadata and method, once its header is read (before any row).
-    fn start(&mut self, _meta: &Metadata, _method: Method) {}
+    /// The file's metadata, method and columns, once its header is read (before any row).
+    fn start(&mut self, _meta: &Metadata, _method: Method, _cols: &ColumnIndex) {}
     /// A new group, at file line `line`.
     fn open(&mut self, condition: Condition, rate_hz: Option<f64>, cols: &ColumnIndex, line: u64);
     /// A row of group `group` (in order of first appearance), at file line `line`.
@@ -721,7 +721,7 @@ fn shrink(groups: &mut [Group]) {
 }
 
 impl GroupSink for Vec<Group> {
-    fn start(&mut self, _meta: &Metadata, _method: Method) {
+    fn start(&mut self, _meta: &Metadata, _method: Method, _cols: &ColumnIndex) {
         self.clear(); // a second reading starts afresh
     }
 
@@ -766,6 +766,9 @@ pub enum Scanned {
         meta: Box<Metadata>,
         /// The method (the file's, or the one it is read as).
         method: Method,
+        /// The known columns the file has (`rate_hz` only in a rotation file, where it
+        /// is read).
+        columns: Columns,
     },
     /// A new group: its condition, its `rate_hz` column (if the file has one) and the
     /// file line of its first row.
@@ -787,6 +790,13 @@ pub enum Scanned {
         y: [f64; 3],
         /// The conversions it averages, in the file's device ticks (`conv_gaps`).
         conv_gaps: Option<Aperture>,
+        /// Its `angle_deg`, `seq` and `temp_c`, when the file has them (and they were
+        /// read: [`Parse::All`]).
+        angle_deg: Option<f64>,
+        /// `seq`.
+        seq: Option<u64>,
+        /// `temp_c`.
+        temp_c: Option<f64>,
     },
 }
 
@@ -802,10 +812,21 @@ pub enum Parse {
 struct ScanSink<F>(F);
 
 impl<F: FnMut(Scanned)> GroupSink for ScanSink<F> {
-    fn start(&mut self, meta: &Metadata, method: Method) {
+    fn start(&mut self, meta: &Metadata, method: Method, cols: &ColumnIndex) {
         (self.0)(Scanned::Start {
             meta: Box::new(meta.clone()),
             method,
+            columns: Columns {
+                t_s: cols.t_s.is_some(),
+                angle_deg: cols.angle_deg.is_some(),
+                seq: cols.seq.is_some(),
+                temp_c: cols.temp_c.is_some(),
+                rate_hz: cols.rate_hz.is_some() && method == Method::Rotation,
+                gravity: cols.gravity.is_some(),
+                pose: cols.pose.is_some(),
+                unc: cols.unc.is_some(),
+                conv_gaps: cols.conv_gaps.is_some(),
+            },
         });
     }
 
@@ -823,6 +844,9 @@ impl<F: FnMut(Scanned)> GroupSink for ScanSink<F> {
             t_s: row.t_s,
             y: [row.u, row.v, row.w],
             conv_gaps: row.conv_gaps,
+            angle_deg: row.angle_deg,
+            seq: row.seq,
+            temp_c: row.temp_c,
         });
     }
 }
@@ -1371,7 +1395,7 @@ impl Parser<'_> {
         if conditions_only && (free || cols.gravity.is_some()) {
             return Ok(None);
         }
-        sink.start(&meta, method);
+        sink.start(&meta, method, &cols);
         let mut router = Router::new(method);
         let mut series = free.then(|| Series {
             t_s: Vec::new(),
@@ -1528,7 +1552,7 @@ impl Parser<'_> {
         if free || cols.gravity.is_some() {
             return Ok(if conditions_only { Some(None) } else { None });
         }
-        sink.start(&meta, method);
+        sink.start(&meta, method, &cols);
         let mut router = Router::new(method);
         let read = fast_rows(&mut reader, &cols, columns, line, |line, row| {
             router.route(row, line, &cols, sink).is_ok()
