@@ -1,19 +1,20 @@
-//! `rotacal calibrate` on a file: a rotation recording is read as a stream, in passes, and
-//! memory does not grow with its length (docs/streaming.md).
+//! `rotacal calibrate` on a file: a rotation recording is read in passes, on both cores,
+//! and memory does not grow with its length (docs/streaming.md).
 //!
-//! - **Pass 1** reads and checks every row (the reader of [`crate::recording::scan`], on a
-//!   thread of its own, hands blocks of rows to the fitting thread). A group of at most
-//!   [`HOLD_ROWS`] rows is kept and calibrated from its rows exactly as [`calibrate`]
-//!   does. A longer one keeps sums only: the streaming sine fit at the nominal rate, the
-//!   Taylor sums of [`crate::fit::moments`] (the IEEE 1057 rate fit and the widened noise
-//!   fit at any nearby rate) and its channels' rails.
+//! - **Pass 1** reads and checks every row: the file in two parts ([`Parts`]), each read by
+//!   a thread of its own, their groups joined; a file the fast reader hands back (a quote,
+//!   any problem) is read by [`recording::scan`] on one thread while this one fits, and
+//!   that reader names the problem. A group of at most [`HOLD_ROWS`] rows is kept and
+//!   calibrated from its rows exactly as [`super::calibrate`] does. A longer one keeps
+//!   sums only: the Taylor sums of [`crate::fit::moments`] (the sine fit, the IEEE 1057
+//!   rate fit and the widened noise fit at any nearby rate) and its channels' rails.
 //! - **A correcting pass**, only if the data demand it: when the fitted rate is too far
 //!   from nominal for the sums' expansion, or a channel has rails (its readings on them
 //!   leave the noise fit), the sums are gathered again about the fitted rate.
 //! - **Pass 2** takes the residuals of the widened fit at the fitted rate, exactly, into
-//!   their lagged sums: the AR noise model, as [`crate::fit::noise::NoiseModel::estimate`].
-//! - **Pass 3**, only when the fitted rate differs from nominal: the streaming sine fit at
-//!   the fitted rate.
+//!   their lagged sums (the AR noise model, as [`crate::fit::noise::NoiseModel::estimate`]
+//!   has it), and the residual sums of squares of the sine fits at the fitted and the
+//!   nominal rate.
 
 use super::{
     err, moments, preflight, rate_choice, rotation_entry, samples, CalibrateError, GroupFit,
@@ -277,7 +278,8 @@ fn first_pass_parts(
     Ok(Some(groups))
 }
 
-/// One pass over the file: the reader on a thread of its own, `each` on this one.
+/// One pass over the file by the sequential reader (a file the parts reader hands back):
+/// the reader on a thread of its own, `each` on this one.
 fn read_pass(
     path: &Path,
     method: Option<Method>,
@@ -340,6 +342,8 @@ struct GroupState {
     row_problem: Option<&'static str>,
 }
 
+/// Pass 1 on one thread (a file the parts reader hands back): the groups as the
+/// sequential reader's events come.
 struct PassOne<'a> {
     hold: usize,
     opts: &'a Options,

@@ -275,6 +275,16 @@ pub fn design(
     h
 }
 
+/// Whether the IEEE 1057 iteration has converged after a step of `dw` rad/s (standard
+/// error `se_dw`) from phase step `steps.0` to `steps.1`: the step is below 10⁻³ of its
+/// standard error, or below the resolution of a [`PhaseStep`] (the steps are then equal, or
+/// a step apart: a long record's standard error can fall below that resolution, and the
+/// iteration would go back and forth between two neighbouring steps).
+pub fn converged(dw: f64, se_dw: f64, steps: (PhaseStep, PhaseStep), clock: TickRate) -> bool {
+    let resolution = TAU * f64::from(clock.hz()) / 18_446_744_073_709_551_616.0;
+    dw.abs() <= 1e-3 * se_dw || steps.0 == steps.1 || dw.abs() < resolution
+}
+
 /// Result of the four-parameter fit.
 #[derive(Clone, Debug, PartialEq)]
 pub struct FourParamFit {
@@ -294,7 +304,8 @@ pub struct FourParamFit {
 /// Each iteration linearises about the current rate: besides sin, cos and 1 per channel,
 /// a shared column per channel ∂y/∂ω = τ·(A cos α − B sin α) with τ measured from the
 /// record's middle. The joint system is solved by QR and ω updated until the step is
-/// below 1e-3 of its standard error, or below the resolution of a [`PhaseStep`]. The starting rate (nominal) must be within about
+/// below 1e-3 of its standard error, or below the resolution of a [`PhaseStep`]
+/// ([`converged`]). The starting rate (nominal) must be within about
 /// 1/(4·span) Hz of the truth, as for any IEEE 1057 fit.
 pub fn fit_four_param(
     samples: &[Sample],
@@ -341,7 +352,7 @@ pub fn fit_four_param(
         rate += dw / TAU;
         let next = PhaseStep::from_hz(rate, clock).ok_or(BatchError::Singular)?;
         last = fit(samples, next, clock, Model::SINE, t_mid)?;
-        if dw.abs() <= 1e-3 * se_dw || next == step {
+        if converged(dw, se_dw, (step, next), clock) {
             return Ok(FourParamFit {
                 rate_hz: rate,
                 se_rate_hz: se_dw / TAU,

@@ -596,7 +596,7 @@ pub fn four_param(m: &Moments, start: PhaseStep, clock: TickRate) -> Result<Four
         rate += dw / TAU;
         let next = PhaseStep::from_hz(rate, clock).ok_or(BatchError::Singular)?;
         last = sine_coefficients(m, next)?;
-        if dw.abs() <= 1e-3 * se_dw || next == step {
+        if crate::fit::batch::converged(dw, se_dw, (step, next), clock) {
             return Ok(FourParam {
                 rate_hz: rate,
                 se_rate_hz: se_dw / TAU,
