@@ -643,11 +643,13 @@ impl Engine<'_> {
         let mut streamed: Vec<(usize, GroupFit, StreamRefit)> = Vec::new();
         for (p, r) in prepared.iter().zip(residuals) {
             let gs = self.group(p.index)?;
-            streamed.push((p.index, finish(rec, gs, p, r)?, StreamRefit::new(p)?));
-        }
-        for (_, f, r) in &mut streamed {
-            r.central = PhaseStep::from_hz(f.rate_hz, CLOCK).unwrap_or(r.central);
-            r.fit = ConditionFit::from_fit(&f.fit);
+            let fit = finish(rec, gs, p, r)?;
+            let refit = StreamRefit {
+                moments: p.moments.clone(),
+                central: PhaseStep::from_hz(fit.rate_hz, CLOCK).unwrap_or(p.nominal),
+                fit: ConditionFit::from_fit(&fit.fit),
+            };
+            streamed.push((p.index, fit, refit));
         }
         // The entries, rate by rate.
         let setting = Setting {
@@ -1175,25 +1177,11 @@ fn wide_betas(
 }
 
 /// A streamed condition's sine refitted at a nearby rate: the fit's own (A, B) moved by
-/// the change the sums give between its rate and the new one.
+/// the change the sums give between its rate (`central`) and the new one.
 struct StreamRefit {
     moments: Moments,
     central: PhaseStep,
     fit: ConditionFit,
-}
-
-impl StreamRefit {
-    fn new(p: &Prepared) -> Result<Self, CalibrateError> {
-        Ok(StreamRefit {
-            moments: p.moments.clone(),
-            central: p.nominal,
-            fit: ConditionFit {
-                a: [0.0; 3],
-                b: [0.0; 3],
-                cov: [[[0.0; 2]; 2]; 3],
-            },
-        })
-    }
 }
 
 impl Refit for StreamRefit {
