@@ -635,8 +635,7 @@ fn streamed_series(
                 out.iter_mut().for_each(Vec::clear);
                 open.clear();
                 rows = 0;
-                scale = f64::from(CLOCK.hz())
-                    / f64::from(crate::recording::tick_hz(&meta).unwrap_or(CLOCK.hz()));
+                scale = crate::recording::tick_scale(&meta, CLOCK);
             }
             Scanned::Group {
                 condition, rate_hz, ..
@@ -681,7 +680,7 @@ fn streamed_series(
                 };
                 let t0 = *g.t0.get_or_insert(t);
                 let Ok(ap) =
-                    crate::fit::moments::row_aperture(t, t0, conv_gaps.as_ref(), scale, CLOCK)
+                    crate::recording::row_aperture(t, t0, conv_gaps.as_ref(), scale, CLOCK)
                 else {
                     return;
                 };

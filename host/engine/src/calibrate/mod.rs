@@ -24,7 +24,7 @@ pub mod stream;
 pub mod table;
 
 use crate::calibrate::budget::{Budget, Kind};
-use crate::fit::{batch, moments};
+use crate::fit::batch;
 
 use crate::calibrate::json::{CalibrationJson, CorrectionJson, FitJson, NoiseJson};
 
@@ -111,8 +111,7 @@ pub(crate) fn err(
 pub fn samples(rec: &Recording, g: &Group) -> Result<Vec<batch::Sample>, CalibrateError> {
     let t0 = g.t_s.first().copied().unwrap_or(0.0);
     // conv_gaps count device ticks; here they become ticks of CLOCK (exact at 1 MHz).
-    let scale = f64::from(CLOCK.hz())
-        / f64::from(crate::recording::tick_hz(&rec.meta).unwrap_or(CLOCK.hz()));
+    let scale = crate::recording::tick_scale(&rec.meta, CLOCK);
     let mut out = Vec::with_capacity(g.len());
     for (i, (t, (u, (v, w)))) in g
         .t_s
@@ -121,7 +120,7 @@ pub fn samples(rec: &Recording, g: &Group) -> Result<Vec<batch::Sample>, Calibra
         .enumerate()
     {
         let gaps = g.conversions.as_ref().and_then(|c| c.get(i));
-        let ap = moments::row_aperture(*t, t0, gaps, scale, CLOCK)
+        let ap = crate::recording::row_aperture(*t, t0, gaps, scale, CLOCK)
             .map_err(|m| err(rec, Some(g.first_line), m))?;
         out.push((ap, [*u, *v, *w]));
     }
@@ -504,6 +503,20 @@ pub(crate) fn preflight(
     Ok((g, inputs, method, units))
 }
 
+/// The nominal rotation rate of a group whose `rate_hz` column says `column`: that, else
+/// the command line's, else the file's metadata's.
+pub(crate) fn nominal_rate(
+    column: Option<f64>,
+    opts: &Options,
+    meta: &crate::recording::Metadata,
+) -> Option<f64> {
+    column.or(opts.rate_hz).or(meta.rate_hz)
+}
+
+/// Why a rotation file cannot be calibrated without more.
+pub(crate) const NO_RATE: &str =
+    "rotation rate unknown: give --rate-hz, a '# rate_hz=' line or a rate_hz column";
+
 /// Calibrate a recording.
 pub fn calibrate(rec: &Recording, opts: &Options) -> Result<CalibrationJson, CalibrateError> {
     let (g, inputs, method, units) = preflight(rec, opts)?;
@@ -513,10 +526,8 @@ pub fn calibrate(rec: &Recording, opts: &Options) -> Result<CalibrationJson, Cal
             rec.require_conditions("rotation calibration")
                 .map_err(|e| err(rec, None, e.kind.to_string()))?;
             for rate in rec.rates() {
-                let nominal = rate
-                    .or(opts.rate_hz)
-                    .or(rec.meta.rate_hz)
-                    .ok_or_else(|| err(rec, None, "rotation rate unknown: give --rate-hz, a '# rate_hz=' line or a rate_hz column"))?;
+                let nominal =
+                    nominal_rate(rate, opts, &rec.meta).ok_or_else(|| err(rec, None, NO_RATE))?;
                 let mut fits = Vec::new();
                 let mut group_samples = Vec::new();
                 for cond in Condition::ALL {

@@ -17,11 +17,11 @@
 //!   nominal rate.
 
 use super::{
-    err, moments, preflight, rate_choice, rotation_entry, samples, CalibrateError, GroupFit,
-    Options, Refit, Setting, CLOCK,
+    err, nominal_rate, preflight, rate_choice, rotation_entry, samples, CalibrateError, GroupFit,
+    Options, Refit, Setting, CLOCK, NO_RATE,
 };
 use crate::calibrate::json::CalibrationJson;
-use crate::fit::moments::{Moments, WIDE, WIDE_HARMONIC};
+use crate::fit::moments::{self, Moments, WIDE, WIDE_HARMONIC};
 use crate::fit::noise::{LaggedSums, NoiseModel, Rails};
 use crate::recording::{
     self, Group, Method, Parse, PartRow, Parts, Recording, RecordingError, Scanned,
@@ -115,7 +115,8 @@ pub fn calibrate_file_holding(
                 meta: None,
                 groups: Vec::new(),
             };
-            let Some(mut rec) = read_pass(path, opts.method, false, |ev| first.take(ev))? else {
+            let Some(mut rec) = read_pass(path, opts.method, Parse::All, |ev| first.take(ev))?
+            else {
                 return whole();
             };
             if first.method != Method::Rotation {
@@ -185,11 +186,28 @@ fn over_parts<T: Send>(
     Ok(Some(out))
 }
 
+/// A row's group key: its condition and its `rate_hz` column's bits.
+type Key = (Condition, Option<u64>);
+
+fn key_of(row: &PartRow) -> Key {
+    (row.condition, row.rate_hz.map(f64::to_bits))
+}
+
+/// The index of `key` in `keys`, trying the previous row's group (`last`) first (rows of
+/// a group come together) and remembering it.
+fn find_group(keys: &[Key], last: &mut Option<usize>, key: Key) -> Option<usize> {
+    let i = last
+        .filter(|i| keys.get(*i) == Some(&key))
+        .or_else(|| keys.iter().position(|k| *k == key))?;
+    *last = Some(i);
+    Some(i)
+}
+
 /// The groups of one range: keyed by (condition, rate bits), in order of first
 /// appearance, with their file lines counted from the range's first line.
 #[derive(Default)]
 struct RangeGroups {
-    keys: Vec<(Condition, Option<u64>)>,
+    keys: Vec<Key>,
     groups: Vec<GroupState>,
     last: Option<usize>,
 }
@@ -204,25 +222,18 @@ fn first_pass_parts(
     hold: usize,
 ) -> Result<Option<Vec<GroupState>>, RecordingError> {
     let meta = parts.meta();
-    let scale = f64::from(CLOCK.hz()) / f64::from(recording::tick_hz(meta).unwrap_or(CLOCK.hz()));
-    let nominal = |rate_col: Option<f64>| rate_col.or(opts.rate_hz).or(meta.rate_hz);
+    let scale = recording::tick_scale(meta, CLOCK);
     let each = |st: &mut RangeGroups, line: u64, row: PartRow| -> bool {
-        let key = (row.condition, row.rate_hz.map(f64::to_bits));
-        let i = match st.last.filter(|i| st.keys.get(*i) == Some(&key)) {
+        let key = key_of(&row);
+        let i = match find_group(&st.keys, &mut st.last, key) {
             Some(i) => i,
-            None => match st.keys.iter().position(|k| *k == key) {
-                Some(i) => i,
-                None => {
-                    st.keys.push(key);
-                    st.groups.push(GroupState::new(
-                        row.condition,
-                        row.rate_hz,
-                        line,
-                        nominal(row.rate_hz),
-                    ));
-                    st.keys.len() - 1
-                }
-            },
+            None => {
+                st.keys.push(key);
+                let nominal = nominal_rate(row.rate_hz, opts, meta);
+                st.groups
+                    .push(GroupState::new(row.condition, row.rate_hz, line, nominal));
+                st.keys.len() - 1
+            }
         };
         st.last = Some(i);
         let Some(g) = st.groups.get_mut(i) else {
@@ -251,15 +262,12 @@ fn first_pass_parts(
             }
             match keys.iter().position(|k| *k == key) {
                 Some(i) => {
-                    let Some(slot) = groups.get_mut(i) else {
+                    if !groups
+                        .get_mut(i)
+                        .is_some_and(|before| before.follow(g, hold))
+                    {
                         return Ok(None);
-                    };
-                    let placeholder = GroupState::new(g.condition, None, 0, None);
-                    let before = std::mem::replace(slot, placeholder);
-                    let Some(joined) = before.followed_by(g, hold) else {
-                        return Ok(None);
-                    };
-                    *slot = joined;
+                    }
                 }
                 None => {
                     keys.push(key);
@@ -283,14 +291,13 @@ fn first_pass_parts(
 fn read_pass(
     path: &Path,
     method: Option<Method>,
-    again: bool,
+    parse: Parse,
     mut each: impl FnMut(Scanned),
 ) -> Result<Option<Recording>, RecordingError> {
     let (tx, rx) = std::sync::mpsc::sync_channel::<Vec<Scanned>>(4);
     std::thread::scope(|scope| {
         let reader = scope.spawn(move || {
             let mut block = Vec::with_capacity(BLOCK);
-            let parse = if again { Parse::Fit } else { Parse::All };
             let out = recording::scan(path, method, parse, |ev| {
                 block.push(ev);
                 if block.len() >= BLOCK {
@@ -361,8 +368,7 @@ impl PassOne<'_> {
                 // The start of a reading (a second one starts afresh).
                 self.groups.clear();
                 self.method = self.opts.method.unwrap_or(method);
-                self.scale = f64::from(CLOCK.hz())
-                    / f64::from(recording::tick_hz(&meta).unwrap_or(CLOCK.hz()));
+                self.scale = recording::tick_scale(&meta, CLOCK);
                 self.meta = Some(meta);
             }
             Scanned::Group {
@@ -370,13 +376,12 @@ impl PassOne<'_> {
                 rate_hz,
                 first_line,
             } => {
-                let file_rate = self.meta.as_ref().and_then(|m| m.rate_hz);
-                self.groups.push(GroupState::new(
-                    condition,
-                    rate_hz,
-                    first_line,
-                    rate_hz.or(self.opts.rate_hz).or(file_rate),
-                ));
+                let nominal = match &self.meta {
+                    Some(meta) => nominal_rate(rate_hz, self.opts, meta),
+                    None => rate_hz.or(self.opts.rate_hz),
+                };
+                self.groups
+                    .push(GroupState::new(condition, rate_hz, first_line, nominal));
             }
             Scanned::Row {
                 group,
@@ -435,15 +440,17 @@ impl GroupState {
         }
     }
 
-    /// This group as read by one thread followed by the same group as read on by
-    /// another from where the first stopped (its rows' times from its own first row):
-    /// `None` if the second's rows go back in time.
-    fn followed_by(mut self, later: GroupState, hold: usize) -> Option<GroupState> {
+    /// Go on with the same group as read by another thread from where this one stopped
+    /// (its rows' times from its own first row): false if its rows go back in time.
+    fn follow(&mut self, later: GroupState, hold: usize) -> bool {
         let (Some(t0), Some(t1)) = (self.t0, later.t0) else {
-            return Some(if self.t0.is_none() { later } else { self });
+            if self.t0.is_none() {
+                *self = later;
+            }
+            return true;
         };
         if self.last_t.is_some_and(|l| t1 < l) {
-            return None;
+            return false;
         }
         let shift = ((t1 - t0) * f64::from(CLOCK.hz())).round();
         if !(0.0..1.8e19).contains(&shift) {
@@ -476,7 +483,7 @@ impl GroupState {
         self.rows += later.rows;
         self.last_t = later.last_t.or(self.last_t);
         self.row_problem = self.row_problem.or(later.row_problem);
-        Some(self)
+        true
     }
 
     fn add(
@@ -509,7 +516,7 @@ impl GroupState {
         };
         let t0 = *self.t0.get_or_insert(t);
         self.last_t = Some(t);
-        let ap = match moments::row_aperture(t, t0, conv.as_ref(), scale, CLOCK) {
+        let ap = match recording::row_aperture(t, t0, conv.as_ref(), scale, CLOCK) {
             Ok(ap) => ap,
             Err(m) => {
                 self.row_problem = Some(m);
@@ -533,9 +540,8 @@ struct Prepared {
     nominal_hz: f64,
     nominal: PhaseStep,
     /// The sums the fits come from (about nominal, or about the fitted rate after a
-    /// correcting pass), and those of each channel's readings on its rails.
+    /// correcting pass).
     moments: Moments,
-    flagged: [Option<Moments>; 3],
     rails: [(Option<f64>, Option<f64>); 3],
     four: moments::FourParam,
     fitted: PhaseStep,
@@ -578,10 +584,8 @@ impl Engine<'_> {
         }
         let mut plan: Vec<(f64, [usize; 3])> = Vec::new();
         for rate in &rates {
-            let nominal = rate
-                .or(self.opts.rate_hz)
-                .or(rec.meta.rate_hz)
-                .ok_or_else(|| err(rec, None, "rotation rate unknown: give --rate-hz, a '# rate_hz=' line or a rate_hz column"))?;
+            let nominal =
+                nominal_rate(*rate, self.opts, &rec.meta).ok_or_else(|| err(rec, None, NO_RATE))?;
             let mut idx = [0; 3];
             for (slot, cond) in idx.iter_mut().zip(Condition::ALL) {
                 *slot = self
@@ -707,14 +711,30 @@ impl Engine<'_> {
         each: impl Fn(&mut T, usize, &Aperture, [f64; 3]) + Sync,
         join: impl Fn(T, T) -> T,
     ) -> Result<T, FileError> {
-        let scale = f64::from(CLOCK.hz())
-            / f64::from(recording::tick_hz(&self.rec.meta).unwrap_or(CLOCK.hz()));
-        let keys: Vec<(Condition, Option<u64>)> = self
+        let scale = recording::tick_scale(&self.rec.meta, CLOCK);
+        let keys: Vec<Key> = self
             .groups
             .iter()
             .map(|g| (g.condition, g.rate_col.map(f64::to_bits)))
             .collect();
         let t0: Vec<f64> = self.groups.iter().map(|g| g.t0.unwrap_or(0.0)).collect();
+        let n = self.groups.len();
+        // A row of group `gi`: counted, and handed on with its conversions if wanted.
+        let feed = |state: &mut T,
+                    rows: &mut [usize],
+                    gi: usize,
+                    t_s: Option<f64>,
+                    y: [f64; 3],
+                    gaps: Option<&Aperture>| {
+            if let Some(r) = rows.get_mut(gi) {
+                *r += 1;
+            }
+            if let (true, Some(t), Some(t0)) = (wanted.contains(&gi), t_s, t0.get(gi)) {
+                if let Ok(ap) = recording::row_aperture(t, *t0, gaps, scale, CLOCK) {
+                    each(state, gi, &ap, y);
+                }
+            }
+        };
         let check = |rows: &[usize]| -> Result<(), FileError> {
             for &i in wanted {
                 if rows.get(i) != self.groups.get(i).map(|g| g.rows).as_ref() {
@@ -724,30 +744,14 @@ impl Engine<'_> {
             Ok(())
         };
         if let Some((parts, ranges)) = &self.parts {
-            let n = self.groups.len();
             let fresh_part = || (fresh(), vec![0usize; n], None::<usize>);
             let each_row = |(state, rows, last): &mut (T, Vec<usize>, Option<usize>),
                             _line: u64,
                             row: PartRow| {
-                let key = (row.condition, row.rate_hz.map(f64::to_bits));
-                let gi = match last.filter(|i| keys.get(*i) == Some(&key)) {
-                    Some(i) => i,
-                    None => match keys.iter().position(|k| *k == key) {
-                        Some(i) => i,
-                        None => return false,
-                    },
+                let Some(gi) = find_group(&keys, last, key_of(&row)) else {
+                    return false;
                 };
-                *last = Some(gi);
-                if let Some(r) = rows.get_mut(gi) {
-                    *r += 1;
-                }
-                if let (true, Some(t), Some(t0)) = (wanted.contains(&gi), row.t_s, t0.get(gi)) {
-                    if let Ok(ap) =
-                        moments::row_aperture(t, *t0, row.conv_gaps.as_ref(), scale, CLOCK)
-                    {
-                        each(state, gi, &ap, row.y);
-                    }
-                }
+                feed(state, rows, gi, row.t_s, row.y, row.conv_gaps.as_ref());
                 true
             };
             if let Some(states) = over_parts(parts, ranges, Parse::Fit, fresh_part, each_row)? {
@@ -766,32 +770,22 @@ impl Engine<'_> {
                 return Ok(joined.unwrap_or_else(fresh));
             }
         }
-        let mut t0s: Vec<Option<f64>> = vec![None; self.groups.len()];
-        let mut rows: Vec<usize> = vec![0; self.groups.len()];
+        let mut rows: Vec<usize> = vec![0; n];
         let mut state = fresh();
-        read_pass(self.path, self.opts.method, true, |ev| match ev {
+        read_pass(self.path, self.opts.method, Parse::Fit, |ev| match ev {
             Scanned::Start { .. } => {
                 // A second reading of the file (by the csv reader) starts afresh.
-                t0s.iter_mut().for_each(|t| *t = None);
                 rows.iter_mut().for_each(|r| *r = 0);
                 state = fresh();
             }
             Scanned::Row {
                 group,
-                t_s: Some(t),
+                t_s,
                 y,
                 conv_gaps,
                 ..
-            } if wanted.contains(&group) => {
-                if let (Some(t0), Some(r)) = (t0s.get_mut(group), rows.get_mut(group)) {
-                    *r += 1;
-                    let t0 = *t0.get_or_insert(t);
-                    if let Ok(ap) = moments::row_aperture(t, t0, conv_gaps.as_ref(), scale, CLOCK) {
-                        each(&mut state, group, &ap, y);
-                    }
-                }
-            }
-            _ => {}
+            } => feed(&mut state, &mut rows, group, t_s, y, conv_gaps.as_ref()),
+            Scanned::Group { .. } => {}
         })?;
         check(&rows)?;
         Ok(state)
@@ -851,6 +845,7 @@ impl Engine<'_> {
             let Some(p) = prepared.get_mut(*k) else {
                 continue;
             };
+            let all = all.dense();
             let gs = self.group(p.index)?;
             let fail = |e: String| {
                 err(
@@ -859,7 +854,8 @@ impl Engine<'_> {
                     format!("condition {}: {e}", gs.condition.letter()),
                 )
             };
-            if !all.within(p.fitted, REACH_FIT) || !p.moments.within(p.fitted, REACH_FIT) {
+            // (`all` is gathered about p.fitted: it reaches it by construction.)
+            if !p.moments.within(p.fitted, REACH_FIT) {
                 // The first expansion could not reach the rate: fit again from here.
                 p.four = moments::four_param(&all, p.fitted, CLOCK)
                     .map_err(|e| fail(format!("rate fit: {e}")))?;
@@ -874,9 +870,9 @@ impl Engine<'_> {
                     .into());
                 }
             }
-            p.flagged = flagged.map(|f| (f.rows() > 0).then_some(f));
+            let flagged = flagged.map(|f| (f.rows() > 0).then_some(f));
             p.moments = all;
-            p.beta = wide_betas(&p.moments, &p.flagged, p.fitted).map_err(fail)?;
+            p.beta = wide_betas(&p.moments, &flagged, p.fitted).map_err(fail)?;
         }
         Ok(())
     }
@@ -1116,6 +1112,8 @@ fn prepare(
             format!("rotation rate {nominal_hz} Hz is not usable"),
         ));
     };
+    // Folded once: every fit below reads the dense sums.
+    let moments = moments.dense();
     // As the streaming fit checks its record (method.md §5).
     let cfg = FitConfig::sine(nominal, CLOCK);
     let span = (gs.span_s * f64::from(CLOCK.hz())).round() as u64;
@@ -1132,11 +1130,10 @@ fn prepare(
     let fitted = PhaseStep::from_hz(four.rate_hz, CLOCK)
         .ok_or_else(|| err(rec, line, "fitted rate unusable"))?;
     let rails = gs.rails.map(|r| r.found());
-    let flagged = [None, None, None];
     // The widened fit's coefficients, if the sums reach the fitted rate (else the
-    // correcting pass computes them).
+    // correcting pass computes them, as it does with rails).
     let beta = if moments.within(fitted, REACH_FIT) {
-        wide_betas(&moments, &flagged, fitted).map_err(fail)?
+        wide_betas(&moments, &[None, None, None], fitted).map_err(fail)?
     } else {
         [0, 1, 2].map(|_| DVector::zeros(WIDE))
     };
@@ -1145,7 +1142,6 @@ fn prepare(
         nominal_hz,
         nominal,
         moments,
-        flagged,
         rails,
         four,
         fitted,
@@ -1163,12 +1159,17 @@ fn wide_betas(
     step: PhaseStep,
 ) -> Result<[DVector<f64>; 3], String> {
     let mut out: [DVector<f64>; 3] = [0, 1, 2].map(|_| DVector::zeros(WIDE));
+    let all = m.wide_at(step);
     for (ch, (b, f)) in out.iter_mut().zip(flagged).enumerate() {
+        let without;
         let (g, x) = match f {
-            Some(f) => m.without(f).wide_at(step),
-            None => m.wide_at(step),
+            Some(f) => {
+                without = m.without(f).wide_at(step);
+                (&without.0, &without.1)
+            }
+            None => (&all.0, &all.1),
         };
-        let chol = g.cholesky().ok_or_else(|| {
+        let chol = g.clone().cholesky().ok_or_else(|| {
             "singular fit: the regressors do not determine every coefficient".to_string()
         })?;
         *b = chol.solve(&x.column(ch).into_owned());

@@ -281,7 +281,7 @@ pub fn design(
 /// a step apart: a long record's standard error can fall below that resolution, and the
 /// iteration would go back and forth between two neighbouring steps).
 pub fn converged(dw: f64, se_dw: f64, steps: (PhaseStep, PhaseStep), clock: TickRate) -> bool {
-    let resolution = TAU * f64::from(clock.hz()) / 18_446_744_073_709_551_616.0;
+    let resolution = TAU * PhaseStep(1).to_hz(clock);
     dw.abs() <= 1e-3 * se_dw || steps.0 == steps.1 || dw.abs() < resolution
 }
 

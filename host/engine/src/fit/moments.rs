@@ -25,16 +25,15 @@ pub const WIDE: usize = 10;
 /// multiples of the rotation's.
 pub const WIDE_HARMONIC: [u32; WIDE] = [1, 1, 0, 0, 2, 2, 3, 3, 4, 4];
 
-const TWO_POW_64: f64 = 18_446_744_073_709_551_616.0;
-
 type M10 = SMatrix<f64, WIDE, WIDE>;
 type X10 = SMatrix<f64, WIDE, 3>;
 
 /// The rate of `a` less that of `b`, rad/s: exactly the difference of their phases per
 /// second (steps are exact fractions of a turn per tick).
 pub fn eps_between(a: PhaseStep, b: PhaseStep, clock: TickRate) -> f64 {
+    // One step unit's rate is exact (a power of two times the clock), and so is d < 2⁵³.
     let d = a.0 as i128 - b.0 as i128;
-    d as f64 / TWO_POW_64 * TAU * f64::from(clock.hz())
+    d as f64 * PhaseStep(1).to_hz(clock) * TAU
 }
 
 /// The widened regressors of one conversion at angle α (its sine and cosine `s`, `c`)
@@ -91,7 +90,7 @@ pub struct Moments {
     u_max: f64,
     /// The rows of one conversion, as sums of u^p·cos mα, u^p·sin mα and u^p·g(α)·y:
     /// every product of two columns is one of these (see [`Harmonic`]).
-    harm: Box<Harmonic>,
+    harm: Option<Box<Harmonic>>,
 }
 
 /// Sums over rows of one conversion (the usual row) from which every entry of the
@@ -242,7 +241,7 @@ impl Moments {
             x2: Matrix3::zeros(),
             yy: [0.0; 3],
             u_max: 0.0,
-            harm: Box::default(),
+            harm: None,
         }
     }
 
@@ -306,22 +305,26 @@ impl Moments {
         if ap.len() == 1 {
             let t = ap.first();
             let (s, c) = self.step.phase_at(t).sin_cos::<f64>();
-            self.harm.add(s.hi, c.hi, t.0 as f64 / hz, y);
+            self.harm
+                .get_or_insert_with(Box::default)
+                .add(s.hi, c.hi, t.0 as f64 / hz, y);
             for (a, v) in self.yy.iter_mut().zip(y) {
                 *a += v * v;
             }
         } else {
             let (v0, v1, v2, n) = self.row_vectors(ap);
-            self.accumulate(&v0, &v1, &v2, n, y, 1.0);
+            self.accumulate(&v0, &v1, &v2, n, y);
         }
         self.rows += 1;
         self.u_max = self.u_max.max(ap.last().0 as f64 / hz);
     }
 
     /// The same sums with the rows of one conversion folded into the dense ones.
-    fn dense(&self) -> Moments {
+    pub fn dense(&self) -> Moments {
         let mut m = self.clone();
-        let h = std::mem::take(&mut *m.harm);
+        let Some(h) = m.harm.take() else {
+            return m; // folded already, or no row of one conversion
+        };
         for (i, a) in COLS.iter().enumerate() {
             for (j, b) in COLS.iter().enumerate() {
                 m.p00[(i, j)] += h.product(*a, *b, 0);
@@ -347,17 +350,15 @@ impl Moments {
         m
     }
 
-    /// Add (`sign` 1) or take out (−1) a row's contributions.
+    /// Add a row's contributions, weighted by its `w` conversions.
     fn accumulate(
         &mut self,
         v0: &[f64; WIDE],
         v1: &[f64; WIDE],
         v2: &[f64; 3],
-        n: f64,
+        w: f64,
         y: [f64; 3],
-        sign: f64,
     ) {
-        let w = sign * n;
         let (v0m, v1m) = (SVector::from(*v0), SVector::from(*v1));
         let (v03, v13, v2m) = (
             v0m.fixed_rows::<3>(0).into_owned(),
@@ -454,19 +455,36 @@ impl Moments {
     /// The same sums over only the rows of `other` (gathered about the same step) taken
     /// out: for readings left out of a channel's fit.
     pub fn without(&self, other: &Moments) -> Moments {
+        self.plus(other, -1.0)
+    }
+
+    /// These sums and `other`'s (about the same step and origin) together.
+    pub fn merged(&self, other: &Moments) -> Moments {
+        self.plus(other, 1.0)
+    }
+
+    /// These sums with `sign` times `other`'s added (1: rows joined; −1: rows taken out).
+    fn plus(&self, other: &Moments, sign: f64) -> Moments {
         let (mut m, other) = (self.dense(), other.dense());
-        m.rows = m.rows.saturating_sub(other.rows);
-        m.p00 -= other.p00;
-        m.p01 -= other.p01;
-        m.x0 -= other.x0;
-        m.x1 -= other.x1;
-        m.p02 -= other.p02;
-        m.p11 -= other.p11;
-        m.p12 -= other.p12;
-        m.p22 -= other.p22;
-        m.x2 -= other.x2;
+        m.rows = if sign > 0.0 {
+            m.rows + other.rows
+        } else {
+            m.rows.saturating_sub(other.rows)
+        };
+        m.p00 += other.p00 * sign;
+        m.p01 += other.p01 * sign;
+        m.x0 += other.x0 * sign;
+        m.x1 += other.x1 * sign;
+        m.p02 += other.p02 * sign;
+        m.p11 += other.p11 * sign;
+        m.p12 += other.p12 * sign;
+        m.p22 += other.p22 * sign;
+        m.x2 += other.x2 * sign;
         for (a, b) in m.yy.iter_mut().zip(other.yy) {
-            *a -= b;
+            *a += sign * b;
+        }
+        if sign > 0.0 {
+            m.u_max = m.u_max.max(other.u_max);
         }
         m
     }
@@ -507,33 +525,6 @@ pub fn wide_regressors(
     let n = ap.len().max(1) as f64;
     (v.map(|a| a / n), [o[0] / n, o[1] / n, 1.0])
 }
-
-/// A row's conversions as an [`Aperture`] in ticks of `clock` from the group's first row:
-/// the row's time `t_s` against the group's first `t0_s`, and its `conv_gaps` (in device
-/// ticks, `scale` = clock ticks per device tick).
-pub fn row_aperture(
-    t_s: f64,
-    t0_s: f64,
-    gaps: Option<&Aperture>,
-    scale: f64,
-    clock: TickRate,
-) -> Result<Aperture, &'static str> {
-    let ticks = ((t_s - t0_s) * f64::from(clock.hz())).round();
-    if !(0.0..1.8e19).contains(&ticks) {
-        return Err("t_s out of range");
-    }
-    let mut ap = Aperture::point(Ticks(ticks as u64));
-    if let Some(c) = gaps {
-        for d in c.gaps() {
-            let scaled = (f64::from(*d) * scale).round();
-            let gap = u16::try_from(scaled as u64).map_err(|_| BEYOND)?;
-            ap.push_gap(gap).map_err(|_| BEYOND)?;
-        }
-    }
-    Ok(ap)
-}
-
-const BEYOND: &str = "conv_gaps beyond 65 ms at 1 MHz";
 
 /// A, B, C per channel of the sine fit at `step` from `m`'s sums (normal equations by
 /// Cholesky: the columns are near-orthogonal sines and a constant).
@@ -693,26 +684,6 @@ impl Moments {
         let x13 = self.x1.fixed_view::<3, 3>(0, 0).into_owned();
         m.x2 = r3 * (self.x2 + x13 * (2.0 * delta) + x03 * d2);
         m.u_max = self.u_max + delta;
-        m
-    }
-
-    /// These sums and `other`'s (about the same step and origin) together.
-    pub fn merged(&self, other: &Moments) -> Moments {
-        let (mut m, other) = (self.dense(), other.dense());
-        m.rows += other.rows;
-        m.p00 += other.p00;
-        m.p01 += other.p01;
-        m.x0 += other.x0;
-        m.x1 += other.x1;
-        m.p02 += other.p02;
-        m.p11 += other.p11;
-        m.p12 += other.p12;
-        m.p22 += other.p22;
-        m.x2 += other.x2;
-        for (a, b) in m.yy.iter_mut().zip(other.yy) {
-            *a += b;
-        }
-        m.u_max = m.u_max.max(other.u_max);
         m
     }
 }

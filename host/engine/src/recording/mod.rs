@@ -242,15 +242,11 @@ impl Group {
     /// `scale` times as fast as the file's `tick_hz` (1 for the file's own ticks): one
     /// conversion without a `conv_gaps` column. `None` when a scaled gap leaves 1 to 65535.
     pub fn aperture(&self, i: usize, first: Ticks, scale: f64) -> Option<Aperture> {
-        let mut ap = Aperture::point(first);
-        if let Some(c) = self.conversions.as_ref().and_then(|c| c.get(i)) {
-            for d in c.gaps() {
-                let scaled = (f64::from(*d) * scale).round();
-                let gap = u16::try_from(scaled as u64).ok()?;
-                ap.push_gap(gap).ok()?;
-            }
-        }
-        Some(ap)
+        scaled_aperture(
+            first,
+            self.conversions.as_ref().and_then(|c| c.get(i)),
+            scale,
+        )
     }
 
     /// True if the group has no rows (never the case for a group the reader returns).
@@ -864,7 +860,6 @@ pub fn scan(
     parse: Parse,
     each: impl FnMut(Scanned),
 ) -> Result<Option<Recording>, RecordingError> {
-    let columns = parse;
     let mut sink = ScanSink(each);
     let source = path.display().to_string();
     let parser = || Parser {
@@ -873,7 +868,7 @@ pub fn scan(
         line_offset: 0,
         method,
     };
-    if let Some(done) = parser().run_fast(open(path)?, &mut sink, true, columns)? {
+    if let Some(done) = parser().run_fast(open(path)?, &mut sink, true, parse)? {
         return Ok(done);
     }
     // Read again by the csv reader (it starts with Scanned::Start again).
@@ -2122,6 +2117,41 @@ fn parse_gaps(f: &[u8]) -> Result<Aperture, RecordingErrorKind> {
             MAX_CONVERSIONS - 1
         ))
     })
+}
+
+/// Conversions from `first` with the gaps of `gaps` (device ticks) counted in a clock
+/// `scale` times as fast; `None` when a scaled gap leaves 1 to 65535.
+fn scaled_aperture(first: Ticks, gaps: Option<&Aperture>, scale: f64) -> Option<Aperture> {
+    let mut ap = Aperture::point(first);
+    for d in gaps.map_or(&[][..], Aperture::gaps) {
+        let scaled = (f64::from(*d) * scale).round();
+        let gap = u16::try_from(scaled as u64).ok()?;
+        ap.push_gap(gap).ok()?;
+    }
+    Some(ap)
+}
+
+/// A row's conversions as an [`Aperture`] in ticks of `clock` from its group's first row:
+/// the row's time `t_s` against the group's first `t0_s`, and its `conv_gaps` (in device
+/// ticks; `scale` from [`tick_scale`]). The message says what is out of range.
+pub fn row_aperture(
+    t_s: f64,
+    t0_s: f64,
+    gaps: Option<&Aperture>,
+    scale: f64,
+    clock: rotacal_shared::TickRate,
+) -> Result<Aperture, &'static str> {
+    let ticks = ((t_s - t0_s) * f64::from(clock.hz())).round();
+    if !(0.0..1.8e19).contains(&ticks) {
+        return Err("t_s out of range");
+    }
+    scaled_aperture(Ticks(ticks as u64), gaps, scale).ok_or("conv_gaps beyond 65 ms at 1 MHz")
+}
+
+/// Ticks of `clock` per device tick of a file with metadata `meta` (its `tick_hz`; 1 when
+/// it has none, the rows then being single conversions).
+pub fn tick_scale(meta: &Metadata, clock: rotacal_shared::TickRate) -> f64 {
+    f64::from(clock.hz()) / f64::from(tick_hz(meta).unwrap_or(clock.hz()))
 }
 
 /// The `tick_hz` metadata value, if it is a positive integer.
