@@ -49,6 +49,7 @@ impl PhaseStep {
     }
 
     /// Phase at time `t`, taking phase 0 at tick 0.
+    #[inline]
     pub fn phase_at(self, t: Ticks) -> Phase {
         Phase(self.0.wrapping_mul(t.0))
     }

@@ -90,6 +90,7 @@ pub struct Aperture {
 
 impl Aperture {
     /// One conversion at `t`.
+    #[inline]
     pub const fn point(t: Ticks) -> Self {
         Aperture {
             first: t,
@@ -109,11 +110,13 @@ impl Aperture {
     }
 
     /// The first conversion's tick.
+    #[inline]
     pub const fn first(&self) -> Ticks {
         self.first
     }
 
     /// Number of conversions (1 to [`MAX_CONVERSIONS`]).
+    #[inline]
     pub const fn len(&self) -> usize {
         self.len as usize
     }
@@ -124,11 +127,13 @@ impl Aperture {
     }
 
     /// Ticks from each conversion to the next (`len − 1` of them).
+    #[inline]
     pub fn gaps(&self) -> &[u16] {
         self.gaps.get(..self.len().saturating_sub(1)).unwrap_or(&[])
     }
 
     /// The tick of every conversion, in order.
+    #[inline]
     pub fn ticks(&self) -> impl Iterator<Item = Ticks> + '_ {
         let mut t = self.first.0;
         core::iter::once(self.first).chain(self.gaps().iter().map(move |g| {
@@ -138,6 +143,7 @@ impl Aperture {
     }
 
     /// The last conversion's tick.
+    #[inline]
     pub fn last(&self) -> Ticks {
         let span: u64 = self.gaps().iter().map(|g| u64::from(*g)).sum();
         Ticks(self.first.0.saturating_add(span))

@@ -339,8 +339,8 @@ struct GroupState {
     t0: Option<f64>,
     last_t: Option<f64>,
     rows: usize,
-    /// Seconds from the first conversion to the last.
-    span_s: f64,
+    /// Clock ticks from the first conversion to the last.
+    span_ticks: u64,
     /// The rows, while there are at most `hold` of them.
     kept: Option<Group>,
     moments: Option<Moments>,
@@ -419,7 +419,7 @@ impl GroupState {
             t0: None,
             last_t: None,
             rows: 0,
-            span_s: 0.0,
+            span_ticks: 0,
             kept: Some(Group {
                 condition,
                 rate_hz: rate_col,
@@ -477,9 +477,7 @@ impl GroupState {
         for (a, b) in self.rails.iter_mut().zip(later.rails) {
             *a = a.merged(&b);
         }
-        self.span_s = self
-            .span_s
-            .max(shift as f64 / f64::from(CLOCK.hz()) + later.span_s);
+        self.span_ticks = self.span_ticks.max(shift.saturating_add(later.span_ticks));
         self.rows += later.rows;
         self.last_t = later.last_t.or(self.last_t);
         self.row_problem = self.row_problem.or(later.row_problem);
@@ -516,16 +514,26 @@ impl GroupState {
         };
         let t0 = *self.t0.get_or_insert(t);
         self.last_t = Some(t);
-        let ap = match recording::row_aperture(t, t0, conv.as_ref(), scale, CLOCK) {
-            Ok(ap) => ap,
+        // A row of one conversion (the usual row) needs no aperture built.
+        let last = match conv {
+            None => recording::row_tick(t, t0, CLOCK).inspect(|&tick| {
+                if let Some(m) = self.moments.as_mut() {
+                    m.add_point(tick, y);
+                }
+            }),
+            Some(c) => recording::row_aperture(t, t0, Some(&c), scale, CLOCK).map(|ap| {
+                if let Some(m) = self.moments.as_mut() {
+                    m.add(&ap, y);
+                }
+                ap.last()
+            }),
+        };
+        match last {
+            Ok(tick) => self.span_ticks = self.span_ticks.max(tick.0),
             Err(m) => {
                 self.row_problem = Some(m);
                 return;
             }
-        };
-        self.span_s = self.span_s.max(ap.last().0 as f64 / f64::from(CLOCK.hz()));
-        if let Some(m) = self.moments.as_mut() {
-            m.add(&ap, y);
         }
         for (r, v) in self.rails.iter_mut().zip(y) {
             r.add(v);
@@ -548,7 +556,8 @@ struct Prepared {
     /// The widened fit's coefficients per channel, at the fitted rate.
     beta: [DVector<f64>; 3],
     rows: usize,
-    span_s: f64,
+    /// Clock ticks from the first conversion to the last.
+    span_ticks: u64,
 }
 
 struct Engine<'a> {
@@ -907,27 +916,47 @@ impl Engine<'_> {
                 })
                 .collect()
         };
+        // The widened fit's coefficients as plain arrays: a row's residual is one short
+        // dot product.
+        let betas: Vec<[[f64; WIDE]; 3]> = prepared
+            .iter()
+            .map(|p| {
+                p.beta.each_ref().map(|b| {
+                    let mut a = [0.0; WIDE];
+                    for (x, v) in a.iter_mut().zip(b.iter()) {
+                        *x = *v;
+                    }
+                    a
+                })
+            })
+            .collect();
         let each = |out: &mut Vec<Residuals>, group: usize, ap: &Aperture, y: [f64; 3]| {
             let Some(k) = wanted.iter().position(|g| *g == group) else {
                 return;
             };
-            let (Some(p), Some(r), Some((bf, bn, shift))) =
-                (prepared.get(k), out.get_mut(k), sines.get(k))
+            let (Some(p), Some(r), Some((bf, bn, shift)), Some(betas)) =
+                (prepared.get(k), out.get_mut(k), sines.get(k), betas.get(k))
             else {
                 return;
             };
             let (v, at_nominal) =
                 moments::wide_regressors(ap, p.fitted, (p.nominal, *shift), CLOCK);
             let n = ap.len().max(1) as f64;
-            let w = n.sqrt();
-            for (ch, (acc, yv)) in r.lagged.iter_mut().zip(y).enumerate() {
-                let (Some(beta), Some(rails), Some(f), Some(nm)) =
-                    (p.beta.get(ch), p.rails.get(ch), bf.get(ch), bn.get(ch))
-                else {
+            // An average of n conversions has variance σ²/n (one: no square root).
+            let w = if ap.len() > 1 { n.sqrt() } else { 1.0 };
+            for ch in 0..3 {
+                let (Some(acc), Some(yv), Some(beta), Some(rails), Some(f), Some(nm)) = (
+                    r.lagged.get_mut(ch),
+                    y.get(ch),
+                    betas.get(ch),
+                    p.rails.get(ch),
+                    bf.get(ch),
+                    bn.get(ch),
+                ) else {
                     continue;
                 };
-                let fitted: f64 = v.iter().zip(beta.iter()).map(|(a, b)| a * b).sum();
-                acc.add(w * (yv - fitted), Rails::flags(*rails, yv));
+                let fitted: f64 = v.iter().zip(beta).map(|(a, b)| a * b).sum();
+                acc.add(w * (yv - fitted), Rails::flags(*rails, *yv));
                 let ef = yv - (f[0] * v[0] + f[1] * v[1] + f[2]);
                 let en = yv - (nm[0] * at_nominal[0] + nm[1] * at_nominal[1] + nm[2]);
                 if let (Some(a), Some(b)) = (r.rss_fitted.get_mut(ch), r.rss_nominal.get_mut(ch)) {
@@ -974,7 +1003,8 @@ fn finish(
             format!("condition {}: {e}", gs.condition.letter()),
         )
     };
-    let omega = TAU * p.four.rate_hz * p.span_s / (p.rows.max(2) - 1) as f64;
+    let span_s = p.span_ticks as f64 / f64::from(CLOCK.hz());
+    let omega = TAU * p.four.rate_hz * span_s / (p.rows.max(2) - 1) as f64;
     let freqs: Vec<f64> = WIDE_HARMONIC
         .iter()
         .map(|k| f64::from(*k) * omega)
@@ -1077,7 +1107,7 @@ fn sine_result(
         model: rotacal_shared::Model::SINE,
         n,
         t_first: rotacal_shared::Ticks(0),
-        t_last: rotacal_shared::Ticks((p.span_s * f64::from(CLOCK.hz())).round() as u64),
+        t_last: rotacal_shared::Ticks(p.span_ticks),
         t_ref: None,
         unscaled_cov,
         channels,
@@ -1116,7 +1146,7 @@ fn prepare(
     let moments = moments.dense();
     // As the streaming fit checks its record (method.md §5).
     let cfg = FitConfig::sine(nominal, CLOCK);
-    let span = (gs.span_s * f64::from(CLOCK.hz())).round() as u64;
+    let span = gs.span_ticks;
     let milli = (nominal.turns_x2_64(span).saturating_mul(1000) >> 64) as u64;
     if milli < u64::from(cfg.min_milli_periods) {
         let e = rotacal_shared::FitError::TooFewPeriods {
@@ -1147,7 +1177,7 @@ fn prepare(
         fitted,
         beta,
         rows: gs.rows,
-        span_s: gs.span_s,
+        span_ticks: gs.span_ticks,
     })
 }
 

@@ -86,8 +86,8 @@ pub struct Moments {
     x2: Matrix3<f64>,
     /// Σ n·y² per channel.
     yy: [f64; 3],
-    /// The last time seen, s: the record's extent for [`Moments::within`].
-    u_max: f64,
+    /// The last tick seen: the record's extent for [`Moments::within`].
+    t_max: u64,
     /// The rows of one conversion, as sums of u^p·cos mα, u^p·sin mα and u^p·g(α)·y:
     /// every product of two columns is one of these (see [`Harmonic`]).
     harm: Option<Box<Harmonic>>,
@@ -185,21 +185,43 @@ impl Harmonic {
             sm[m] = ps * c + pc * s;
         }
         let pw = [1.0, u, u * u, u * u * u, u * u * u * u];
-        for ((rc, rs), p) in self.cos.iter_mut().zip(self.sin.iter_mut()).zip(pw) {
-            for ((a, b), (x, z)) in rc.iter_mut().zip(rs.iter_mut()).zip(cm.iter().zip(&sm)) {
+        // Only the sums [`Harmonic::product`] reads (the others stay 0): the wide columns
+        // (harmonics to 4, u to the first power) meet at first order, so harmonics 5 to 8
+        // need u¹ at most and 3, 4 need u²; the sine's columns (harmonic 1, u⁰) go to
+        // fourth order, so harmonics 0 to 2 need u⁴.
+        fn powers<const M: usize>(c: &mut [f64; 9], s: &mut [f64; 9], p: f64, cs: &[[f64; 9]; 2]) {
+            let [cm, sm] = cs;
+            for ((a, b), (x, z)) in c
+                .iter_mut()
+                .zip(s.iter_mut())
+                .zip(cm.iter().zip(sm))
+                .take(M)
+            {
                 *a += p * x;
                 *b += p * z;
             }
         }
-        let g = [1.0, sm[1], cm[1], sm[2], cm[2], sm[3], cm[3], sm[4], cm[4]];
-        for (rows, p) in self.y.iter_mut().zip(pw) {
-            for (acc, gv) in rows.iter_mut().zip(g) {
+        let cs = [cm, sm];
+        let ([c0, c1, c2, c3, c4], [s0, s1, s2, s3, s4]) = (&mut self.cos, &mut self.sin);
+        powers::<9>(c0, s0, pw[0], &cs);
+        powers::<9>(c1, s1, pw[1], &cs);
+        powers::<5>(c2, s2, pw[2], &cs);
+        powers::<3>(c3, s3, pw[3], &cs);
+        powers::<3>(c4, s4, pw[4], &cs);
+        // With y: every column at first order, the sine's (1, sin α, cos α) at second.
+        fn with_y<const G: usize>(rows: &mut [[f64; 3]; 9], p: f64, g: &[f64; 9], y: [f64; 3]) {
+            for (acc, gv) in rows.iter_mut().zip(g).take(G) {
                 let w = p * gv;
                 for (a, v) in acc.iter_mut().zip(y) {
                     *a += w * v;
                 }
             }
         }
+        let g = [1.0, sm[1], cm[1], sm[2], cm[2], sm[3], cm[3], sm[4], cm[4]];
+        let [y0, y1, y2] = &mut self.y;
+        with_y::<9>(y0, pw[0], &g, y);
+        with_y::<9>(y1, pw[1], &g, y);
+        with_y::<3>(y2, pw[2], &g, y);
     }
 }
 
@@ -240,9 +262,14 @@ impl Moments {
             p22: Matrix3::zeros(),
             x2: Matrix3::zeros(),
             yy: [0.0; 3],
-            u_max: 0.0,
+            t_max: 0,
             harm: None,
         }
+    }
+
+    /// The last time seen, s.
+    fn u_max(&self) -> f64 {
+        self.t_max as f64 / f64::from(self.clock.hz())
     }
 
     /// The expansion point.
@@ -264,7 +291,7 @@ impl Moments {
     /// point. The sine's normal equations carry an error of order (εT)³/6 relative, the
     /// widened fit's (εT)²/2.
     pub fn reach(&self, step: PhaseStep) -> f64 {
-        (self.eps(step) * self.u_max).abs()
+        (self.eps(step) * self.u_max()).abs()
     }
 
     /// Whether `step` is within `radius` (|ε|·T, rad) of the expansion point.
@@ -301,22 +328,28 @@ impl Moments {
     /// Add a row: the conversions it averages (ticks from the group's first row) and its
     /// u, v, w.
     pub fn add(&mut self, ap: &Aperture, y: [f64; 3]) {
-        let hz = f64::from(self.clock.hz());
         if ap.len() == 1 {
-            let t = ap.first();
-            let (s, c) = self.step.phase_at(t).sin_cos::<f64>();
-            self.harm
-                .get_or_insert_with(Box::default)
-                .add(s.hi, c.hi, t.0 as f64 / hz, y);
-            for (a, v) in self.yy.iter_mut().zip(y) {
-                *a += v * v;
-            }
-        } else {
-            let (v0, v1, v2, n) = self.row_vectors(ap);
-            self.accumulate(&v0, &v1, &v2, n, y);
+            return self.add_point(ap.first(), y);
+        }
+        let (v0, v1, v2, n) = self.row_vectors(ap);
+        self.accumulate(&v0, &v1, &v2, n, y);
+        self.rows += 1;
+        // The latest time in ticks; its seconds (the same maximum) when asked.
+        self.t_max = self.t_max.max(ap.last().0);
+    }
+
+    /// Add a row of one conversion at tick `t`: [`Moments::add`] of its aperture.
+    pub fn add_point(&mut self, t: Ticks, y: [f64; 3]) {
+        let hz = f64::from(self.clock.hz());
+        let (s, c) = self.step.phase_at(t).sin_cos::<f64>();
+        self.harm
+            .get_or_insert_with(Box::default)
+            .add(s.hi, c.hi, t.0 as f64 / hz, y);
+        for (a, v) in self.yy.iter_mut().zip(y) {
+            *a += v * v;
         }
         self.rows += 1;
-        self.u_max = self.u_max.max(ap.last().0 as f64 / hz);
+        self.t_max = self.t_max.max(t.0);
     }
 
     /// The same sums with the rows of one conversion folded into the dense ones.
@@ -484,7 +517,7 @@ impl Moments {
             *a += sign * b;
         }
         if sign > 0.0 {
-            m.u_max = m.u_max.max(other.u_max);
+            m.t_max = m.t_max.max(other.t_max);
         }
         m
     }
@@ -494,6 +527,7 @@ impl Moments {
 /// its conversions, in the order of [`WIDE_HARMONIC`]; and the sine's (sin, cos, 1) at
 /// `other`, a step `shift` rad/s below (by rotating each conversion's angle back by
 /// shift·u, in a series exact to rounding while shift·u ≤ 10⁻³; directly beyond).
+#[inline]
 pub fn wide_regressors(
     ap: &Aperture,
     step: PhaseStep,
@@ -522,7 +556,10 @@ pub fn wide_regressors(
         o[0] += so;
         o[1] += co;
     }
-    let n = ap.len().max(1) as f64;
+    if ap.len() <= 1 {
+        return (v, o); // one conversion: nothing to average
+    }
+    let n = ap.len() as f64;
     (v.map(|a| a / n), [o[0] / n, o[1] / n, 1.0])
 }
 
@@ -683,7 +720,7 @@ impl Moments {
         let x03 = self.x0.fixed_view::<3, 3>(0, 0).into_owned();
         let x13 = self.x1.fixed_view::<3, 3>(0, 0).into_owned();
         m.x2 = r3 * (self.x2 + x13 * (2.0 * delta) + x03 * d2);
-        m.u_max = self.u_max + delta;
+        m.t_max = self.t_max.saturating_add(ticks);
         m
     }
 }

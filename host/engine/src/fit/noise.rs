@@ -730,6 +730,9 @@ pub struct LaggedSums {
 /// Lags 0 … [`MAX_ORDER`].
 pub const LAGS: usize = MAX_ORDER + 1;
 
+// LaggedSums::add takes the lags after 0 in pairs.
+const _: () = assert!(MAX_ORDER % 2 == 0, "the lags after 0 go in pairs");
+
 impl Default for LaggedSums {
     fn default() -> Self {
         LaggedSums {
@@ -752,6 +755,7 @@ impl Default for LaggedSums {
 
 impl LaggedSums {
     /// Add the next residual; `flagged` leaves it out.
+    #[inline]
     pub fn add(&mut self, e: f64, flagged: bool) {
         if flagged && !self.pairwise {
             // The first flagged sample: from here on the centring sums go pair by pair.
@@ -784,8 +788,21 @@ impl LaggedSums {
         ) else {
             return;
         };
-        for (p, l) in self.prod.iter_mut().zip(lagged) {
-            *p += x * l;
+        // Lag 0 from x itself, not from the slot just written: loading a store still in
+        // flight together with its neighbour stalls. Then pairs of lags at a time: two
+        // independent lanes the compiler vectorises.
+        let (p0, older) = self.prod.split_at_mut(1);
+        if let Some(p) = p0.first_mut() {
+            *p += x * x;
+        }
+        let older_lagged = lagged.get(1..).unwrap_or(&[]);
+        for (p, l) in older.chunks_exact_mut(2).zip(older_lagged.chunks_exact(2)) {
+            if let (Some(p), Some(l)) = (
+                <&mut [f64; 2]>::try_from(p).ok(),
+                <&[f64; 2]>::try_from(l).ok(),
+            ) {
+                *p = [p[0] + x * l[0], p[1] + x * l[1]];
+            }
         }
         if self.pairwise {
             for (((a, b), c), (l, k)) in self

@@ -1038,6 +1038,9 @@ fn fast_rows<R: Read>(
 ) -> io::Result<Option<u64>> {
     let mut line_no = line;
     let mut bounds: Vec<(usize, usize)> = Vec::with_capacity(16);
+    let plan = plain_plan(cols, columns);
+    // The plain rows' row: each sets the same fields (the plan's), so it is reused.
+    let mut row = Row::new(Condition::X, 0.0, 0.0, 0.0);
     // Whole lines from a large buffer: a line cut by the buffer's end is moved to its
     // front before the next read.
     let mut chunk: Vec<u8> = vec![0; 1 << 20];
@@ -1060,42 +1063,44 @@ fn fast_rows<R: Read>(
         if memchr::memchr(b'"', lines).is_some() {
             return Ok(None);
         }
-        // Every comma and line end of the buffer in one vectorised scan: a line's fields
-        // are cut at its commas as they come.
-        let (mut begin, mut field) = (0, 0);
-        bounds.clear();
-        let marks = memchr::memchr2_iter(b',', b'\n', lines).chain(
-            // The last line of a file without a final newline.
-            (got == 0 && lines.last().is_some_and(|b| *b != b'\n')).then_some(lines.len()),
-        );
-        for at in marks {
-            if lines.get(at) == Some(&b',') {
-                bounds.push((field - begin, at - begin));
-                field = at + 1;
+        let mut at = 0;
+        while at < lines.len() {
+            line_no += 1;
+            // A plain row in one walk over its bytes; anything else line by line below.
+            if let Some(next) = plan
+                .as_deref()
+                .and_then(|p| plain_row(p, lines, at, &mut row))
+            {
+                if !each(line_no, &row) {
+                    return Ok(None);
+                }
+                at = next;
                 continue;
             }
-            bounds.push((field - begin, at - begin));
-            let line = lines.get(begin..at).unwrap_or(&[]);
-            (begin, field) = (at + 1, at + 1);
-            line_no += 1;
+            let rest = lines.get(at..).unwrap_or(&[]);
+            let end = memchr::memchr(b'\n', rest).unwrap_or(rest.len());
+            let line = rest.get(..end).unwrap_or(&[]);
+            at += end + 1;
             let keep = if line.is_empty() || line.first() == Some(&b'#') {
                 true // the csv reader skips empty lines and comments
-            } else if bounds.len() != cols.n {
-                is_blank_line(line, &bounds)
             } else {
-                let fields = SplitLine {
-                    line,
-                    bounds: &bounds,
-                };
-                match parse_row(&fields, cols, columns) {
-                    Ok(row) => each(line_no, &row),
-                    Err(_) => false,
+                split_commas(line, &mut bounds);
+                if bounds.len() != cols.n {
+                    is_blank_line(line, &bounds)
+                } else {
+                    let fields = SplitLine {
+                        line,
+                        bounds: &bounds,
+                    };
+                    match parse_row(&fields, cols, columns) {
+                        Ok(row) => each(line_no, &row),
+                        Err(_) => false,
+                    }
                 }
             };
             if !keep {
                 return Ok(None);
             }
-            bounds.clear();
         }
         if got == 0 {
             return Ok(Some(line_no));
@@ -1103,6 +1108,127 @@ fn fast_rows<R: Read>(
         chunk.copy_within(whole..filled, 0);
         filled -= whole;
     }
+}
+
+/// What [`plain_row`] does with a column.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Plain {
+    Condition,
+    /// A plain decimal into a slot of the row.
+    Number(Slot),
+    Seq,
+    Gaps,
+    /// A column this reading does not use.
+    Skip,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Slot {
+    T,
+    Angle,
+    U,
+    V,
+    W,
+    Temp,
+    Rate,
+}
+
+/// Each column's part in a plain row, for [`plain_row`]; `None` for a file it does not
+/// read (gravity directions, poses or uncertainties: those rows go field by field).
+fn plain_plan(cols: &ColumnIndex, columns: Parse) -> Option<Vec<Plain>> {
+    if cols.gravity.is_some() || cols.pose.is_some() || cols.unc.is_some() {
+        return None;
+    }
+    let all = columns == Parse::All;
+    let mut plan = vec![Plain::Skip; cols.n];
+    let mut set = |i: Option<usize>, p: Plain| {
+        if let Some(slot) = i.and_then(|i| plan.get_mut(i)) {
+            *slot = p;
+        }
+    };
+    set(cols.condition, Plain::Condition);
+    set(cols.t_s, Plain::Number(Slot::T));
+    set(cols.angle_deg.filter(|_| all), Plain::Number(Slot::Angle));
+    set(Some(cols.u), Plain::Number(Slot::U));
+    set(Some(cols.v), Plain::Number(Slot::V));
+    set(Some(cols.w), Plain::Number(Slot::W));
+    set(cols.seq.filter(|_| all), Plain::Seq);
+    set(cols.temp_c.filter(|_| all), Plain::Number(Slot::Temp));
+    set(cols.rate_hz, Plain::Number(Slot::Rate));
+    set(cols.conv_gaps, Plain::Gaps);
+    plan.contains(&Plain::Condition).then_some(plan)
+}
+
+/// The row that starts at byte `at` of `data`, into `row` (the fields `plan` names), and the
+/// byte after its newline, read in one walk over its fields when it is plain: `plan`'s
+/// number of fields, a condition letter, plain decimals ([`plain_decimal`]) and whole
+/// numbers with nothing around them. `None` for anything else (a comment, spaces, an
+/// exponent, a problem), which [`parse_row`] then reads, or names: a row read here is the
+/// row it would read, to the bit.
+fn plain_row(plan: &[Plain], data: &[u8], at: usize, row: &mut Row<'static>) -> Option<usize> {
+    if data.get(at) == Some(&b'#') {
+        return None;
+    }
+    let last = plan.len().checked_sub(1)?;
+    let mut pos = at;
+    for (i, part) in plan.iter().enumerate() {
+        let rest = data.get(pos..)?;
+        // Each field read in the walk that finds its end (the bytes after it are left).
+        let len = match part {
+            Plain::Condition => {
+                let c = rest.first()?;
+                row.condition = Condition::from_letter(char::from(*c))?;
+                1
+            }
+            Plain::Number(slot) => {
+                let (x, len) = leading_decimal(rest)?;
+                match slot {
+                    Slot::T => row.t_s = Some(x),
+                    Slot::Angle => row.angle_deg = Some(x),
+                    Slot::U => row.u = x,
+                    Slot::V => row.v = x,
+                    Slot::W => row.w = x,
+                    Slot::Temp => row.temp_c = Some(x),
+                    Slot::Rate if x > 0.0 => row.rate_hz = Some(x),
+                    Slot::Rate => return None,
+                }
+                len
+            }
+            Plain::Seq => {
+                let len = rest
+                    .iter()
+                    .position(|b| !b.is_ascii_digit())
+                    .unwrap_or(rest.len());
+                if len == 0 || len > 19 {
+                    return None;
+                }
+                let digits = rest.get(..len)?;
+                row.seq = Some(digits.iter().fold(0, |n, d| n * 10 + u64::from(d - b'0')));
+                len
+            }
+            Plain::Gaps | Plain::Skip => {
+                let len = rest
+                    .iter()
+                    .position(|b| *b == b',' || *b == b'\n')
+                    .unwrap_or(rest.len());
+                if *part == Plain::Gaps {
+                    row.conv_gaps = Some(parse_gaps(rest.get(..len)?.trim_ascii()).ok()?);
+                }
+                len
+            }
+        };
+        // The field ends at a comma, the last one at a newline or the end of the file.
+        let ends_line = match rest.get(len) {
+            Some(b',') => false,
+            Some(b'\n') | None => true,
+            Some(_) => return None,
+        };
+        if ends_line != (i == last) {
+            return None;
+        }
+        pos += len + 1;
+    }
+    Some(pos.min(data.len()))
 }
 
 /// A record's fields, from the csv reader or from the fast line reader.
@@ -1935,23 +2061,41 @@ fn parse_f64<F: Fields + ?Sized>(
     }
 }
 
-/// A decimal number as `str::parse::<f64>` reads it (correctly rounded). Plain decimals
-/// of at most 15 significant digits (`-12.5`, `0.009615`), which are nearly all a
-/// recording holds, are read directly: their digits are an integer below 2⁵³ and the
-/// power of ten is exact, so one division rounds correctly (Clinger's fast path).
-/// Anything else goes to fast-float2.
+/// A decimal number as `str::parse::<f64>` reads it (correctly rounded): plain decimals
+/// by [`plain_decimal`], anything else by fast-float2.
 fn parse_number(f: &[u8]) -> Option<f64> {
-    const POW10: [f64; 16] = [
-        1e0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8, 1e9, 1e10, 1e11, 1e12, 1e13, 1e14, 1e15,
-    ];
+    plain_decimal(f).or_else(|| fast_float2::parse::<f64, _>(f).ok())
+}
+
+/// The exact powers of ten in f64, and as integers.
+const POW10: [f64; 16] = [
+    1e0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8, 1e9, 1e10, 1e11, 1e12, 1e13, 1e14, 1e15,
+];
+const POW10_INT: [u64; 16] = {
+    let mut p = [1u64; 16];
+    let mut i = 1;
+    while i < 16 {
+        p[i] = p[i - 1] * 10;
+        i += 1;
+    }
+    p
+};
+
+/// A plain decimal of at most 15 significant digits (`-12.5`, `0.009615`, `541`), which
+/// are nearly all a recording holds, as `str::parse::<f64>` reads it; `None` for anything
+/// else. Its digits are an integer below 2⁵³ and the power of ten is exact, so one
+/// division rounds correctly (Clinger's fast path).
+fn plain_decimal(f: &[u8]) -> Option<f64> {
     let (neg, body) = match f.split_first() {
         Some((b'-', rest)) => (true, rest),
         _ => (false, f),
     };
+    if body.is_empty() || body.len() > 16 {
+        return None;
+    }
     // One loop over the digits: the whole number, the integer part, the digits after the
     // point and whether any of them is not 0 ("541.0" needs no division).
     let (mut mant, mut int, mut frac, mut point, mut nonzero) = (0u64, 0u64, 0usize, false, false);
-    let mut ok = !body.is_empty() && body.len() <= 16;
     for b in body {
         let d = b.wrapping_sub(b'0');
         if d <= 9 {
@@ -1965,19 +2109,82 @@ fn parse_number(f: &[u8]) -> Option<f64> {
         } else if *b == b'.' && !point {
             point = true;
         } else {
-            ok = false;
-            break;
+            return None;
         }
     }
     // A digit on each side of a point ("5." and ".5" go the long way), at most 15 digits.
     let digits = body.len() - usize::from(point);
-    ok &= digits <= 15 && (!point || (frac > 0 && frac < digits));
-    let v = match (ok, nonzero, POW10.get(frac)) {
-        (true, false, _) => int as f64,
-        (true, true, Some(p)) => mant as f64 / p,
-        _ => return fast_float2::parse::<f64, _>(f).ok(),
+    if digits > 15 || (point && (frac == 0 || frac >= digits)) {
+        return None;
+    }
+    let v = if nonzero {
+        mant as f64 / POW10.get(frac)?
+    } else {
+        int as f64
     };
     Some(if neg { -v } else { v })
+}
+
+/// The plain decimal that starts `rest`, as [`plain_decimal`] reads it, and its length:
+/// the digits are read in the walk that finds the number's end (the byte after it is the
+/// caller's to check). `None` when what starts `rest` is not one.
+fn leading_decimal(rest: &[u8]) -> Option<(f64, usize)> {
+    /// The digits from byte `i` on into `mant` (wrapping past 19 digits: refused below),
+    /// and the byte after them.
+    fn digits(rest: &[u8], mut i: usize, mant: &mut u64) -> usize {
+        // Two at a time while there are two (half the steps, half the dependent
+        // multiplications), then one.
+        while let Some(&[a, b]) = rest.get(i..i + 2) {
+            let (a, b) = (a.wrapping_sub(b'0'), b.wrapping_sub(b'0'));
+            if a > 9 {
+                return i;
+            }
+            if b > 9 {
+                *mant = mant.wrapping_mul(10).wrapping_add(u64::from(a));
+                return i + 1;
+            }
+            *mant = mant
+                .wrapping_mul(100)
+                .wrapping_add(u64::from(a) * 10 + u64::from(b));
+            i += 2;
+        }
+        while let Some(d) = rest
+            .get(i)
+            .map(|b| b.wrapping_sub(b'0'))
+            .filter(|d| *d <= 9)
+        {
+            *mant = mant.wrapping_mul(10).wrapping_add(u64::from(d));
+            i += 1;
+        }
+        i
+    }
+    let neg = rest.first() == Some(&b'-');
+    let start = usize::from(neg);
+    let mut mant = 0;
+    let point = digits(rest, start, &mut mant);
+    let (int, whole) = (mant, point - start);
+    let (len, frac) = if rest.get(point) == Some(&b'.') {
+        let end = digits(rest, point + 1, &mut mant);
+        // A digit on each side of a point ("5." and ".5" go the long way).
+        if whole == 0 || end == point + 1 {
+            return None;
+        }
+        (end, end - point - 1)
+    } else {
+        (point, 0)
+    };
+    if whole + frac == 0 || whole + frac > 15 {
+        return None;
+    }
+    // As in plain_decimal: exact digits, an exact power of ten, one rounding; no division
+    // when the digits after the point are all 0 ("541.0"), the value then the integer
+    // part's (which the quotient would be, exactly).
+    let v = if mant == int.wrapping_mul(*POW10_INT.get(frac)?) {
+        int as f64
+    } else {
+        mant as f64 / POW10.get(frac)?
+    };
+    Some((if neg { -v } else { v }, len))
 }
 
 fn parse_opt<F: Fields + ?Sized>(
@@ -2141,11 +2348,33 @@ pub fn row_aperture(
     scale: f64,
     clock: rotacal_shared::TickRate,
 ) -> Result<Aperture, &'static str> {
-    let ticks = ((t_s - t0_s) * f64::from(clock.hz())).round();
-    if !(0.0..1.8e19).contains(&ticks) {
-        return Err("t_s out of range");
+    let ticks = row_tick(t_s, t0_s, clock)?;
+    scaled_aperture(ticks, gaps, scale).ok_or("conv_gaps beyond 65 ms at 1 MHz")
+}
+
+/// The tick of a row's (first) conversion, as [`row_aperture`] has it.
+pub fn row_tick(
+    t_s: f64,
+    t0_s: f64,
+    clock: rotacal_shared::TickRate,
+) -> Result<Ticks, &'static str> {
+    round_ticks((t_s - t0_s) * f64::from(clock.hz()))
+        .map(Ticks)
+        .ok_or("t_s out of range")
+}
+
+/// `x.round()` (half away from zero) as a tick count, if in 0 … 1.8·10¹⁹: by truncation
+/// and the exact fraction it leaves, without the call to libm's round that the baseline
+/// x86-64 target makes (twice a row in a streaming calibration).
+fn round_ticks(x: f64) -> Option<u64> {
+    // round(x) < 0 exactly when x ≤ −0.5; at 1.8·10¹⁹ every f64 is a whole number.
+    if !(x > -0.5 && x < 1.8e19) {
+        return None;
     }
-    scaled_aperture(Ticks(ticks as u64), gaps, scale).ok_or("conv_gaps beyond 65 ms at 1 MHz")
+    let whole = x as u64; // truncation: floor for x ≥ 0, 0 for −0.5 < x < 0
+                          // Exact: x and its whole part share their binade's grid, or x is whole.
+    let frac = x - whole as f64;
+    Some(whole + u64::from(frac >= 0.5))
 }
 
 /// Ticks of `clock` per device tick of a file with metadata `meta` (its `tick_hz`; 1 when
@@ -2576,8 +2805,126 @@ impl<W: Write> Writer<W> {
 
 #[cfg(test)]
 mod tests {
-    use super::parse_number;
+    use super::{
+        parse_number, parse_row, plain_plan, plain_row, split_commas, ColumnIndex, Parse, Row,
+        SplitLine,
+    };
     use proptest::prelude::*;
+    use rotacal_shared::Condition;
+
+    /// The columns of a rotation recording (`condition,seq,t_s,u,v,w,temp_c`), with
+    /// `rate_hz`, `conv_gaps` and a column of no meaning after them when `more`.
+    fn columns(more: bool) -> ColumnIndex {
+        ColumnIndex {
+            n: if more { 10 } else { 7 },
+            condition: Some(0),
+            gravity: None,
+            pose: None,
+            unc: None,
+            u: 3,
+            v: 4,
+            w: 5,
+            t_s: Some(2),
+            angle_deg: None,
+            seq: Some(1),
+            temp_c: Some(6),
+            rate_hz: more.then_some(7),
+            conv_gaps: more.then_some(8),
+        }
+    }
+
+    /// A line the plain reader reads is read as [`parse_row`] reads it, to the bit, and
+    /// its end is found; one it refuses is left to `parse_row`.
+    fn plain_reads_as_parse_row(cols: &ColumnIndex, parse: Parse, text: &str) {
+        let Some(plan) = plain_plan(cols, parse) else {
+            panic!("a plain plan for these columns");
+        };
+        let mut row = Row::new(Condition::X, 0.0, 0.0, 0.0);
+        let data = text.as_bytes();
+        let Some(next) = plain_row(&plan, data, 0, &mut row) else {
+            return;
+        };
+        let end = memchr::memchr(b'\n', data).unwrap_or(data.len());
+        assert_eq!(next, (end + 1).min(data.len()), "{text:?}");
+        let line = &data[..end];
+        let mut bounds = Vec::new();
+        split_commas(line, &mut bounds);
+        assert_eq!(bounds.len(), cols.n, "{text:?}");
+        let fields = SplitLine {
+            line,
+            bounds: &bounds,
+        };
+        match parse_row(&fields, cols, parse) {
+            Ok(want) => assert_eq!(format!("{row:?}"), format!("{want:?}"), "{text:?}"),
+            Err(e) => panic!("plain read {text:?}, which parse_row refuses: {e}"),
+        }
+    }
+
+    fn field() -> impl Strategy<Value = String> {
+        prop_oneof![
+            24 => "-?[0-9]{1,8}(\\.[0-9]{1,8})?",
+            1 => "-?[0-9]{0,17}(\\.[0-9]{0,17})?",
+            1 => prop::sample::select(vec![
+                "", " 5", "5 ", "+2", "-", ".", ".5", "5.", "1.2.3", "1e3", "nan", "inf",
+                "0x10", "--1", "1-", "12,5", "\r", "18446744073709551615", "-0.0", "0",
+            ])
+            .prop_map(str::to_string),
+        ]
+    }
+
+    proptest! {
+        // About one case in ten is a plain row from end to end: enough of them.
+        #![proptest_config(ProptestConfig::with_cases(2000))]
+
+        #[test]
+        fn a_plain_row_reads_as_parse_row_reads_it(
+            cond in prop::sample::select(vec!["x", "y", "z", "Z", "w", " x", "xx", "", "#"]),
+            fields in prop::collection::vec(field(), 8),
+            off in prop_oneof![6 => Just(0usize), 1 => Just(1usize), 1 => Just(2usize)],
+            gaps in prop::sample::select(vec!["", "9600", "9600 9600", "0", "x", " 9600"]),
+            end in prop::sample::select(vec!["\n", "\r\n", "", "\nx,1,2,3,4,5,6\n"]),
+            more in proptest::bool::ANY,
+            all in proptest::bool::ANY,
+        ) {
+            // Mostly the right number of fields (off = 1: one fewer, 2: one more).
+            let numbers = if more { 7 } else { 6 };
+            let numbers = match off {
+                1 => numbers - 1,
+                2 => numbers + 1,
+                _ => numbers,
+            };
+            let mut parts = vec![cond.to_string()];
+            parts.extend(fields.into_iter().take(numbers));
+            if more {
+                parts.push(gaps.to_string());
+                parts.push("note".to_string());
+            }
+            let text = parts.join(",") + end;
+            let parse = if all { Parse::All } else { Parse::Fit };
+            plain_reads_as_parse_row(&columns(more), parse, &text);
+        }
+    }
+
+    #[test]
+    fn plain_rows_are_read_by_the_plain_reader() {
+        // The common rows must not all fall back (which would be correct, and slow).
+        let Some(plan) = plain_plan(&columns(false), Parse::All) else {
+            panic!("a plain plan");
+        };
+        let mut row = Row::new(Condition::X, 0.0, 0.0, 0.0);
+        for text in [
+            "x,0,0.0,541.0,-9558.0,-12827.0,25.0\n",
+            "y,123456,3599.990385,-1.5,0.009615,7,-0.0",
+        ] {
+            let got = plain_row(&plan, text.as_bytes(), 0, &mut row);
+            assert_eq!(got, Some(text.len()), "{text:?}");
+            plain_reads_as_parse_row(&columns(false), Parse::All, text);
+        }
+        assert_eq!(row.t_s, Some(3599.990385));
+        assert_eq!(row.seq, Some(123456));
+        // An exponent goes the long way.
+        assert_eq!(plain_row(&plan, b"z,1,1e0,1,2,3,4\n", 0, &mut row), None);
+    }
 
     /// As `str::parse::<f64>` reads it, bit for bit (any NaN for a NaN).
     fn same(s: &str) {
@@ -2623,7 +2970,48 @@ mod tests {
         }
     }
 
+    /// round_ticks is f64::round, bounds included.
+    fn same_round(x: f64) {
+        let std = x.round();
+        let want = (0.0..1.8e19).contains(&std).then_some(std as u64);
+        assert_eq!(super::round_ticks(x), want, "{x:e}");
+    }
+
+    #[test]
+    fn ticks_round_as_the_standard_library_rounds() {
+        for x in [
+            0.0,
+            -0.0,
+            0.49999999999999994,
+            0.5,
+            1.5,
+            2.5,
+            -0.4,
+            -0.5,
+            -0.500_000_000_000_000_1,
+            4503599627370495.5,
+            4503599627370496.0,
+            9007199254740993.0,
+            1.8e19,
+            1.7999999999999998e19,
+            f64::NAN,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+        ] {
+            same_round(x);
+        }
+    }
+
     proptest! {
+        #[test]
+        fn any_tick_count_rounds_as_the_standard_library_rounds(
+            m in 0.0f64..1.0, e in -3i32..66, half in proptest::bool::ANY
+        ) {
+            let x = m * 2f64.powi(e);
+            same_round(if half { x.floor() + 0.5 } else { x });
+            same_round(-x);
+        }
+
         #[test]
         fn any_decimal_reads_as_the_standard_library_reads_it(
             s in "-?[0-9]{0,18}(\\.[0-9]{0,18})?([eE][-+]?[0-9]{1,3})?"
