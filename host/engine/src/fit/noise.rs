@@ -937,3 +937,62 @@ impl LaggedSums {
             .collect()
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::{LaggedSums, LAGS};
+    use proptest::prelude::*;
+
+    /// γ̂ₖ from its definition (as NoiseModel::estimate has it).
+    fn direct(e: &[f64], flagged: &[bool]) -> Vec<f64> {
+        let ok = |t: usize| !flagged[t];
+        let used = (0..e.len()).filter(|&t| ok(t)).count() as f64;
+        let mean = (0..e.len()).filter(|&t| ok(t)).map(|t| e[t]).sum::<f64>() / used;
+        (0..LAGS)
+            .map(|k| {
+                (0..e.len().saturating_sub(k))
+                    .filter(|&t| ok(t) && ok(t + k))
+                    .map(|t| (e[t] - mean) * (e[t + k] - mean))
+                    .sum::<f64>()
+                    / used
+            })
+            .collect()
+    }
+
+    fn sums(e: &[f64], flagged: &[bool]) -> LaggedSums {
+        let mut s = LaggedSums::default();
+        for (x, f) in e.iter().zip(flagged) {
+            s.add(*x, *f);
+        }
+        s
+    }
+
+    proptest! {
+        /// Whole, and read in two parts joined (as the streaming calibration reads a
+        /// file), the sums give the definition's autocovariances: flagged samples or none,
+        /// the cut anywhere (within the first lags too).
+        #[test]
+        fn lagged_sums_give_the_autocovariances(
+            e in prop::collection::vec(-50.0f64..50.0, 40..2600),
+            flag_every in prop_oneof![Just(0usize), 2usize..200],
+            cut in 0.0f64..1.0,
+        ) {
+            let n = e.len();
+            let flagged: Vec<bool> =
+                (0..n).map(|t| flag_every > 0 && t % flag_every == 7).collect();
+            prop_assume!(flagged.iter().filter(|f| !**f).count() > 10);
+            let want = direct(&e, &flagged);
+            let a = (cut * n as f64) as usize;
+            let whole = sums(&e, &flagged).autocovariances();
+            let two = sums(&e[..a], &flagged[..a])
+                .followed_by(&sums(&e[a..], &flagged[a..]))
+                .autocovariances();
+            let scale = want[0].abs().max(1e-300);
+            for got in [&whole, &two] {
+                for (k, (g, w)) in got.iter().zip(&want).enumerate() {
+                    prop_assert!((g - w).abs() <= 1e-12 * scale, "lag {k}: {g} against {w}");
+                }
+            }
+        }
+    }
+}
