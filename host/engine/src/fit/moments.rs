@@ -178,12 +178,16 @@ impl Harmonic {
 
     /// Add a row of one conversion at angle (sin, cos) = (`s`, `c`), time `u`.
     fn add(&mut self, s: f64, c: f64, u: f64, y: [f64; 3]) {
-        let (mut cm, mut sm) = ([1.0; 9], [0.0; 9]);
-        for m in 1..9 {
-            let (pc, ps) = (cm[m - 1], sm[m - 1]);
-            cm[m] = pc * c - ps * s;
-            sm[m] = ps * c + pc * s;
-        }
+        // cos mα, sin mα by the angle-sum formulas, in three rounds (2; 3, 4; 5 to 8)
+        // rather than a chain of eight: each round's products wait only on the last.
+        let turn =
+            |(c1, s1): (f64, f64), (c2, s2): (f64, f64)| (c1 * c2 - s1 * s2, s1 * c2 + c1 * s2);
+        let h1 = (c, s);
+        let h2 = turn(h1, h1);
+        let (h3, h4) = (turn(h2, h1), turn(h2, h2));
+        let (h5, h6, h7, h8) = (turn(h4, h1), turn(h4, h2), turn(h4, h3), turn(h4, h4));
+        let hs = [(1.0, 0.0), h1, h2, h3, h4, h5, h6, h7, h8];
+        let (cm, sm) = (hs.map(|h| h.0), hs.map(|h| h.1));
         let pw = [1.0, u, u * u, u * u * u, u * u * u * u];
         // Only the sums [`Harmonic::product`] reads (the others stay 0): the wide columns
         // (harmonics to 4, u to the first power) meet at first order, so harmonics 5 to 8
