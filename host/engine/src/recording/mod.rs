@@ -1195,22 +1195,16 @@ fn plain_row(plan: &[Plain], data: &[u8], at: usize, row: &mut Row<'static>) -> 
                 len
             }
             Plain::Seq => {
-                let len = rest
-                    .iter()
-                    .position(|b| !b.is_ascii_digit())
-                    .unwrap_or(rest.len());
+                let mut seq = 0;
+                let len = leading_digits(rest, 0, &mut seq);
                 if len == 0 || len > 19 {
                     return None;
                 }
-                let digits = rest.get(..len)?;
-                row.seq = Some(digits.iter().fold(0, |n, d| n * 10 + u64::from(d - b'0')));
+                row.seq = Some(seq);
                 len
             }
             Plain::Gaps | Plain::Skip => {
-                let len = rest
-                    .iter()
-                    .position(|b| *b == b',' || *b == b'\n')
-                    .unwrap_or(rest.len());
+                let len = field_end(rest);
                 if *part == Plain::Gaps {
                     row.conv_gaps = Some(parse_gaps(rest.get(..len)?.trim_ascii()).ok()?);
                 }
@@ -2125,46 +2119,64 @@ fn plain_decimal(f: &[u8]) -> Option<f64> {
     Some(if neg { -v } else { v })
 }
 
+/// The digits of `rest` from byte `i` on into `mant` (wrapping past 19 digits: callers
+/// refuse so many), and the byte after them.
+fn leading_digits(rest: &[u8], mut i: usize, mant: &mut u64) -> usize {
+    // Two at a time while there are two (half the steps, half the dependent
+    // multiplications), then one.
+    while let Some(&[a, b]) = rest.get(i..i + 2) {
+        let (a, b) = (a.wrapping_sub(b'0'), b.wrapping_sub(b'0'));
+        if a > 9 {
+            return i;
+        }
+        if b > 9 {
+            *mant = mant.wrapping_mul(10).wrapping_add(u64::from(a));
+            return i + 1;
+        }
+        *mant = mant
+            .wrapping_mul(100)
+            .wrapping_add(u64::from(a) * 10 + u64::from(b));
+        i += 2;
+    }
+    while let Some(d) = rest
+        .get(i)
+        .map(|b| b.wrapping_sub(b'0'))
+        .filter(|d| *d <= 9)
+    {
+        *mant = mant.wrapping_mul(10).wrapping_add(u64::from(d));
+        i += 1;
+    }
+    i
+}
+
+/// Where the field that starts `rest` ends: its comma or newline, or the end (two bytes
+/// a step, as [`leading_digits`]).
+fn field_end(rest: &[u8]) -> usize {
+    let ends = |b: u8| b == b',' || b == b'\n';
+    let mut i = 0;
+    while let Some(&[a, b]) = rest.get(i..i + 2) {
+        if ends(a) {
+            return i;
+        }
+        if ends(b) {
+            return i + 1;
+        }
+        i += 2;
+    }
+    i + usize::from(rest.get(i).is_some_and(|b| !ends(*b)))
+}
+
 /// The plain decimal that starts `rest`, as [`plain_decimal`] reads it, and its length:
 /// the digits are read in the walk that finds the number's end (the byte after it is the
 /// caller's to check). `None` when what starts `rest` is not one.
 fn leading_decimal(rest: &[u8]) -> Option<(f64, usize)> {
-    /// The digits from byte `i` on into `mant` (wrapping past 19 digits: refused below),
-    /// and the byte after them.
-    fn digits(rest: &[u8], mut i: usize, mant: &mut u64) -> usize {
-        // Two at a time while there are two (half the steps, half the dependent
-        // multiplications), then one.
-        while let Some(&[a, b]) = rest.get(i..i + 2) {
-            let (a, b) = (a.wrapping_sub(b'0'), b.wrapping_sub(b'0'));
-            if a > 9 {
-                return i;
-            }
-            if b > 9 {
-                *mant = mant.wrapping_mul(10).wrapping_add(u64::from(a));
-                return i + 1;
-            }
-            *mant = mant
-                .wrapping_mul(100)
-                .wrapping_add(u64::from(a) * 10 + u64::from(b));
-            i += 2;
-        }
-        while let Some(d) = rest
-            .get(i)
-            .map(|b| b.wrapping_sub(b'0'))
-            .filter(|d| *d <= 9)
-        {
-            *mant = mant.wrapping_mul(10).wrapping_add(u64::from(d));
-            i += 1;
-        }
-        i
-    }
     let neg = rest.first() == Some(&b'-');
     let start = usize::from(neg);
     let mut mant = 0;
-    let point = digits(rest, start, &mut mant);
+    let point = leading_digits(rest, start, &mut mant);
     let (int, whole) = (mant, point - start);
     let (len, frac) = if rest.get(point) == Some(&b'.') {
-        let end = digits(rest, point + 1, &mut mant);
+        let end = leading_digits(rest, point + 1, &mut mant);
         // A digit on each side of a point ("5." and ".5" go the long way).
         if whole == 0 || end == point + 1 {
             return None;
