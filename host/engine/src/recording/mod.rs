@@ -2080,43 +2080,9 @@ const POW10_INT: [u64; 16] = {
 /// else. Its digits are an integer below 2⁵³ and the power of ten is exact, so one
 /// division rounds correctly (Clinger's fast path).
 fn plain_decimal(f: &[u8]) -> Option<f64> {
-    let (neg, body) = match f.split_first() {
-        Some((b'-', rest)) => (true, rest),
-        _ => (false, f),
-    };
-    if body.is_empty() || body.len() > 16 {
-        return None;
-    }
-    // One loop over the digits: the whole number, the integer part, the digits after the
-    // point and whether any of them is not 0 ("541.0" needs no division).
-    let (mut mant, mut int, mut frac, mut point, mut nonzero) = (0u64, 0u64, 0usize, false, false);
-    for b in body {
-        let d = b.wrapping_sub(b'0');
-        if d <= 9 {
-            mant = mant * 10 + u64::from(d);
-            if point {
-                frac += 1;
-                nonzero |= d != 0;
-            } else {
-                int = mant;
-            }
-        } else if *b == b'.' && !point {
-            point = true;
-        } else {
-            return None;
-        }
-    }
-    // A digit on each side of a point ("5." and ".5" go the long way), at most 15 digits.
-    let digits = body.len() - usize::from(point);
-    if digits > 15 || (point && (frac == 0 || frac >= digits)) {
-        return None;
-    }
-    let v = if nonzero {
-        mant as f64 / POW10.get(frac)?
-    } else {
-        int as f64
-    };
-    Some(if neg { -v } else { v })
+    leading_decimal(f)
+        .filter(|(_, len)| *len == f.len())
+        .map(|(x, _)| x)
 }
 
 /// The digits of `rest` from byte `i` on into `mant` (wrapping past 19 digits: callers
@@ -2166,9 +2132,9 @@ fn field_end(rest: &[u8]) -> usize {
     i + usize::from(rest.get(i).is_some_and(|b| !ends(*b)))
 }
 
-/// The plain decimal that starts `rest`, as [`plain_decimal`] reads it, and its length:
-/// the digits are read in the walk that finds the number's end (the byte after it is the
-/// caller's to check). `None` when what starts `rest` is not one.
+/// The plain decimal that starts `rest` (see [`plain_decimal`]) and its length: the digits
+/// are read in the walk that finds the number's end (the byte after it is the caller's to
+/// check). `None` when what starts `rest` is not one.
 fn leading_decimal(rest: &[u8]) -> Option<(f64, usize)> {
     let neg = rest.first() == Some(&b'-');
     let start = usize::from(neg);
@@ -2188,9 +2154,9 @@ fn leading_decimal(rest: &[u8]) -> Option<(f64, usize)> {
     if whole + frac == 0 || whole + frac > 15 {
         return None;
     }
-    // As in plain_decimal: exact digits, an exact power of ten, one rounding; no division
-    // when the digits after the point are all 0 ("541.0"), the value then the integer
-    // part's (which the quotient would be, exactly).
+    // Exact digits, an exact power of ten, one rounding; no division when the digits
+    // after the point are all 0 ("541.0"), the value then the integer part's (which the
+    // quotient would be, exactly).
     let v = if mant == int.wrapping_mul(*POW10_INT.get(frac)?) {
         int as f64
     } else {
