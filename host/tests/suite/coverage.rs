@@ -383,6 +383,13 @@ fn rotation_coverage(
         let cal = calibrate(&rec, &Options::default()).unwrap();
         (cal.by_rate, sim.truth().clone())
     });
+    rotation_tally(case, &results)
+}
+
+/// Each rate's coverage of the six properties over `results` (each run's calibration and
+/// its truth), printed; the failures.
+pub(crate) fn rotation_tally(case: &str, results: &[(Vec<RateJson>, Truth)]) -> Vec<String> {
+    let trials = results.len();
     let truth = &results[0].1;
     let values: Vec<f64> = truth
         .sensitivity
@@ -398,7 +405,7 @@ fn rotation_coverage(
             vec!["s_u", "s_v", "s_w", "φ_uv", "φ_vw", "φ_wu"],
             values.clone(),
         );
-        for (by_rate, _) in &results {
+        for (by_rate, _) in results {
             tally.add(&by_rate[r].intrinsic.quantities());
         }
         failures.extend(
