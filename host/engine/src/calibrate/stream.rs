@@ -26,7 +26,7 @@ use crate::fit::noise::{LaggedSums, NoiseModel, Rails};
 use crate::recording::{
     self, Group, Method, Parse, PartRow, Parts, Recording, RecordingError, Scanned,
 };
-use nalgebra::{DMatrix, DVector};
+use nalgebra::DMatrix;
 use rotacal_shared::intrinsic::ConditionFit;
 use rotacal_shared::{Aperture, Condition, FitConfig, FitResult, PhaseStep};
 use std::f64::consts::TAU;
@@ -514,26 +514,16 @@ impl GroupState {
         };
         let t0 = *self.t0.get_or_insert(t);
         self.last_t = Some(t);
-        // A row of one conversion (the usual row) needs no aperture built.
-        let last = match conv {
-            None => recording::row_tick(t, t0, CLOCK).inspect(|&tick| {
-                if let Some(m) = self.moments.as_mut() {
-                    m.add_point(tick, y);
-                }
-            }),
-            Some(c) => recording::row_aperture(t, t0, Some(&c), scale, CLOCK).map(|ap| {
-                if let Some(m) = self.moments.as_mut() {
-                    m.add(&ap, y);
-                }
-                ap.last()
-            }),
-        };
-        match last {
-            Ok(tick) => self.span_ticks = self.span_ticks.max(tick.0),
+        let ap = match recording::row_aperture(t, t0, conv.as_ref(), scale, CLOCK) {
+            Ok(ap) => ap,
             Err(m) => {
                 self.row_problem = Some(m);
                 return;
             }
+        };
+        self.span_ticks = self.span_ticks.max(ap.last().0);
+        if let Some(m) = self.moments.as_mut() {
+            m.add(&ap, y);
         }
         for (r, v) in self.rails.iter_mut().zip(y) {
             r.add(v);
@@ -554,7 +544,7 @@ struct Prepared {
     four: moments::FourParam,
     fitted: PhaseStep,
     /// The widened fit's coefficients per channel, at the fitted rate.
-    beta: [DVector<f64>; 3],
+    beta: [[f64; WIDE]; 3],
     rows: usize,
     /// Clock ticks from the first conversion to the last.
     span_ticks: u64,
@@ -916,26 +906,12 @@ impl Engine<'_> {
                 })
                 .collect()
         };
-        // The widened fit's coefficients as plain arrays: a row's residual is one short
-        // dot product.
-        let betas: Vec<[[f64; WIDE]; 3]> = prepared
-            .iter()
-            .map(|p| {
-                p.beta.each_ref().map(|b| {
-                    let mut a = [0.0; WIDE];
-                    for (x, v) in a.iter_mut().zip(b.iter()) {
-                        *x = *v;
-                    }
-                    a
-                })
-            })
-            .collect();
         let each = |out: &mut Vec<Residuals>, group: usize, ap: &Aperture, y: [f64; 3]| {
             let Some(k) = wanted.iter().position(|g| *g == group) else {
                 return;
             };
-            let (Some(p), Some(r), Some((bf, bn, shift)), Some(betas)) =
-                (prepared.get(k), out.get_mut(k), sines.get(k), betas.get(k))
+            let (Some(p), Some(r), Some((bf, bn, shift))) =
+                (prepared.get(k), out.get_mut(k), sines.get(k))
             else {
                 return;
             };
@@ -948,7 +924,7 @@ impl Engine<'_> {
                 let (Some(acc), Some(yv), Some(beta), Some(rails), Some(f), Some(nm)) = (
                     r.lagged.get_mut(ch),
                     y.get(ch),
-                    betas.get(ch),
+                    p.beta.get(ch),
                     p.rails.get(ch),
                     bf.get(ch),
                     bn.get(ch),
@@ -1165,7 +1141,7 @@ fn prepare(
     let beta = if moments.within(fitted, REACH_FIT) {
         wide_betas(&moments, &[None, None, None], fitted).map_err(fail)?
     } else {
-        [0, 1, 2].map(|_| DVector::zeros(WIDE))
+        [[0.0; WIDE]; 3]
     };
     Ok(Prepared {
         index,
@@ -1187,8 +1163,8 @@ fn wide_betas(
     m: &Moments,
     flagged: &[Option<Moments>; 3],
     step: PhaseStep,
-) -> Result<[DVector<f64>; 3], String> {
-    let mut out: [DVector<f64>; 3] = [0, 1, 2].map(|_| DVector::zeros(WIDE));
+) -> Result<[[f64; WIDE]; 3], String> {
+    let mut out = [[0.0; WIDE]; 3];
     let all = m.wide_at(step);
     for (ch, (b, f)) in out.iter_mut().zip(flagged).enumerate() {
         let without;
@@ -1202,7 +1178,12 @@ fn wide_betas(
         let chol = g.clone().cholesky().ok_or_else(|| {
             "singular fit: the regressors do not determine every coefficient".to_string()
         })?;
-        *b = chol.solve(&x.column(ch).into_owned());
+        for (o, v) in b
+            .iter_mut()
+            .zip(chol.solve(&x.column(ch).into_owned()).iter())
+        {
+            *o = *v;
+        }
     }
     Ok(out)
 }

@@ -343,7 +343,7 @@ impl Moments {
     }
 
     /// Add a row of one conversion at tick `t`: [`Moments::add`] of its aperture.
-    pub fn add_point(&mut self, t: Ticks, y: [f64; 3]) {
+    fn add_point(&mut self, t: Ticks, y: [f64; 3]) {
         let hz = f64::from(self.clock.hz());
         let (s, c) = self.step.phase_at(t).sin_cos::<f64>();
         self.harm

@@ -2326,19 +2326,8 @@ pub fn row_aperture(
     scale: f64,
     clock: rotacal_shared::TickRate,
 ) -> Result<Aperture, &'static str> {
-    let ticks = row_tick(t_s, t0_s, clock)?;
-    scaled_aperture(ticks, gaps, scale).ok_or("conv_gaps beyond 65 ms at 1 MHz")
-}
-
-/// The tick of a row's (first) conversion, as [`row_aperture`] has it.
-pub fn row_tick(
-    t_s: f64,
-    t0_s: f64,
-    clock: rotacal_shared::TickRate,
-) -> Result<Ticks, &'static str> {
-    round_ticks((t_s - t0_s) * f64::from(clock.hz()))
-        .map(Ticks)
-        .ok_or("t_s out of range")
+    let ticks = round_ticks((t_s - t0_s) * f64::from(clock.hz())).ok_or("t_s out of range")?;
+    scaled_aperture(Ticks(ticks), gaps, scale).ok_or("conv_gaps beyond 65 ms at 1 MHz")
 }
 
 /// `x.round()` (half away from zero) as a tick count, if in 0 … 1.8·10¹⁹: by truncation
