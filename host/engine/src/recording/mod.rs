@@ -2135,6 +2135,8 @@ fn field_end(rest: &[u8]) -> usize {
 /// The plain decimal that starts `rest` (see [`plain_decimal`]) and its length: the digits
 /// are read in the walk that finds the number's end (the byte after it is the caller's to
 /// check). `None` when what starts `rest` is not one.
+// Inlined into plain_row's loop: a call per number was 5 % more instructions per calibration.
+#[inline(always)]
 fn leading_decimal(rest: &[u8]) -> Option<(f64, usize)> {
     let neg = rest.first() == Some(&b'-');
     let start = usize::from(neg);
