@@ -234,6 +234,90 @@ fn a_file_the_fast_reader_hands_back_gives_the_same_figures() {
     assert!(dv <= 1e-10 && du <= 1e-8, "values {dv:e}, U {du:e}");
 }
 
+/// One pass against two: the residuals' lagged sums from each part's pilot
+/// (`calibrate::pilot`) against the residual pass, on the same streamed file. Lag 0 and
+/// the residual sums of squares are exact algebra on the pass's sums (the expansion's
+/// remainder aside, (εT)² ≤ 10⁻⁸ of a harmonic): the noise level, the rms residuals and,
+/// for white noise, U agree to rounding, 10⁻⁸ relative as above. The other lags carry the
+/// uniform-spacing error the engine bounds at run time by 0.01 of their own standard
+/// error, γ₀·√N: under correlated noise U moves by less than a tenth of its own relative
+/// uncertainty, as for the held engine. The values do not depend on the residuals at all.
+fn one_pass_agrees(what: &str, path: &Path) -> (CalibrationJson, CalibrationJson) {
+    let opts = Options::default();
+    let one = stream::calibrate_file_passes(path, &opts, 0, true).unwrap();
+    let two = stream::calibrate_file_passes(path, &opts, 0, false).unwrap();
+    let (dv, du, nu) = differences(&two, &one);
+    assert_eq!(orders(&two), orders(&one), "{what}: AR orders");
+    let correlated = orders(&one).iter().any(|p| *p > 0);
+    let bound_u = if correlated {
+        0.1 / (2.0 * nu).sqrt()
+    } else {
+        1e-8
+    };
+    println!("one pass, {what}: values {dv:.1e}, U {du:.1e} (bound {bound_u:.1e})");
+    assert!(dv == 0.0, "{what}: values differ by {dv:e}");
+    assert!(du <= bound_u, "{what}: U differs by {du:e} > {bound_u:e}");
+    for (a, b) in two.by_rate.iter().zip(&one.by_rate) {
+        for (fa, fb) in a.fits.iter().zip(&b.fits) {
+            let d = (fa.rms_residual - fb.rms_residual).abs() / fa.rms_residual;
+            assert!(d <= 1e-10, "{what}: rms residual {d:e}");
+        }
+        for (na, nb) in a.noise.iter().flatten().zip(b.noise.iter().flatten()) {
+            assert!((na.sd - nb.sd).abs() <= 1e-8 * na.sd, "{what}: noise sd");
+        }
+    }
+    (one, two)
+}
+
+#[test]
+fn one_pass_gives_the_residual_pass_figures() {
+    let dir = tmp("one-pass");
+    let json = |c: &CalibrationJson| serde_json::to_string(c).unwrap();
+    let white = write(dir.as_path(), "white.csv", config(191, 20_000, None, None));
+    let (one, two) = one_pass_agrees("white", &white);
+    // The pilots' sums stood in (the residual pass's own are not the same to the bit).
+    assert_ne!(json(&one), json(&two), "the residual pass ran");
+    let ar = write(
+        dir.as_path(),
+        "ar.csv",
+        config(192, 20_000, Some(vec![0.6]), None),
+    );
+    one_pass_agrees("AR(1) 0.6", &ar);
+    let lp = write(
+        dir.as_path(),
+        "lowpass.csv",
+        config(193, 20_000, None, Some(11.6)),
+    );
+    one_pass_agrees("low-pass 11.6 Hz", &lp);
+    // Timestamps 2 µs (sd) off the grid: the pilots hold.
+    let mut cfg = config(194, 20_000, Some(vec![0.3]), None);
+    cfg.timing.jitter_s = 2e-6;
+    let rough = write(dir.as_path(), "rough.csv", cfg);
+    let (one, two) = one_pass_agrees("jitter 2 µs", &rough);
+    assert_ne!(json(&one), json(&two), "the residual pass ran");
+    // Lost samples (rows a period apart span two) and jitter of 0.05 of the period: the
+    // bound is not met. A clock 40 ppm fast: the rate is beyond the sums' reach and the
+    // correcting pass runs. The residual pass runs in each.
+    let mut cfg = config(195, 20_000, None, None);
+    cfg.timing.drop_probability = 1e-3;
+    let lost = write(dir.as_path(), "lost.csv", cfg);
+    let mut cfg = config(196, 20_000, None, None);
+    cfg.timing.jitter_s = 0.05 / 104.0;
+    let jittery = write(dir.as_path(), "jittery.csv", cfg);
+    let mut cfg = config(197, 20_000, None, None);
+    cfg.timing.clock_error_ppm = 40.0;
+    let fast = write(dir.as_path(), "fast-clock.csv", cfg);
+    for (what, path) in [
+        ("lost samples", &lost),
+        ("jitter 480 µs", &jittery),
+        ("clock 40 ppm fast", &fast),
+    ] {
+        let (one, two) = one_pass_agrees(what, path);
+        assert_eq!(json(&one), json(&two), "{what}: the pilots' sums stood in");
+    }
+    std::fs::remove_dir_all(&dir).ok();
+}
+
 /// Text the fast reader must read exactly as the csv reader does (or hand back).
 const TEXTS: &[&str] = &[
     "condition,t_s,u,v,w,seq\nx,1e-3,+1.5,-0,1E3,18446744073709551615\nx,2,.5,5.,-1e-300,0\n\

@@ -18,6 +18,7 @@ pub mod correction;
 pub mod free;
 pub mod json;
 pub mod methods;
+mod pilot;
 pub mod poses;
 pub mod still;
 pub mod stream;

@@ -14,15 +14,18 @@
 //! - **Pass 2** takes the residuals of the widened fit at the fitted rate, exactly, into
 //!   their lagged sums (the AR noise model, as [`crate::fit::noise::NoiseModel::estimate`]
 //!   has it), and the residual sums of squares of the sine fits at the fitted and the
-//!   nominal rate.
+//!   nominal rate. Only for the groups whose pilots cannot stand in for it: pass 1 also
+//!   takes the residuals from a pilot fit, corrected to the fitted model afterwards
+//!   ([`super::pilot`]).
 
+use super::pilot::{self, Fitted, Piece, Pilot};
 use super::{
     err, nominal_rate, preflight, rate_choice, rotation_entry, samples, CalibrateError, GroupFit,
     Options, Refit, Setting, CLOCK, NO_RATE,
 };
 use crate::calibrate::json::CalibrationJson;
 use crate::fit::moments::{self, Moments, WIDE, WIDE_HARMONIC};
-use crate::fit::noise::{LaggedSums, NoiseModel, Rails};
+use crate::fit::noise::{LaggedSums, NoiseModel, Rails, LAGS};
 use crate::recording::{
     self, Group, Method, Parse, PartRow, Parts, Recording, RecordingError, Scanned,
 };
@@ -71,6 +74,17 @@ pub fn calibrate_file_holding(
     path: &Path,
     opts: &Options,
     hold: usize,
+) -> Result<CalibrationJson, FileError> {
+    calibrate_file_passes(path, opts, hold, true)
+}
+
+/// [`calibrate_file_holding`] with the residual pass for every streamed group, whatever
+/// its pilots allow (`one_pass` false; tests compare the two with it).
+pub fn calibrate_file_passes(
+    path: &Path,
+    opts: &Options,
+    hold: usize,
+    one_pass: bool,
 ) -> Result<CalibrationJson, FileError> {
     let whole = || -> Result<CalibrationJson, FileError> {
         let rec = recording::read_as(path, opts.method)?;
@@ -134,6 +148,7 @@ pub fn calibrate_file_holding(
         opts,
         groups,
         parts,
+        one_pass,
     }
     .run()
 }
@@ -347,6 +362,10 @@ struct GroupState {
     rails: [Rails; 3],
     /// The first problem with a row's time or conversions.
     row_problem: Option<&'static str>,
+    /// The pilot of the rows this thread read, and once groups read in parts are joined,
+    /// each part's sums and pilot (`pilot`).
+    pilot: Pilot,
+    pieces: Vec<Piece>,
 }
 
 /// Pass 1 on one thread (a file the parts reader hands back): the groups as the
@@ -437,6 +456,8 @@ impl GroupState {
             moments: nominal.map(|(_, s)| Moments::new(s, CLOCK)),
             rails: [Rails::default(); 3],
             row_problem: None,
+            pilot: Pilot::new(),
+            pieces: Vec::new(),
         }
     }
 
@@ -470,6 +491,23 @@ impl GroupState {
             }
             _ => None,
         };
+        if self.pieces.is_empty() {
+            if let Some(m) = &self.moments {
+                let piece = Piece {
+                    moments: m.clone(),
+                    pilot: std::mem::take(&mut self.pilot),
+                    offset: 0,
+                };
+                self.pieces.push(piece);
+            }
+        }
+        if let Some(m) = &later.moments {
+            self.pieces.push(Piece {
+                moments: m.clone(),
+                pilot: later.pilot,
+                offset: shift,
+            });
+        }
         self.moments = match (self.moments.take(), later.moments) {
             (Some(a), Some(b)) => Some(a.merged(&b.shifted(shift))),
             (a, _) => a,
@@ -523,7 +561,8 @@ impl GroupState {
         };
         self.span_ticks = self.span_ticks.max(ap.last().0);
         if let Some(m) = self.moments.as_mut() {
-            m.add(&ap, y);
+            let angle = m.add(&ap, y);
+            self.pilot.add(ap.first().0, angle, y, m);
         }
         for (r, v) in self.rails.iter_mut().zip(y) {
             r.add(v);
@@ -548,6 +587,8 @@ struct Prepared {
     rows: usize,
     /// Clock ticks from the first conversion to the last.
     span_ticks: u64,
+    /// Each part's sums and pilot, in file order.
+    pieces: Vec<Piece>,
 }
 
 struct Engine<'a> {
@@ -557,6 +598,8 @@ struct Engine<'a> {
     groups: Vec<GroupState>,
     /// The file in parts, when pass 1 read it so.
     parts: Option<(Parts, Vec<(u64, u64)>)>,
+    /// Whether the pilots' sums may stand in for the residual pass.
+    one_pass: bool,
 }
 
 impl Engine<'_> {
@@ -642,7 +685,26 @@ impl Engine<'_> {
         if !again.is_empty() {
             self.correcting_pass(&mut prepared, &again)?;
         }
-        let residuals = self.residual_pass(&prepared)?;
+        // The residuals' sums from the pilots where the data allow, else from a pass.
+        let mut residuals: Vec<Option<Residuals>> = Vec::with_capacity(prepared.len());
+        for (k, p) in prepared.iter().enumerate() {
+            let one_pass = self.one_pass && !again.contains(&k);
+            residuals.push(if one_pass { from_pilots(p)? } else { None });
+        }
+        let rest: Vec<&Prepared> = prepared
+            .iter()
+            .zip(&residuals)
+            .filter(|(_, r)| r.is_none())
+            .map(|(p, _)| p)
+            .collect();
+        let mut passed = self.residual_pass(&rest)?.into_iter();
+        let residuals: Vec<Residuals> = residuals
+            .into_iter()
+            .filter_map(|r| r.or_else(|| passed.next()))
+            .collect();
+        if residuals.len() != prepared.len() {
+            return Err(err(rec, None, "internal: residual sums missing").into());
+        }
         let mut streamed: Vec<(usize, GroupFit, StreamRefit)> = Vec::new();
         for (p, r) in prepared.iter().zip(residuals) {
             let gs = self.group(p.index)?;
@@ -879,22 +941,16 @@ impl Engine<'_> {
     /// The residuals of each group's widened fit at its fitted rate, into lagged sums per
     /// channel, and the residual sums of squares of its sine fits at the fitted and the
     /// nominal rate.
-    fn residual_pass(&self, prepared: &[Prepared]) -> Result<Vec<Residuals>, FileError> {
+    fn residual_pass(&self, prepared: &[&Prepared]) -> Result<Vec<Residuals>, FileError> {
+        if prepared.is_empty() {
+            return Ok(Vec::new());
+        }
         let wanted: Vec<usize> = prepared.iter().map(|p| p.index).collect();
         // Each group's sine coefficients at the fitted and the nominal rate, and the
         // shift between the two (rad/s).
         let mut sines = Vec::with_capacity(prepared.len());
         for p in prepared {
-            let fail = |e: String| err(self.rec, None, e);
-            let at_fitted = moments::sine_coefficients(&p.moments, p.fitted)
-                .map_err(|e| fail(e.to_string()))?;
-            let at_nominal = moments::sine_coefficients(&p.moments, p.nominal)
-                .map_err(|e| fail(e.to_string()))?;
-            sines.push((
-                at_fitted,
-                at_nominal,
-                moments::eps_between(p.fitted, p.nominal, CLOCK),
-            ));
+            sines.push(sine_pair(p).map_err(|e| err(self.rec, None, e))?);
         }
         let fresh = || -> Vec<Residuals> {
             prepared
@@ -953,6 +1009,101 @@ impl Engine<'_> {
         };
         self.pass(&wanted, fresh, each, join)
     }
+}
+
+/// A, B, C per channel.
+type SineCoefficients = [[f64; 3]; 3];
+
+/// A group's sine coefficients at the fitted and the nominal rate, and the fitted rate
+/// less the nominal (rad/s).
+fn sine_pair(p: &Prepared) -> Result<(SineCoefficients, SineCoefficients, f64), String> {
+    let at_fitted = moments::sine_coefficients(&p.moments, p.fitted).map_err(|e| e.to_string())?;
+    let at_nominal =
+        moments::sine_coefficients(&p.moments, p.nominal).map_err(|e| e.to_string())?;
+    Ok((
+        at_fitted,
+        at_nominal,
+        moments::eps_between(p.fitted, p.nominal, CLOCK),
+    ))
+}
+
+/// A group's residual sums from its parts' pilots (`pilot`), without a residual pass:
+/// `None` when a part has no pilot, or the corrections' error bound is not below
+/// [`pilot::KAPPA`] of the sums' own scatter.
+fn from_pilots(p: &Prepared) -> Result<Option<Residuals>, CalibrateError> {
+    let Ok((sine_fitted, sine_nominal, eps)) = sine_pair(p) else {
+        return Ok(None);
+    };
+    let fit = Fitted {
+        nominal: p.nominal,
+        fitted: p.fitted,
+        eps,
+        wide: &p.beta,
+        sine_fitted: &sine_fitted,
+        sine_nominal: &sine_nominal,
+    };
+    let mut sums = Vec::with_capacity(p.pieces.len());
+    for piece in &p.pieces {
+        match pilot::corrected(piece, &fit) {
+            Some(s) => sums.push(s),
+            None => return Ok(None),
+        }
+    }
+    let mut out = Residuals {
+        lagged: Default::default(),
+        rss_fitted: [0.0; 3],
+        rss_nominal: [0.0; 3],
+    };
+    let rows = p.rows.max(1) as f64;
+    for ch in 0..3 {
+        // Joined in file order, and the bounds summed over the parts.
+        let mut joined: Option<LaggedSums> = None;
+        let (mut bound, mut rss_bound) = ([0.0; LAGS], [0.0; 2]);
+        for s in &sums {
+            let (Some(l), Some(b), Some(rb), Some(rf), Some(rn)) = (
+                s.lagged.get(ch),
+                s.bound.get(ch),
+                s.rss_bound.get(ch),
+                s.rss_fitted.get(ch),
+                s.rss_nominal.get(ch),
+            ) else {
+                return Ok(None);
+            };
+            joined = Some(match joined {
+                Some(j) => j.followed_by(l),
+                None => l.clone(),
+            });
+            for (a, x) in bound.iter_mut().zip(b) {
+                *a += x;
+            }
+            for (a, x) in rss_bound.iter_mut().zip(rb) {
+                *a += x;
+            }
+            if let (Some(a), Some(b)) = (out.rss_fitted.get_mut(ch), out.rss_nominal.get_mut(ch)) {
+                *a += rf;
+                *b += rn;
+            }
+        }
+        let Some(joined) = joined else {
+            return Ok(None);
+        };
+        // The lagged sums' own standard error is about γ₀·√N, the RSS's RSS·√(2/N).
+        let (prod, _) = joined.products();
+        let own = prod.first().copied().unwrap_or(0.0) / rows.sqrt();
+        let rss_own = [out.rss_fitted[ch], out.rss_nominal[ch]].map(|r| r * (2.0 / rows).sqrt());
+        let within = bound.iter().all(|b| *b <= pilot::KAPPA * own)
+            && rss_bound
+                .iter()
+                .zip(rss_own)
+                .all(|(b, o)| *b <= pilot::KAPPA * o);
+        if !within || !own.is_finite() {
+            return Ok(None);
+        }
+        if let Some(slot) = out.lagged.get_mut(ch) {
+            *slot = joined;
+        }
+    }
+    Ok(Some(out))
 }
 
 /// What the residual pass gives for a group.
@@ -1118,6 +1269,18 @@ fn prepare(
             format!("rotation rate {nominal_hz} Hz is not usable"),
         ));
     };
+    // Each part's sums and pilot (a group one thread read whole: its own).
+    let mut pieces = std::mem::take(&mut gs.pieces);
+    if pieces.is_empty() {
+        pieces.push(Piece {
+            moments: moments.clone(),
+            pilot: std::mem::take(&mut gs.pilot),
+            offset: 0,
+        });
+    }
+    for piece in &mut pieces {
+        piece.pilot.finish(&piece.moments);
+    }
     // Folded once: every fit below reads the dense sums.
     let moments = moments.dense();
     // As the streaming fit checks its record (method.md §5).
@@ -1154,12 +1317,13 @@ fn prepare(
         beta,
         rows: gs.rows,
         span_ticks: gs.span_ticks,
+        pieces,
     })
 }
 
 /// The widened fit's coefficients per channel at `step`, each channel's readings on its
 /// rails left out.
-fn wide_betas(
+pub(super) fn wide_betas(
     m: &Moments,
     flagged: &[Option<Moments>; 3],
     step: PhaseStep,

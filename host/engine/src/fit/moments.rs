@@ -38,15 +38,15 @@ pub fn eps_between(a: PhaseStep, b: PhaseStep, clock: TickRate) -> f64 {
 
 /// The widened regressors of one conversion at angle α (its sine and cosine `s`, `c`)
 /// and time `u` s, in the order of [`WIDE_HARMONIC`] (harmonics by angle addition).
-fn wide_row(s: f64, c: f64, u: f64) -> [f64; WIDE] {
+pub fn wide_row(s: f64, c: f64, u: f64) -> [f64; WIDE] {
     let (s2, c2) = (2.0 * s * c, c * c - s * s);
     let (s3, c3) = (s2 * c + c2 * s, c2 * c - s2 * s);
     let (s4, c4) = (2.0 * s2 * c2, c2 * c2 - s2 * s2);
     [s, c, 1.0, u, s2, c2, s3, c3, s4, c4]
 }
 
-/// D, the derivative in α, as a matrix on the wide columns.
-fn wide_d() -> M10 {
+/// D, the derivative in α, as a matrix on the wide columns: d/dα f = D f.
+pub fn wide_d() -> M10 {
     let mut d = M10::zeros();
     for (i, k) in WIDE_HARMONIC.iter().enumerate().step_by(2) {
         if *k > 0 && i + 1 < WIDE {
@@ -190,9 +190,11 @@ impl Harmonic {
         let (cm, sm) = (hs.map(|h| h.0), hs.map(|h| h.1));
         let pw = [1.0, u, u * u, u * u * u, u * u * u * u];
         // Only the sums [`Harmonic::product`] reads (the others stay 0): the wide columns
-        // (harmonics to 4, u to the first power) meet at first order, so harmonics 5 to 8
-        // need u¹ at most and 3, 4 need u²; the sine's columns (harmonic 1, u⁰) go to
-        // fourth order, so harmonics 0 to 2 need u⁴.
+        // (harmonics to 4, u to the first power) meet at first order, and the pilot's
+        // corrections (`calibrate::pilot`, [`Moments::pair_sums`]) need them at second and
+        // harmonic 1 with u² against them, so harmonics 3 to 8 need u² and 3 to 5 need u³;
+        // the sine's columns (harmonic 1, u⁰) go to fourth order, so harmonics 0 to 2 need
+        // u⁴.
         fn powers<const M: usize>(c: &mut [f64; 9], s: &mut [f64; 9], p: f64, cs: &[[f64; 9]; 2]) {
             let [cm, sm] = cs;
             for ((a, b), (x, z)) in c
@@ -209,8 +211,8 @@ impl Harmonic {
         let ([c0, c1, c2, c3, c4], [s0, s1, s2, s3, s4]) = (&mut self.cos, &mut self.sin);
         powers::<9>(c0, s0, pw[0], &cs);
         powers::<9>(c1, s1, pw[1], &cs);
-        powers::<5>(c2, s2, pw[2], &cs);
-        powers::<3>(c3, s3, pw[3], &cs);
+        powers::<9>(c2, s2, pw[2], &cs);
+        powers::<6>(c3, s3, pw[3], &cs);
         powers::<3>(c4, s4, pw[4], &cs);
         // With y: every column at first order, the sine's (1, sin α, cos α) at second.
         fn with_y<const G: usize>(rows: &mut [[f64; 3]; 9], p: f64, g: &[f64; 9], y: [f64; 3]) {
@@ -227,6 +229,42 @@ impl Harmonic {
         with_y::<9>(y1, pw[1], &g, y);
         with_y::<3>(y2, pw[2], &g, y);
     }
+}
+
+/// Σ V Vᵀ, Σ V·y (a column per channel) and Σ V over a group's rows, V = (f, u·f) with f
+/// the wide columns at the sums' step: [`Moments::pair_sums`].
+#[derive(Clone, Debug)]
+pub struct PairSums {
+    pub p: SMatrix<f64, PAIR, PAIR>,
+    pub y: SMatrix<f64, PAIR, 3>,
+    pub v: SVector<f64, PAIR>,
+}
+
+/// The trend's index among the wide columns.
+pub const TREND: usize = 3;
+
+/// The length of V = (f, u·f, u²·sin α, u²·cos α).
+pub const PAIR: usize = 2 * WIDE + 2;
+
+/// V of a conversion at angle (sin, cos) = (`s`, `c`) and time `u` s.
+pub fn pair_row(s: f64, c: f64, u: f64) -> [f64; PAIR] {
+    let f = wide_row(s, c, u);
+    let mut v = [0.0; PAIR];
+    for (i, x) in f.iter().enumerate() {
+        if let Some(a) = v.get_mut(i) {
+            *a = *x;
+        }
+        if let Some(b) = v.get_mut(i + WIDE) {
+            *b = u * x;
+        }
+    }
+    if let Some([a, b]) = v
+        .get_mut(2 * WIDE..)
+        .and_then(|t| <&mut [f64; 2]>::try_from(t).ok())
+    {
+        (*a, *b) = (u * u * s, u * u * c);
+    }
+    v
 }
 
 /// The sine fit's normal equations at one step: Σ h hᵀ, Σ h dhᵀ and Σ dh dhᵀ (dh the
@@ -330,20 +368,21 @@ impl Moments {
     }
 
     /// Add a row: the conversions it averages (ticks from the group's first row) and its
-    /// u, v, w.
-    pub fn add(&mut self, ap: &Aperture, y: [f64; 3]) {
+    /// u, v, w. A row of one conversion gives back its angle's (sin, cos) at the step.
+    pub fn add(&mut self, ap: &Aperture, y: [f64; 3]) -> Option<(f64, f64)> {
         if ap.len() == 1 {
-            return self.add_point(ap.first(), y);
+            return Some(self.add_point(ap.first(), y));
         }
         let (v0, v1, v2, n) = self.row_vectors(ap);
         self.accumulate(&v0, &v1, &v2, n, y);
         self.rows += 1;
         // The latest time in ticks; its seconds (the same maximum) when asked.
         self.t_max = self.t_max.max(ap.last().0);
+        None
     }
 
     /// Add a row of one conversion at tick `t`: [`Moments::add`] of its aperture.
-    fn add_point(&mut self, t: Ticks, y: [f64; 3]) {
+    fn add_point(&mut self, t: Ticks, y: [f64; 3]) -> (f64, f64) {
         let hz = f64::from(self.clock.hz());
         let (s, c) = self.step.phase_at(t).sin_cos::<f64>();
         self.harm
@@ -354,6 +393,41 @@ impl Moments {
         }
         self.rows += 1;
         self.t_max = self.t_max.max(t.0);
+        (s.hi, c.hi)
+    }
+
+    /// With every row a single conversion (else `None`): the sums over the rows of
+    /// V = (f, u·f, u²·sin α, u²·cos α), f the wide columns at the step, that the pilot's
+    /// corrections take (`calibrate::pilot`).
+    pub fn pair_sums(&self) -> Option<PairSums> {
+        let h = self.harm.as_ref()?;
+        // Σ 1 over the rows of one conversion: all of them, or some went to the dense sums.
+        if h.cos[0][0] != self.rows as f64 || self.rows == 0 {
+            return None;
+        }
+        let mut out = PairSums {
+            p: SMatrix::zeros(),
+            y: SMatrix::zeros(),
+            v: SVector::zeros(),
+        };
+        // Index, column and power of u of each entry of V.
+        let entries: Vec<(usize, Col, usize)> = COLS
+            .iter()
+            .enumerate()
+            .map(|(i, a)| (i, *a, 0))
+            .chain(COLS.iter().enumerate().map(|(i, a)| (i + WIDE, *a, 1)))
+            .chain([(2 * WIDE, Col::Sin(1), 2), (2 * WIDE + 1, Col::Cos(1), 2)])
+            .collect();
+        for (i, a, pa) in &entries {
+            for (j, b, pb) in &entries {
+                out.p[(*i, *j)] = h.product(*a, *b, pa + pb);
+            }
+            for (ch, x) in h.with_y(*a, *pa).iter().enumerate() {
+                out.y[(*i, ch)] = *x;
+            }
+            out.v[*i] = h.product(*a, Col::One(0), *pa);
+        }
+        Some(out)
     }
 
     /// The same sums with the rows of one conversion folded into the dense ones.

@@ -843,6 +843,44 @@ impl LaggedSums {
         (earlier, later, pairs)
     }
 
+    /// Σ e_t e_{t−k} for k = 0 … [`MAX_ORDER`], and Σ e_t, over the samples used.
+    pub fn products(&self) -> ([f64; LAGS], f64) {
+        (self.prod, self.sum)
+    }
+
+    /// The sums of a series of `n` samples, none flagged, whose lagged products `prod`
+    /// and total `sum` were found otherwise (the streaming engine's pilot corrections,
+    /// docs/streaming.md), with its first samples `head` and its newest `newest` (newest
+    /// first), LAGS of each or all there are: for [`LaggedSums::followed_by`] and for
+    /// reading out.
+    pub fn assembled(
+        prod: [f64; LAGS],
+        sum: f64,
+        head: &[f64],
+        newest: &[f64],
+        n: usize,
+    ) -> LaggedSums {
+        let mut out = LaggedSums {
+            prod,
+            sum,
+            n,
+            used: n,
+            ..LaggedSums::default()
+        };
+        for (j, e) in newest.iter().take(LAGS.min(n)).enumerate() {
+            for slot in [j, j + LAGS] {
+                if let (Some(w), Some(k)) = (out.win.get_mut(slot), out.ok.get_mut(slot)) {
+                    (*w, *k) = (*e, 1.0);
+                }
+            }
+        }
+        for e in head.iter().take(LAGS.min(n)) {
+            out.head.push(*e);
+            out.head_ok.push(1.0);
+        }
+        out
+    }
+
     /// Samples added, and those used (not flagged).
     pub fn counts(&self) -> (usize, usize) {
         (self.n, self.used)

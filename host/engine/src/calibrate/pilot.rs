@@ -1,0 +1,489 @@
+//! The noise model's residual sums in pass 1, without a residual pass (docs/streaming.md,
+//! "One pass where the data allow").
+//!
+//! Each piece of a streamed group (the rows one thread read) fits a pilot: the widened fit
+//! at the nominal rate on its first [`PILOT_ROWS`] rows. From then on every row's residual
+//! from the pilot, r⁰, goes into lagged sums as it is read. The fitted model differs from
+//! the pilot by Δ = cᵀV, V = (f, u·f, …): the wide columns and their first power of u at the
+//! nominal rate, and u²·(sin α, cos α) (the expansion in the rate's change to first
+//! order, and to second for harmonic 1), so the residuals r = r⁰ − Δ have
+//!
+//! Σ r_k r_{k−l} = Σ r⁰_k r⁰_{k−l} − Σ r⁰_k Δ_{k−l} − Σ Δ_k r⁰_{k−l} + Σ Δ_k Δ_{k−l}.
+//!
+//! Δ at the row l back is Δ at the time τ_l back, τ_l the middle of the spans the piece's
+//! rows l apart cover: V(t − τ) = Q(τ)·V(t) exactly, so the three corrections come from
+//! Σ r⁰V and Σ V Vᵀ ([`Moments::pair_sums`]), less the rows at the piece's ends. Their
+//! error is bounded from the data ([`corrected`]): the spread of the spans, the size of
+//! Δ and its slope, and the expansion's remainder. When the bound is not far below the
+//! lagged sums' own scatter, the residual pass runs as before.
+
+use super::CLOCK;
+use crate::fit::moments::{
+    self, pair_row, wide_d, wide_row, Moments, PairSums, PAIR, TREND, WIDE, WIDE_HARMONIC,
+};
+use crate::fit::noise::{LaggedSums, LAGS};
+use nalgebra::{SMatrix, SVector};
+use rotacal_shared::{Aperture, PhaseStep, Ticks};
+
+/// Rows of a piece the pilot is fitted to (80 s at 104 Hz).
+pub const PILOT_ROWS: usize = 8192;
+
+/// The corrections' error bound may be at most this share of the lagged sums' own
+/// standard error, γ₀·√N (and of the residual sum of squares' own, RSS·√(2/N)).
+pub const KAPPA: f64 = 0.01;
+
+type VecP = SVector<f64, PAIR>;
+type MatP = SMatrix<f64, PAIR, PAIR>;
+
+/// A row as read: its tick from the piece's first row and its readings.
+type Row = (u64, [f64; 3]);
+
+/// A piece's pilot, as pass 1 leaves it.
+#[derive(Default)]
+pub(super) enum Pilot {
+    /// The first rows, until the pilot is fitted.
+    Gathering(Vec<Row>),
+    Running(Box<Run>),
+    /// A row of several conversions, or a pilot that could not be fitted: the residual
+    /// pass runs.
+    #[default]
+    Off,
+}
+
+/// The sums after the pilot is fitted.
+pub(super) struct Run {
+    beta: [[f64; WIDE]; 3],
+    lagged: [LaggedSums; 3],
+    /// The first LAGS rows, and the last LAGS (at `n mod LAGS`).
+    head: Vec<Row>,
+    tail: Vec<Row>,
+    /// The newest LAGS ticks, each at two slots LAGS apart (as in [`LaggedSums`]).
+    ticks: [f64; 2 * LAGS],
+    pos: usize,
+    /// The least and greatest span, in ticks, of rows l apart.
+    lo: [f64; LAGS],
+    hi: [f64; LAGS],
+    n: usize,
+}
+
+/// A streamed group's rows one thread read: its sums about the nominal step from its own
+/// first row, its pilot, and its first row's tick from the group's.
+pub(super) struct Piece {
+    pub moments: Moments,
+    pub pilot: Pilot,
+    pub offset: u64,
+}
+
+impl Pilot {
+    pub fn new() -> Self {
+        Pilot::Gathering(Vec::with_capacity(PILOT_ROWS))
+    }
+
+    /// The next row: its tick, its angle's (sin, cos) at the nominal step (`None` for a
+    /// row of several conversions) and its readings; `moments` holds the piece's rows
+    /// so far, this one included.
+    #[inline]
+    pub fn add(&mut self, tick: u64, angle: Option<(f64, f64)>, y: [f64; 3], moments: &Moments) {
+        match (self, angle) {
+            (Pilot::Running(run), Some((s, c))) => run.add(tick, s, c, y),
+            (this @ Pilot::Gathering(_), Some(_)) => {
+                if let Pilot::Gathering(rows) = this {
+                    rows.push((tick, y));
+                    if rows.len() >= PILOT_ROWS {
+                        this.start(moments);
+                    }
+                }
+            }
+            (this, _) => *this = Pilot::Off,
+        }
+    }
+
+    /// Fit the pilot now if it is still gathering (a piece shorter than [`PILOT_ROWS`]).
+    pub fn finish(&mut self, moments: &Moments) {
+        if matches!(self, Pilot::Gathering(_)) {
+            self.start(moments);
+        }
+    }
+
+    /// Fit the pilot to the rows gathered (the piece's rows so far, whose sums `moments`
+    /// holds), then take their residuals.
+    fn start(&mut self, moments: &Moments) {
+        let Pilot::Gathering(rows) = std::mem::take(self) else {
+            return;
+        };
+        let step = moments.step();
+        let Ok(beta) = super::stream::wide_betas(moments, &[None, None, None], step) else {
+            return; // Off: the residual pass runs
+        };
+        let mut run = Box::new(Run {
+            beta,
+            lagged: Default::default(),
+            head: Vec::with_capacity(LAGS),
+            tail: Vec::with_capacity(LAGS),
+            ticks: [f64::NAN; 2 * LAGS],
+            pos: 0,
+            lo: [f64::INFINITY; LAGS],
+            hi: [f64::NEG_INFINITY; LAGS],
+            n: 0,
+        });
+        for (tick, y) in rows {
+            let (s, c) = step.phase_at(Ticks(tick)).sin_cos::<f64>();
+            run.add(tick, s.hi, c.hi, y);
+        }
+        *self = Pilot::Running(run);
+    }
+}
+
+impl Run {
+    #[inline]
+    fn add(&mut self, tick: u64, s: f64, c: f64, y: [f64; 3]) {
+        let u = tick as f64 / f64::from(CLOCK.hz());
+        let f = wide_row(s, c, u);
+        for ((acc, beta), yv) in self.lagged.iter_mut().zip(&self.beta).zip(y) {
+            let pilot: f64 = f.iter().zip(beta).map(|(a, b)| a * b).sum();
+            acc.add(yv - pilot, false);
+        }
+        // The spans of rows 1 … LAGS − 1 apart (NaN before the piece began: min and max
+        // pass over it).
+        let t = tick as f64;
+        self.pos = (self.pos + LAGS - 1) % LAGS;
+        for slot in [self.pos, self.pos + LAGS] {
+            if let Some(w) = self.ticks.get_mut(slot) {
+                *w = t;
+            }
+        }
+        if let Some(older) = self.ticks.get(self.pos..self.pos + LAGS) {
+            for ((lo, hi), w) in self.lo.iter_mut().zip(self.hi.iter_mut()).zip(older) {
+                let d = t - w;
+                *lo = lo.min(d);
+                *hi = hi.max(d);
+            }
+        }
+        if self.head.len() < LAGS {
+            self.head.push((tick, y));
+        }
+        if self.tail.len() < LAGS {
+            self.tail.push((tick, y));
+        } else if let Some(slot) = self.tail.get_mut(self.n % LAGS) {
+            *slot = (tick, y);
+        }
+        self.n += 1;
+    }
+}
+
+/// The fitted model a group's residuals are taken from, at the group's origin.
+pub(super) struct Fitted<'a> {
+    pub nominal: PhaseStep,
+    pub fitted: PhaseStep,
+    /// The fitted rate less the nominal, rad/s.
+    pub eps: f64,
+    /// The widened fit at the fitted rate, and the sine fits at the fitted and the
+    /// nominal rate, per channel.
+    pub wide: &'a [[f64; WIDE]; 3],
+    pub sine_fitted: &'a [[f64; 3]; 3],
+    pub sine_nominal: &'a [[f64; 3]; 3],
+}
+
+/// What a piece's corrected sums give, with the bounds of their errors.
+pub(super) struct PieceSums {
+    pub lagged: [LaggedSums; 3],
+    pub rss_fitted: [f64; 3],
+    pub rss_nominal: [f64; 3],
+    /// Per channel: the bound on each lag's error, and on each residual sum of squares'.
+    pub bound: [[f64; LAGS]; 3],
+    pub rss_bound: [[f64; 2]; 3],
+}
+
+/// The wide coefficients `b` of a model at `step` about the group's first row, moved to a
+/// piece's first row `offset` ticks later (its own angle and time at that step): each
+/// harmonic k turned by k times the phase at `offset`, the trend's value there added to
+/// the constant.
+fn moved(b: &[f64; WIDE], step: PhaseStep, offset: u64) -> [f64; WIDE] {
+    let (s, c) = step.phase_at(Ticks(offset)).sin_cos::<f64>();
+    let f = wide_row(s.hi, c.hi, 0.0); // sin kφ, cos kφ
+    let mut out = *b;
+    for (i, k) in WIDE_HARMONIC.iter().enumerate().step_by(2) {
+        if *k == 0 {
+            continue;
+        }
+        let (Some(a), Some(bc), Some(sk), Some(ck)) =
+            (b.get(i), b.get(i + 1), f.get(i), f.get(i + 1))
+        else {
+            continue;
+        };
+        // A sin k(α + φ) + B cos k(α + φ) = (A cos kφ − B sin kφ) sin kα + (A sin kφ + B cos kφ) cos kα
+        if let Some(x) = out.get_mut(i) {
+            *x = a * ck - bc * sk;
+        }
+        if let Some(x) = out.get_mut(i + 1) {
+            *x = a * sk + bc * ck;
+        }
+    }
+    let u = offset as f64 / f64::from(CLOCK.hz());
+    if let (Some(trend), Some(one)) = (b.get(TREND).copied(), out.get_mut(2)) {
+        *one += trend * u;
+    }
+    out
+}
+
+/// The sine's (A, B, C) as wide coefficients.
+fn widened(sine: &[f64; 3]) -> [f64; WIDE] {
+    let mut out = [0.0; WIDE];
+    for (o, x) in out.iter_mut().zip(sine) {
+        *o = *x;
+    }
+    out
+}
+
+/// c for a model `model` (wide, at the piece's origin, its rate `eps` rad/s above
+/// nominal) less the pilot `pilot`, by the expansion in εu: (model − pilot) on f,
+/// ε·Dᵀ·model on u·f, and harmonic 1's second order, −ε²/2·(A, B), on u²·(sin α, cos α).
+fn difference(model: &[f64; WIDE], pilot: &[f64; WIDE], eps: f64) -> VecP {
+    let m = SVector::<f64, WIDE>::from(*model);
+    let db = wide_d().transpose() * m * eps;
+    let mut c = VecP::zeros();
+    for i in 0..WIDE {
+        c[i] = model.get(i).copied().unwrap_or(0.0) - pilot.get(i).copied().unwrap_or(0.0);
+        c[i + WIDE] = db[i];
+    }
+    c[2 * WIDE] = -eps * eps / 2.0 * m[0];
+    c[2 * WIDE + 1] = -eps * eps / 2.0 * m[1];
+    c
+}
+
+/// Q(τ): V(t − τ) = Q(τ)·V(t), for V at a step of `omega` rad/s, τ in seconds.
+fn shift(tau: f64, omega: f64) -> MatP {
+    let mut r = SMatrix::<f64, WIDE, WIDE>::zeros();
+    for (i, k) in WIDE_HARMONIC.iter().enumerate().step_by(2) {
+        if *k == 0 {
+            continue;
+        }
+        let (s, c) = (f64::from(*k) * omega * tau).sin_cos();
+        // sin k(α − θ) = sin kα cos kθ − cos kα sin kθ; cos k(α − θ) = cos kα cos kθ + sin kα sin kθ
+        r[(i, i)] = c;
+        r[(i, i + 1)] = -s;
+        r[(i + 1, i + 1)] = c;
+        r[(i + 1, i)] = s;
+    }
+    r[(2, 2)] = 1.0;
+    r[(TREND, TREND)] = 1.0;
+    r[(TREND, 2)] = -tau; // u − τ
+    let mut q = MatP::zeros();
+    q.fixed_view_mut::<WIDE, WIDE>(0, 0).copy_from(&r);
+    q.fixed_view_mut::<WIDE, WIDE>(WIDE, WIDE).copy_from(&r);
+    q.fixed_view_mut::<WIDE, WIDE>(WIDE, 0)
+        .copy_from(&(r * -tau));
+    // (u − τ)²·h(α − θ) = R(u²h) − 2τ·R(u·h) + τ²·R(h), h = (sin α, cos α).
+    let r1 = r.fixed_view::<2, 2>(0, 0).into_owned();
+    let w = 2 * WIDE;
+    q.fixed_view_mut::<2, 2>(w, w).copy_from(&r1);
+    q.fixed_view_mut::<2, 2>(w, WIDE)
+        .copy_from(&(r1 * (-2.0 * tau)));
+    q.fixed_view_mut::<2, 2>(w, 0)
+        .copy_from(&(r1 * (tau * tau)));
+    q
+}
+
+/// Bounds on |Δ| and |dΔ/du| over a piece of `span` s, for Δ = cᵀV at `omega` rad/s.
+fn size_and_slope(c: &VecP, omega: f64, span: f64) -> (f64, f64) {
+    let (mut size, mut slope) = (0.0, 0.0);
+    for (i, k) in WIDE_HARMONIC.iter().enumerate() {
+        let kw = f64::from(*k) * omega;
+        let (m0, d0, m1, d1) = match i {
+            2 => (1.0, 0.0, span, 1.0),                    // 1; u
+            TREND => (span, 1.0, span * span, 2.0 * span), // u; u²
+            _ => (1.0, kw, span, 1.0 + kw * span),         // h(kα); u·h(kα)
+        };
+        let (a, b) = (c[i].abs(), c[i + WIDE].abs());
+        size += a * m0 + b * m1;
+        slope += a * d0 + b * d1;
+    }
+    // u²·h(α).
+    let a = c[2 * WIDE].abs() + c[2 * WIDE + 1].abs();
+    size += a * span * span;
+    slope += a * (2.0 * span + omega * span * span);
+    (size, slope)
+}
+
+/// The expansion's remainder: a bound on |model(α + εu) − (the terms [`difference`]
+/// keeps)| over a piece of `span` s: harmonic 1 from the third order, the others from
+/// the second.
+fn remainder(model: &[f64; WIDE], eps: f64, span: f64) -> f64 {
+    let x = (eps * span).abs();
+    WIDE_HARMONIC
+        .iter()
+        .zip(model)
+        .map(|(k, b)| match k {
+            0 => 0.0,
+            1 => b.abs() * x * x * x / 6.0,
+            _ => f64::from(k * k) * b.abs() * x * x / 2.0,
+        })
+        .sum()
+}
+
+/// A piece's lagged sums of the residuals from `fit`, and its sine fits' residual sums of
+/// squares, from its pilot's sums: `None` when it has no running pilot or its rows are
+/// not all single conversions.
+pub(super) fn corrected(piece: &Piece, fit: &Fitted) -> Option<PieceSums> {
+    let Pilot::Running(run) = &piece.pilot else {
+        return None;
+    };
+    let PairSums { p, y, v } = piece.moments.pair_sums()?;
+    let hz = f64::from(CLOCK.hz());
+    let omega = fit.nominal.to_hz(CLOCK) * std::f64::consts::TAU;
+    let n = run.n;
+    if n == 0 || piece.moments.rows() != n as u64 {
+        return None;
+    }
+    let span = run.tail.iter().map(|r| r.0).max().unwrap_or(0) as f64 / hz;
+    // V and the pilot's residual of the first and the last LAGS rows (newest first).
+    let row_v = |(tick, _): &Row| {
+        let (s, c) = fit.nominal.phase_at(Ticks(*tick)).sin_cos::<f64>();
+        VecP::from(pair_row(s.hi, c.hi, *tick as f64 / hz))
+    };
+    let newest: Vec<&Row> = (0..run.tail.len().min(n))
+        .filter_map(|j| run.tail.get((n + LAGS - 1 - j) % LAGS))
+        .collect();
+    // The exact residual from the fitted model, as the residual pass takes it.
+    let exact = |(tick, yv): &Row, ch: usize| -> f64 {
+        let ap = Aperture::point(Ticks(piece.offset.saturating_add(*tick)));
+        let (w, _) = moments::wide_regressors(&ap, fit.fitted, (fit.nominal, fit.eps), CLOCK);
+        let m: f64 = w
+            .iter()
+            .zip(fit.wide.get(ch).copied().unwrap_or([0.0; WIDE]))
+            .map(|(a, b)| a * b)
+            .sum();
+        yv.get(ch).copied().unwrap_or(0.0) - m
+    };
+    // The spans' middles (τ) and half-widths (h), s; 0 for a lag no pair reached.
+    let lags: Vec<(f64, f64)> = run
+        .lo
+        .iter()
+        .zip(&run.hi)
+        .enumerate()
+        .map(|(l, (lo, hi))| {
+            if l == 0 || lo > hi {
+                (0.0, 0.0)
+            } else {
+                ((lo + hi) / 2.0 / hz, (hi - lo) / 2.0 / hz)
+            }
+        })
+        .collect();
+    let shifts: Vec<(MatP, MatP)> = lags
+        .iter()
+        .map(|(tau, _)| (shift(*tau, omega), shift(-*tau, omega)))
+        .collect();
+    let head_v: Vec<VecP> = run.head.iter().map(row_v).collect();
+    let newest_v: Vec<VecP> = newest.iter().map(|r| row_v(r)).collect();
+    let mut out = PieceSums {
+        lagged: Default::default(),
+        rss_fitted: [0.0; 3],
+        rss_nominal: [0.0; 3],
+        bound: [[0.0; LAGS]; 3],
+        rss_bound: [[0.0; 2]; 3],
+    };
+    for ch in 0..3 {
+        let (Some(beta0), Some(wide), Some(sf), Some(sn), Some(acc)) = (
+            run.beta.get(ch),
+            fit.wide.get(ch),
+            fit.sine_fitted.get(ch),
+            fit.sine_nominal.get(ch),
+            run.lagged.get(ch),
+        ) else {
+            return None;
+        };
+        let model = moved(wide, fit.fitted, piece.offset);
+        let c = difference(&model, beta0, fit.eps);
+        let sine_f = moved(&widened(sf), fit.fitted, piece.offset);
+        let gamma_f = difference(&sine_f, beta0, fit.eps);
+        let sine_n = moved(&widened(sn), fit.nominal, piece.offset);
+        let gamma_n = difference(&sine_n, beta0, 0.0);
+        // Σ r⁰V = Σ yV − Σ V fᵀ·β₀.
+        let b0 = SVector::<f64, WIDE>::from(*beta0);
+        let m = y.column(ch).into_owned() - p.fixed_view::<PAIR, WIDE>(0, 0) * b0;
+        let r0 = |r: &Row, vr: &VecP| -> f64 {
+            let f: f64 = vr.iter().take(WIDE).zip(beta0).map(|(a, b)| a * b).sum();
+            r.1.get(ch).copied().unwrap_or(0.0) - f
+        };
+        let (s0, sum0) = acc.products();
+        let s00 = s0.first().copied().unwrap_or(0.0).max(0.0);
+        let root = (n as f64 * s00).sqrt();
+        let (size, slope) = size_and_slope(&c, omega, span);
+        let rem = remainder(&model, fit.eps, span);
+        let mut prod = [0.0; LAGS];
+        let (mut head_rv, mut head_vv, mut tail_rv) = (VecP::zeros(), MatP::zeros(), VecP::zeros());
+        for l in 0..LAGS {
+            if l > 0 {
+                // Rows l − 1 from the start and from the end join the edges.
+                if let (Some(r), Some(vr)) = (run.head.get(l - 1), head_v.get(l - 1)) {
+                    head_rv += vr * r0(r, vr);
+                    head_vv += vr * vr.transpose();
+                }
+                if let (Some(r), Some(vr)) = (newest.get(l - 1), newest_v.get(l - 1)) {
+                    tail_rv += vr * r0(r, vr);
+                }
+            }
+            let (Some((qb, qf)), Some((_, h)), Some(x0), Some(o), Some(bd)) = (
+                shifts.get(l),
+                lags.get(l),
+                s0.get(l),
+                prod.get_mut(l),
+                out.bound.get_mut(ch).and_then(|b| b.get_mut(l)),
+            ) else {
+                continue;
+            };
+            let back = c.dot(&(qb * (m - head_rv)));
+            let ahead = c.dot(&(qf * (m - tail_rv)));
+            let both = c.dot(&((p - head_vv) * qb.transpose() * c));
+            *o = x0 - back - ahead + both;
+            let e = slope * h;
+            *bd = 2.0 * (e + rem) * root + (e + 2.0 * rem) * size * n as f64 + rem * rem * n as f64;
+        }
+        let sum = sum0 - c.dot(&v);
+        let head: Vec<f64> = run.head.iter().map(|r| exact(r, ch)).collect();
+        let newest_e: Vec<f64> = newest.iter().map(|r| exact(r, ch)).collect();
+        if let Some(slot) = out.lagged.get_mut(ch) {
+            *slot = LaggedSums::assembled(prod, sum, &head, &newest_e, n);
+        }
+        let rss = |g: &VecP| s00 - 2.0 * g.dot(&m) + g.dot(&(p * g));
+        let (rf, rn) = (rss(&gamma_f), rss(&gamma_n));
+        let rem_f = remainder(&sine_f, fit.eps, span);
+        if let (Some(a), Some(b), Some(bd)) = (
+            out.rss_fitted.get_mut(ch),
+            out.rss_nominal.get_mut(ch),
+            out.rss_bound.get_mut(ch),
+        ) {
+            (*a, *b) = (rf, rn);
+            *bd = [
+                2.0 * rem_f * (n as f64 * rf.max(0.0)).sqrt() + rem_f * rem_f * n as f64,
+                0.0,
+            ];
+        }
+    }
+    Some(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{pair_row, shift, VecP};
+
+    /// V(t − τ) = Q(τ)·V(t): the shift is exact, the one approximation being the τ used.
+    #[test]
+    fn the_shift_moves_v_back_in_time() {
+        let omega = 1.7;
+        for (u, tau) in [(0.0, 0.3), (12.5, -0.0961), (3600.0, 0.3077), (77.0, 0.0)] {
+            let at = |u: f64| {
+                let (s, c) = (omega * u).sin_cos();
+                VecP::from(pair_row(s, c, u))
+            };
+            let moved = shift(tau, omega) * at(u);
+            let want = at(u - tau);
+            for (a, b) in moved.iter().zip(want.iter()) {
+                assert!(
+                    (a - b).abs() <= 1e-9 * (1.0 + u * u),
+                    "{a} against {b} at u {u}"
+                );
+            }
+        }
+    }
+}
