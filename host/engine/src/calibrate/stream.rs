@@ -689,7 +689,7 @@ impl Engine<'_> {
         let mut residuals: Vec<Option<Residuals>> = Vec::with_capacity(prepared.len());
         for (k, p) in prepared.iter().enumerate() {
             let one_pass = self.one_pass && !again.contains(&k);
-            residuals.push(if one_pass { from_pilots(p)? } else { None });
+            residuals.push(if one_pass { from_pilots(p) } else { None });
         }
         let rest: Vec<&Prepared> = prepared
             .iter()
@@ -933,7 +933,7 @@ impl Engine<'_> {
             }
             let flagged = flagged.map(|f| (f.rows() > 0).then_some(f));
             p.moments = all;
-            p.beta = wide_betas(&p.moments, &flagged, p.fitted).map_err(fail)?;
+            p.beta = moments::wide_betas(&p.moments, &flagged, p.fitted).map_err(fail)?;
         }
         Ok(())
     }
@@ -1030,10 +1030,8 @@ fn sine_pair(p: &Prepared) -> Result<(SineCoefficients, SineCoefficients, f64), 
 /// A group's residual sums from its parts' pilots (`pilot`), without a residual pass:
 /// `None` when a part has no pilot, or the corrections' error bound is not below
 /// [`pilot::KAPPA`] of the sums' own scatter.
-fn from_pilots(p: &Prepared) -> Result<Option<Residuals>, CalibrateError> {
-    let Ok((sine_fitted, sine_nominal, eps)) = sine_pair(p) else {
-        return Ok(None);
-    };
+fn from_pilots(p: &Prepared) -> Option<Residuals> {
+    let (sine_fitted, sine_nominal, eps) = sine_pair(p).ok()?;
     let fit = Fitted {
         nominal: p.nominal,
         fitted: p.fitted,
@@ -1044,10 +1042,7 @@ fn from_pilots(p: &Prepared) -> Result<Option<Residuals>, CalibrateError> {
     };
     let mut sums = Vec::with_capacity(p.pieces.len());
     for piece in &p.pieces {
-        match pilot::corrected(piece, &fit) {
-            Some(s) => sums.push(s),
-            None => return Ok(None),
-        }
+        sums.push(pilot::corrected(piece, &fit)?);
     }
     let mut out = Residuals {
         lagged: Default::default(),
@@ -1067,7 +1062,7 @@ fn from_pilots(p: &Prepared) -> Result<Option<Residuals>, CalibrateError> {
                 s.rss_fitted.get(ch),
                 s.rss_nominal.get(ch),
             ) else {
-                return Ok(None);
+                return None;
             };
             joined = Some(match joined {
                 Some(j) => j.followed_by(l),
@@ -1084,9 +1079,7 @@ fn from_pilots(p: &Prepared) -> Result<Option<Residuals>, CalibrateError> {
                 *b += rn;
             }
         }
-        let Some(joined) = joined else {
-            return Ok(None);
-        };
+        let joined = joined?;
         // The lagged sums' own standard error is about γ₀·√N, the RSS's RSS·√(2/N).
         let (prod, _) = joined.products();
         let own = prod.first().copied().unwrap_or(0.0) / rows.sqrt();
@@ -1097,13 +1090,13 @@ fn from_pilots(p: &Prepared) -> Result<Option<Residuals>, CalibrateError> {
                 .zip(rss_own)
                 .all(|(b, o)| *b <= pilot::KAPPA * o);
         if !within || !own.is_finite() {
-            return Ok(None);
+            return None;
         }
         if let Some(slot) = out.lagged.get_mut(ch) {
             *slot = joined;
         }
     }
-    Ok(Some(out))
+    Some(out)
 }
 
 /// What the residual pass gives for a group.
@@ -1302,7 +1295,7 @@ fn prepare(
     // The widened fit's coefficients, if the sums reach the fitted rate (else the
     // correcting pass computes them, as it does with rails).
     let beta = if moments.within(fitted, REACH_FIT) {
-        wide_betas(&moments, &[None, None, None], fitted).map_err(fail)?
+        moments::wide_betas(&moments, &[None, None, None], fitted).map_err(fail)?
     } else {
         [[0.0; WIDE]; 3]
     };
@@ -1319,37 +1312,6 @@ fn prepare(
         span_ticks: gs.span_ticks,
         pieces,
     })
-}
-
-/// The widened fit's coefficients per channel at `step`, each channel's readings on its
-/// rails left out.
-pub(super) fn wide_betas(
-    m: &Moments,
-    flagged: &[Option<Moments>; 3],
-    step: PhaseStep,
-) -> Result<[[f64; WIDE]; 3], String> {
-    let mut out = [[0.0; WIDE]; 3];
-    let all = m.wide_at(step);
-    for (ch, (b, f)) in out.iter_mut().zip(flagged).enumerate() {
-        let without;
-        let (g, x) = match f {
-            Some(f) => {
-                without = m.without(f).wide_at(step);
-                (&without.0, &without.1)
-            }
-            None => (&all.0, &all.1),
-        };
-        let chol = g.clone().cholesky().ok_or_else(|| {
-            "singular fit: the regressors do not determine every coefficient".to_string()
-        })?;
-        for (o, v) in b
-            .iter_mut()
-            .zip(chol.solve(&x.column(ch).into_owned()).iter())
-        {
-            *o = *v;
-        }
-    }
-    Ok(out)
 }
 
 /// A streamed condition's sine refitted at a nearby rate: the fit's own (A, B) moved by

@@ -601,6 +601,37 @@ impl Moments {
     }
 }
 
+/// The widened fit's coefficients per channel at `step`, each channel's readings on its
+/// rails left out.
+pub fn wide_betas(
+    m: &Moments,
+    flagged: &[Option<Moments>; 3],
+    step: PhaseStep,
+) -> Result<[[f64; WIDE]; 3], String> {
+    let mut out = [[0.0; WIDE]; 3];
+    let all = m.wide_at(step);
+    for (ch, (b, f)) in out.iter_mut().zip(flagged).enumerate() {
+        let without;
+        let (g, x) = match f {
+            Some(f) => {
+                without = m.without(f).wide_at(step);
+                (&without.0, &without.1)
+            }
+            None => (&all.0, &all.1),
+        };
+        let chol = g.clone().cholesky().ok_or_else(|| {
+            "singular fit: the regressors do not determine every coefficient".to_string()
+        })?;
+        for (o, v) in b
+            .iter_mut()
+            .zip(chol.solve(&x.column(ch).into_owned()).iter())
+        {
+            *o = *v;
+        }
+    }
+    Ok(out)
+}
+
 /// The widened regressors of a row at `step`, exactly (the residual pass): the mean over
 /// its conversions, in the order of [`WIDE_HARMONIC`]; and the sine's (sin, cos, 1) at
 /// `other`, a step `shift` rad/s below (by rotating each conversion's angle back by
