@@ -1,12 +1,13 @@
-//! The noise model's residual sums in pass 1, without a residual pass (docs/streaming.md,
-//! "One pass where the data allow").
+//! The noise model's residual sums taken while the sums are gathered, without a residual
+//! pass (docs/streaming.md, "One pass where the data allow").
 //!
 //! Each piece of a streamed group (the rows one thread read) fits a pilot: the widened fit
-//! at the nominal rate on its first [`PILOT_ROWS`] rows. From then on every row's residual
+//! on its first [`PILOT_ROWS`] rows, at the rate its pass gathers sums about (nominal in
+//! pass 1, the rate pass 1 fitted in a correcting pass). From then on every row's residual
 //! from the pilot, r⁰, goes into lagged sums as it is read. The fitted model differs from
-//! the pilot by Δ = cᵀV, V = (f, u·f, …): the wide columns and their first power of u at the
-//! nominal rate, and u²·(sin α, cos α) (the expansion in the rate's change to first
-//! order, and to second for harmonic 1), so the residuals r = r⁰ − Δ have
+//! the pilot by Δ = cᵀV, V = (f, u·f, …): the wide columns and their first power of u at
+//! that rate, and u²·(sin α, cos α) (the expansion in the rate's change to first order,
+//! and to second for harmonic 1), so the residuals r = r⁰ − Δ have
 //!
 //! Σ r_k r_{k−l} = Σ r⁰_k r⁰_{k−l} − Σ r⁰_k Δ_{k−l} − Σ Δ_k r⁰_{k−l} + Σ Δ_k Δ_{k−l}.
 //!
@@ -331,7 +332,14 @@ pub(super) fn corrected(piece: &Piece, fit: &Fitted) -> Option<PieceSums> {
     };
     let PairSums { p, y, v } = piece.moments.pair_sums()?;
     let hz = f64::from(CLOCK.hz());
-    let omega = fit.nominal.to_hz(CLOCK) * std::f64::consts::TAU;
+    // V is at the step the piece's sums were gathered about: nominal in pass 1, the rate
+    // pass 1 fitted in a correcting pass.
+    let basis = piece.moments.step();
+    let omega = basis.to_hz(CLOCK) * std::f64::consts::TAU;
+    let (eps_f, eps_n) = (
+        piece.moments.eps(fit.fitted),
+        piece.moments.eps(fit.nominal),
+    );
     let n = run.n;
     if n == 0 || piece.moments.rows() != n as u64 {
         return None;
@@ -339,7 +347,7 @@ pub(super) fn corrected(piece: &Piece, fit: &Fitted) -> Option<PieceSums> {
     let span = run.tail.iter().map(|r| r.0).max().unwrap_or(0) as f64 / hz;
     // V and the pilot's residual of the first and the last LAGS rows (newest first).
     let row_v = |(tick, _): &Row| {
-        let (s, c) = fit.nominal.phase_at(Ticks(*tick)).sin_cos::<f64>();
+        let (s, c) = basis.phase_at(Ticks(*tick)).sin_cos::<f64>();
         VecP::from(pair_row(s.hi, c.hi, *tick as f64 / hz))
     };
     let newest: Vec<&Row> = (0..run.tail.len().min(n))
@@ -394,11 +402,11 @@ pub(super) fn corrected(piece: &Piece, fit: &Fitted) -> Option<PieceSums> {
             return None;
         };
         let model = moved(wide, fit.fitted, piece.offset);
-        let c = difference(&model, beta0, fit.eps);
+        let c = difference(&model, beta0, eps_f);
         let sine_f = moved(&widened(sf), fit.fitted, piece.offset);
-        let gamma_f = difference(&sine_f, beta0, fit.eps);
+        let gamma_f = difference(&sine_f, beta0, eps_f);
         let sine_n = moved(&widened(sn), fit.nominal, piece.offset);
-        let gamma_n = difference(&sine_n, beta0, 0.0);
+        let gamma_n = difference(&sine_n, beta0, eps_n);
         // Σ r⁰V = Σ yV − Σ V fᵀ·β₀.
         let b0 = SVector::<f64, WIDE>::from(*beta0);
         let m = y.column(ch).into_owned() - p.fixed_view::<PAIR, WIDE>(0, 0) * b0;
@@ -410,7 +418,7 @@ pub(super) fn corrected(piece: &Piece, fit: &Fitted) -> Option<PieceSums> {
         let s00 = s0.first().copied().unwrap_or(0.0).max(0.0);
         let root = (n as f64 * s00).sqrt();
         let (size, slope) = size_and_slope(&c, omega, span);
-        let rem = remainder(&model, fit.eps, span);
+        let rem = remainder(&model, eps_f, span);
         let mut prod = [0.0; LAGS];
         let (mut head_rv, mut head_vv, mut tail_rv) = (VecP::zeros(), MatP::zeros(), VecP::zeros());
         for l in 0..LAGS {
@@ -448,17 +456,20 @@ pub(super) fn corrected(piece: &Piece, fit: &Fitted) -> Option<PieceSums> {
         }
         let rss = |g: &VecP| s00 - 2.0 * g.dot(&m) + g.dot(&(p * g));
         let (rf, rn) = (rss(&gamma_f), rss(&gamma_n));
-        let rem_f = remainder(&sine_f, fit.eps, span);
+        let rss_error = |rem: f64, rss: f64| {
+            2.0 * rem * (n as f64 * rss.max(0.0)).sqrt() + rem * rem * n as f64
+        };
+        let (rem_f, rem_n) = (
+            remainder(&sine_f, eps_f, span),
+            remainder(&sine_n, eps_n, span),
+        );
         if let (Some(a), Some(b), Some(bd)) = (
             out.rss_fitted.get_mut(ch),
             out.rss_nominal.get_mut(ch),
             out.rss_bound.get_mut(ch),
         ) {
             (*a, *b) = (rf, rn);
-            *bd = [
-                2.0 * rem_f * (n as f64 * rf.max(0.0)).sqrt() + rem_f * rem_f * n as f64,
-                0.0,
-            ];
+            *bd = [rss_error(rem_f, rf), rss_error(rem_n, rn)];
         }
     }
     Some(out)

@@ -10,7 +10,8 @@
 //!   rate fit and the widened noise fit at any nearby rate) and its channels' rails.
 //! - **A correcting pass**, only if the data demand it: when the fitted rate is too far
 //!   from nominal for the sums' expansion, or a channel has rails (its readings on them
-//!   leave the noise fit), the sums are gathered again about the fitted rate.
+//!   leave the noise fit), the sums are gathered again about the fitted rate (with pilots
+//!   about it, for a group without rails).
 //! - **Pass 2** takes the residuals of the widened fit at the fitted rate, exactly, into
 //!   their lagged sums (the AR noise model, as [`crate::fit::noise::NoiseModel::estimate`]
 //!   has it), and the residual sums of squares of the sine fits at the fitted and the
@@ -587,8 +588,10 @@ struct Prepared {
     rows: usize,
     /// Clock ticks from the first conversion to the last.
     span_ticks: u64,
-    /// Each part's sums and pilot, in file order.
+    /// Each part's sums and pilot, in file order: from pass 1 (about the nominal rate), and
+    /// from the correcting pass if it ran (about the rate pass 1 fitted).
     pieces: Vec<Piece>,
+    pieces_fitted: Vec<Piece>,
 }
 
 struct Engine<'a> {
@@ -687,8 +690,9 @@ impl Engine<'_> {
         }
         // The residuals' sums from the pilots where the data allow, else from a pass.
         let mut residuals: Vec<Option<Residuals>> = Vec::with_capacity(prepared.len());
-        for (k, p) in prepared.iter().enumerate() {
-            let one_pass = self.one_pass && !again.contains(&k);
+        for p in &prepared {
+            let on_rails = p.rails.iter().any(|r| r.0.is_some() || r.1.is_some());
+            let one_pass = self.one_pass && !on_rails;
             residuals.push(if one_pass { from_pilots(p) } else { None });
         }
         let rest: Vec<&Prepared> = prepared
@@ -853,59 +857,103 @@ impl Engine<'_> {
     }
 
     /// Gather the sums again about each group's fitted rate, its readings on rails
-    /// apart, and refit.
+    /// apart, and refit. A group without rails also gets its parts' pilots about that
+    /// rate (`pilot`), which may then stand in for the residual pass.
     fn correcting_pass(&self, prepared: &mut [Prepared], which: &[usize]) -> Result<(), FileError> {
         let wanted: Vec<usize> = which
             .iter()
             .filter_map(|k| prepared.get(*k).map(|p| p.index))
             .collect();
-        let fresh = || -> Vec<(Moments, [Moments; 3])> {
-            which
-                .iter()
-                .filter_map(|k| prepared.get(*k))
-                .map(|p| {
-                    let m = Moments::new(p.fitted, CLOCK);
-                    (m.clone(), [m.clone(), m.clone(), m])
-                })
-                .collect()
-        };
         let rails: Vec<[(Option<f64>, Option<f64>); 3]> = which
             .iter()
             .filter_map(|k| prepared.get(*k).map(|p| p.rails))
             .collect();
-        let each =
-            |sums: &mut Vec<(Moments, [Moments; 3])>, group: usize, ap: &Aperture, y: [f64; 3]| {
-                let Some(k) = wanted.iter().position(|g| *g == group) else {
-                    return;
-                };
-                if let (Some((all, flagged)), Some(r)) = (sums.get_mut(k), rails.get(k)) {
-                    all.add(ap, y);
-                    for ((f, r), v) in flagged.iter_mut().zip(r).zip(y) {
-                        if Rails::flags(*r, v) {
-                            f.add(ap, y);
-                        }
+        let fresh = || -> Vec<Correcting> {
+            rails
+                .iter()
+                .zip(which.iter().filter_map(|k| prepared.get(*k)))
+                .map(|(r, p)| {
+                    let m = Moments::new(p.fitted, CLOCK);
+                    let on_rails = r.iter().any(|r| r.0.is_some() || r.1.is_some());
+                    Correcting {
+                        all: m.clone(),
+                        flagged: [m.clone(), m.clone(), m],
+                        pilot: if self.one_pass && !on_rails {
+                            Pilot::new()
+                        } else {
+                            Pilot::Off
+                        },
+                        pieces: Vec::new(),
+                    }
+                })
+                .collect()
+        };
+        let each = |sums: &mut Vec<Correcting>, group: usize, ap: &Aperture, y: [f64; 3]| {
+            let Some(k) = wanted.iter().position(|g| *g == group) else {
+                return;
+            };
+            if let (Some(c), Some(r)) = (sums.get_mut(k), rails.get(k)) {
+                let angle = c.all.add(ap, y);
+                if !matches!(c.pilot, Pilot::Off) {
+                    c.pilot.add(ap.first().0, angle, y, &c.all);
+                }
+                for ((f, r), v) in c.flagged.iter_mut().zip(r).zip(y) {
+                    if Rails::flags(*r, v) {
+                        f.add(ap, y);
                     }
                 }
-            };
-        // The parts share the group's origin: their sums add.
-        let join = |a: Vec<(Moments, [Moments; 3])>, b: Vec<(Moments, [Moments; 3])>| {
+            }
+        };
+        // The parts share the group's origin: their sums add, and each keeps its pilot.
+        let join = |a: Vec<Correcting>, b: Vec<Correcting>| {
             a.into_iter()
                 .zip(b)
-                .map(|((a, fa), (b, fb))| {
-                    let [a0, a1, a2] = fa;
-                    let [b0, b1, b2] = fb;
-                    (
-                        a.merged(&b),
-                        [a0.merged(&b0), a1.merged(&b1), a2.merged(&b2)],
-                    )
+                .map(|(mut a, b)| {
+                    if a.pieces.is_empty() {
+                        a.pieces.push(Piece {
+                            moments: a.all.clone(),
+                            pilot: std::mem::take(&mut a.pilot),
+                            offset: 0,
+                        });
+                    }
+                    a.pieces.push(Piece {
+                        moments: b.all.clone(),
+                        pilot: b.pilot,
+                        offset: 0,
+                    });
+                    let [a0, a1, a2] = a.flagged;
+                    let [b0, b1, b2] = b.flagged;
+                    Correcting {
+                        all: a.all.merged(&b.all),
+                        flagged: [a0.merged(&b0), a1.merged(&b1), a2.merged(&b2)],
+                        pilot: Pilot::Off,
+                        pieces: a.pieces,
+                    }
                 })
                 .collect()
         };
         let sums = self.pass(&wanted, fresh, each, join)?;
-        for (k, (all, flagged)) in which.iter().zip(sums) {
+        for (k, c) in which.iter().zip(sums) {
             let Some(p) = prepared.get_mut(*k) else {
                 continue;
             };
+            let Correcting {
+                all,
+                flagged,
+                pilot,
+                mut pieces,
+            } = c;
+            if pieces.is_empty() {
+                pieces.push(Piece {
+                    moments: all.clone(),
+                    pilot,
+                    offset: 0,
+                });
+            }
+            for piece in &mut pieces {
+                piece.pilot.finish(&piece.moments);
+            }
+            p.pieces_fitted = pieces;
             let all = all.dense();
             let gs = self.group(p.index)?;
             let fail = |e: String| {
@@ -1040,10 +1088,18 @@ fn from_pilots(p: &Prepared) -> Option<Residuals> {
         sine_fitted: &sine_fitted,
         sine_nominal: &sine_nominal,
     };
-    let mut sums = Vec::with_capacity(p.pieces.len());
-    for piece in &p.pieces {
-        sums.push(pilot::corrected(piece, &fit)?);
-    }
+    let corrected = |pieces: &[Piece]| -> Option<Vec<pilot::PieceSums>> {
+        pieces.iter().map(|pc| pilot::corrected(pc, &fit)).collect()
+    };
+    // The lagged sums and the fitted rate's RSS from the pilots about the rate the sums
+    // were last gathered about; the nominal rate's RSS from pass 1's, about nominal.
+    let at_nominal = corrected(&p.pieces)?;
+    let sums = if p.pieces_fitted.is_empty() {
+        None
+    } else {
+        Some(corrected(&p.pieces_fitted)?)
+    };
+    let sums = sums.as_ref().unwrap_or(&at_nominal);
     let mut out = Residuals {
         lagged: Default::default(),
         rss_fitted: [0.0; 3],
@@ -1054,13 +1110,12 @@ fn from_pilots(p: &Prepared) -> Option<Residuals> {
         // Joined in file order, and the bounds summed over the parts.
         let mut joined: Option<LaggedSums> = None;
         let (mut bound, mut rss_bound) = ([0.0; LAGS], [0.0; 2]);
-        for s in &sums {
-            let (Some(l), Some(b), Some(rb), Some(rf), Some(rn)) = (
+        for s in sums {
+            let (Some(l), Some(b), Some(rb), Some(rf)) = (
                 s.lagged.get(ch),
                 s.bound.get(ch),
                 s.rss_bound.get(ch),
                 s.rss_fitted.get(ch),
-                s.rss_nominal.get(ch),
             ) else {
                 return None;
             };
@@ -1071,12 +1126,18 @@ fn from_pilots(p: &Prepared) -> Option<Residuals> {
             for (a, x) in bound.iter_mut().zip(b) {
                 *a += x;
             }
-            for (a, x) in rss_bound.iter_mut().zip(rb) {
-                *a += x;
-            }
-            if let (Some(a), Some(b)) = (out.rss_fitted.get_mut(ch), out.rss_nominal.get_mut(ch)) {
+            rss_bound[0] += rb.first().copied().unwrap_or(f64::INFINITY);
+            if let Some(a) = out.rss_fitted.get_mut(ch) {
                 *a += rf;
-                *b += rn;
+            }
+        }
+        for s in &at_nominal {
+            let (Some(rb), Some(rn)) = (s.rss_bound.get(ch), s.rss_nominal.get(ch)) else {
+                return None;
+            };
+            rss_bound[1] += rb.get(1).copied().unwrap_or(f64::INFINITY);
+            if let Some(a) = out.rss_nominal.get_mut(ch) {
+                *a += rn;
             }
         }
         let joined = joined?;
@@ -1097,6 +1158,15 @@ fn from_pilots(p: &Prepared) -> Option<Residuals> {
         }
     }
     Some(out)
+}
+
+/// A group's sums in the correcting pass, on one thread: all its rows', each channel's
+/// readings on rails, its pilot, and once parts are joined, each part's sums and pilot.
+struct Correcting {
+    all: Moments,
+    flagged: [Moments; 3],
+    pilot: Pilot,
+    pieces: Vec<Piece>,
 }
 
 /// What the residual pass gives for a group.
@@ -1311,6 +1381,7 @@ fn prepare(
         rows: gs.rows,
         span_ticks: gs.span_ticks,
         pieces,
+        pieces_fitted: Vec::new(),
     })
 }
 
