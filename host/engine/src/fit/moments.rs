@@ -231,8 +231,9 @@ impl Harmonic {
     }
 }
 
-/// Σ V Vᵀ, Σ V·y (a column per channel) and Σ V over a group's rows, V = (f, u·f) with f
-/// the wide columns at the sums' step: [`Moments::pair_sums`].
+/// Σ V Vᵀ, Σ V·y (a column per channel) and Σ V over a group's rows, with
+/// V = (f, u·f, u²·sin α, u²·cos α) and f the wide columns at the sums' step:
+/// [`Moments::pair_sums`].
 #[derive(Clone, Debug)]
 pub struct PairSums {
     pub p: SMatrix<f64, PAIR, PAIR>,
