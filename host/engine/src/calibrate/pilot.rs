@@ -67,40 +67,102 @@ pub(super) struct Run {
     n: usize,
 }
 
-/// A streamed group's rows one thread read: its sums about the nominal step from its own
-/// first row, its pilot, and its first row's tick from the group's.
+/// A streamed group's rows one thread read: its sums from its own first row (about the
+/// nominal step in pass 1, about pass 1's fitted step in a correcting pass), its pilot,
+/// and its first row's tick from the group's.
 pub(super) struct Piece {
-    pub moments: Moments,
-    pub pilot: Pilot,
-    pub offset: u64,
+    moments: Moments,
+    pilot: Pilot,
+    offset: u64,
+}
+
+/// A group's pilots on one thread: its own while it reads, and once the parts other
+/// threads read are joined to it, each part's sums and pilot in file order.
+#[derive(Default)]
+pub(super) struct Pilots {
+    own: Pilot,
+    parts: Vec<Piece>,
+}
+
+impl Pilots {
+    /// Gathering its first rows, or (`on` false) off.
+    pub fn new(on: bool) -> Self {
+        Pilots {
+            own: if on {
+                Pilot::Gathering(Vec::new())
+            } else {
+                Pilot::Off
+            },
+            parts: Vec::new(),
+        }
+    }
+
+    /// The next row, as [`Moments::add`] took it (`f`, what it gave back) into the sums
+    /// `moments`.
+    #[inline]
+    pub fn add(&mut self, tick: u64, f: Option<&[f64; WIDE]>, y: [f64; 3], moments: &Moments) {
+        self.own.add(tick, f, y, moments);
+    }
+
+    /// The same group read on by another thread: `later`, whose sums are `later_moments`
+    /// and whose first row is `offset` ticks after this one's, follows this one's part
+    /// (whose sums are `moments`).
+    pub fn join(&mut self, moments: &Moments, later: Pilots, later_moments: &Moments, offset: u64) {
+        self.own_part(moments);
+        for mut piece in later.into_parts(later_moments) {
+            piece.offset = piece.offset.saturating_add(offset);
+            self.parts.push(piece);
+        }
+    }
+
+    /// Each part's sums and pilot, every pilot fitted by now (a part shorter than
+    /// [`PILOT_ROWS`] is fitted here); `moments` are this thread's own sums.
+    pub fn into_pieces(self, moments: &Moments) -> Vec<Piece> {
+        let mut parts = self.into_parts(moments);
+        for piece in &mut parts {
+            piece.pilot.finish(&piece.moments);
+        }
+        parts
+    }
+
+    fn into_parts(mut self, moments: &Moments) -> Vec<Piece> {
+        self.own_part(moments);
+        self.parts
+    }
+
+    /// This thread's own pilot as the first part, if no part has joined yet.
+    fn own_part(&mut self, moments: &Moments) {
+        if self.parts.is_empty() {
+            self.parts.push(Piece {
+                moments: moments.clone(),
+                pilot: std::mem::take(&mut self.own),
+                offset: 0,
+            });
+        }
+    }
 }
 
 impl Pilot {
-    pub fn new() -> Self {
-        Pilot::Gathering(Vec::with_capacity(PILOT_ROWS))
-    }
-
-    /// The next row: its tick, its angle's (sin, cos) at the nominal step (`None` for a
-    /// row of several conversions) and its readings; `moments` holds the piece's rows
-    /// so far, this one included.
+    /// The next row: its tick, its wide columns at the step the piece's sums are about
+    /// (`None` for a row of several conversions) and its readings; `moments` holds the
+    /// piece's rows so far, this one included.
     #[inline]
-    pub fn add(&mut self, tick: u64, angle: Option<(f64, f64)>, y: [f64; 3], moments: &Moments) {
-        match (self, angle) {
-            (Pilot::Running(run), Some((s, c))) => run.add(tick, s, c, y),
-            (this @ Pilot::Gathering(_), Some(_)) => {
-                if let Pilot::Gathering(rows) = this {
-                    rows.push((tick, y));
-                    if rows.len() >= PILOT_ROWS {
-                        this.start(moments);
-                    }
+    fn add(&mut self, tick: u64, f: Option<&[f64; WIDE]>, y: [f64; 3], moments: &Moments) {
+        match (&mut *self, f) {
+            (Pilot::Running(run), Some(f)) => run.add(tick, f, y),
+            (Pilot::Gathering(rows), Some(_)) => {
+                rows.push((tick, y));
+                if rows.len() >= PILOT_ROWS {
+                    self.start(moments);
                 }
             }
-            (this, _) => *this = Pilot::Off,
+            (Pilot::Off, _) => {}
+            (_, None) => *self = Pilot::Off,
         }
     }
 
     /// Fit the pilot now if it is still gathering (a piece shorter than [`PILOT_ROWS`]).
-    pub fn finish(&mut self, moments: &Moments) {
+    fn finish(&mut self, moments: &Moments) {
         if matches!(self, Pilot::Gathering(_)) {
             self.start(moments);
         }
@@ -127,9 +189,10 @@ impl Pilot {
             hi: [f64::NEG_INFINITY; LAGS],
             n: 0,
         });
+        let hz = f64::from(CLOCK.hz());
         for (tick, y) in rows {
             let (s, c) = step.phase_at(Ticks(tick)).sin_cos::<f64>();
-            run.add(tick, s.hi, c.hi, y);
+            run.add(tick, &wide_row(s.hi, c.hi, tick as f64 / hz), y);
         }
         *self = Pilot::Running(run);
     }
@@ -137,9 +200,7 @@ impl Pilot {
 
 impl Run {
     #[inline]
-    fn add(&mut self, tick: u64, s: f64, c: f64, y: [f64; 3]) {
-        let u = tick as f64 / f64::from(CLOCK.hz());
-        let f = wide_row(s, c, u);
+    fn add(&mut self, tick: u64, f: &[f64; WIDE], y: [f64; 3]) {
         for ((acc, beta), yv) in self.lagged.iter_mut().zip(&self.beta).zip(y) {
             let pilot: f64 = f.iter().zip(beta).map(|(a, b)| a * b).sum();
             acc.add(yv - pilot, false);
@@ -186,15 +247,18 @@ pub(super) struct Fitted<'a> {
     pub sine_nominal: &'a [[f64; 3]; 3],
 }
 
-/// What a piece's corrected sums give, with the bounds of their errors.
-pub(super) struct PieceSums {
-    pub lagged: [LaggedSums; 3],
-    pub rss_fitted: [f64; 3],
-    pub rss_nominal: [f64; 3],
-    /// Per channel: the bound on each lag's error, and on each residual sum of squares'.
-    pub bound: [[f64; LAGS]; 3],
-    pub rss_bound: [[f64; 2]; 3],
+/// What a piece's corrected sums give for a channel, with the bounds of their errors.
+pub(super) struct ChannelSums {
+    pub lagged: LaggedSums,
+    /// The sine fits' residual sums of squares at the fitted and the nominal rate.
+    pub rss: [f64; 2],
+    /// The bound on each lag's error, and on each residual sum of squares'.
+    pub bound: [f64; LAGS],
+    pub rss_bound: [f64; 2],
 }
+
+/// A piece's corrected sums, per channel.
+pub(super) type PieceSums = [ChannelSums; 3];
 
 /// The wide coefficients `b` of a model at `step` about the group's first row, moved to a
 /// piece's first row `offset` ticks later (its own angle and time at that step): each
@@ -242,14 +306,13 @@ fn widened(sine: &[f64; 3]) -> [f64; WIDE] {
 /// ε·Dᵀ·model on u·f, and harmonic 1's second order, −ε²/2·(A, B), on u²·(sin α, cos α).
 fn difference(model: &[f64; WIDE], pilot: &[f64; WIDE], eps: f64) -> VecP {
     let m = SVector::<f64, WIDE>::from(*model);
-    let db = wide_d().transpose() * m * eps;
     let mut c = VecP::zeros();
-    for i in 0..WIDE {
-        c[i] = model.get(i).copied().unwrap_or(0.0) - pilot.get(i).copied().unwrap_or(0.0);
-        c[i + WIDE] = db[i];
-    }
-    c[2 * WIDE] = -eps * eps / 2.0 * m[0];
-    c[2 * WIDE + 1] = -eps * eps / 2.0 * m[1];
+    c.fixed_rows_mut::<WIDE>(0)
+        .copy_from(&(m - SVector::<f64, WIDE>::from(*pilot)));
+    c.fixed_rows_mut::<WIDE>(WIDE)
+        .copy_from(&(wide_d().transpose() * m * eps));
+    c.fixed_rows_mut::<2>(2 * WIDE)
+        .copy_from(&(m.fixed_rows::<2>(0) * (-eps * eps / 2.0)));
     c
 }
 
@@ -384,13 +447,7 @@ pub(super) fn corrected(piece: &Piece, fit: &Fitted) -> Option<PieceSums> {
         .collect();
     let head_v: Vec<VecP> = run.head.iter().map(row_v).collect();
     let newest_v: Vec<VecP> = newest.iter().map(|r| row_v(r)).collect();
-    let mut out = PieceSums {
-        lagged: Default::default(),
-        rss_fitted: [0.0; 3],
-        rss_nominal: [0.0; 3],
-        bound: [[0.0; LAGS]; 3],
-        rss_bound: [[0.0; 2]; 3],
-    };
+    let mut out = Vec::with_capacity(3);
     for ch in 0..3 {
         let (Some(beta0), Some(wide), Some(sf), Some(sn), Some(acc)) = (
             run.beta.get(ch),
@@ -419,7 +476,7 @@ pub(super) fn corrected(piece: &Piece, fit: &Fitted) -> Option<PieceSums> {
         let root = (n as f64 * s00).sqrt();
         let (size, slope) = size_and_slope(&c, omega, span);
         let rem = remainder(&model, eps_f, span);
-        let mut prod = [0.0; LAGS];
+        let (mut prod, mut bound) = ([0.0; LAGS], [0.0; LAGS]);
         let (mut head_rv, mut head_vv, mut tail_rv) = (VecP::zeros(), MatP::zeros(), VecP::zeros());
         for l in 0..LAGS {
             if l > 0 {
@@ -437,7 +494,7 @@ pub(super) fn corrected(piece: &Piece, fit: &Fitted) -> Option<PieceSums> {
                 lags.get(l),
                 s0.get(l),
                 prod.get_mut(l),
-                out.bound.get_mut(ch).and_then(|b| b.get_mut(l)),
+                bound.get_mut(l),
             ) else {
                 continue;
             };
@@ -451,28 +508,24 @@ pub(super) fn corrected(piece: &Piece, fit: &Fitted) -> Option<PieceSums> {
         let sum = sum0 - c.dot(&v);
         let head: Vec<f64> = run.head.iter().map(|r| exact(r, ch)).collect();
         let newest_e: Vec<f64> = newest.iter().map(|r| exact(r, ch)).collect();
-        if let Some(slot) = out.lagged.get_mut(ch) {
-            *slot = LaggedSums::assembled(prod, sum, &head, &newest_e, n);
-        }
         let rss = |g: &VecP| s00 - 2.0 * g.dot(&m) + g.dot(&(p * g));
-        let (rf, rn) = (rss(&gamma_f), rss(&gamma_n));
-        let rss_error = |rem: f64, rss: f64| {
-            2.0 * rem * (n as f64 * rss.max(0.0)).sqrt() + rem * rem * n as f64
-        };
-        let (rem_f, rem_n) = (
+        let rss = [rss(&gamma_f), rss(&gamma_n)];
+        let rem = [
             remainder(&sine_f, eps_f, span),
             remainder(&sine_n, eps_n, span),
-        );
-        if let (Some(a), Some(b), Some(bd)) = (
-            out.rss_fitted.get_mut(ch),
-            out.rss_nominal.get_mut(ch),
-            out.rss_bound.get_mut(ch),
-        ) {
-            (*a, *b) = (rf, rn);
-            *bd = [rss_error(rem_f, rf), rss_error(rem_n, rn)];
+        ];
+        let mut rss_bound = [0.0; 2];
+        for ((b, r), e) in rss_bound.iter_mut().zip(rss).zip(rem) {
+            *b = 2.0 * e * (n as f64 * r.max(0.0)).sqrt() + e * e * n as f64;
         }
+        out.push(ChannelSums {
+            lagged: LaggedSums::assembled(prod, sum, &head, &newest_e, n),
+            rss,
+            bound,
+            rss_bound,
+        });
     }
-    Some(out)
+    out.try_into().ok()
 }
 
 #[cfg(test)]

@@ -19,7 +19,7 @@
 //!   takes the residuals from a pilot fit, corrected to the fitted model afterwards
 //!   ([`super::pilot`]).
 
-use super::pilot::{self, Fitted, Piece, Pilot};
+use super::pilot::{self, Fitted, Piece, Pilots};
 use super::{
     err, nominal_rate, preflight, rate_choice, rotation_entry, samples, CalibrateError, GroupFit,
     Options, Refit, Setting, CLOCK, NO_RATE,
@@ -364,9 +364,8 @@ struct GroupState {
     /// The first problem with a row's time or conversions.
     row_problem: Option<&'static str>,
     /// The pilot of the rows this thread read, and once groups read in parts are joined,
-    /// each part's sums and pilot (`pilot`).
-    pilot: Pilot,
-    pieces: Vec<Piece>,
+    /// each part's (`pilot`).
+    pilots: Pilots,
 }
 
 /// Pass 1 on one thread (a file the parts reader hands back): the groups as the
@@ -457,8 +456,7 @@ impl GroupState {
             moments: nominal.map(|(_, s)| Moments::new(s, CLOCK)),
             rails: [Rails::default(); 3],
             row_problem: None,
-            pilot: Pilot::new(),
-            pieces: Vec::new(),
+            pilots: Pilots::new(true),
         }
     }
 
@@ -492,22 +490,8 @@ impl GroupState {
             }
             _ => None,
         };
-        if self.pieces.is_empty() {
-            if let Some(m) = &self.moments {
-                let piece = Piece {
-                    moments: m.clone(),
-                    pilot: std::mem::take(&mut self.pilot),
-                    offset: 0,
-                };
-                self.pieces.push(piece);
-            }
-        }
-        if let Some(m) = &later.moments {
-            self.pieces.push(Piece {
-                moments: m.clone(),
-                pilot: later.pilot,
-                offset: shift,
-            });
+        if let (Some(a), Some(b)) = (&self.moments, &later.moments) {
+            self.pilots.join(a, later.pilots, b, shift);
         }
         self.moments = match (self.moments.take(), later.moments) {
             (Some(a), Some(b)) => Some(a.merged(&b.shifted(shift))),
@@ -562,8 +546,8 @@ impl GroupState {
         };
         self.span_ticks = self.span_ticks.max(ap.last().0);
         if let Some(m) = self.moments.as_mut() {
-            let angle = m.add(&ap, y);
-            self.pilot.add(ap.first().0, angle, y, m);
+            let f = m.add(&ap, y);
+            self.pilots.add(ap.first().0, f.as_ref(), y, m);
         }
         for (r, v) in self.rails.iter_mut().zip(y) {
             r.add(v);
@@ -679,10 +663,7 @@ impl Engine<'_> {
         let again: Vec<usize> = prepared
             .iter()
             .enumerate()
-            .filter(|(_, p)| {
-                !p.moments.within(p.fitted, REACH_FIT)
-                    || p.rails.iter().any(|r| r.0.is_some() || r.1.is_some())
-            })
+            .filter(|(_, p)| !p.moments.within(p.fitted, REACH_FIT) || on_rails(&p.rails))
             .map(|(k, _)| k)
             .collect();
         if !again.is_empty() {
@@ -691,8 +672,7 @@ impl Engine<'_> {
         // The residuals' sums from the pilots where the data allow, else from a pass.
         let mut residuals: Vec<Option<Residuals>> = Vec::with_capacity(prepared.len());
         for p in &prepared {
-            let on_rails = p.rails.iter().any(|r| r.0.is_some() || r.1.is_some());
-            let one_pass = self.one_pass && !on_rails;
+            let one_pass = self.one_pass && !on_rails(&p.rails);
             residuals.push(if one_pass { from_pilots(p) } else { None });
         }
         let rest: Vec<&Prepared> = prepared
@@ -869,21 +849,15 @@ impl Engine<'_> {
             .filter_map(|k| prepared.get(*k).map(|p| p.rails))
             .collect();
         let fresh = || -> Vec<Correcting> {
-            rails
+            which
                 .iter()
-                .zip(which.iter().filter_map(|k| prepared.get(*k)))
-                .map(|(r, p)| {
+                .filter_map(|k| prepared.get(*k))
+                .map(|p| {
                     let m = Moments::new(p.fitted, CLOCK);
-                    let on_rails = r.iter().any(|r| r.0.is_some() || r.1.is_some());
                     Correcting {
                         all: m.clone(),
                         flagged: [m.clone(), m.clone(), m],
-                        pilot: if self.one_pass && !on_rails {
-                            Pilot::new()
-                        } else {
-                            Pilot::Off
-                        },
-                        pieces: Vec::new(),
+                        pilots: Pilots::new(self.one_pass && !on_rails(&p.rails)),
                     }
                 })
                 .collect()
@@ -893,10 +867,8 @@ impl Engine<'_> {
                 return;
             };
             if let (Some(c), Some(r)) = (sums.get_mut(k), rails.get(k)) {
-                let angle = c.all.add(ap, y);
-                if !matches!(c.pilot, Pilot::Off) {
-                    c.pilot.add(ap.first().0, angle, y, &c.all);
-                }
+                let f = c.all.add(ap, y);
+                c.pilots.add(ap.first().0, f.as_ref(), y, &c.all);
                 for ((f, r), v) in c.flagged.iter_mut().zip(r).zip(y) {
                     if Rails::flags(*r, v) {
                         f.add(ap, y);
@@ -909,25 +881,13 @@ impl Engine<'_> {
             a.into_iter()
                 .zip(b)
                 .map(|(mut a, b)| {
-                    if a.pieces.is_empty() {
-                        a.pieces.push(Piece {
-                            moments: a.all.clone(),
-                            pilot: std::mem::take(&mut a.pilot),
-                            offset: 0,
-                        });
-                    }
-                    a.pieces.push(Piece {
-                        moments: b.all.clone(),
-                        pilot: b.pilot,
-                        offset: 0,
-                    });
+                    a.pilots.join(&a.all, b.pilots, &b.all, 0);
                     let [a0, a1, a2] = a.flagged;
                     let [b0, b1, b2] = b.flagged;
                     Correcting {
                         all: a.all.merged(&b.all),
                         flagged: [a0.merged(&b0), a1.merged(&b1), a2.merged(&b2)],
-                        pilot: Pilot::Off,
-                        pieces: a.pieces,
+                        pilots: a.pilots,
                     }
                 })
                 .collect()
@@ -940,20 +900,9 @@ impl Engine<'_> {
             let Correcting {
                 all,
                 flagged,
-                pilot,
-                mut pieces,
+                pilots,
             } = c;
-            if pieces.is_empty() {
-                pieces.push(Piece {
-                    moments: all.clone(),
-                    pilot,
-                    offset: 0,
-                });
-            }
-            for piece in &mut pieces {
-                piece.pilot.finish(&piece.moments);
-            }
-            p.pieces_fitted = pieces;
+            p.pieces_fitted = pilots.into_pieces(&all);
             let all = all.dense();
             let gs = self.group(p.index)?;
             let fail = |e: String| {
@@ -1107,66 +1056,59 @@ fn from_pilots(p: &Prepared) -> Option<Residuals> {
     };
     let rows = p.rows.max(1) as f64;
     for ch in 0..3 {
-        // Joined in file order, and the bounds summed over the parts.
-        let mut joined: Option<LaggedSums> = None;
-        let (mut bound, mut rss_bound) = ([0.0; LAGS], [0.0; 2]);
-        for s in sums {
-            let (Some(l), Some(b), Some(rb), Some(rf)) = (
-                s.lagged.get(ch),
-                s.bound.get(ch),
-                s.rss_bound.get(ch),
-                s.rss_fitted.get(ch),
-            ) else {
-                return None;
-            };
+        // Joined in file order, and the bounds summed over the parts: the fitted rate's
+        // RSS from `sums`, the nominal rate's from `at_nominal`.
+        let (mut joined, mut bound) = (None::<LaggedSums>, [0.0; LAGS]);
+        let (mut rss, mut rss_bound) = ([0.0; 2], [0.0; 2]);
+        for c in sums.iter().filter_map(|s| s.get(ch)) {
             joined = Some(match joined {
-                Some(j) => j.followed_by(l),
-                None => l.clone(),
+                Some(j) => j.followed_by(&c.lagged),
+                None => c.lagged.clone(),
             });
-            for (a, x) in bound.iter_mut().zip(b) {
+            for (a, x) in bound.iter_mut().zip(c.bound) {
                 *a += x;
             }
-            rss_bound[0] += rb.first().copied().unwrap_or(f64::INFINITY);
-            if let Some(a) = out.rss_fitted.get_mut(ch) {
-                *a += rf;
-            }
+            rss[0] += c.rss[0];
+            rss_bound[0] += c.rss_bound[0];
         }
-        for s in &at_nominal {
-            let (Some(rb), Some(rn)) = (s.rss_bound.get(ch), s.rss_nominal.get(ch)) else {
-                return None;
-            };
-            rss_bound[1] += rb.get(1).copied().unwrap_or(f64::INFINITY);
-            if let Some(a) = out.rss_nominal.get_mut(ch) {
-                *a += rn;
-            }
+        for c in at_nominal.iter().filter_map(|s| s.get(ch)) {
+            rss[1] += c.rss[1];
+            rss_bound[1] += c.rss_bound[1];
         }
         let joined = joined?;
         // The lagged sums' own standard error is about γ₀·√N, the RSS's RSS·√(2/N).
         let (prod, _) = joined.products();
         let own = prod.first().copied().unwrap_or(0.0) / rows.sqrt();
-        let rss_own = [out.rss_fitted[ch], out.rss_nominal[ch]].map(|r| r * (2.0 / rows).sqrt());
         let within = bound.iter().all(|b| *b <= pilot::KAPPA * own)
             && rss_bound
                 .iter()
-                .zip(rss_own)
-                .all(|(b, o)| *b <= pilot::KAPPA * o);
+                .zip(rss)
+                .all(|(b, r)| *b <= pilot::KAPPA * r * (2.0 / rows).sqrt());
         if !within || !own.is_finite() {
             return None;
         }
-        if let Some(slot) = out.lagged.get_mut(ch) {
-            *slot = joined;
+        if let (Some(l), Some(f), Some(n)) = (
+            out.lagged.get_mut(ch),
+            out.rss_fitted.get_mut(ch),
+            out.rss_nominal.get_mut(ch),
+        ) {
+            (*l, *f, *n) = (joined, rss[0], rss[1]);
         }
     }
     Some(out)
 }
 
 /// A group's sums in the correcting pass, on one thread: all its rows', each channel's
-/// readings on rails, its pilot, and once parts are joined, each part's sums and pilot.
+/// readings on rails, and its pilots.
 struct Correcting {
     all: Moments,
     flagged: [Moments; 3],
-    pilot: Pilot,
-    pieces: Vec<Piece>,
+    pilots: Pilots,
+}
+
+/// Whether a channel of a group has readings on a rail.
+fn on_rails(rails: &[(Option<f64>, Option<f64>); 3]) -> bool {
+    rails.iter().any(|r| r.0.is_some() || r.1.is_some())
 }
 
 /// What the residual pass gives for a group.
@@ -1333,17 +1275,7 @@ fn prepare(
         ));
     };
     // Each part's sums and pilot (a group one thread read whole: its own).
-    let mut pieces = std::mem::take(&mut gs.pieces);
-    if pieces.is_empty() {
-        pieces.push(Piece {
-            moments: moments.clone(),
-            pilot: std::mem::take(&mut gs.pilot),
-            offset: 0,
-        });
-    }
-    for piece in &mut pieces {
-        piece.pilot.finish(&piece.moments);
-    }
+    let pieces = std::mem::take(&mut gs.pilots).into_pieces(&moments);
     // Folded once: every fit below reads the dense sums.
     let moments = moments.dense();
     // As the streaming fit checks its record (method.md §5).

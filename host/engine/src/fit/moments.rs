@@ -176,8 +176,9 @@ impl Harmonic {
             .unwrap_or([0.0; 3])
     }
 
-    /// Add a row of one conversion at angle (sin, cos) = (`s`, `c`), time `u`.
-    fn add(&mut self, s: f64, c: f64, u: f64, y: [f64; 3]) {
+    /// Add a row of one conversion at angle (sin, cos) = (`s`, `c`), time `u`; its wide
+    /// columns ([`wide_row`]'s, to the bit: the same products) come back.
+    fn add(&mut self, s: f64, c: f64, u: f64, y: [f64; 3]) -> [f64; WIDE] {
         // cos mα, sin mα by the angle-sum formulas, in three rounds (2; 3, 4; 5 to 8)
         // rather than a chain of eight: each round's products wait only on the last.
         let turn =
@@ -228,6 +229,7 @@ impl Harmonic {
         with_y::<9>(y0, pw[0], &g, y);
         with_y::<9>(y1, pw[1], &g, y);
         with_y::<3>(y2, pw[2], &g, y);
+        [s, c, 1.0, u, sm[2], cm[2], sm[3], cm[3], sm[4], cm[4]]
     }
 }
 
@@ -369,8 +371,8 @@ impl Moments {
     }
 
     /// Add a row: the conversions it averages (ticks from the group's first row) and its
-    /// u, v, w. A row of one conversion gives back its angle's (sin, cos) at the step.
-    pub fn add(&mut self, ap: &Aperture, y: [f64; 3]) -> Option<(f64, f64)> {
+    /// u, v, w. A row of one conversion gives back its wide columns at the step.
+    pub fn add(&mut self, ap: &Aperture, y: [f64; 3]) -> Option<[f64; WIDE]> {
         if ap.len() == 1 {
             return Some(self.add_point(ap.first(), y));
         }
@@ -383,10 +385,11 @@ impl Moments {
     }
 
     /// Add a row of one conversion at tick `t`: [`Moments::add`] of its aperture.
-    fn add_point(&mut self, t: Ticks, y: [f64; 3]) -> (f64, f64) {
+    fn add_point(&mut self, t: Ticks, y: [f64; 3]) -> [f64; WIDE] {
         let hz = f64::from(self.clock.hz());
         let (s, c) = self.step.phase_at(t).sin_cos::<f64>();
-        self.harm
+        let f = self
+            .harm
             .get_or_insert_with(Box::default)
             .add(s.hi, c.hi, t.0 as f64 / hz, y);
         for (a, v) in self.yy.iter_mut().zip(y) {
@@ -394,7 +397,7 @@ impl Moments {
         }
         self.rows += 1;
         self.t_max = self.t_max.max(t.0);
-        (s.hi, c.hi)
+        f
     }
 
     /// With every row a single conversion (else `None`): the sums over the rows of
