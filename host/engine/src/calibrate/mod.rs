@@ -782,14 +782,18 @@ fn free_json(
     let nu = fit.nu.is_finite().then_some(fit.nu);
     let description = if fit.tau_ms2 > 0.0 {
         format!(
-            "the fit of G and O to the {} still poses' means (JSON free.poses): each pose's              noise (an AR model of its readings about a line) and a scatter τ = {:.3e} m/s²              beyond it, with P − 9 = {} degrees of freedom",
+            "the fit of G and O to the {} still poses' means (JSON free.poses): each pose's \
+             noise (an AR model of its readings about a line) and a scatter τ = {:.3e} m/s² \
+             beyond it, with P − 9 = {} degrees of freedom",
             fit.poses.len(),
             fit.tau_ms2,
             fit.dof
         )
     } else {
         format!(
-            "the fit of G and O to the {} still poses' means (JSON free.poses), each pose's              noise from an AR model of its readings about a line; χ² = {:.1} on {} degrees of              freedom agrees with that noise",
+            "the fit of G and O to the {} still poses' means (JSON free.poses), each pose's \
+             noise from an AR model of its readings about a line; χ² = {:.1} on {} degrees of \
+             freedom agrees with that noise",
             fit.poses.len(),
             fit.chi2,
             fit.dof
@@ -823,13 +827,6 @@ fn free_json(
         "the fit of G and O to the still poses (|a| = g)",
     ));
     entry.uncertainty_budget = Some(b);
-    if opts.monte_carlo.is_some() {
-        return Err(err(
-            rec,
-            None,
-            "--monte-carlo is not available for method free",
-        ));
-    }
     Ok(entry)
 }
 

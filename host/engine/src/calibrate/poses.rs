@@ -757,10 +757,24 @@ fn meat(fit: &Gls, x: &[Design], v: &[Matrix3<f64>]) -> Cov12 {
 }
 
 /// The root of the decreasing `f(x) = target` between `lo` (f > target) and `hi`.
-fn bisect(f: &impl Fn(f64) -> f64, target: f64, mut lo: f64, mut hi: f64) -> f64 {
-    for _ in 0..100 {
+fn bisect(f: &impl Fn(f64) -> f64, target: f64, lo: f64, hi: f64) -> f64 {
+    let (lo, hi) = bracket(f, target, (lo, hi), 100, f64::NEG_INFINITY);
+    0.5 * (lo + hi)
+}
+
+/// Bisection of the decreasing `f(x) = target` from the bracket `(lo, hi)` (f(lo) > target
+/// ≥ f(hi)): the last bracket, after at most `steps` halvings, once it no longer narrows,
+/// or once `hi` is below `floor`.
+fn bracket(
+    f: &impl Fn(f64) -> f64,
+    target: f64,
+    (mut lo, mut hi): (f64, f64),
+    steps: usize,
+    floor: f64,
+) -> (f64, f64) {
+    for _ in 0..steps {
         let mid = 0.5 * (lo + hi);
-        if mid <= lo || mid >= hi {
+        if mid <= lo || mid >= hi || hi < floor {
             break;
         }
         if f(mid) > target {
@@ -769,7 +783,7 @@ fn bisect(f: &impl Fn(f64) -> f64, target: f64, mut lo: f64, mut hi: f64) -> f64
             hi = mid;
         }
     }
-    0.5 * (lo + hi)
+    (lo, hi)
 }
 
 /// The joint fit with the tilt random effect (see [`Scatter::Tilt`]); `None` when the
@@ -991,23 +1005,12 @@ pub fn fit(poses: Vec<Pose>, g: f64, opts: Options) -> Result<PoseFit, PoseError
                     _ if dof == 0 => return Err(PoseError::NoUncertainty(p)),
                     _ => {
                         // χ²(τ²) falls as τ² grows; at RSS/dof it is ≤ dof.
-                        let (mut lo, mut hi) = (0.0f64, rss / dof as f64);
-                        let top = hi;
-                        if hi > 0.0 {
-                            for _ in 0..200 {
-                                let mid = 0.5 * (lo + hi);
-                                // Below 1e-9 of the top, τ² no longer matters (and poses of
-                                // one reading would get weights without bound).
-                                if mid <= lo || mid >= hi || hi < 1e-9 * top {
-                                    break;
-                                }
-                                let chi2 = wls(&x, &y, &var(mid)).map_or(0.0, |r| r.2);
-                                if chi2 > dof as f64 {
-                                    lo = mid;
-                                } else {
-                                    hi = mid;
-                                }
-                            }
+                        let top = rss / dof as f64;
+                        if top > 0.0 {
+                            let chi2 = |t2: f64| wls(&x, &y, &var(t2)).map_or(0.0, |r| r.2);
+                            // Below 1e-9 of the top, τ² no longer matters (and poses of one
+                            // reading would get weights without bound).
+                            let (_, hi) = bracket(&chi2, dof as f64, (0.0, top), 200, 1e-9 * top);
                             let (beta, inv, _) = wls(&x, &y, &var(hi)).ok_or_else(singular)?;
                             (beta, inv, hi, dof as f64)
                         } else {
