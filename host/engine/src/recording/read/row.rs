@@ -1,0 +1,180 @@
+//! One row's fields into a [`Row`], with every check formats.md makes of a field.
+
+use rotacal_shared::{Aperture, Condition, Ticks, MAX_CONVERSIONS};
+
+use super::head::ColumnIndex;
+use super::number::parse_number;
+use super::Parse;
+use crate::recording::{pose_name_ok, snippet, RecordingErrorKind, Row, UNIT_TOLERANCE};
+
+/// A record's fields, from the csv reader or from the fast line reader.
+pub(super) trait Fields {
+    /// Field `i`, untrimmed (`None` past the last).
+    fn raw(&self, i: usize) -> Option<&[u8]>;
+}
+
+impl Fields for csv::ByteRecord {
+    fn raw(&self, i: usize) -> Option<&[u8]> {
+        self.get(i)
+    }
+}
+
+fn field<F: Fields + ?Sized>(rec: &F, i: usize) -> &[u8] {
+    rec.raw(i).unwrap_or(b"").trim_ascii()
+}
+
+fn parse_f64<F: Fields + ?Sized>(
+    rec: &F,
+    i: usize,
+    column: &'static str,
+) -> Result<f64, RecordingErrorKind> {
+    let f = field(rec, i);
+    let x = parse_number(f).ok_or_else(|| RecordingErrorKind::NotANumber {
+        column,
+        text: snippet(f),
+    })?;
+    if x.is_finite() {
+        Ok(x)
+    } else {
+        Err(RecordingErrorKind::NotFinite { column })
+    }
+}
+
+fn parse_opt<F: Fields + ?Sized>(
+    rec: &F,
+    i: Option<usize>,
+    column: &'static str,
+) -> Result<Option<f64>, RecordingErrorKind> {
+    i.map(|i| parse_f64(rec, i, column)).transpose()
+}
+
+pub(super) fn parse_row<'r, F: Fields + ?Sized>(
+    rec: &'r F,
+    cols: &ColumnIndex,
+    columns: Parse,
+) -> Result<Row<'r>, RecordingErrorKind> {
+    let all = columns == Parse::All;
+    // Files with gravity directions need no condition; one that is there is ignored.
+    let condition = match (cols.condition, cols.gravity) {
+        (Some(i), None) => {
+            let c = field(rec, i);
+            match c {
+                [b] => Condition::from_letter(char::from(*b)),
+                _ => None,
+            }
+            .ok_or_else(|| RecordingErrorKind::UnknownCondition(snippet(c)))?
+        }
+        _ => Condition::X,
+    };
+    let gravity = match cols.gravity {
+        Some([x, y, z]) => {
+            let g = [
+                parse_f64(rec, x, "gx")?,
+                parse_f64(rec, y, "gy")?,
+                parse_f64(rec, z, "gz")?,
+            ];
+            let norm = g.iter().map(|c| c * c).sum::<f64>().sqrt();
+            if (norm - 1.0).abs() > UNIT_TOLERANCE {
+                return Err(RecordingErrorKind::NotUnitVector { norm });
+            }
+            Some(g.map(|c| c / norm))
+        }
+        None => None,
+    };
+    let pose = match cols.pose {
+        Some(i) => {
+            let f = field(rec, i);
+            let text = std::str::from_utf8(f)
+                .map_err(|_| RecordingErrorKind::BadPose("not UTF-8 text"))?;
+            if text.is_empty() {
+                return Err(RecordingErrorKind::BadPose("empty pose name"));
+            }
+            if !pose_name_ok(text) {
+                return Err(RecordingErrorKind::BadPose(
+                    "a pose name may not hold commas, quotes, '#' or line breaks",
+                ));
+            }
+            Some(text)
+        }
+        None => None,
+    };
+    let t_s = parse_opt(rec, cols.t_s, "t_s")?;
+    let angle_deg = match all {
+        true => parse_opt(rec, cols.angle_deg, "angle_deg")?,
+        false => None,
+    };
+    let u = parse_f64(rec, cols.u, "u")?;
+    let v = parse_f64(rec, cols.v, "v")?;
+    let w = parse_f64(rec, cols.w, "w")?;
+    let seq = match cols.seq.filter(|_| all) {
+        Some(i) => {
+            let f = field(rec, i);
+            let s = std::str::from_utf8(f)
+                .ok()
+                .and_then(|s| s.parse::<u64>().ok())
+                .ok_or_else(|| RecordingErrorKind::NotAnInteger {
+                    column: "seq",
+                    text: snippet(f),
+                })?;
+            Some(s)
+        }
+        None => None,
+    };
+    let temp_c = parse_opt(rec, cols.temp_c.filter(|_| all), "temp_c")?;
+    let rate_hz = parse_opt(rec, cols.rate_hz, "rate_hz")?;
+    let conv_gaps = match cols.conv_gaps {
+        Some(i) => Some(parse_gaps(field(rec, i))?),
+        None => None,
+    };
+    if let Some(r) = rate_hz {
+        if r <= 0.0 {
+            return Err(RecordingErrorKind::NotPositive {
+                column: "rate_hz",
+                value: r,
+            });
+        }
+    }
+    Ok(Row {
+        condition,
+        t_s,
+        angle_deg,
+        u,
+        v,
+        w,
+        seq,
+        temp_c,
+        rate_hz,
+        gravity,
+        pose,
+        conv_gaps,
+        unc: match cols.unc.filter(|_| all) {
+            Some([a, b, c]) => Some([
+                parse_f64(rec, a, "u_unc")?,
+                parse_f64(rec, b, "v_unc")?,
+                parse_f64(rec, c, "w_unc")?,
+            ]),
+            None => None,
+        },
+    })
+}
+
+/// A `conv_gaps` field: tick counts separated by single spaces (empty: one conversion).
+pub(super) fn parse_gaps(f: &[u8]) -> Result<Aperture, RecordingErrorKind> {
+    let bad = |why: &str| RecordingErrorKind::BadConversions(format!("'{}': {why}", snippet(f)));
+    let text = std::str::from_utf8(f).map_err(|_| bad("not text"))?;
+    let mut gaps = Vec::new();
+    if !text.is_empty() {
+        for g in text.split(' ') {
+            let v: u16 = g
+                .parse()
+                .map_err(|_| bad("each gap is a whole number of ticks, 1 to 65535"))?;
+            gaps.push(v);
+        }
+    }
+    Aperture::new(Ticks(0), &gaps).ok_or_else(|| {
+        bad(&format!(
+            "at most {} gaps (conversions {MAX_CONVERSIONS}), none 0",
+            MAX_CONVERSIONS - 1
+        ))
+    })
+}
