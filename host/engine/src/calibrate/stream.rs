@@ -19,11 +19,10 @@
 //!   takes the residuals from a pilot fit, corrected to the fitted model afterwards
 //!   ([`super::pilot`]).
 
+use super::group::{rate_choice, GroupFit, Refit};
 use super::pilot::{self, Fitted, Piece, Pilots};
-use super::{
-    err, nominal_rate, preflight, rate_choice, rotation_entry, samples, CalibrateError, GroupFit,
-    Options, Refit, Setting, CLOCK, NO_RATE,
-};
+use super::rotation::{self, FittedGroup};
+use super::{err, nominal_rate, preflight, CalibrateError, Options, CLOCK};
 use crate::calibrate::json::CalibrationJson;
 use crate::fit::moments::{self, Moments, WIDE, WIDE_HARMONIC};
 use crate::fit::noise::{LaggedSums, NoiseModel, Rails, LAGS};
@@ -592,8 +591,8 @@ struct Engine<'a> {
 impl Engine<'_> {
     fn run(mut self) -> Result<CalibrationJson, FileError> {
         let rec = self.rec;
-        let (g, inputs, method, units) = preflight(rec, self.opts)?;
-        if method != Method::Rotation {
+        let pre = preflight(rec, self.opts)?;
+        if pre.method != Method::Rotation {
             return Err(err(
                 rec,
                 None,
@@ -601,61 +600,26 @@ impl Engine<'_> {
             )
             .into());
         }
-        // The rates, in order of first appearance, and each one's three groups.
-        let mut rates: Vec<Option<f64>> = Vec::new();
-        for gs in &self.groups {
-            if !rates
-                .iter()
-                .any(|r| r.map(f64::to_bits) == gs.rate_col.map(f64::to_bits))
-            {
-                rates.push(gs.rate_col);
-            }
-        }
-        let mut plan: Vec<(f64, [usize; 3])> = Vec::new();
-        for rate in &rates {
-            let nominal =
-                nominal_rate(*rate, self.opts, &rec.meta).ok_or_else(|| err(rec, None, NO_RATE))?;
-            let mut idx = [0; 3];
-            for (slot, cond) in idx.iter_mut().zip(Condition::ALL) {
-                *slot = self
-                    .groups
-                    .iter()
-                    .position(|gs| {
-                        gs.condition == cond
-                            && gs.rate_col.map(f64::to_bits) == rate.map(f64::to_bits)
-                    })
-                    .ok_or_else(|| {
-                        err(
-                            rec,
-                            None,
-                            format!("condition {} missing at {nominal} Hz", cond.letter()),
-                        )
-                    })?;
-            }
-            plan.push((nominal, idx));
-        }
+        let keys: Vec<_> = self
+            .groups
+            .iter()
+            .map(|gs| (gs.condition, gs.rate_col))
+            .collect();
+        let plan = rotation::plan(rec, &keys, self.opts)?;
         // Each group: from its rows, or prepared for the residual pass.
-        let mut held: Vec<Option<(GroupFit, Vec<crate::fit::batch::Sample>)>> =
-            (0..self.groups.len()).map(|_| None).collect();
+        let mut fitted: Vec<Option<FittedGroup<'_>>> = keys.iter().map(|_| None).collect();
         let mut prepared: Vec<Prepared> = Vec::new();
-        for (nominal, idx) in &plan {
-            for &i in idx {
+        for rate in &plan {
+            for &i in &rate.groups {
                 let Some(gs) = self.groups.get_mut(i) else {
                     continue;
                 };
                 if let Some(kept) = gs.kept.take() {
-                    if kept.t_s.len() != kept.u.len() {
-                        return Err(
-                            err(rec, Some(kept.first_line), "rotation needs a t_s column").into(),
-                        );
-                    }
-                    let s = samples(rec, &kept)?;
-                    let fit = super::fit_group(rec, &kept, &s, *nominal)?;
-                    if let Some(slot) = held.get_mut(i) {
-                        *slot = Some((fit, s));
+                    if let Some(slot) = fitted.get_mut(i) {
+                        *slot = Some(rotation::held(rec, &kept, rate.nominal_hz)?);
                     }
                 } else {
-                    prepared.push(prepare(rec, i, gs, *nominal)?);
+                    prepared.push(prepare(rec, i, gs, rate.nominal_hz)?);
                 }
             }
         }
@@ -689,7 +653,6 @@ impl Engine<'_> {
         if residuals.len() != prepared.len() {
             return Err(err(rec, None, "internal: residual sums missing").into());
         }
-        let mut streamed: Vec<(usize, GroupFit, StreamRefit)> = Vec::new();
         for (p, r) in prepared.iter().zip(residuals) {
             let gs = self.group(p.index)?;
             let fit = finish(rec, gs, p, r)?;
@@ -698,45 +661,20 @@ impl Engine<'_> {
                 central: PhaseStep::from_hz(fit.rate_hz, CLOCK).unwrap_or(p.nominal),
                 fit: ConditionFit::from_fit(&fit.fit),
             };
-            streamed.push((p.index, fit, refit));
-        }
-        // The entries, rate by rate.
-        let setting = Setting {
-            g,
-            inputs: &inputs,
-            units: &units,
-            monte_carlo: self.opts.monte_carlo,
-        };
-        let mut by_rate = Vec::new();
-        for (nominal, idx) in &plan {
-            let mut fits = Vec::with_capacity(3);
-            let mut refits: Vec<&dyn Refit> = Vec::with_capacity(3);
-            for &i in idx {
-                if let Some(Some((f, s))) = held.get(i) {
-                    fits.push(f.clone());
-                    refits.push(s);
-                } else if let Some((_, f, r)) = streamed.iter().find(|x| x.0 == i) {
-                    fits.push(f.clone());
-                    refits.push(r);
-                }
+            if let Some(slot) = fitted.get_mut(p.index) {
+                *slot = Some(FittedGroup {
+                    fit,
+                    refit: Box::new(refit),
+                });
             }
-            let (Ok(fits), Ok(refits)) = (
-                <[GroupFit; 3]>::try_from(fits),
-                <[&dyn Refit; 3]>::try_from(refits),
-            ) else {
-                return Err(err(rec, None, "expected three conditions").into());
-            };
-            by_rate.push(rotation_entry(rec, *nominal, &fits, refits, &setting)?);
         }
-        if by_rate.len() >= 2 {
-            super::offsets_at_rest(&mut by_rate).map_err(|e| err(rec, None, e))?;
-        }
-        Ok(CalibrationJson {
-            method: method.as_str().to_string(),
-            g_loc: g,
-            units,
-            by_rate,
-        })
+        Ok(rotation::assemble(
+            rec,
+            pre,
+            self.opts.monte_carlo,
+            &plan,
+            fitted,
+        )?)
     }
 
     fn group(&self, i: usize) -> Result<&GroupState, CalibrateError> {

@@ -1,0 +1,273 @@
+//! Method free: still intervals found in a continuous recording (or named by its `pose`
+//! column), then G and O from |a| = g ([`super::free`]); the entry and its budget.
+
+use super::budget::Kind;
+use super::json::{self, CorrectionJson};
+use super::sources::{gravity_source, new_budget, values6};
+use super::{correction, err, free, poses, still, CalibrateError, Options, Preflight};
+use crate::recording::Recording;
+use nalgebra::DMatrix;
+use rotacal_shared::intrinsic;
+use std::borrow::Cow;
+
+/// One continuous stretch of readings searched for still intervals: borrowed from the
+/// recording where it holds the rows as they are (a free recording), built otherwise.
+pub struct Segment<'a> {
+    /// What it is, for names and messages (empty for a whole recording).
+    pub label: String,
+    /// Time of each row, s.
+    pub t_s: Cow<'a, [f64]>,
+    /// Readings u, v, w of each row.
+    pub y: Cow<'a, [[f64; 3]]>,
+    /// File line of each row.
+    pub line: Cow<'a, [u64]>,
+    /// The `pose` column of a free recording: the poses are named, not found.
+    pub names: Option<&'a [String]>,
+}
+
+/// The recording's continuous stretches: a free recording whole; a file with conditions
+/// one per condition (and rate); a file with gravity directions whole, in file order (its
+/// directions unused). Without `t_s`, the rows are `1/sample_rate_hz` apart.
+pub fn segments(rec: &Recording) -> Result<Vec<Segment<'_>>, CalibrateError> {
+    // The rows' times: `t` when every row has one, else 1/sample_rate_hz apart.
+    fn clock<'t>(
+        rec: &Recording,
+        n: usize,
+        t: Option<&'t Vec<f64>>,
+        line: u64,
+    ) -> Result<Cow<'t, [f64]>, CalibrateError> {
+        match t {
+            Some(t) if t.len() == n => Ok(Cow::Borrowed(t.as_slice())),
+            _ => {
+                let fs = rec.meta.sample_rate_hz.ok_or_else(|| {
+                    err(
+                        rec,
+                        Some(line),
+                        "finding still poses needs t_s or '# sample_rate_hz='",
+                    )
+                })?;
+                Ok(Cow::Owned((0..n).map(|i| i as f64 / fs).collect()))
+            }
+        }
+    }
+    if let Some(s) = &rec.series {
+        return Ok(vec![Segment {
+            label: String::new(),
+            t_s: Cow::Borrowed(&s.t_s),
+            y: Cow::Borrowed(&s.y),
+            line: Cow::Borrowed(&s.line),
+            names: s.pose.as_deref(),
+        }]);
+    }
+    if let Some(o) = &rec.oriented {
+        let first = o.line.first().copied().unwrap_or(0);
+        return Ok(vec![Segment {
+            label: String::new(),
+            t_s: clock(rec, o.y.len(), o.t_s.as_ref(), first)?,
+            y: Cow::Borrowed(&o.y),
+            line: Cow::Borrowed(&o.line),
+            names: None,
+        }]);
+    }
+    let mut out = Vec::new();
+    for g in &rec.groups {
+        let n = g.len();
+        let t = (!g.t_s.is_empty()).then_some(&g.t_s);
+        let rate = g.rate_hz.map(|r| format!(" at {r} Hz")).unwrap_or_default();
+        out.push(Segment {
+            label: format!("condition {}{rate}", g.condition.letter()),
+            t_s: clock(rec, n, t, g.first_line)?,
+            y: Cow::Owned(
+                (0..n)
+                    .map(|i| [&g.u, &g.v, &g.w].map(|c| c.get(i).copied().unwrap_or(f64::NAN)))
+                    .collect(),
+            ),
+            // Rows of a group are consecutive lines unless the file interleaves them.
+            line: Cow::Owned((0..n as u64).map(|i| g.first_line + i).collect()),
+            names: None,
+        });
+    }
+    Ok(out)
+}
+
+/// Method free: still intervals found (or named), then G and O from |a| = g.
+pub(super) fn entry(
+    rec: &Recording,
+    opts: &Options,
+    pre: &Preflight,
+) -> Result<json::RateJson, CalibrateError> {
+    let (g, inputs, units) = (pre.g_loc, &pre.inputs, pre.units.as_str());
+    if opts.monte_carlo.is_some() {
+        return Err(err(
+            rec,
+            None,
+            "--monte-carlo is not available for method free",
+        ));
+    }
+    let mut detections: Vec<(String, Option<still::Detection>, Vec<still::Interval>)> = Vec::new();
+    for seg in segments(rec)? {
+        let found = match seg.names {
+            Some(names) => (None, still::named(&seg.t_s, &seg.y, &seg.line, names)),
+            None => match still::detect(&seg.t_s, &seg.y, &seg.line, opts.still) {
+                Ok(d) => {
+                    let iv = d.intervals.clone();
+                    (Some(d), Ok(iv))
+                }
+                Err(e) => (None, Err(e)),
+            },
+        };
+        let (det, intervals) = (
+            found.0,
+            found.1.map_err(|e| {
+                let at = if seg.label.is_empty() {
+                    String::new()
+                } else {
+                    format!("{}: ", seg.label)
+                };
+                err(rec, seg.line.first().copied(), format!("{at}{e}"))
+            })?,
+        );
+        let intervals = intervals
+            .into_iter()
+            .map(|mut i| {
+                if !seg.label.is_empty() {
+                    i.name = format!("{} {}", seg.label, i.name);
+                }
+                i
+            })
+            .collect();
+        detections.push((seg.label, det, intervals));
+    }
+    let poses: Vec<free::Pose> = detections
+        .iter()
+        .flat_map(|(_, _, iv)| iv.iter())
+        .filter(|i| i.verdict == still::Verdict::Kept)
+        .map(free::Pose::from_interval)
+        .collect();
+    let fit = free::fit(&poses, g, free::Residual::Geometric).map_err(|e| {
+        err(
+            rec,
+            None,
+            format!("{e}.\n{}", detection_summary(&detections, opts.still)),
+        )
+    })?;
+    // The fit's rejections, on the intervals.
+    for (_, _, iv) in &mut detections {
+        for i in iv.iter_mut() {
+            if let Some((_, v)) = fit.rejected.iter().find(|(n, _)| *n == i.name) {
+                i.verdict = v.clone();
+            }
+        }
+    }
+    let s_cov = poses::s_block(&fit.cov);
+    let intr = intrinsic::from_matrix_cov(&fit.l, &s_cov)
+        .map_err(|e| err(rec, None, format!("intrinsic properties: {e:?}")))?;
+    let offsets = [0, 1, 2].map(|j| intrinsic::Estimate {
+        value: fit.offsets[j],
+        std_unc: fit.cov[(9 + j, 9 + j)].max(0.0).sqrt(),
+    });
+    // The budget: the poses (noise, and τ when estimated) and g_loc.
+    let mut b = new_budget(units, true);
+    let mut contribution: Vec<f64> = (0..6).map(|q| intr.cov[q][q].max(0.0).sqrt()).collect();
+    contribution.extend(offsets.iter().map(|o| o.std_unc));
+    let nu = fit.nu.is_finite().then_some(fit.nu);
+    let description = if fit.tau_ms2 > 0.0 {
+        format!(
+            "the fit of G and O to the {} still poses' means (JSON free.poses): each pose's \
+             noise (an AR model of its readings about a line) and a scatter τ = {:.3e} m/s² \
+             beyond it, with P − 9 = {} degrees of freedom",
+            fit.poses.len(),
+            fit.tau_ms2,
+            fit.dof
+        )
+    } else {
+        format!(
+            "the fit of G and O to the {} still poses' means (JSON free.poses), each pose's \
+             noise from an AR model of its readings about a line; χ² = {:.1} on {} degrees of \
+             freedom agrees with that noise",
+            fit.poses.len(),
+            fit.chi2,
+            fit.dof
+        )
+    };
+    b.vector("poses", Kind::A, description, &contribution, &[nu; 9]);
+    b.notes.extend(fit.notes.iter().cloned());
+    let values = values6(&intr);
+    let mut cg = vec![0.0; 9];
+    for (c, v) in cg.iter_mut().zip(values.iter().take(3)) {
+        *c = -v / g;
+    }
+    gravity_source(&mut b, g, inputs.u_g_loc, &cg);
+    if inputs.u_time_s.is_some() || inputs.u_angle_deg.is_some() {
+        b.notes.push(
+            "u_time_s or u_angle_deg was given, but method free uses neither timestamps nor \
+             angles"
+                .into(),
+        );
+    }
+    b.combine();
+    let mut entry = json::free_entry(&intr, &offsets, &b, &fit, &detections);
+    let cov12 = DMatrix::from_fn(12, 12, |i, j| fit.cov[(i, j)]);
+    let (device, _) = correction::from_matrix(&fit.l, fit.offsets, &cov12)
+        .map_err(|e| err(rec, None, e.to_string()))?;
+    entry.correction = Some(CorrectionJson::new(
+        units,
+        device,
+        None,
+        fit.k,
+        "the fit of G and O to the still poses (|a| = g)",
+    ));
+    entry.uncertainty_budget = Some(b);
+    Ok(entry)
+}
+
+/// The detection in a few lines: what was found, at which threshold, and why each
+/// interval not kept was left out.
+pub fn detection_summary(
+    detections: &[(String, Option<still::Detection>, Vec<still::Interval>)],
+    opts: still::Options,
+) -> String {
+    let mut out = String::new();
+    for (label, det, iv) in detections {
+        let kept = iv
+            .iter()
+            .filter(|i| i.verdict == still::Verdict::Kept)
+            .count();
+        let at = if label.is_empty() {
+            String::new()
+        } else {
+            format!("{label}: ")
+        };
+        match det {
+            Some(d) => {
+                out += &format!(
+                "{at}{} still interval(s) found, {kept} kept: windows of {} s ({} rows), still \
+                 when their variance is below {}× the noise variance (noise sd per channel \
+                 {:.3e}, {:.3e}, {:.3e}, measured in the still windows; {:.0} % of the windows \
+                 still), at least {} s each\n",
+                iv.len(),
+                opts.window_s,
+                d.window_rows,
+                opts.threshold,
+                d.noise_sd[0],
+                d.noise_sd[1],
+                d.noise_sd[2],
+                100.0 * d.still_fraction,
+                opts.min_still_s
+            )
+            }
+            None => out += &format!("{at}{} named pose(s), {kept} kept\n", iv.len()),
+        }
+        for i in iv.iter().filter(|i| i.verdict != still::Verdict::Kept) {
+            out += &format!(
+                "  {} ({:.2}–{:.2} s, line {}): {}\n",
+                i.name,
+                i.span_s.0,
+                i.span_s.1,
+                i.first_line,
+                i.verdict.reason(opts.min_still_s)
+            );
+        }
+    }
+    out.trim_end().to_string()
+}

@@ -1,0 +1,293 @@
+//! One condition's fit at one rate from its rows: the samples, the IEEE 1057 rate fit and
+//! the choice of rate, the sine fit in f64, the noise model of its residuals and the
+//! fit's covariance under it; and the refit at another rate the budget needs.
+
+use super::{err, CalibrateError, CLOCK};
+use crate::fit::batch;
+use crate::fit::noise::{self, NoiseError, NoiseModel};
+use crate::recording::{Group, Recording};
+use nalgebra::DMatrix;
+use rotacal_shared::intrinsic::ConditionFit;
+use rotacal_shared::Condition;
+use rotacal_shared::{FitConfig, FitResult, Param, PhaseStep, SineFit, Ticks};
+use std::f64::consts::TAU;
+
+/// A group's samples: the instants of the conversions each row averages, in ticks of the
+/// 1 MHz clock from its first row (one, at `t_s`, without a `conv_gaps` column), and
+/// [u, v, w]. The times and phases every rotation fit here uses.
+pub fn samples(rec: &Recording, g: &Group) -> Result<Vec<batch::Sample>, CalibrateError> {
+    let t0 = g.t_s.first().copied().unwrap_or(0.0);
+    // conv_gaps count device ticks; here they become ticks of CLOCK (exact at 1 MHz).
+    let scale = crate::recording::tick_scale(&rec.meta, CLOCK);
+    let mut out = Vec::with_capacity(g.len());
+    for (i, (t, (u, (v, w)))) in g
+        .t_s
+        .iter()
+        .zip(g.u.iter().zip(g.v.iter().zip(g.w.iter())))
+        .enumerate()
+    {
+        let gaps = g.conversions.as_ref().and_then(|c| c.get(i));
+        let ap = crate::recording::row_aperture(*t, t0, gaps, scale, CLOCK)
+            .map_err(|m| err(rec, Some(g.first_line), m))?;
+        out.push((ap, [*u, *v, *w]));
+    }
+    Ok(out)
+}
+
+/// One condition's fit at one rate: the coefficients of the streaming fit in f64, and
+/// their covariance under the noise estimated from the fit's own residuals
+/// ([`crate::fit::noise`]).
+#[derive(Clone, Debug)]
+pub struct GroupFit {
+    /// The platter axis.
+    pub condition: Condition,
+    /// The fit (its own standard errors assume white noise: use `cov`).
+    pub fit: FitResult<f64>,
+    /// The rotation rate the fit used, Hz.
+    pub rate_hz: f64,
+    /// That rate, when it was estimated from the data (IEEE 1057) rather than nominal.
+    pub rate_fitted: Option<f64>,
+    /// Standard uncertainty of the rate the fit used, Hz: the rate fit's standard error
+    /// (scaled for the noise), and, at the nominal rate, the distance to the fitted one too.
+    pub u_rate_hz: f64,
+    /// Covariance of (A, B, C) per channel under the noise model.
+    pub cov: [[[f64; 3]; 3]; 3],
+    /// The noise model per channel.
+    pub noise: [NoiseModel; 3],
+    /// The rotation's angle per sample, rad (mean over the group).
+    pub omega_per_sample: f64,
+}
+
+impl GroupFit {
+    /// (A, B) per channel and their covariance.
+    pub fn condition_fit(&self) -> ConditionFit {
+        let mut cf = ConditionFit::from_fit(&self.fit);
+        for (c, m) in cf.cov.iter_mut().zip(&self.cov) {
+            *c = [[m[0][0], m[0][1]], [m[1][0], m[1][1]]];
+        }
+        cf
+    }
+
+    /// Coefficient `p` (0 = A, 1 = B, 2 = C) of channel `ch`.
+    pub fn coef(&self, ch: usize, p: Param) -> f64 {
+        self.fit.coef(ch, p).map_or(f64::NAN, |v| v.to_f64())
+    }
+
+    /// Standard uncertainty of coefficient A, B or C of channel `ch` under the noise model.
+    pub fn std_unc(&self, ch: usize, i: usize) -> f64 {
+        self.cov
+            .get(ch)
+            .and_then(|m| m.get(i))
+            .and_then(|r| r.get(i))
+            .map_or(f64::NAN, |v| v.max(0.0).sqrt())
+    }
+}
+
+/// The streaming fit of (sin, cos, 1) at `step` in f64 (an average enters as its sum).
+fn fit_at(s: &[batch::Sample], step: PhaseStep) -> Result<FitResult<f64>, String> {
+    let mut fit = SineFit::<f64>::new(FitConfig::sine(step, CLOCK));
+    for (ap, y) in s {
+        let n = ap.len().max(1) as f64;
+        fit.update_sum(ap, y.map(|v| v * n))
+            .map_err(|e| e.to_string())?;
+    }
+    fit.solve().map_err(|e| e.to_string())
+}
+
+/// Regressors that take out of the residuals what a sine fit leaves that is not noise:
+/// a linear trend and harmonics 2 to 4 of the rotation (drift, nonlinearity, clipping).
+/// Left in, such a deterministic remainder would read as strongly correlated noise: a
+/// second harmonic of 16 counts on a 10 mHz run read as an AR process of variance factor
+/// 170 at ω.
+const CLEANING_HARMONICS: std::ops::RangeInclusive<u32> = 2..=4;
+
+/// The cleaning fit's columns beyond the sine's: a trend, then sin and cos of each harmonic.
+const CLEANING_COLUMNS: usize =
+    1 + 2 * (*CLEANING_HARMONICS.end() - *CLEANING_HARMONICS.start() + 1) as usize;
+
+/// The noise model of each channel, from the residuals of the sine fit at `step` widened by
+/// [`CLEANING_HARMONICS`] and a trend, its level corrected for that wider fit.
+fn noise_models(s: &[batch::Sample], step: PhaseStep) -> Result<[NoiseModel; 3], NoiseError> {
+    let h = batch::design(s, step, CLOCK, rotacal_shared::Model::SINE, Ticks(0));
+    let t_end = s.last().map_or(1.0, |x| x.0.last().0.max(1) as f64);
+    // A trend and the harmonics' sines and cosines, averaged over each sample's conversions
+    // and weighted as `h`'s rows.
+    let mut wide = DMatrix::zeros(s.len(), 3 + CLEANING_COLUMNS);
+    wide.columns_mut(0, 3).copy_from(&h);
+    for (i, (ap, _)) in s.iter().enumerate() {
+        let extra = batch::mean_over(ap, |t| {
+            let mut r = [0.0; CLEANING_COLUMNS];
+            r[0] = t.0 as f64 / t_end - 0.5;
+            let alpha = step.phase_at(t).radians();
+            for (k, pair) in CLEANING_HARMONICS.zip(r[1..].chunks_mut(2)) {
+                if let [a, b] = pair {
+                    (*a, *b) = (f64::from(k) * alpha).sin_cos();
+                }
+            }
+            r
+        });
+        let w = batch::root_weight(ap);
+        for (j, v) in extra.into_iter().enumerate() {
+            wide[(i, 3 + j)] = w * v;
+        }
+    }
+    // Normal equations: the columns are near-orthogonal (sines, a centred trend), so their
+    // Cholesky solve is as good as QR here and needs no N × q factor. Readings on a rail are
+    // not measurements of the model: they are left out of this fit as of the estimate.
+    let full = wide.tr_mul(&wide);
+    let mut models = Vec::with_capacity(3);
+    for ch in 0..3 {
+        let plain: Vec<f64> = s.iter().map(|(_, y)| y[ch]).collect();
+        let flags = noise::clipped(&plain);
+        let y = nalgebra::DVector::from_iterator(
+            s.len(),
+            s.iter().map(|(ap, y)| batch::root_weight(ap) * y[ch]),
+        );
+        let mut normal = full.clone();
+        let mut rhs = wide.tr_mul(&y);
+        for (i, _) in flags.iter().enumerate().filter(|(_, f)| **f) {
+            let row = wide.row(i);
+            normal -= row.transpose() * row;
+            rhs -= row.transpose() * y[i];
+        }
+        let beta = normal.cholesky().ok_or(NoiseError::Singular)?.solve(&rhs);
+        let resid = &y - &wide * beta;
+        models.push(NoiseModel::estimate(resid.as_slice(), &flags)?.rescaled(&wide)?);
+    }
+    models.try_into().map_err(|_| NoiseError::TooFew(0))
+}
+
+/// The sandwich covariance of (A, B, C) per channel at `step` under `models`.
+fn sine_cov(
+    s: &[batch::Sample],
+    step: PhaseStep,
+    models: &[NoiseModel; 3],
+) -> Result<[[[f64; 3]; 3]; 3], NoiseError> {
+    let h = batch::design(s, step, CLOCK, rotacal_shared::Model::SINE, Ticks(0));
+    let mut covs = [[[0.0; 3]; 3]; 3];
+    for (cov, m) in covs.iter_mut().zip(models) {
+        let c = m.sandwich(&h)?;
+        for (a, row) in cov.iter_mut().enumerate() {
+            for (b, x) in row.iter_mut().enumerate() {
+                *x = c[(a, b)];
+            }
+        }
+    }
+    Ok(covs)
+}
+
+/// The rate's standard error under the channels' noise, and whether the fitted rate
+/// differs from nominal (by more than 3 of it), from the IEEE 1057 fit's (rate, standard
+/// error) and coefficients (A, B, C per channel).
+///
+/// The rate's standard error is that of one unweighted joint fit with a pooled σ̂² (the
+/// mean of the channels' variances). Under the channels' own noise its variance is
+/// Σ f_j γ₀_j A_j² / (Σ A_j²)² against σ̄²/Σ A_j²: f_j the variance factor at ω, γ₀_j
+/// the level, A_j² the channel's share of the rate information.
+pub(crate) fn rate_choice(
+    (rate_hz, se_rate_hz): (f64, f64),
+    coef: &[[f64; 3]; 3],
+    noise: &[NoiseModel; 3],
+    omega_per_sample: f64,
+    nominal_hz: f64,
+) -> (f64, bool) {
+    let (mut num, mut den) = (0.0, 0.0);
+    for (m, c) in noise.iter().zip(coef) {
+        let amp2 = c[0] * c[0] + c[1] * c[1];
+        num += m.variance_factor(omega_per_sample) * m.var * amp2;
+        den += amp2;
+    }
+    let pooled = noise.iter().map(|m| m.var).sum::<f64>() / 3.0;
+    let factor = if den > 0.0 && pooled > 0.0 {
+        num / (den * pooled)
+    } else {
+        1.0
+    };
+    let se_rate = se_rate_hz * factor.max(1e-6).sqrt();
+    (se_rate, (rate_hz - nominal_hz).abs() > 3.0 * se_rate)
+}
+
+pub(crate) fn fit_group(
+    rec: &Recording,
+    g: &Group,
+    s: &[batch::Sample],
+    nominal_hz: f64,
+) -> Result<GroupFit, CalibrateError> {
+    let cond = g.condition.letter();
+    let fail = |e: String| err(rec, Some(g.first_line), format!("condition {cond}: {e}"));
+    let nominal = PhaseStep::from_hz(nominal_hz, CLOCK).ok_or_else(|| {
+        err(
+            rec,
+            Some(g.first_line),
+            format!("rotation rate {nominal_hz} Hz is not usable"),
+        )
+    })?;
+    // Fitted first at the nominal rate: this also checks the span, so a short record gets
+    // the plain 'too few periods' message rather than a failure of the rate fit.
+    let at_nominal = fit_at(s, nominal).map_err(fail)?;
+    let four =
+        batch::fit_four_param(s, nominal, CLOCK).map_err(|e| fail(format!("rate fit: {e}")))?;
+    let fitted_step = PhaseStep::from_hz(four.rate_hz, CLOCK)
+        .ok_or_else(|| err(rec, Some(g.first_line), "fitted rate unusable"))?;
+    let span_s = match (s.first(), s.last()) {
+        (Some(a), Some(b)) => batch::seconds_between(b.0.last(), a.0.first(), CLOCK),
+        _ => 0.0,
+    };
+    let omega_per_sample = TAU * four.rate_hz * span_s / (s.len().max(2) - 1) as f64;
+    let coef_of = |f: &batch::BatchFit| {
+        [0, 1, 2].map(|ch| {
+            let c = |i: usize| {
+                f.channels
+                    .get(ch)
+                    .and_then(|x| x.coef.get(i))
+                    .copied()
+                    .unwrap_or(f64::NAN)
+            };
+            [c(0), c(1), c(2)]
+        })
+    };
+    let four_coef = coef_of(&four.fit);
+    // The noise is modelled once, about the fitted rate (the best description of the
+    // data): at the nominal rate a rate error's growing quadrature would read as noise.
+    let noise = noise_models(s, fitted_step).map_err(|e| fail(e.to_string()))?;
+    let (se_rate, differs) = rate_choice(
+        (four.rate_hz, four.se_rate_hz),
+        &four_coef,
+        &noise,
+        omega_per_sample,
+        nominal_hz,
+    );
+    let (step, fit, rate_hz, rate_fitted, u_rate_hz) = if differs {
+        let fit = fit_at(s, fitted_step).map_err(fail)?;
+        (fitted_step, fit, four.rate_hz, Some(four.rate_hz), se_rate)
+    } else {
+        let u = se_rate.hypot(four.rate_hz - nominal_hz);
+        (nominal, at_nominal, nominal_hz, None, u)
+    };
+    let cov = sine_cov(s, step, &noise).map_err(|e| fail(e.to_string()))?;
+    Ok(GroupFit {
+        condition: g.condition,
+        fit,
+        rate_hz,
+        rate_fitted,
+        u_rate_hz,
+        cov,
+        noise,
+        omega_per_sample,
+    })
+}
+
+/// The sine fit of a condition refitted at another rate (the budget's sensitivity to the
+/// rate): from its samples, or from a streamed record's sums ([`stream`]).
+pub(crate) trait Refit {
+    /// (A, B) per channel of the sine fit at `rate_hz`.
+    fn refit(&self, rate_hz: f64) -> Result<ConditionFit, String>;
+}
+
+impl Refit for Vec<batch::Sample> {
+    fn refit(&self, rate_hz: f64) -> Result<ConditionFit, String> {
+        let step = PhaseStep::from_hz(rate_hz, CLOCK)
+            .ok_or_else(|| format!("rate {rate_hz} Hz unusable"))?;
+        Ok(ConditionFit::from_fit(&fit_at(self, step)?))
+    }
+}

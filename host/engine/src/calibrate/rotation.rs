@@ -1,0 +1,488 @@
+//! The rotation method (seed 000): the plan of rates and conditions, each group's fit from
+//! its rows ([`super::group`]) or from a streamed file's sums ([`super::stream`]), and one
+//! assembly of the entries for both: budgets, corrections, offsets at rest.
+
+use super::budget::{Budget, Kind};
+use super::group::{fit_group, samples, GroupFit, Refit};
+use super::json::{self, CalibrationJson, CorrectionJson, FitJson, NoiseJson};
+use super::sources::{gravity_source, new_budget, values6};
+use super::{
+    correction, err, methods, nominal_rate, CalibrateError, Options, Preflight, TypeB, CLOCK,
+    NO_RATE,
+};
+use crate::recording::{Group, Recording};
+use nalgebra::DMatrix;
+use rotacal_shared::intrinsic::{self, ConditionFit};
+use rotacal_shared::{Condition, Param};
+use std::f64::consts::TAU;
+
+/// One rate of a rotation calibration: its nominal rate and its three conditions' groups
+/// (x, y, z), as indices into the list of groups the plan was made from.
+pub(super) struct RatePlan {
+    /// The nominal rate, Hz.
+    pub nominal_hz: f64,
+    /// The groups of conditions x, y and z.
+    pub groups: [usize; 3],
+}
+
+/// The rates of a rotation file in order of first appearance, each with its three
+/// conditions' groups; `keys` gives each group's condition and `rate_hz` column.
+pub(super) fn plan(
+    rec: &Recording,
+    keys: &[(Condition, Option<f64>)],
+    opts: &Options,
+) -> Result<Vec<RatePlan>, CalibrateError> {
+    let same = |a: Option<f64>, b: Option<f64>| a.map(f64::to_bits) == b.map(f64::to_bits);
+    let mut rates: Vec<Option<f64>> = Vec::new();
+    for (_, rate) in keys {
+        if !rates.iter().any(|r| same(*r, *rate)) {
+            rates.push(*rate);
+        }
+    }
+    rates
+        .into_iter()
+        .map(|rate| {
+            let nominal_hz =
+                nominal_rate(rate, opts, &rec.meta).ok_or_else(|| err(rec, None, NO_RATE))?;
+            let mut groups = [0; 3];
+            for (slot, cond) in groups.iter_mut().zip(Condition::ALL) {
+                *slot = keys
+                    .iter()
+                    .position(|(c, r)| *c == cond && same(*r, rate))
+                    .ok_or_else(|| {
+                        err(
+                            rec,
+                            None,
+                            format!("condition {} missing at {nominal_hz} Hz", cond.letter()),
+                        )
+                    })?;
+            }
+            Ok(RatePlan { nominal_hz, groups })
+        })
+        .collect()
+}
+
+/// One condition's fit at its rate and its refit at other rates (the budget's): the same
+/// whether it came from rows held in memory or from a streamed file's sums.
+pub(super) struct FittedGroup<'a> {
+    /// The fit.
+    pub fit: GroupFit,
+    /// Its refit at another rate.
+    pub refit: Box<dyn Refit + 'a>,
+}
+
+/// The fit of a group held in memory, at `nominal_hz` or the rate its data show.
+pub(super) fn held(
+    rec: &Recording,
+    group: &Group,
+    nominal_hz: f64,
+) -> Result<FittedGroup<'static>, CalibrateError> {
+    if group.t_s.len() != group.u.len() {
+        return Err(err(
+            rec,
+            Some(group.first_line),
+            "rotation needs a t_s column",
+        ));
+    }
+    let s = samples(rec, group)?;
+    let fit = fit_group(rec, group, &s, nominal_hz)?;
+    Ok(FittedGroup {
+        fit,
+        refit: Box::new(s),
+    })
+}
+
+/// A rotation recording held in memory, calibrated.
+pub(super) fn calibrate_held(
+    rec: &Recording,
+    opts: &Options,
+    pre: Preflight,
+) -> Result<CalibrationJson, CalibrateError> {
+    rec.require_conditions("rotation calibration")
+        .map_err(|e| err(rec, None, e.kind.to_string()))?;
+    let keys: Vec<_> = rec
+        .groups
+        .iter()
+        .map(|g| (g.condition, g.rate_hz))
+        .collect();
+    let plan = plan(rec, &keys, opts)?;
+    let mut fitted: Vec<Option<FittedGroup<'_>>> = keys.iter().map(|_| None).collect();
+    for rate in &plan {
+        for &i in &rate.groups {
+            if let (Some(group), Some(slot)) = (rec.groups.get(i), fitted.get_mut(i)) {
+                *slot = Some(held(rec, group, rate.nominal_hz)?);
+            }
+        }
+    }
+    assemble(rec, pre, opts.monte_carlo, &plan, fitted)
+}
+
+/// The calibration from every planned group's fit (`fitted`, by group index): an entry per
+/// rate, and with two rates or more the offsets at rest.
+pub(super) fn assemble(
+    rec: &Recording,
+    pre: Preflight,
+    monte_carlo: Option<usize>,
+    plan: &[RatePlan],
+    mut fitted: Vec<Option<FittedGroup<'_>>>,
+) -> Result<CalibrationJson, CalibrateError> {
+    let setting = Setting {
+        g: pre.g_loc,
+        inputs: &pre.inputs,
+        units: &pre.units,
+        monte_carlo,
+    };
+    let mut by_rate = Vec::with_capacity(plan.len());
+    for rate in plan {
+        let [x, y, z] = rate
+            .groups
+            .map(|i| fitted.get_mut(i).and_then(Option::take));
+        let (Some(x), Some(y), Some(z)) = (x, y, z) else {
+            return Err(err(rec, None, "internal: a planned group was not fitted"));
+        };
+        let refits: [&dyn Refit; 3] = [&*x.refit, &*y.refit, &*z.refit];
+        let fits = [x.fit, y.fit, z.fit];
+        by_rate.push(rotation_entry(
+            rec,
+            rate.nominal_hz,
+            &fits,
+            refits,
+            &setting,
+        )?);
+    }
+    if by_rate.len() >= 2 {
+        offsets_at_rest(&mut by_rate).map_err(|e| err(rec, None, e))?;
+    }
+    Ok(pre.json(by_rate))
+}
+
+/// What a rotation entry needs beyond its fits.
+struct Setting<'a> {
+    /// Local gravity, m/s².
+    pub g: f64,
+    /// The type-B inputs.
+    pub inputs: &'a TypeB,
+    /// The output units.
+    pub units: &'a str,
+    /// Monte Carlo trials, if asked for.
+    pub monte_carlo: Option<usize>,
+}
+
+/// One rate's entry of a rotation calibration from its three conditions' fits.
+fn rotation_entry(
+    rec: &Recording,
+    nominal: f64,
+    fits: &[GroupFit; 3],
+    refits: [&dyn Refit; 3],
+    set: &Setting<'_>,
+) -> Result<json::RateJson, CalibrateError> {
+    let g = set.g;
+    let cf = [0, 1, 2].map(|c| fits[c].condition_fit());
+    let at_rate = |e: String| err(rec, None, format!("at {nominal} Hz: {e}"));
+    let cal = methods::rotation(&cf, g).map_err(|e| at_rate(e.to_string()))?;
+    let budget = rotation_budget(fits, refits, &cal, g, set.inputs, set.units).map_err(at_rate)?;
+    let json_fits = fits.iter().flat_map(fit_json).collect();
+    let mut entry = json::rotation_entry(nominal, &cal, &budget, json_fits);
+    entry.noise = Some(fits.iter().flat_map(noise_json).collect());
+    entry.uncertainty_budget = Some(budget);
+    let device = rotation_correction(fits, g).map_err(|e| at_rate(e.to_string()))?;
+    entry.correction = Some(CorrectionJson::new(
+        set.units,
+        device,
+        None,
+        json::K,
+        "the mean of the three conditions' C at this rate: it includes the \
+         centripetal acceleration ω²·r of a sensor off the axis, which one rate \
+         cannot separate",
+    ));
+    if let Some(trials) = set.monte_carlo {
+        let mc = methods::monte_carlo_rotation(&cf, g, trials, 1)
+            .map_err(|e| err(rec, None, format!("Monte Carlo at {nominal} Hz: {e}")))?;
+        entry.monte_carlo = Some(json::mc_map(mc));
+    }
+    Ok(entry)
+}
+
+fn fit_json(f: &GroupFit) -> Vec<FitJson> {
+    ['u', 'v', 'w']
+        .iter()
+        .enumerate()
+        .map(|(ch, name)| FitJson {
+            condition: f.condition.letter().to_string(),
+            channel: name.to_string(),
+            a: f.coef(ch, Param::A),
+            b: f.coef(ch, Param::B),
+            c: f.coef(ch, Param::C),
+            se_a: f.std_unc(ch, 0),
+            se_b: f.std_unc(ch, 1),
+            se_c: f.std_unc(ch, 2),
+            n: u64::from(f.fit.n),
+            rms_residual: f.fit.channels[ch].rms_residual,
+            rate_hz_fitted: f.rate_fitted,
+        })
+        .collect()
+}
+
+fn noise_json(f: &GroupFit) -> Vec<NoiseJson> {
+    ['u', 'v', 'w']
+        .iter()
+        .zip(&f.noise)
+        .map(|(name, m)| NoiseJson::new(f.condition.letter(), *name, m, f.omega_per_sample))
+        .collect()
+}
+
+/// Multi-rate rotation: each condition's C_j against ω² is a line whose intercept is the
+/// offset at rest (the centripetal term grows as ω²·r); O_j is the mean of the three
+/// conditions' intercepts, and every rate's correction gets it.
+fn offsets_at_rest(by_rate: &mut [json::RateJson]) -> Result<(), String> {
+    let mut offset = [0.0; 3];
+    let mut var = [0.0; 3];
+    for cond in ["x", "y", "z"] {
+        for (j, ch) in ["u", "v", "w"].iter().enumerate() {
+            // (ω², C, se_C) over the rates.
+            let pts: Vec<(f64, f64, f64)> = by_rate
+                .iter()
+                .filter_map(|r| {
+                    let f = r
+                        .fits
+                        .iter()
+                        .find(|f| f.condition == cond && f.channel == *ch)?;
+                    let hz = f.rate_hz_fitted.or(r.rate_hz)?;
+                    Some(((std::f64::consts::TAU * hz).powi(2), f.c, f.se_c))
+                })
+                .collect();
+            // Weighted line C = O + b·ω².
+            let (mut s, mut sx, mut sxx, mut sy, mut sxy) = (0.0, 0.0, 0.0, 0.0, 0.0);
+            for (x, y, se) in &pts {
+                let w = 1.0 / (se * se);
+                s += w;
+                sx += w * x;
+                sxx += w * x * x;
+                sy += w * y;
+                sxy += w * x * y;
+            }
+            let det = s * sxx - sx * sx;
+            if !(det.is_finite() && det > 0.0) {
+                return Err(format!(
+                    "condition {cond}, channel {ch}: the offsets against ω² cannot be fitted"
+                ));
+            }
+            offset[j] += (sxx * sy - sx * sxy) / det / 3.0;
+            var[j] += sxx / det / 9.0;
+        }
+    }
+    let source = format!(
+        "each condition's C at ω = 0 from a line C = O + b·ω² over {} rates (the \
+         centripetal term removed), averaged over the three conditions",
+        by_rate.len()
+    );
+    for r in by_rate.iter_mut() {
+        if let Some(c) = r.correction.as_mut() {
+            let d = &mut c.device_frame;
+            for j in 0..3 {
+                d.offset[j] = offset[j];
+                d.offset_std_unc[j] = var[j].sqrt();
+                for (k, row) in d.covariance.iter_mut().enumerate() {
+                    for (l, x) in row.iter_mut().enumerate() {
+                        if k == 9 + j || l == 9 + j {
+                            *x = if k == l { var[j] } else { 0.0 };
+                        }
+                    }
+                }
+            }
+            c.offset_source = source.clone();
+        }
+    }
+    Ok(())
+}
+
+/// The device-frame correction of a rotation calibration: M from the Gram matrix of the
+/// three conditions' (A, B) (method.md §2) with their covariances; O_j the mean of the
+/// three conditions' C_j (over whole turns the mean of ĝ is zero, so C_j = O_j).
+pub fn rotation_correction(
+    fits: &[GroupFit; 3],
+    g: f64,
+) -> Result<correction::Correction, correction::CorrectionError> {
+    let mut theta = Vec::with_capacity(18);
+    let mut cov = DMatrix::zeros(18, 18);
+    for (c, f) in fits.iter().map(GroupFit::condition_fit).enumerate() {
+        for j in 0..3 {
+            let base = 6 * c + 2 * j;
+            theta.extend([f.a[j], f.b[j]]);
+            for a in 0..2 {
+                for b in 0..2 {
+                    cov[(base + a, base + b)] = f.cov[j][a][b];
+                }
+            }
+        }
+    }
+    let gram = move |t: &[f64]| -> Option<[[f64; 3]; 3]> {
+        let mut gm = [[0.0; 3]; 3];
+        for c in 0..3 {
+            for (j, row) in gm.iter_mut().enumerate() {
+                for (k, x) in row.iter_mut().enumerate() {
+                    let (aj, bj) = (t.get(6 * c + 2 * j)?, t.get(6 * c + 2 * j + 1)?);
+                    let (ak, bk) = (t.get(6 * c + 2 * k)?, t.get(6 * c + 2 * k + 1)?);
+                    *x += (aj * ak + bj * bk) / (2.0 * g * g);
+                }
+            }
+        }
+        Some(gm)
+    };
+    let mut offset = [0.0; 3];
+    let mut offset_std = [0.0; 3];
+    for j in 0..3 {
+        offset[j] = fits.iter().map(|f| f.coef(j, Param::C)).sum::<f64>() / 3.0;
+        offset_std[j] = fits
+            .iter()
+            .map(|f| f.std_unc(j, 2).powi(2))
+            .sum::<f64>()
+            .sqrt()
+            / 3.0;
+    }
+    correction::from_gram(&gram, &theta, &cov, offset, offset_std)
+}
+
+/// The rotation method's budget at one rate (docs/uncertainty.md): the fits (type A, the
+/// noise model's covariance propagated whole), g_loc, each condition's rotation rate, and
+/// the timestamps.
+fn rotation_budget(
+    fits: &[GroupFit; 3],
+    refits: [&dyn Refit; 3],
+    cal: &methods::RotationCalibration,
+    g: f64,
+    inputs: &TypeB,
+    units: &str,
+) -> Result<Budget, String> {
+    let mut b = new_budget(units, false);
+    let cf = fits.clone().map(|f| f.condition_fit());
+    let values = values6(&cal.intrinsic);
+    let diag = |c: &[[f64; 6]; 6]| [0, 1, 2, 3, 4, 5].map(|q| c[q][q].max(0.0));
+    // Type A. The nine channel fits are independent, so each one's share of the variance
+    // is the propagation with the others' covariance set to zero; their degrees of freedom
+    // combine by Welch–Satterthwaite.
+    let total = diag(&cal.intrinsic.cov);
+    let mut per_dof = [0.0; 6];
+    for (c, fit) in fits.iter().enumerate() {
+        for j in 0..3 {
+            let mut only = cf;
+            for (oc, f) in only.iter_mut().enumerate() {
+                for (oj, m) in f.cov.iter_mut().enumerate() {
+                    if (oc, oj) != (c, j) {
+                        *m = [[0.0; 2]; 2];
+                    }
+                }
+            }
+            let part = diag(
+                &intrinsic::from_gram(&only, g, 0.0)
+                    .map_err(|e| e.to_string())?
+                    .cov,
+            );
+            let nu = fit.noise[j].dof(3);
+            for (d, x) in per_dof.iter_mut().zip(part) {
+                *d += x * x / nu;
+            }
+        }
+    }
+    let dof: Vec<Option<f64>> = (0..6)
+        .map(|q| (per_dof[q] > 0.0).then(|| total[q] * total[q] / per_dof[q]))
+        .collect();
+    b.vector(
+        "fits",
+        Kind::A,
+        "the sine fits of the three conditions: (A, B) with their covariance under the noise \
+         model estimated from the residuals (JSON noise), propagated through the Gram form",
+        &total.map(f64::sqrt),
+        &dof,
+    );
+    let cg = [
+        -values[0] / g,
+        -values[1] / g,
+        -values[2] / g,
+        0.0,
+        0.0,
+        0.0,
+    ];
+    gravity_source(&mut b, g, inputs.u_g_loc, &cg);
+    for (c, (f, s)) in fits.iter().zip(refits).enumerate() {
+        let u = f.u_rate_hz;
+        let at = |rate: f64| -> Result<[f64; 6], String> {
+            let mut moved = cf;
+            moved[c] = ConditionFit {
+                cov: cf[c].cov,
+                ..s.refit(rate)?
+            };
+            Ok(values6(
+                &intrinsic::from_gram(&moved, g, 0.0).map_err(|e| e.to_string())?,
+            ))
+        };
+        // The Gram form is blind to the common phase a rate error makes, so what is left is
+        // mostly even in δ (an amplitude loss) and a central difference would cancel it:
+        // the larger one-sided change per u is taken.
+        let sens: Vec<f64> = if u > 0.0 {
+            let (hi, lo) = (at(f.rate_hz + u)?, at(f.rate_hz - u)?);
+            (0..6)
+                .map(|q| {
+                    let (a, b) = (hi[q] - values[q], lo[q] - values[q]);
+                    if a.abs() >= b.abs() {
+                        a / u
+                    } else {
+                        -b / u
+                    }
+                })
+                .collect()
+        } else {
+            vec![0.0; 6]
+        };
+        let how = match f.rate_fitted {
+            Some(_) => "fitted (IEEE 1057): its standard error",
+            None => "nominal: the fitted rate's standard error and its distance from nominal",
+        };
+        let nu = f
+            .noise
+            .iter()
+            .map(|m| m.dof(4))
+            .fold(f64::INFINITY, f64::min);
+        b.scalar(
+            &format!("rate_{}", f.condition.letter()),
+            Kind::A,
+            format!(
+                "the rotation rate of condition {} ({:.9} Hz, {how}); sensitivity by refitting at ±u",
+                f.condition.letter(),
+                f.rate_hz
+            ),
+            (u, "Hz"),
+            &sens,
+            Some(nu),
+        );
+    }
+    // A timestamp error of standard deviation σ_t attenuates every amplitude by
+    // (ωσ_t)²/2 (method.md §7), the same for the three channels, so the angles keep.
+    let resolution = 1.0 / f64::from(CLOCK.hz());
+    let jitter = inputs.u_time_s.unwrap_or(0.0);
+    let sigma_t = (resolution * resolution / 12.0 + jitter * jitter).sqrt();
+    let omega = TAU * fits.iter().map(|f| f.rate_hz).fold(0.0, f64::max);
+    let ct: Vec<f64> = (0..6)
+        .map(|q| {
+            if q < 3 {
+                // c·σ_t = −s(ωσ_t)²/2: the attenuation lowers s.
+                -values[q] * omega * omega * sigma_t / 2.0
+            } else {
+                0.0
+            }
+        })
+        .collect();
+    b.scalar(
+        "timestamps",
+        Kind::B,
+        format!(
+            "each timestamp's error: resolution {resolution:e} s (uniform) and jitter {jitter:e} s{}; amplitude attenuation (ωσ_t)²/2 taken as the standard uncertainty",
+            if inputs.u_time_s.is_some() { "" } else { " (not given: --u-time-s or '# u_time_s=')" }
+        ),
+        (sigma_t, "s"),
+        &ct,
+        None,
+    );
+    b.combine();
+    Ok(b)
+}
