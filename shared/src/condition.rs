@@ -1,9 +1,15 @@
-//! The rotation conditions: which platter axis the device turns about (method.md §1).
+//! The rotation conditions, which platter axis the device turns about (method.md §1), and
+//! the sensor's channels. With the `serde` feature both are written as their letters.
 
 /// A condition, named by the platter axis of rotation. Gravity in the platter frame is
 /// ĝ(α) = (0, sin α, cos α) about x, (sin α, 0, cos α) about y, (sin α, cos α, 0) about z.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[cfg_attr(
+    feature = "serde",
+    derive(serde::Serialize, serde::Deserialize),
+    serde(rename_all = "lowercase")
+)]
 pub enum Condition {
     /// Rotation about the platter's x axis.
     X,
@@ -63,6 +69,47 @@ impl Condition {
             'y' | 'Y' => Some(Condition::Y),
             'z' | 'Z' => Some(Condition::Z),
             _ => None,
+        }
+    }
+}
+
+/// A channel of the accelerometer: its sensitive axes u, v and w (the device's x, y and z
+/// outputs).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[cfg_attr(
+    feature = "serde",
+    derive(serde::Serialize, serde::Deserialize),
+    serde(rename_all = "lowercase")
+)]
+pub enum Channel {
+    /// The first output (the device's x).
+    U,
+    /// The second output (the device's y).
+    V,
+    /// The third output (the device's z).
+    W,
+}
+
+impl Channel {
+    /// All three, in order.
+    pub const ALL: [Channel; 3] = [Channel::U, Channel::V, Channel::W];
+
+    /// 0, 1, 2 for u, v, w: the channel's place in a reading `[u, v, w]`.
+    pub const fn index(self) -> usize {
+        match self {
+            Channel::U => 0,
+            Channel::V => 1,
+            Channel::W => 2,
+        }
+    }
+
+    /// The letter used in files: `u`, `v` or `w`.
+    pub const fn letter(self) -> char {
+        match self {
+            Channel::U => 'u',
+            Channel::V => 'v',
+            Channel::W => 'w',
         }
     }
 }

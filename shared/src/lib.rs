@@ -22,7 +22,7 @@ pub mod selftest;
 pub mod synth;
 pub mod time;
 
-pub use condition::Condition;
+pub use condition::{Channel, Condition};
 pub use dword::DoubleWord;
 pub use fit::{ChannelFit, FitConfig, FitError, FitResult, Model, Param, SineFit, MAX_PARAMS};
 pub use phase::{Phase, PhaseStep};

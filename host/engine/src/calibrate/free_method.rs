@@ -4,7 +4,9 @@
 use super::budget::Kind;
 use super::json::{self, CorrectionJson};
 use super::sources::{gravity_source, new_budget, values6};
-use super::{correction, err, free, poses, still, CalibrateError, Options, Preflight};
+use super::{
+    correction, err, free, poses, still, CalibrateError, CalibrateErrorKind, Options, Preflight,
+};
 use crate::recording::Recording;
 use nalgebra::DMatrix;
 use rotacal_shared::intrinsic;
@@ -39,13 +41,10 @@ pub fn segments(rec: &Recording) -> Result<Vec<Segment<'_>>, CalibrateError> {
         match t {
             Some(t) if t.len() == n => Ok(Cow::Borrowed(t.as_slice())),
             _ => {
-                let fs = rec.meta.sample_rate_hz.ok_or_else(|| {
-                    err(
-                        rec,
-                        Some(line),
-                        "finding still poses needs t_s or '# sample_rate_hz='",
-                    )
-                })?;
+                let fs = rec
+                    .meta
+                    .sample_rate_hz
+                    .ok_or_else(|| err(rec, Some(line), CalibrateErrorKind::NoClock))?;
                 Ok(Cow::Owned((0..n).map(|i| i as f64 / fs).collect()))
             }
         }
@@ -98,11 +97,7 @@ pub(super) fn entry(
 ) -> Result<json::RateJson, CalibrateError> {
     let (g, inputs, units) = (pre.g_loc, &pre.inputs, pre.units.as_str());
     if opts.monte_carlo.is_some() {
-        return Err(err(
-            rec,
-            None,
-            "--monte-carlo is not available for method free",
-        ));
+        return Err(err(rec, None, CalibrateErrorKind::MonteCarloFree));
     }
     let mut detections: Vec<(String, Option<still::Detection>, Vec<still::Interval>)> = Vec::new();
     for seg in segments(rec)? {
@@ -124,7 +119,11 @@ pub(super) fn entry(
                 } else {
                     format!("{}: ", seg.label)
                 };
-                err(rec, seg.line.first().copied(), format!("{at}{e}"))
+                err(
+                    rec,
+                    seg.line.first().copied(),
+                    CalibrateErrorKind::Still { at, source: e },
+                )
             })?,
         );
         let intervals = intervals
@@ -148,7 +147,10 @@ pub(super) fn entry(
         err(
             rec,
             None,
-            format!("{e}.\n{}", detection_summary(&detections, opts.still)),
+            CalibrateErrorKind::Free {
+                source: e,
+                detections: detection_summary(&detections, opts.still),
+            },
         )
     })?;
     // The fit's rejections, on the intervals.
@@ -161,7 +163,7 @@ pub(super) fn entry(
     }
     let s_cov = poses::s_block(&fit.cov);
     let intr = intrinsic::from_matrix_cov(&fit.l, &s_cov)
-        .map_err(|e| err(rec, None, format!("intrinsic properties: {e:?}")))?;
+        .map_err(|e| err(rec, None, CalibrateErrorKind::Intrinsic(e)))?;
     let offsets = [0, 1, 2].map(|j| intrinsic::Estimate {
         value: fit.offsets[j],
         std_unc: fit.cov[(9 + j, 9 + j)].max(0.0).sqrt(),
@@ -208,8 +210,8 @@ pub(super) fn entry(
     b.combine();
     let mut entry = json::free_entry(&intr, &offsets, &b, &fit, &detections);
     let cov12 = DMatrix::from_fn(12, 12, |i, j| fit.cov[(i, j)]);
-    let (device, _) = correction::from_matrix(&fit.l, fit.offsets, &cov12)
-        .map_err(|e| err(rec, None, e.to_string()))?;
+    let (device, _) =
+        correction::from_matrix(&fit.l, fit.offsets, &cov12).map_err(|e| err(rec, None, e))?;
     entry.correction = Some(CorrectionJson::new(
         units,
         device,

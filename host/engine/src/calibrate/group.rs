@@ -2,14 +2,14 @@
 //! the choice of rate, the sine fit in f64, the noise model of its residuals and the
 //! fit's covariance under it; and the refit at another rate the budget needs.
 
-use super::{err, CalibrateError, CLOCK};
+use super::{err, CalibrateError, CalibrateErrorKind, GroupError, CLOCK};
 use crate::fit::batch;
 use crate::fit::noise::{self, NoiseError, NoiseModel};
 use crate::recording::{Group, Recording};
 use nalgebra::DMatrix;
 use rotacal_shared::intrinsic::ConditionFit;
 use rotacal_shared::Condition;
-use rotacal_shared::{FitConfig, FitResult, Param, PhaseStep, SineFit, Ticks};
+use rotacal_shared::{FitConfig, FitError, FitResult, Param, PhaseStep, SineFit, Ticks};
 use std::f64::consts::TAU;
 
 /// A group's samples: the instants of the conversions each row averages, in ticks of the
@@ -28,7 +28,7 @@ pub fn samples(rec: &Recording, g: &Group) -> Result<Vec<batch::Sample>, Calibra
     {
         let gaps = g.conversions.as_ref().and_then(|c| c.get(i));
         let ap = crate::recording::row_aperture(*t, t0, gaps, scale, CLOCK)
-            .map_err(|m| err(rec, Some(g.first_line), m))?;
+            .map_err(|m| err(rec, Some(g.first_line), CalibrateErrorKind::Row(m)))?;
         out.push((ap, [*u, *v, *w]));
     }
     Ok(out)
@@ -84,14 +84,13 @@ impl GroupFit {
 }
 
 /// The streaming fit of (sin, cos, 1) at `step` in f64 (an average enters as its sum).
-fn fit_at(s: &[batch::Sample], step: PhaseStep) -> Result<FitResult<f64>, String> {
+fn fit_at(s: &[batch::Sample], step: PhaseStep) -> Result<FitResult<f64>, FitError> {
     let mut fit = SineFit::<f64>::new(FitConfig::sine(step, CLOCK));
     for (ap, y) in s {
         let n = ap.len().max(1) as f64;
-        fit.update_sum(ap, y.map(|v| v * n))
-            .map_err(|e| e.to_string())?;
+        fit.update_sum(ap, y.map(|v| v * n))?;
     }
-    fit.solve().map_err(|e| e.to_string())
+    fit.solve()
 }
 
 /// Regressors that take out of the residuals what a sine fit leaves that is not noise:
@@ -213,22 +212,35 @@ pub(crate) fn fit_group(
     s: &[batch::Sample],
     nominal_hz: f64,
 ) -> Result<GroupFit, CalibrateError> {
-    let cond = g.condition.letter();
-    let fail = |e: String| err(rec, Some(g.first_line), format!("condition {cond}: {e}"));
+    let fail = |e: GroupError| {
+        err(
+            rec,
+            Some(g.first_line),
+            CalibrateErrorKind::Group {
+                condition: g.condition,
+                source: e,
+            },
+        )
+    };
     let nominal = PhaseStep::from_hz(nominal_hz, CLOCK).ok_or_else(|| {
         err(
             rec,
             Some(g.first_line),
-            format!("rotation rate {nominal_hz} Hz is not usable"),
+            CalibrateErrorKind::UnusableRate(nominal_hz),
         )
     })?;
     // Fitted first at the nominal rate: this also checks the span, so a short record gets
     // the plain 'too few periods' message rather than a failure of the rate fit.
-    let at_nominal = fit_at(s, nominal).map_err(fail)?;
+    let at_nominal = fit_at(s, nominal).map_err(|e| fail(e.into()))?;
     let four =
-        batch::fit_four_param(s, nominal, CLOCK).map_err(|e| fail(format!("rate fit: {e}")))?;
-    let fitted_step = PhaseStep::from_hz(four.rate_hz, CLOCK)
-        .ok_or_else(|| err(rec, Some(g.first_line), "fitted rate unusable"))?;
+        batch::fit_four_param(s, nominal, CLOCK).map_err(|e| fail(GroupError::RateFit(e)))?;
+    let fitted_step = PhaseStep::from_hz(four.rate_hz, CLOCK).ok_or_else(|| {
+        err(
+            rec,
+            Some(g.first_line),
+            CalibrateErrorKind::UnusableFittedRate,
+        )
+    })?;
     let span_s = match (s.first(), s.last()) {
         (Some(a), Some(b)) => batch::seconds_between(b.0.last(), a.0.first(), CLOCK),
         _ => 0.0,
@@ -249,7 +261,7 @@ pub(crate) fn fit_group(
     let four_coef = coef_of(&four.fit);
     // The noise is modelled once, about the fitted rate (the best description of the
     // data): at the nominal rate a rate error's growing quadrature would read as noise.
-    let noise = noise_models(s, fitted_step).map_err(|e| fail(e.to_string()))?;
+    let noise = noise_models(s, fitted_step).map_err(|e| fail(e.into()))?;
     let (se_rate, differs) = rate_choice(
         (four.rate_hz, four.se_rate_hz),
         &four_coef,
@@ -258,13 +270,13 @@ pub(crate) fn fit_group(
         nominal_hz,
     );
     let (step, fit, rate_hz, rate_fitted, u_rate_hz) = if differs {
-        let fit = fit_at(s, fitted_step).map_err(fail)?;
+        let fit = fit_at(s, fitted_step).map_err(|e| fail(e.into()))?;
         (fitted_step, fit, four.rate_hz, Some(four.rate_hz), se_rate)
     } else {
         let u = se_rate.hypot(four.rate_hz - nominal_hz);
         (nominal, at_nominal, nominal_hz, None, u)
     };
-    let cov = sine_cov(s, step, &noise).map_err(|e| fail(e.to_string()))?;
+    let cov = sine_cov(s, step, &noise).map_err(|e| fail(e.into()))?;
     Ok(GroupFit {
         condition: g.condition,
         fit,
@@ -281,13 +293,12 @@ pub(crate) fn fit_group(
 /// rate): from its samples, or from a streamed record's sums ([`stream`]).
 pub(crate) trait Refit {
     /// (A, B) per channel of the sine fit at `rate_hz`.
-    fn refit(&self, rate_hz: f64) -> Result<ConditionFit, String>;
+    fn refit(&self, rate_hz: f64) -> Result<ConditionFit, GroupError>;
 }
 
 impl Refit for Vec<batch::Sample> {
-    fn refit(&self, rate_hz: f64) -> Result<ConditionFit, String> {
-        let step = PhaseStep::from_hz(rate_hz, CLOCK)
-            .ok_or_else(|| format!("rate {rate_hz} Hz unusable"))?;
+    fn refit(&self, rate_hz: f64) -> Result<ConditionFit, GroupError> {
+        let step = PhaseStep::from_hz(rate_hz, CLOCK).ok_or(GroupError::Rate(rate_hz))?;
         Ok(ConditionFit::from_fit(&fit_at(self, step)?))
     }
 }

@@ -21,6 +21,7 @@
 
 pub mod budget;
 pub mod correction;
+mod error;
 pub mod free;
 mod free_method;
 mod group;
@@ -35,6 +36,8 @@ pub mod still;
 pub mod stream;
 pub mod table;
 
+pub(crate) use error::err;
+pub use error::{CalibrateError, CalibrateErrorKind, GroupError, RateError};
 pub use free_method::{detection_summary, segments, Segment};
 pub use group::{samples, GroupFit};
 pub use rotation::rotation_correction;
@@ -85,32 +88,8 @@ impl TypeB {
     }
 }
 
-/// A calibration failure, naming the file and, where it applies, the line.
-#[derive(Debug, thiserror::Error)]
-#[error("{source_name}{}: {message}", line.map(|l| format!(":{l}")).unwrap_or_default())]
-pub struct CalibrateError {
-    /// The recording.
-    pub source_name: String,
-    /// First line of the data concerned.
-    pub line: Option<u64>,
-    /// What is wrong.
-    pub message: String,
-}
-
 /// The clock rotation timestamps are converted to (t_s has microsecond resolution).
 pub const CLOCK: TickRate = TickRate::MHZ_1;
-
-pub(crate) fn err(
-    rec: &Recording,
-    line: Option<u64>,
-    message: impl Into<String>,
-) -> CalibrateError {
-    CalibrateError {
-        source_name: rec.source.clone(),
-        line,
-        message: message.into(),
-    }
-}
 
 /// What every calibration settles first: local gravity, the type-B inputs, the method and
 /// the units, each checked.
@@ -139,22 +118,15 @@ impl Preflight {
 
 /// Local gravity, the type-B inputs, the method and the units of `rec` under `opts`.
 pub(crate) fn preflight(rec: &Recording, opts: &Options) -> Result<Preflight, CalibrateError> {
-    let g = opts.g_loc.or(rec.meta.g_loc).ok_or_else(|| {
-        err(
-            rec,
-            None,
-            "local gravity unknown: give --g-loc or a '# g_loc=' line",
-        )
-    })?;
+    let g = opts
+        .g_loc
+        .or(rec.meta.g_loc)
+        .ok_or_else(|| err(rec, None, CalibrateErrorKind::NoGravity))?;
     if !(g.is_finite() && g > 0.0) {
-        return Err(err(
-            rec,
-            None,
-            format!("g_loc {g} is not a positive number"),
-        ));
+        return Err(err(rec, None, CalibrateErrorKind::BadGravity(g)));
     }
     let inputs = opts.inputs.or_file(rec);
-    if let Some((name, u)) = [
+    if let Some((option, value)) = [
         ("--u-g-loc", inputs.u_g_loc),
         ("--u-time-s", inputs.u_time_s),
     ]
@@ -164,7 +136,7 @@ pub(crate) fn preflight(rec: &Recording, opts: &Options) -> Result<Preflight, Ca
         return Err(err(
             rec,
             None,
-            format!("{name} {u} is not a standard uncertainty (a finite number ≥ 0)"),
+            CalibrateErrorKind::BadUncertainty { option, value },
         ));
     }
     let method = opts.method.unwrap_or(rec.method);
@@ -190,10 +162,6 @@ pub(crate) fn nominal_rate(
 ) -> Option<f64> {
     column.or(opts.rate_hz).or(meta.rate_hz)
 }
-
-/// Why a rotation file cannot be calibrated without more.
-pub(crate) const NO_RATE: &str =
-    "rotation rate unknown: give --rate-hz, a '# rate_hz=' line or a rate_hz column";
 
 /// Calibrate a recording.
 pub fn calibrate(rec: &Recording, opts: &Options) -> Result<CalibrationJson, CalibrateError> {

@@ -7,13 +7,13 @@ use super::group::{fit_group, samples, GroupFit, Refit};
 use super::json::{self, CalibrationJson, CorrectionJson, FitJson, NoiseJson};
 use super::sources::{gravity_source, new_budget, values6};
 use super::{
-    correction, err, methods, nominal_rate, CalibrateError, Options, Preflight, TypeB, CLOCK,
-    NO_RATE,
+    correction, err, methods, nominal_rate, CalibrateError, CalibrateErrorKind, Options, Preflight,
+    RateError, TypeB, CLOCK,
 };
 use crate::recording::{Group, Recording};
 use nalgebra::DMatrix;
 use rotacal_shared::intrinsic::{self, ConditionFit};
-use rotacal_shared::{Condition, Param};
+use rotacal_shared::{Channel, Condition, Param};
 use std::f64::consts::TAU;
 
 /// One rate of a rotation calibration: its nominal rate and its three conditions' groups
@@ -42,8 +42,8 @@ pub(super) fn plan(
     rates
         .into_iter()
         .map(|rate| {
-            let nominal_hz =
-                nominal_rate(rate, opts, &rec.meta).ok_or_else(|| err(rec, None, NO_RATE))?;
+            let nominal_hz = nominal_rate(rate, opts, &rec.meta)
+                .ok_or_else(|| err(rec, None, CalibrateErrorKind::NoRate))?;
             let mut groups = [0; 3];
             for (slot, cond) in groups.iter_mut().zip(Condition::ALL) {
                 *slot = keys
@@ -53,7 +53,10 @@ pub(super) fn plan(
                         err(
                             rec,
                             None,
-                            format!("condition {} missing at {nominal_hz} Hz", cond.letter()),
+                            CalibrateErrorKind::MissingCondition {
+                                condition: cond,
+                                rate_hz: nominal_hz,
+                            },
                         )
                     })?;
             }
@@ -78,11 +81,7 @@ pub(super) fn held(
     nominal_hz: f64,
 ) -> Result<FittedGroup<'static>, CalibrateError> {
     if group.t_s.len() != group.u.len() {
-        return Err(err(
-            rec,
-            Some(group.first_line),
-            "rotation needs a t_s column",
-        ));
+        return Err(err(rec, Some(group.first_line), CalibrateErrorKind::NoTime));
     }
     let s = samples(rec, group)?;
     let fit = fit_group(rec, group, &s, nominal_hz)?;
@@ -99,7 +98,7 @@ pub(super) fn calibrate_held(
     pre: Preflight,
 ) -> Result<CalibrationJson, CalibrateError> {
     rec.require_conditions("rotation calibration")
-        .map_err(|e| err(rec, None, e.kind.to_string()))?;
+        .map_err(|e| err(rec, None, CalibrateErrorKind::NeedsConditions(e.kind)))?;
     let keys: Vec<_> = rec
         .groups
         .iter()
@@ -133,12 +132,17 @@ pub(super) fn assemble(
         monte_carlo,
     };
     let mut by_rate = Vec::with_capacity(plan.len());
+    let mut all_fits = Vec::with_capacity(plan.len());
     for rate in plan {
         let [x, y, z] = rate
             .groups
             .map(|i| fitted.get_mut(i).and_then(Option::take));
         let (Some(x), Some(y), Some(z)) = (x, y, z) else {
-            return Err(err(rec, None, "internal: a planned group was not fitted"));
+            return Err(err(
+                rec,
+                None,
+                CalibrateErrorKind::Internal("a planned group was not fitted"),
+            ));
         };
         let refits: [&dyn Refit; 3] = [&*x.refit, &*y.refit, &*z.refit];
         let fits = [x.fit, y.fit, z.fit];
@@ -149,9 +153,11 @@ pub(super) fn assemble(
             refits,
             &setting,
         )?);
+        all_fits.push(fits);
     }
     if by_rate.len() >= 2 {
-        offsets_at_rest(&mut by_rate).map_err(|e| err(rec, None, e))?;
+        let at_rest = offsets_at_rest(&all_fits).map_err(|e| err(rec, None, e))?;
+        set_offsets_at_rest(&mut by_rate, at_rest);
     }
     Ok(pre.json(by_rate))
 }
@@ -178,14 +184,23 @@ fn rotation_entry(
 ) -> Result<json::RateJson, CalibrateError> {
     let g = set.g;
     let cf = [0, 1, 2].map(|c| fits[c].condition_fit());
-    let at_rate = |e: String| err(rec, None, format!("at {nominal} Hz: {e}"));
-    let cal = methods::rotation(&cf, g).map_err(|e| at_rate(e.to_string()))?;
+    let at_rate = |e: RateError| {
+        err(
+            rec,
+            None,
+            CalibrateErrorKind::Rate {
+                rate_hz: nominal,
+                source: e,
+            },
+        )
+    };
+    let cal = methods::rotation(&cf, g).map_err(|e| at_rate(e.into()))?;
     let budget = rotation_budget(fits, refits, &cal, g, set.inputs, set.units).map_err(at_rate)?;
     let json_fits = fits.iter().flat_map(fit_json).collect();
     let mut entry = json::rotation_entry(nominal, &cal, &budget, json_fits);
     entry.noise = Some(fits.iter().flat_map(noise_json).collect());
     entry.uncertainty_budget = Some(budget);
-    let device = rotation_correction(fits, g).map_err(|e| at_rate(e.to_string()))?;
+    let device = rotation_correction(fits, g).map_err(|e| at_rate(e.into()))?;
     entry.correction = Some(CorrectionJson::new(
         set.units,
         device,
@@ -196,8 +211,16 @@ fn rotation_entry(
          cannot separate",
     ));
     if let Some(trials) = set.monte_carlo {
-        let mc = methods::monte_carlo_rotation(&cf, g, trials, 1)
-            .map_err(|e| err(rec, None, format!("Monte Carlo at {nominal} Hz: {e}")))?;
+        let mc = methods::monte_carlo_rotation(&cf, g, trials, 1).map_err(|cause| {
+            err(
+                rec,
+                None,
+                CalibrateErrorKind::MonteCarlo {
+                    rate_hz: Some(nominal),
+                    cause,
+                },
+            )
+        })?;
         entry.monte_carlo = Some(json::mc_map(mc));
     }
     Ok(entry)
@@ -233,22 +256,24 @@ fn noise_json(f: &GroupFit) -> Vec<NoiseJson> {
 
 /// Multi-rate rotation: each condition's C_j against ω² is a line whose intercept is the
 /// offset at rest (the centripetal term grows as ω²·r); O_j is the mean of the three
-/// conditions' intercepts, and every rate's correction gets it.
-fn offsets_at_rest(by_rate: &mut [json::RateJson]) -> Result<(), String> {
+/// conditions' intercepts. `fits` holds each rate's three conditions; the result is each
+/// channel's offset at rest and its variance.
+fn offsets_at_rest(fits: &[[GroupFit; 3]]) -> Result<([f64; 3], [f64; 3]), CalibrateErrorKind> {
     let mut offset = [0.0; 3];
     let mut var = [0.0; 3];
-    for cond in ["x", "y", "z"] {
-        for (j, ch) in ["u", "v", "w"].iter().enumerate() {
+    for condition in Condition::ALL {
+        for channel in Channel::ALL {
+            let j = channel.index();
             // (ω², C, se_C) over the rates.
-            let pts: Vec<(f64, f64, f64)> = by_rate
+            let pts: Vec<(f64, f64, f64)> = fits
                 .iter()
-                .filter_map(|r| {
-                    let f = r
-                        .fits
-                        .iter()
-                        .find(|f| f.condition == cond && f.channel == *ch)?;
-                    let hz = f.rate_hz_fitted.or(r.rate_hz)?;
-                    Some(((std::f64::consts::TAU * hz).powi(2), f.c, f.se_c))
+                .filter_map(|rate| rate.get(condition.index()))
+                .map(|f| {
+                    (
+                        (TAU * f.rate_hz).powi(2),
+                        f.coef(j, Param::C),
+                        f.std_unc(j, 2),
+                    )
                 })
                 .collect();
             // Weighted line C = O + b·ω².
@@ -263,37 +288,39 @@ fn offsets_at_rest(by_rate: &mut [json::RateJson]) -> Result<(), String> {
             }
             let det = s * sxx - sx * sx;
             if !(det.is_finite() && det > 0.0) {
-                return Err(format!(
-                    "condition {cond}, channel {ch}: the offsets against ω² cannot be fitted"
-                ));
+                return Err(CalibrateErrorKind::OffsetsAtRest { condition, channel });
             }
             offset[j] += (sxx * sy - sx * sxy) / det / 3.0;
             var[j] += sxx / det / 9.0;
         }
     }
+    Ok((offset, var))
+}
+
+/// Every rate's correction gets the offsets at rest (`offset`, `var`).
+fn set_offsets_at_rest(by_rate: &mut [json::RateJson], (offset, var): ([f64; 3], [f64; 3])) {
     let source = format!(
         "each condition's C at ω = 0 from a line C = O + b·ω² over {} rates (the \
          centripetal term removed), averaged over the three conditions",
         by_rate.len()
     );
-    for r in by_rate.iter_mut() {
-        if let Some(c) = r.correction.as_mut() {
-            let d = &mut c.device_frame;
-            for j in 0..3 {
-                d.offset[j] = offset[j];
-                d.offset_std_unc[j] = var[j].sqrt();
-                for (k, row) in d.covariance.iter_mut().enumerate() {
-                    for (l, x) in row.iter_mut().enumerate() {
-                        if k == 9 + j || l == 9 + j {
-                            *x = if k == l { var[j] } else { 0.0 };
-                        }
+    for c in by_rate.iter_mut().filter_map(|r| r.correction.as_mut()) {
+        let d = &mut c.device_frame;
+        for (j, (o, v)) in offset.iter().zip(var).enumerate() {
+            if let (Some(dst), Some(u)) = (d.offset.get_mut(j), d.offset_std_unc.get_mut(j)) {
+                *dst = *o;
+                *u = v.sqrt();
+            }
+            for (k, row) in d.covariance.iter_mut().enumerate() {
+                for (l, x) in row.iter_mut().enumerate() {
+                    if k == 9 + j || l == 9 + j {
+                        *x = if k == l { v } else { 0.0 };
                     }
                 }
             }
-            c.offset_source = source.clone();
         }
+        c.offset_source = source.clone();
     }
-    Ok(())
 }
 
 /// The device-frame correction of a rotation calibration: M from the Gram matrix of the
@@ -353,7 +380,7 @@ fn rotation_budget(
     g: f64,
     inputs: &TypeB,
     units: &str,
-) -> Result<Budget, String> {
+) -> Result<Budget, RateError> {
     let mut b = new_budget(units, false);
     let cf = fits.clone().map(|f| f.condition_fit());
     let values = values6(&cal.intrinsic);
@@ -373,11 +400,7 @@ fn rotation_budget(
                     }
                 }
             }
-            let part = diag(
-                &intrinsic::from_gram(&only, g, 0.0)
-                    .map_err(|e| e.to_string())?
-                    .cov,
-            );
+            let part = diag(&intrinsic::from_gram(&only, g, 0.0)?.cov);
             let nu = fit.noise[j].dof(3);
             for (d, x) in per_dof.iter_mut().zip(part) {
                 *d += x * x / nu;
@@ -406,15 +429,13 @@ fn rotation_budget(
     gravity_source(&mut b, g, inputs.u_g_loc, &cg);
     for (c, (f, s)) in fits.iter().zip(refits).enumerate() {
         let u = f.u_rate_hz;
-        let at = |rate: f64| -> Result<[f64; 6], String> {
+        let at = |rate: f64| -> Result<[f64; 6], RateError> {
             let mut moved = cf;
             moved[c] = ConditionFit {
                 cov: cf[c].cov,
                 ..s.refit(rate)?
             };
-            Ok(values6(
-                &intrinsic::from_gram(&moved, g, 0.0).map_err(|e| e.to_string())?,
-            ))
+            Ok(values6(&intrinsic::from_gram(&moved, g, 0.0)?))
         };
         // The Gram form is blind to the common phase a rate error makes, so what is left is
         // mostly even in δ (an amplitude loss) and a central difference would cancel it:

@@ -5,10 +5,12 @@ use super::budget::{Budget, Kind};
 use super::json::{self, CorrectionJson};
 use super::poses::{self, StaticCondition};
 use super::sources::{gravity_source, new_budget, values6};
-use super::{correction, err, methods, CalibrateError, Options, Preflight, TypeB};
+use super::{
+    correction, err, methods, CalibrateError, CalibrateErrorKind, Options, Preflight, TypeB,
+};
 use crate::recording::Recording;
 use nalgebra::DMatrix;
-use rotacal_shared::intrinsic;
+use rotacal_shared::intrinsic::{self, IntrinsicError};
 
 /// The pose fit's options with the stated table-angle uncertainty.
 fn pose_options(opts: &Options, inputs: &TypeB) -> poses::Options {
@@ -33,7 +35,7 @@ pub(super) fn entry(
                     poses::PoseError::PoseDirection { line, .. } => Some(*line),
                     _ => None,
                 };
-                err(rec, line, e.to_string())
+                err(rec, line, e)
             })?;
             methods::from_poses(poses, pre.g_loc, options)
         }
@@ -41,11 +43,7 @@ pub(super) fn entry(
             let mut conds = Vec::with_capacity(rec.groups.len());
             for grp in &rec.groups {
                 if grp.angle_deg.len() != grp.u.len() {
-                    return Err(err(
-                        rec,
-                        Some(grp.first_line),
-                        "static calibration needs an angle_deg column",
-                    ));
+                    return Err(err(rec, Some(grp.first_line), CalibrateErrorKind::NoAngle));
                 }
                 conds.push(StaticCondition {
                     condition: grp.condition,
@@ -57,7 +55,7 @@ pub(super) fn entry(
             methods::static_method(&conds, pre.g_loc, options)
         }
     }
-    .map_err(|e| err(rec, None, e.to_string()))?;
+    .map_err(|e| err(rec, None, e))?;
     static_json(rec, &cal, opts, pre)
 }
 
@@ -69,16 +67,24 @@ fn static_json(
     pre: &Preflight,
 ) -> Result<json::RateJson, CalibrateError> {
     let units = pre.units.as_str();
-    let budget =
-        static_budget(cal, pre.g_loc, &pre.inputs, units).map_err(|e| err(rec, None, e))?;
+    let budget = static_budget(cal, pre.g_loc, &pre.inputs, units)
+        .map_err(|e| err(rec, None, CalibrateErrorKind::StaticBudget(e)))?;
     let mut entry = json::static_entry(cal, &budget);
     entry.uncertainty_budget = Some(budget);
     if let Some(trials) = opts.monte_carlo {
-        let mc = methods::monte_carlo_static(cal, trials, 1)
-            .map_err(|e| err(rec, None, format!("Monte Carlo: {e}")))?;
+        let mc = methods::monte_carlo_static(cal, trials, 1).map_err(|cause| {
+            err(
+                rec,
+                None,
+                CalibrateErrorKind::MonteCarlo {
+                    rate_hz: None,
+                    cause,
+                },
+            )
+        })?;
         entry.monte_carlo = Some(json::mc_map(mc));
     }
-    let (device, platter) = static_correction(cal).map_err(|e| err(rec, None, e.to_string()))?;
+    let (device, platter) = static_correction(cal).map_err(|e| err(rec, None, e))?;
     let source = match cal.pose_fit.options.offsets {
         poses::OffsetEstimator::Joint => "the joint fit of S and O to all poses",
         poses::OffsetEstimator::AxisPairs => {
@@ -127,14 +133,14 @@ pub fn static_budget(
     g: f64,
     inputs: &TypeB,
     units: &str,
-) -> Result<Budget, String> {
+) -> Result<Budget, IntrinsicError> {
     let mut b = new_budget(units, true);
     let fit = &cal.pose_fit;
     let values = values6(&cal.intrinsic);
     // Each part's variance of the nine properties, and its degrees of freedom.
-    let forms = |part: &poses::CovPart| -> Result<[f64; 9], String> {
+    let forms = |part: &poses::CovPart| -> Result<[f64; 9], IntrinsicError> {
         let s_part = poses::s_block(&part.theta);
-        let prop = intrinsic::from_matrix_cov(&cal.s, &s_part).map_err(|e| e.to_string())?;
+        let prop = intrinsic::from_matrix_cov(&cal.s, &s_part)?;
         let mut var = [0.0; 9];
         for (q, v) in var.iter_mut().take(6).enumerate() {
             *v = prop.cov[q][q];
@@ -151,7 +157,7 @@ pub fn static_budget(
         .iter()
         .chain(unit)
         .map(|c| Ok((c, forms(c)?)))
-        .collect::<Result<Vec<_>, String>>()?;
+        .collect::<Result<Vec<_>, IntrinsicError>>()?;
     let of = |q: usize| {
         let cache = &cache;
         move |c: &poses::CovPart| {

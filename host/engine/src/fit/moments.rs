@@ -605,13 +605,18 @@ impl Moments {
     }
 }
 
+/// The widened fit's normal equations are singular.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+#[error("singular fit: the regressors do not determine every coefficient")]
+pub struct SingularWide;
+
 /// The widened fit's coefficients per channel at `step`, each channel's readings on its
 /// rails left out.
 pub fn wide_betas(
     m: &Moments,
     flagged: &[Option<Moments>; 3],
     step: PhaseStep,
-) -> Result<[[f64; WIDE]; 3], String> {
+) -> Result<[[f64; WIDE]; 3], SingularWide> {
     let mut out = [[0.0; WIDE]; 3];
     let all = m.wide_at(step);
     for (ch, (b, f)) in out.iter_mut().zip(flagged).enumerate() {
@@ -623,9 +628,7 @@ pub fn wide_betas(
             }
             None => (&all.0, &all.1),
         };
-        let chol = g.clone().cholesky().ok_or_else(|| {
-            "singular fit: the regressors do not determine every coefficient".to_string()
-        })?;
+        let chol = g.clone().cholesky().ok_or(SingularWide)?;
         for (o, v) in b
             .iter_mut()
             .zip(chol.solve(&x.column(ch).into_owned()).iter())

@@ -5,13 +5,14 @@ use super::first::GroupState;
 use super::{REACH_FIT, REACH_REFIT};
 use crate::calibrate::group::{rate_choice, GroupFit, Refit};
 use crate::calibrate::pilot::{self, Fitted, Piece};
-use crate::calibrate::{err, CalibrateError, CLOCK};
+use crate::calibrate::{err, CalibrateError, CalibrateErrorKind, GroupError, CLOCK};
+use crate::fit::batch::BatchError;
 use crate::fit::moments::{self, Moments, WIDE, WIDE_HARMONIC};
 use crate::fit::noise::{LaggedSums, NoiseModel, LAGS};
 use crate::recording::Recording;
 use nalgebra::DMatrix;
 use rotacal_shared::intrinsic::ConditionFit;
-use rotacal_shared::{FitConfig, FitResult, PhaseStep};
+use rotacal_shared::{FitConfig, FitError, FitResult, PhaseStep};
 use std::f64::consts::TAU;
 
 /// A streamed group's fits before its residual pass.
@@ -42,10 +43,11 @@ type SineCoefficients = [[f64; 3]; 3];
 
 /// A group's sine coefficients at the fitted and the nominal rate, and the fitted rate
 /// less the nominal (rad/s).
-pub(super) fn sine_pair(p: &Prepared) -> Result<(SineCoefficients, SineCoefficients, f64), String> {
-    let at_fitted = moments::sine_coefficients(&p.moments, p.fitted).map_err(|e| e.to_string())?;
-    let at_nominal =
-        moments::sine_coefficients(&p.moments, p.nominal).map_err(|e| e.to_string())?;
+pub(super) fn sine_pair(
+    p: &Prepared,
+) -> Result<(SineCoefficients, SineCoefficients, f64), BatchError> {
+    let at_fitted = moments::sine_coefficients(&p.moments, p.fitted)?;
+    let at_nominal = moments::sine_coefficients(&p.moments, p.nominal)?;
     Ok((
         at_fitted,
         at_nominal,
@@ -140,11 +142,14 @@ pub(super) fn finish(
     p: &Prepared,
     r: Residuals,
 ) -> Result<GroupFit, CalibrateError> {
-    let fail = |e: String| {
+    let fail = |e: GroupError| {
         err(
             rec,
             Some(gs.first_line),
-            format!("condition {}: {e}", gs.condition.letter()),
+            CalibrateErrorKind::Group {
+                condition: gs.condition,
+                source: e,
+            },
         )
     };
     let span_s = p.span_ticks as f64 / f64::from(CLOCK.hz());
@@ -158,11 +163,15 @@ pub(super) fn finish(
         let (n, used) = acc.counts();
         let m = NoiseModel::from_autocovariances(&acc.autocovariances(), n, used)
             .and_then(|m| m.rescaled_for_sinusoids(n, &freqs))
-            .map_err(|e| fail(e.to_string()))?;
+            .map_err(|e| fail(e.into()))?;
         noise.push(m);
     }
     let Ok(noise) = <[NoiseModel; 3]>::try_from(noise) else {
-        return Err(fail("three channels expected".into()));
+        return Err(err(
+            rec,
+            Some(gs.first_line),
+            CalibrateErrorKind::Internal("three channels' noise models expected"),
+        ));
     };
     let (se_rate, differs) = rate_choice(
         (p.four.rate_hz, p.four.se_rate_hz),
@@ -190,7 +199,7 @@ pub(super) fn finish(
     for (c, m) in cov.iter_mut().zip(&noise) {
         let s = m
             .sandwich_for_sinusoids(&gram, &[omega, omega, 0.0])
-            .map_err(|e| fail(e.to_string()))?;
+            .map_err(|e| fail(e.into()))?;
         for (a, row) in c.iter_mut().enumerate() {
             for (b, x) in row.iter_mut().enumerate() {
                 *x = s[(a, b)];
@@ -216,11 +225,13 @@ fn sine_result(
     normal: &moments::SineNormal,
     rss: [f64; 3],
     p: &Prepared,
-) -> Result<FitResult<f64>, String> {
-    let singular = || "singular fit: the samples do not determine every parameter".to_string();
-    let chol = normal.g.cholesky().ok_or_else(singular)?;
+) -> Result<FitResult<f64>, GroupError> {
+    let chol = normal
+        .g
+        .cholesky()
+        .ok_or(GroupError::Fit(FitError::Singular))?;
     let inv = chol.inverse();
-    let n = u32::try_from(p.rows).map_err(|_| "too many rows for one fit".to_string())?;
+    let n = u32::try_from(p.rows).map_err(|_| GroupError::TooManyRows)?;
     let mut unscaled_cov = [[0.0; rotacal_shared::MAX_PARAMS]; rotacal_shared::MAX_PARAMS];
     for (i, row) in unscaled_cov.iter_mut().enumerate().take(3) {
         for (j, x) in row.iter_mut().enumerate().take(3) {
@@ -266,25 +277,25 @@ pub(super) fn prepare(
     nominal_hz: f64,
 ) -> Result<Prepared, CalibrateError> {
     let line = Some(gs.first_line);
-    let fail = |e: String| {
+    let condition = gs.condition;
+    let fail = |e: GroupError| {
         err(
             rec,
             line,
-            format!("condition {}: {e}", gs.condition.letter()),
+            CalibrateErrorKind::Group {
+                condition,
+                source: e,
+            },
         )
     };
     if gs.t0.is_none() {
-        return Err(err(rec, line, "rotation needs a t_s column"));
+        return Err(err(rec, line, CalibrateErrorKind::NoTime));
     }
     if let Some(m) = gs.row_problem {
-        return Err(err(rec, line, m));
+        return Err(err(rec, line, CalibrateErrorKind::Row(m)));
     }
     let (Some((_, nominal)), Some(moments)) = (gs.nominal, gs.moments.take()) else {
-        return Err(err(
-            rec,
-            line,
-            format!("rotation rate {nominal_hz} Hz is not usable"),
-        ));
+        return Err(err(rec, line, CalibrateErrorKind::UnusableRate(nominal_hz)));
     };
     // Each part's sums and pilot (a group one thread read whole: its own).
     let pieces = std::mem::take(&mut gs.pilots).into_pieces(&moments);
@@ -299,17 +310,17 @@ pub(super) fn prepare(
             milli_periods: milli,
             needed: cfg.min_milli_periods,
         };
-        return Err(fail(e.to_string()));
+        return Err(fail(e.into()));
     }
-    let four = moments::four_param(&moments, nominal, CLOCK)
-        .map_err(|e| fail(format!("rate fit: {e}")))?;
+    let four =
+        moments::four_param(&moments, nominal, CLOCK).map_err(|e| fail(GroupError::RateFit(e)))?;
     let fitted = PhaseStep::from_hz(four.rate_hz, CLOCK)
-        .ok_or_else(|| err(rec, line, "fitted rate unusable"))?;
+        .ok_or_else(|| err(rec, line, CalibrateErrorKind::UnusableFittedRate))?;
     let rails = gs.rails.map(|r| r.found());
     // The widened fit's coefficients, if the sums reach the fitted rate (else the
     // correcting pass computes them, as it does with rails).
     let beta = if moments.within(fitted, REACH_FIT) {
-        moments::wide_betas(&moments, &[None, None, None], fitted).map_err(fail)?
+        moments::wide_betas(&moments, &[None, None, None], fitted).map_err(|e| fail(e.into()))?
     } else {
         [[0.0; WIDE]; 3]
     };
@@ -338,19 +349,18 @@ pub(super) struct StreamRefit {
 }
 
 impl Refit for StreamRefit {
-    fn refit(&self, rate_hz: f64) -> Result<ConditionFit, String> {
-        let step = PhaseStep::from_hz(rate_hz, CLOCK)
-            .ok_or_else(|| format!("rate {rate_hz} Hz unusable"))?;
+    fn refit(&self, rate_hz: f64) -> Result<ConditionFit, GroupError> {
+        let step = PhaseStep::from_hz(rate_hz, CLOCK).ok_or(GroupError::Rate(rate_hz))?;
         if !self.moments.within(step, REACH_REFIT) {
-            return Err(format!(
-                "the refit at {rate_hz} Hz is {:.2e} rad over the record from the streamed sums' \
-                 rate, beyond their reach ({REACH_REFIT})",
-                self.moments.reach(step)
-            ));
+            return Err(GroupError::OutOfReach {
+                rate_hz,
+                reach: self.moments.reach(step),
+                limit: REACH_REFIT,
+            });
         }
         let (at, here) = (
-            moments::sine_coefficients(&self.moments, step).map_err(|e| e.to_string())?,
-            moments::sine_coefficients(&self.moments, self.central).map_err(|e| e.to_string())?,
+            moments::sine_coefficients(&self.moments, step)?,
+            moments::sine_coefficients(&self.moments, self.central)?,
         );
         let mut out = self.fit;
         for ch in 0..3 {

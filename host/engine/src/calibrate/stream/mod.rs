@@ -32,7 +32,7 @@ mod tests;
 use self::first::{first_pass_parts, read_pass, GroupState, PassOne};
 use self::fits::{finish, from_pilots, on_rails, prepare, Prepared, Residuals, StreamRefit};
 use super::rotation::{self, FittedGroup};
-use super::{err, preflight, CalibrateError, Options, CLOCK};
+use super::{err, preflight, CalibrateError, CalibrateErrorKind, Options, CLOCK};
 use crate::calibrate::json::CalibrationJson;
 use crate::recording::{self, Method, Parse, Parts, Recording, RecordingError};
 use rotacal_shared::intrinsic::ConditionFit;
@@ -185,7 +185,7 @@ impl Engine<'_> {
             return Err(err(
                 rec,
                 None,
-                "internal: the streaming engine is for rotation files",
+                CalibrateErrorKind::Internal("the streaming engine is for rotation files"),
             )
             .into());
         }
@@ -240,7 +240,12 @@ impl Engine<'_> {
             .filter_map(|r| r.or_else(|| passed.next()))
             .collect();
         if residuals.len() != prepared.len() {
-            return Err(err(rec, None, "internal: residual sums missing").into());
+            return Err(err(
+                rec,
+                None,
+                CalibrateErrorKind::Internal("residual sums missing"),
+            )
+            .into());
         }
         for (p, r) in prepared.iter().zip(residuals) {
             let gs = self.group(p.index)?;
@@ -271,6 +276,6 @@ impl Engine<'_> {
     fn group(&self, i: usize) -> Result<&GroupState, CalibrateError> {
         self.groups
             .get(i)
-            .ok_or_else(|| err(self.rec, None, "internal: group index"))
+            .ok_or_else(|| err(self.rec, None, CalibrateErrorKind::Internal("group index")))
     }
 }

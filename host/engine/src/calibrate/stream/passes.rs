@@ -5,7 +5,7 @@ use super::first::{find_group, key_of, over_parts, read_pass, Key};
 use super::fits::{on_rails, sine_pair, Prepared, Residuals};
 use super::{Engine, FileError, REACH_FIT};
 use crate::calibrate::pilot::Pilots;
-use crate::calibrate::{err, CLOCK};
+use crate::calibrate::{err, CalibrateErrorKind, GroupError, CLOCK};
 use crate::fit::moments::{self, Moments};
 use crate::fit::noise::Rails;
 use crate::recording::{self, Parse, PartRow, Scanned};
@@ -50,7 +50,7 @@ impl Engine<'_> {
         let check = |rows: &[usize]| -> Result<(), FileError> {
             for &i in wanted {
                 if rows.get(i) != self.groups.get(i).map(|g| g.rows).as_ref() {
-                    return Err(err(self.rec, None, "the file changed while it was read").into());
+                    return Err(err(self.rec, None, CalibrateErrorKind::FileChanged).into());
                 }
             }
             Ok(())
@@ -176,32 +176,32 @@ impl Engine<'_> {
             p.pieces_fitted = pilots.into_pieces(&all);
             let all = all.dense();
             let gs = self.group(p.index)?;
-            let fail = |e: String| {
+            let fail = |e: GroupError| {
                 err(
                     self.rec,
                     Some(gs.first_line),
-                    format!("condition {}: {e}", gs.condition.letter()),
+                    CalibrateErrorKind::Group {
+                        condition: gs.condition,
+                        source: e,
+                    },
                 )
             };
             // (`all` is gathered about p.fitted: it reaches it by construction.)
             if !p.moments.within(p.fitted, REACH_FIT) {
                 // The first expansion could not reach the rate: fit again from here.
                 p.four = moments::four_param(&all, p.fitted, CLOCK)
-                    .map_err(|e| fail(format!("rate fit: {e}")))?;
+                    .map_err(|e| fail(GroupError::RateFit(e)))?;
                 p.fitted = PhaseStep::from_hz(p.four.rate_hz, CLOCK)
-                    .ok_or_else(|| fail("fitted rate unusable".into()))?;
+                    .ok_or_else(|| fail(GroupError::FittedRate))?;
                 if !all.within(p.fitted, REACH_FIT) {
-                    return Err(fail(format!(
-                        "the rate fit moved {:.2e} rad over the record after a correcting pass: \
-                         the rate is not steady enough to fit",
-                        all.reach(p.fitted)
-                    ))
-                    .into());
+                    let reach = all.reach(p.fitted);
+                    return Err(fail(GroupError::Unsteady { reach }).into());
                 }
             }
             let flagged = flagged.map(|f| (f.rows() > 0).then_some(f));
             p.moments = all;
-            p.beta = moments::wide_betas(&p.moments, &flagged, p.fitted).map_err(fail)?;
+            p.beta =
+                moments::wide_betas(&p.moments, &flagged, p.fitted).map_err(|e| fail(e.into()))?;
         }
         Ok(())
     }
@@ -221,7 +221,17 @@ impl Engine<'_> {
         // shift between the two (rad/s).
         let mut sines = Vec::with_capacity(prepared.len());
         for p in prepared {
-            sines.push(sine_pair(p).map_err(|e| err(self.rec, None, e))?);
+            let gs = self.group(p.index)?;
+            sines.push(sine_pair(p).map_err(|e| {
+                err(
+                    self.rec,
+                    Some(gs.first_line),
+                    CalibrateErrorKind::Group {
+                        condition: gs.condition,
+                        source: e.into(),
+                    },
+                )
+            })?);
         }
         let fresh = || -> Vec<Residuals> {
             prepared
