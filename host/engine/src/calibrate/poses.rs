@@ -683,6 +683,15 @@ const fn o_index(j: usize) -> usize {
     9 + j
 }
 
+/// Index of coefficient a of channel j (S_j0, S_j1, S_j2, O_j) in (S row-major, O).
+const fn coef_index(j: usize, a: usize) -> usize {
+    if a < 3 {
+        s_index(j, a)
+    } else {
+        o_index(j)
+    }
+}
+
 /// The poses' design in (S row-major, O): row j of pose p is (g·ĝ_p in S_j's columns, 1
 /// in O_j's).
 fn design(poses: &[Pose], g: f64) -> Vec<Design> {
@@ -907,10 +916,9 @@ fn per_channel_parts(channels: &[ChannelFit; 3], se2: &[[f64; 3]]) -> Vec<CovPar
         .enumerate()
         .map(|(j, c)| {
             let mut theta = Cov12::zeros();
-            let idx = |a: usize| if a < 3 { s_index(j, a) } else { o_index(j) };
             for a in 0..4 {
                 for b in 0..4 {
-                    theta[(idx(a), idx(b))] = c.cov[a][b];
+                    theta[(coef_index(j, a), coef_index(j, b))] = c.cov[a][b];
                 }
             }
             let pose_cov = se2
@@ -929,6 +937,361 @@ fn per_channel_parts(channels: &[ChannelFit; 3], se2: &[[f64; 3]]) -> Vec<CovPar
             }
         })
         .collect()
+}
+
+/// The sum of the parts of a covariance.
+fn sum_of(parts: &[CovPart]) -> Cov12 {
+    parts.iter().fold(Cov12::zeros(), |a, c| a + c.theta)
+}
+
+/// What every step of [`fit`] reads: the poses, their design and noise, and the degrees
+/// of freedom.
+struct Problem<'a> {
+    poses: &'a [Pose],
+    /// Gravity, m/s².
+    g: f64,
+    opts: Options,
+    /// Each pose's row (g·ĝ, 1) of one channel's design.
+    x: Vec<[f64; 4]>,
+    /// Each pose mean's variance from its own noise, per channel ([`pose_se2`]).
+    se2: Vec<[f64; 3]>,
+    /// P − 4.
+    dof: usize,
+    /// Σ(n − 1) over the poses: the degrees of freedom of their noise.
+    noise_dof: f64,
+    /// Every pose has repeated readings.
+    all_repeated: bool,
+    /// The design's condition number and the pose that would help most, for the error.
+    cond: f64,
+    suggestion: &'a str,
+}
+
+impl Problem<'_> {
+    /// The error for a design too close to singular to solve.
+    fn singular(&self) -> PoseError {
+        PoseError::UnderDetermined {
+            poses: self.poses.len(),
+            cond: self.cond,
+            missing: self.suggestion.to_string(),
+        }
+    }
+
+    /// The channels u, v, w, each fitted alone.
+    fn fit_channels(&self) -> Result<[ChannelFit; 3], PoseError> {
+        let mut channels = Vec::with_capacity(3);
+        for j in 0..3 {
+            channels.push(self.fit_channel(j)?);
+        }
+        let [cu, cv, cw] = channels.as_slice() else {
+            return Err(self.singular());
+        };
+        Ok([*cu, *cv, *cw])
+    }
+
+    /// Channel j fitted alone to the pose means, weighted as the options say.
+    fn fit_channel(&self, j: usize) -> Result<ChannelFit, PoseError> {
+        let (x, dof, p) = (&self.x, self.dof, self.poses.len());
+        let y: Vec<f64> = self.poses.iter().map(|q| q.mean[j]).collect();
+        let se2: Vec<f64> = self.se2.iter().map(|v| v[j]).collect();
+        let ones = vec![1.0; p];
+        // Ordinary least squares: the equal-weights result, and the top of τ²'s bracket.
+        let ols = wls(x, &y, &ones).ok_or_else(|| self.singular())?;
+        let rss = ols.2;
+        let chi2_noise = if self.all_repeated && se2.iter().all(|v| *v > 0.0) && dof > 0 {
+            wls(x, &y, &se2).map_or(f64::NAN, |r| r.2 / dof as f64)
+        } else {
+            f64::NAN
+        };
+        let (coef, cov, tau2, nu) = match self.opts.weights {
+            Weights::Equal => {
+                let (beta, inv, _) = ols;
+                let s2 = rss / dof as f64;
+                // τ² here: what the scatter of the means has beyond their own noise.
+                let noise = se2.iter().sum::<f64>() / p as f64;
+                (beta, inv * s2, (s2 - noise).max(0.0), dof as f64)
+            }
+            Weights::RandomEffects => self.random_effects(&y, &se2, ols)?,
+        };
+        let mut c = [[0.0; 4]; 4];
+        for (a, row) in c.iter_mut().enumerate() {
+            for (b, v) in row.iter_mut().enumerate() {
+                *v = cov[(a, b)];
+            }
+        }
+        Ok(ChannelFit {
+            coef,
+            cov: c,
+            tau: tau2.sqrt(),
+            chi2_dof_noise_only: chi2_noise,
+            nu,
+            pose_var: match self.opts.weights {
+                Weights::Equal => Some(rss / dof as f64),
+                Weights::RandomEffects => None,
+            },
+        })
+    }
+
+    /// One channel's fit to the pose means `y` under the weights 1/(se² + τ²), from its
+    /// ordinary least-squares fit `ols`: τ² = 0 when the means agree within their noise,
+    /// else the τ² that brings χ² down to its degrees of freedom. Gives the coefficients,
+    /// their covariance, τ² and the degrees of freedom.
+    fn random_effects(
+        &self,
+        y: &[f64],
+        se2: &[f64],
+        ols: ([f64; 4], Matrix4<f64>, f64),
+    ) -> Result<([f64; 4], Matrix4<f64>, f64, f64), PoseError> {
+        let (x, dof) = (&self.x, self.dof);
+        let (ols_beta, ols_inv, rss) = ols;
+        let var = |t2: f64| se2.iter().map(|s| s + t2).collect::<Vec<f64>>();
+        let positive = se2.iter().all(|v| *v > 0.0);
+        let at_zero = if positive { wls(x, y, se2) } else { None };
+        match at_zero {
+            Some((beta, inv, chi2)) if dof == 0 || chi2 <= dof as f64 => {
+                Ok((beta, inv, 0.0, self.noise_dof))
+            }
+            _ if dof == 0 => Err(PoseError::NoUncertainty(self.poses.len())),
+            _ => {
+                // χ²(τ²) falls as τ² grows; at RSS/dof it is ≤ dof.
+                let top = rss / dof as f64;
+                if top > 0.0 {
+                    let chi2 = |t2: f64| wls(x, y, &var(t2)).map_or(0.0, |r| r.2);
+                    // Below 1e-9 of the top, τ² no longer matters (and poses of one
+                    // reading would get weights without bound).
+                    let (_, hi) = bracket(&chi2, dof as f64, (0.0, top), 200, 1e-9 * top);
+                    let (beta, inv, _) = wls(x, y, &var(hi)).ok_or_else(|| self.singular())?;
+                    Ok((beta, inv, hi, dof as f64))
+                } else {
+                    // Noise-free single readings: an exact fit.
+                    Ok((ols_beta, ols_inv * 0.0, 0.0, dof as f64))
+                }
+            }
+        }
+    }
+
+    /// The twelve parameters: the joint fit when it can be made, else the channels'
+    /// own fits. A note says why when the joint fit was tried and refused.
+    fn combine(&self, channels: &[ChannelFit; 3], notes: &mut Vec<String>) -> Combined {
+        // Repeated readings give each pose mean a known variance: then the three channels
+        // are fitted together, and the scatter beyond the noise is a tilt of each pose (one
+        // variance for all channels and poses, shaped by S and ĝ), not a variance per
+        // channel.
+        let joint_possible = self.opts.weights == Weights::RandomEffects
+            && self.all_repeated
+            && self.se2.iter().all(|v| v.iter().all(|x| *x > 0.0));
+        let s_first = channels.map(|c| [c.coef[0], c.coef[1], c.coef[2]]);
+        let joint = if joint_possible {
+            let j = joint_fit(
+                self.poses,
+                self.g,
+                &self.se2,
+                &s_first,
+                self.opts.u_angle_rad,
+                self.noise_dof,
+            );
+            if j.is_none() {
+                notes.push(format!(
+                    "the poses scatter about the model by more than their noise in a way a tilt of \
+                     up to {:.1}° does not explain: each channel's own scatter τ_j is used instead",
+                    TILT_MAX_RAD.to_degrees()
+                ));
+            }
+            j
+        } else {
+            None
+        };
+        match joint {
+            Some((fit, parts, t2, scale)) => {
+                Combined::joint(&fit, parts, t2, scale, self.poses.len())
+            }
+            None => Combined::per_channel(channels, &self.se2),
+        }
+    }
+}
+
+/// Each pose mean's variance from its own noise, per channel. A pose whose readings did
+/// not change at all in a channel (a quantised sensor held still) has se = 0, which is
+/// not a known variance: it gets the smallest standard error of the other poses.
+fn pose_se2(poses: &[Pose]) -> Vec<[f64; 3]> {
+    let mut se2 = vec![[0.0; 3]; poses.len()];
+    for j in 0..3 {
+        let floor = poses
+            .iter()
+            .map(|q| q.se()[j].powi(2))
+            .filter(|v| *v > 0.0)
+            .fold(f64::INFINITY, f64::min);
+        for (v, q) in se2.iter_mut().zip(poses) {
+            v[j] = match q.std {
+                Some(_) if floor.is_finite() => q.se()[j].powi(2).max(floor),
+                _ => 0.0,
+            };
+        }
+    }
+    se2
+}
+
+/// The twelve parameters (S row-major, O) as fitted, jointly or channel by channel, with
+/// the parts of their covariance.
+struct Combined {
+    theta: [f64; 12],
+    /// The sum of `parts`.
+    cov: Cov12,
+    parts: Vec<CovPart>,
+    scatter: Scatter,
+    /// χ²/dof of the joint fit.
+    chi2_dof: Option<f64>,
+    tilt_scale: Option<TiltScale>,
+    /// Fitted jointly (else each channel alone).
+    joint: bool,
+}
+
+impl Combined {
+    /// From the joint fit of `p` poses, with the tilt variance `t2` (rad²) it estimated.
+    fn joint(
+        fit: &Gls,
+        parts: Vec<CovPart>,
+        t2: f64,
+        tilt_scale: Option<TiltScale>,
+        p: usize,
+    ) -> Combined {
+        let dof3 = (3 * p).saturating_sub(12);
+        let chi2_dof = (dof3 > 0).then(|| fit.chi2 / dof3 as f64);
+        let scatter = if t2 > 0.0 {
+            Scatter::Tilt {
+                sd_deg: t2.sqrt().to_degrees(),
+            }
+        } else {
+            Scatter::None
+        };
+        let mut theta = [0.0; 12];
+        for (t, v) in theta.iter_mut().zip(fit.theta.iter()) {
+            *t = *v;
+        }
+        Combined {
+            theta,
+            cov: sum_of(&parts),
+            parts,
+            scatter,
+            chi2_dof,
+            tilt_scale,
+            joint: true,
+        }
+    }
+
+    /// From each channel's own fit (`se2`: each pose mean's noise variance per channel).
+    fn per_channel(channels: &[ChannelFit; 3], se2: &[[f64; 3]]) -> Combined {
+        let parts = per_channel_parts(channels, se2);
+        let mut theta = [0.0; 12];
+        for (j, c) in channels.iter().enumerate() {
+            for (a, v) in c.coef.iter().enumerate() {
+                theta[coef_index(j, a)] = *v;
+            }
+        }
+        let scatter = if channels.iter().any(|c| c.tau > 0.0) {
+            Scatter::PerChannel
+        } else {
+            Scatter::None
+        };
+        Combined {
+            theta,
+            cov: sum_of(&parts),
+            parts,
+            scatter,
+            chi2_dof: None,
+            tilt_scale: None,
+            joint: false,
+        }
+    }
+
+    /// How the parts combine into one quantity's variance ([`Weighing`]).
+    fn weighing(&self) -> Weighing<'_> {
+        Weighing {
+            parts: &self.parts,
+            tilt: self.tilt_scale.as_ref(),
+        }
+    }
+
+    /// Parameter i's variance and degrees of freedom.
+    fn var_nu(&self, i: usize) -> (f64, f64) {
+        self.weighing().total(|c| c.theta[(i, i)])
+    }
+
+    /// The channels as the joint fit has them: coefficients, covariance blocks, the
+    /// tilt's scatter in each channel (rms over the `p` poses) and degrees of freedom.
+    fn set_joint_channels(&self, channels: &mut [ChannelFit; 3], p: usize) {
+        let t2 = match self.scatter {
+            Scatter::Tilt { sd_deg } => sd_deg.to_radians().powi(2),
+            _ => 0.0,
+        };
+        for (j, c) in channels.iter_mut().enumerate() {
+            for a in 0..4 {
+                c.coef[a] = self.theta[coef_index(j, a)];
+                for b in 0..4 {
+                    c.cov[a][b] = self.cov[(coef_index(j, a), coef_index(j, b))];
+                }
+            }
+            // The unit tilt's covariance of each pose mean, T_p, is the tilt scale's.
+            let mean_tilt_var = self.tilt_scale.as_ref().map_or(0.0, |ts| {
+                t2 * ts.unit.pose_cov.iter().map(|m| m[(j, j)]).sum::<f64>() / p as f64
+            });
+            c.tau = mean_tilt_var.max(0.0).sqrt();
+            c.nu = [0, 1, 2, 3]
+                .map(|a| self.var_nu(coef_index(j, a)).1)
+                .into_iter()
+                .fold(f64::INFINITY, f64::min);
+        }
+    }
+}
+
+/// Why a stated table-angle uncertainty was not counted, when it was given and not.
+fn u_angle_note(poses: &[Pose], parts: &[CovPart], opts: Options) -> Option<&'static str> {
+    // Nothing to say when none was given.
+    opts.u_angle_rad?;
+    if poses.iter().all(|q| q.angle_direction.is_none()) {
+        Some(
+            "u_angle_deg was given but the poses are not table angles (it applies to stepped \
+             records)",
+        )
+    } else if !parts.iter().any(|c| c.source == PartSource::TableAngle) {
+        Some(
+            "u_angle_deg was given, but with each channel's scatter estimated from the poses \
+             (single readings, equal weights, or scatter a tilt does not explain) the angles' \
+             scatter is already part of it and is not counted again",
+        )
+    } else {
+        None
+    }
+}
+
+/// Pose mean minus the fitted model (design rows `x`), per pose and channel.
+fn residuals(poses: &[Pose], x: &[[f64; 4]], channels: &[ChannelFit; 3]) -> Vec<[f64; 3]> {
+    poses
+        .iter()
+        .zip(x)
+        .map(|(q, h)| {
+            [0, 1, 2].map(|j| q.mean[j] - (0..4).map(|a| h[a] * channels[j].coef[a]).sum::<f64>())
+        })
+        .collect()
+}
+
+/// The poses whose std in some channel exceeds [`NOT_STILL_FACTOR`] times the median
+/// pose's, in order of first appearance.
+fn not_still(poses: &[Pose]) -> Vec<String> {
+    let mut not_still = Vec::new();
+    for j in 0..3 {
+        let mut sds: Vec<f64> = poses.iter().filter_map(|q| q.std.map(|s| s[j])).collect();
+        sds.sort_by(f64::total_cmp);
+        if let Some(&med) = sds.get(sds.len() / 2) {
+            for q in poses {
+                if q.std.is_some_and(|s| s[j] > NOT_STILL_FACTOR * med)
+                    && !not_still.contains(&q.name)
+                {
+                    not_still.push(q.name.clone());
+                }
+            }
+        }
+    }
+    not_still
 }
 
 /// Fit S and O to the poses in gravity `g`.
@@ -951,212 +1314,29 @@ pub fn fit(poses: Vec<Pose>, g: f64, opts: Options) -> Result<PoseFit, PoseError
     if dof == 0 && (!all_repeated || opts.weights == Weights::Equal) {
         return Err(PoseError::NoUncertainty(p));
     }
-    let noise_dof: f64 = poses.iter().map(|q| q.n.saturating_sub(1) as f64).sum();
-    let singular = || PoseError::UnderDetermined {
-        poses: p,
+    let problem = Problem {
+        poses: &poses,
+        g,
+        opts,
+        x,
+        se2: pose_se2(&poses),
+        dof,
+        noise_dof: poses.iter().map(|q| q.n.saturating_sub(1) as f64).sum(),
+        all_repeated,
         cond,
-        missing: suggestion.clone(),
+        suggestion: &suggestion,
     };
-    // Each pose mean's variance from its own noise, per channel. A pose whose readings did
-    // not change at all in a channel (a quantised sensor held still) has se = 0, which is
-    // not a known variance: it gets the smallest standard error of the other poses.
-    let mut se2 = vec![[0.0; 3]; p];
-    for j in 0..3 {
-        let floor = poses
-            .iter()
-            .map(|q| q.se()[j].powi(2))
-            .filter(|v| *v > 0.0)
-            .fold(f64::INFINITY, f64::min);
-        for (v, q) in se2.iter_mut().zip(&poses) {
-            v[j] = match q.std {
-                Some(_) if floor.is_finite() => q.se()[j].powi(2).max(floor),
-                _ => 0.0,
-            };
-        }
-    }
-    let mut channels = Vec::with_capacity(3);
-    for j in 0..3 {
-        let y: Vec<f64> = poses.iter().map(|q| q.mean[j]).collect();
-        let se2: Vec<f64> = se2.iter().map(|v| v[j]).collect();
-        let ones = vec![1.0; p];
-        // Ordinary least squares: the equal-weights result, and the top of τ²'s bracket.
-        let (ols_beta, ols_inv, rss) = wls(&x, &y, &ones).ok_or_else(singular)?;
-        let chi2_noise = if all_repeated && se2.iter().all(|v| *v > 0.0) && dof > 0 {
-            wls(&x, &y, &se2).map_or(f64::NAN, |r| r.2 / dof as f64)
-        } else {
-            f64::NAN
-        };
-        let (coef, cov, tau2, nu) = match opts.weights {
-            Weights::Equal => {
-                let (beta, inv) = (ols_beta, ols_inv);
-                let s2 = rss / dof as f64;
-                // τ² here: what the scatter of the means has beyond their own noise.
-                let noise = se2.iter().sum::<f64>() / p as f64;
-                (beta, inv * s2, (s2 - noise).max(0.0), dof as f64)
-            }
-            Weights::RandomEffects => {
-                let var = |t2: f64| se2.iter().map(|s| s + t2).collect::<Vec<f64>>();
-                let positive = se2.iter().all(|v| *v > 0.0);
-                let at_zero = if positive { wls(&x, &y, &se2) } else { None };
-                match at_zero {
-                    Some((beta, inv, chi2)) if dof == 0 || chi2 <= dof as f64 => {
-                        (beta, inv, 0.0, noise_dof)
-                    }
-                    _ if dof == 0 => return Err(PoseError::NoUncertainty(p)),
-                    _ => {
-                        // χ²(τ²) falls as τ² grows; at RSS/dof it is ≤ dof.
-                        let top = rss / dof as f64;
-                        if top > 0.0 {
-                            let chi2 = |t2: f64| wls(&x, &y, &var(t2)).map_or(0.0, |r| r.2);
-                            // Below 1e-9 of the top, τ² no longer matters (and poses of one
-                            // reading would get weights without bound).
-                            let (_, hi) = bracket(&chi2, dof as f64, (0.0, top), 200, 1e-9 * top);
-                            let (beta, inv, _) = wls(&x, &y, &var(hi)).ok_or_else(singular)?;
-                            (beta, inv, hi, dof as f64)
-                        } else {
-                            // Noise-free single readings: an exact fit.
-                            (ols_beta, ols_inv * 0.0, 0.0, dof as f64)
-                        }
-                    }
-                }
-            }
-        };
-        let mut c = [[0.0; 4]; 4];
-        for (a, row) in c.iter_mut().enumerate() {
-            for (b, v) in row.iter_mut().enumerate() {
-                *v = cov[(a, b)];
-            }
-        }
-        channels.push(ChannelFit {
-            coef,
-            cov: c,
-            tau: tau2.sqrt(),
-            chi2_dof_noise_only: chi2_noise,
-            nu,
-            pose_var: match opts.weights {
-                Weights::Equal => Some(rss / dof as f64),
-                Weights::RandomEffects => None,
-            },
-        });
-    }
-    let [cu, cv, cw] = channels.as_slice() else {
-        return Err(singular());
-    };
-    let mut channels = [*cu, *cv, *cw];
+    let mut channels = problem.fit_channels()?;
     let mut notes = Vec::new();
-    // Repeated readings give each pose mean a known variance: then the three channels are
-    // fitted together, and the scatter beyond the noise is a tilt of each pose (one
-    // variance for all channels and poses, shaped by S and ĝ), not a variance per channel.
-    let joint_possible = opts.weights == Weights::RandomEffects
-        && all_repeated
-        && se2.iter().all(|v| v.iter().all(|x| *x > 0.0));
-    let s_first = channels.map(|c| [c.coef[0], c.coef[1], c.coef[2]]);
-    let joint = if joint_possible {
-        let j = joint_fit(&poses, g, &se2, &s_first, opts.u_angle_rad, noise_dof);
-        if j.is_none() {
-            notes.push(format!(
-                "the poses scatter about the model by more than their noise in a way a tilt of \
-                 up to {:.1}° does not explain: each channel's own scatter τ_j is used instead",
-                TILT_MAX_RAD.to_degrees()
-            ));
-        }
-        j
-    } else {
-        None
-    };
-    let joint_used = joint.is_some();
-    let mut tilt_scale = None;
-    let (theta, cov, parts, scatter, chi2_dof) = match joint {
-        Some((fit, parts, t2, scale)) => {
-            tilt_scale = scale;
-            let dof3 = (3 * p).saturating_sub(12);
-            let chi2_dof = (dof3 > 0).then(|| fit.chi2 / dof3 as f64);
-            let scatter = if t2 > 0.0 {
-                Scatter::Tilt {
-                    sd_deg: t2.sqrt().to_degrees(),
-                }
-            } else {
-                Scatter::None
-            };
-            let mut theta = [0.0; 12];
-            for (t, v) in theta.iter_mut().zip(fit.theta.iter()) {
-                *t = *v;
-            }
-            let cov = parts.iter().fold(Cov12::zeros(), |a, c| a + c.theta);
-            (theta, cov, parts, scatter, chi2_dof)
-        }
-        None => {
-            let parts = per_channel_parts(&channels, &se2);
-            let cov = parts.iter().fold(Cov12::zeros(), |a, c| a + c.theta);
-            let mut theta = [0.0; 12];
-            for (j, c) in channels.iter().enumerate() {
-                for k in 0..3 {
-                    theta[s_index(j, k)] = c.coef[k];
-                }
-                theta[o_index(j)] = c.coef[3];
-            }
-            let scatter = if channels.iter().any(|c| c.tau > 0.0) {
-                Scatter::PerChannel
-            } else {
-                Scatter::None
-            };
-            (theta, cov, parts, scatter, None)
-        }
-    };
-    if opts.u_angle_rad.is_some() {
-        if poses.iter().all(|q| q.angle_direction.is_none()) {
-            notes.push(
-                "u_angle_deg was given but the poses are not table angles (it applies to stepped \
-                 records)"
-                    .into(),
-            );
-        } else if !parts.iter().any(|c| c.source == PartSource::TableAngle) {
-            notes.push(
-                "u_angle_deg was given, but with each channel's scatter estimated from the poses \
-                 (single readings, equal weights, or scatter a tilt does not explain) the angles' \
-                 scatter is already part of it and is not counted again"
-                    .into(),
-            );
-        }
+    let fitted = problem.combine(&channels, &mut notes);
+    notes.extend(u_angle_note(&poses, &fitted.parts, opts).map(String::from));
+    if fitted.joint {
+        fitted.set_joint_channels(&mut channels, p);
     }
-    // The channels as the joint fit has them: coefficients, covariance blocks, and the
-    // tilt's scatter in each channel (rms over the poses).
-    if joint_used {
-        let t2 = match scatter {
-            Scatter::Tilt { sd_deg } => sd_deg.to_radians().powi(2),
-            _ => 0.0,
-        };
-        for (j, c) in channels.iter_mut().enumerate() {
-            let idx = |a: usize| if a < 3 { s_index(j, a) } else { o_index(j) };
-            for a in 0..4 {
-                c.coef[a] = theta[idx(a)];
-                for b in 0..4 {
-                    c.cov[a][b] = cov[(idx(a), idx(b))];
-                }
-            }
-            // The unit tilt's covariance of each pose mean, T_p, is the tilt scale's.
-            let mean_tilt_var = tilt_scale.as_ref().map_or(0.0, |ts| {
-                t2 * ts.unit.pose_cov.iter().map(|m| m[(j, j)]).sum::<f64>() / p as f64
-            });
-            c.tau = mean_tilt_var.max(0.0).sqrt();
-        }
-    }
-    let residuals = poses
-        .iter()
-        .zip(&x)
-        .map(|(q, h)| {
-            [0, 1, 2].map(|j| q.mean[j] - (0..4).map(|a| h[a] * channels[j].coef[a]).sum::<f64>())
-        })
-        .collect();
-    // Every uncertainty below as the parts combine (Weighing).
-    let weigh = Weighing {
-        parts: &parts,
-        tilt: tilt_scale.as_ref(),
-    };
-    let theta_var_nu = |i: usize| weigh.total(|c| c.theta[(i, i)]);
+    let residuals = residuals(&poses, &problem.x, &channels);
     let offsets_joint = [0, 1, 2].map(|j| Estimate {
-        value: theta[o_index(j)],
-        std_unc: theta_var_nu(o_index(j)).0.max(0.0).sqrt(),
+        value: fitted.theta[o_index(j)],
+        std_unc: fitted.var_nu(o_index(j)).0.max(0.0).sqrt(),
     });
     let axis_poses = axis_poses(&poses);
     if opts.offsets == OffsetEstimator::AxisPairs {
@@ -1165,6 +1345,7 @@ pub fn fit(poses: Vec<Pose>, g: f64, opts: Options) -> Result<PoseFit, PoseError
         }
     }
     let axis_poses = axis_poses.ok();
+    let weigh = fitted.weighing();
     let offsets_axis_pairs = axis_poses.map(|ix| {
         [0, 1, 2].map(|j| Estimate {
             value: 0.5
@@ -1177,32 +1358,10 @@ pub fn fit(poses: Vec<Pose>, g: f64, opts: Options) -> Result<PoseFit, PoseError
     });
     let k = coverage_factor(
         (0..12)
-            .map(|i| theta_var_nu(i).1)
+            .map(|i| fitted.var_nu(i).1)
             .fold(f64::INFINITY, f64::min),
     );
-    if joint_used {
-        for (j, c) in channels.iter_mut().enumerate() {
-            c.nu = [s_index(j, 0), s_index(j, 1), s_index(j, 2), o_index(j)]
-                .map(|i| theta_var_nu(i).1)
-                .into_iter()
-                .fold(f64::INFINITY, f64::min);
-        }
-    }
-    // Stillness: each channel's std against the median pose's.
-    let mut not_still = Vec::new();
-    for j in 0..3 {
-        let mut sds: Vec<f64> = poses.iter().filter_map(|q| q.std.map(|s| s[j])).collect();
-        sds.sort_by(f64::total_cmp);
-        if let Some(&med) = sds.get(sds.len() / 2) {
-            for q in &poses {
-                if q.std.is_some_and(|s| s[j] > NOT_STILL_FACTOR * med)
-                    && !not_still.contains(&q.name)
-                {
-                    not_still.push(q.name.clone());
-                }
-            }
-        }
-    }
+    let not_still = not_still(&poses);
     Ok(PoseFit {
         poses,
         channels,
@@ -1217,13 +1376,13 @@ pub fn fit(poses: Vec<Pose>, g: f64, opts: Options) -> Result<PoseFit, PoseError
         offsets_axis_pairs,
         options: opts,
         not_still,
-        cov,
-        parts,
-        scatter,
-        chi2_dof,
+        cov: fitted.cov,
+        parts: fitted.parts,
+        scatter: fitted.scatter,
+        chi2_dof: fitted.chi2_dof,
         axis_poses,
         notes,
-        tilt_scale,
+        tilt_scale: fitted.tilt_scale,
     })
 }
 
