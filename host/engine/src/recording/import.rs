@@ -264,63 +264,97 @@ pub fn import<W: Write>(
     out: W,
 ) -> Result<Counts, ImportError> {
     let c = &spec.columns;
-    let whole = |message: String| ImportError {
-        source_name: "import".into(),
-        line: None,
-        message,
-    };
+    let whole = |message: String| ImportError::at("import", None, message);
     // Neither conditions nor a section list: a free recording (still poses of unknown
     // orientation, found by `calibrate --method free`).
     let free = c.condition.is_none()
         && spec.poses.is_none()
         && spec.conditions.is_empty()
         && c.angle.is_none();
-    if free && (inputs.len() != 1 || c.t.is_none()) {
-        return Err(whole(
+    check_spec(spec, inputs.len(), free).map_err(whole)?;
+    let mut meta = spec.meta.clone();
+    meta.method = meta.method.or(Some(method(spec, free)));
+    let mut w = Writer::new(out, &meta, &columns(spec)).map_err(|e| whole(e.to_string()))?;
+    let mut importer = Importer {
+        spec,
+        free,
+        last_t: Vec::new(),
+        per_pose: vec![0usize; spec.poses.as_ref().map_or(0, |p| p.map.len())],
+        data_row: 0,
+    };
+    let mut counts = Counts::default();
+    for (k, (name, reader)) in inputs.into_iter().enumerate() {
+        let n = importer.input(k, &name, reader, &mut w)?;
+        counts.rows.push(n);
+    }
+    w.flush().map_err(|e| whole(e.to_string()))?;
+    if let Some(p) = &spec.poses {
+        counts.poses = p
+            .map
+            .iter()
+            .map(|m| m.0.clone())
+            .zip(importer.per_pose)
+            .collect();
+        counts.skipped_sections = p
+            .sections
+            .iter()
+            .filter(|s| !p.map.iter().any(|m| m.0 == s.0))
+            .map(|s| s.0.clone())
+            .collect();
+    }
+    Ok(counts)
+}
+
+/// Refuse a spec that does not fit its `inputs` inputs (`free`: imported as a free
+/// recording), before anything is written.
+fn check_spec(spec: &ImportSpec, inputs: usize, free: bool) -> Result<(), String> {
+    let c = &spec.columns;
+    if free && (inputs != 1 || c.t.is_none()) {
+        return Err(
             "without conditions or a section list the input is imported as a free recording \
              (method free), which needs one input with a time column (t=)"
                 .into(),
+        );
+    }
+    if !free && c.condition.is_none() && spec.poses.is_none() && spec.conditions.len() != inputs {
+        return Err(format!(
+            "{inputs} input(s) but {} condition(s): give one --condition per input, or a condition column",
+            spec.conditions.len()
         ));
     }
-    if !free
-        && c.condition.is_none()
-        && spec.poses.is_none()
-        && spec.conditions.len() != inputs.len()
-    {
-        return Err(whole(format!(
-            "{} input(s) but {} condition(s): give one --condition per input, or a condition column",
-            inputs.len(),
-            spec.conditions.len()
-        )));
-    }
     if !(spec.time_scale.is_finite() && spec.time_scale > 0.0) {
-        return Err(whole("--time-scale must be positive".into()));
+        return Err("--time-scale must be positive".into());
     }
     if let Some(p) = &spec.poses {
-        if inputs.len() != 1 {
-            return Err(whole(format!(
-                "a section list describes one input; {} given",
-                inputs.len()
-            )));
+        if inputs != 1 {
+            return Err(format!(
+                "a section list describes one input; {inputs} given"
+            ));
         }
         if c.condition.is_some() || c.angle.is_some() || !spec.conditions.is_empty() {
-            return Err(whole(
+            return Err(
                 "with a section list, poses replace conditions and angles: give neither a \
                  condition nor an angle (column or --condition)"
                     .into(),
-            ));
+            );
         }
         if let Some((name, _)) = p
             .map
             .iter()
             .find(|(n, _)| !p.sections.iter().any(|s| &s.0 == n))
         {
-            return Err(whole(format!(
+            return Err(format!(
                 "the pose map names '{name}', which the section list lacks"
-            )));
+            ));
         }
     }
-    let columns = Columns {
+    Ok(())
+}
+
+/// The columns the recording gets from the column map and the section list.
+fn columns(spec: &ImportSpec) -> Columns {
+    let c = &spec.columns;
+    Columns {
         t_s: c.t.is_some(),
         angle_deg: c.angle.is_some(),
         seq: c.seq.is_some(),
@@ -330,33 +364,97 @@ pub fn import<W: Write>(
         pose: spec.poses.is_some(),
         unc: false,
         conv_gaps: false,
-    };
-    let mut meta = spec.meta.clone();
-    meta.method = meta.method.or(Some(if free {
+    }
+}
+
+/// The recording's method when the metadata does not give one (`free`: imported as a
+/// free recording).
+fn method(spec: &ImportSpec, free: bool) -> Method {
+    if free {
         Method::Free
     } else if spec.poses.is_some() {
         Method::Static
-    } else if c.t.is_some() {
+    } else if spec.columns.t.is_some() {
         Method::Rotation
     } else {
         Method::Static
-    }));
-    let mut w = Writer::new(out, &meta, &columns).map_err(|e| whole(e.to_string()))?;
-    let mut counts = Counts::default();
-    let mut last_t: Vec<(Condition, f64)> = Vec::new();
-    // With a section list: rows per mapped section, and the data-row position.
-    let mut per_pose = vec![0usize; spec.poses.as_ref().map_or(0, |p| p.map.len())];
-    let mut data_row = 0usize;
-    for (k, (name, reader)) in inputs.into_iter().enumerate() {
+    }
+}
+
+impl ImportError {
+    /// `message` about `line` of `source` (`None`: about the whole of it).
+    fn at(source: &str, line: Option<usize>, message: String) -> ImportError {
+        ImportError {
+            source_name: source.to_string(),
+            line,
+            message,
+        }
+    }
+}
+
+/// One data line's fields, and where the line is (for its errors).
+struct Line<'a> {
+    source: &'a str,
+    /// 1-based.
+    lineno: usize,
+    fields: Vec<&'a str>,
+}
+
+impl<'a> Line<'a> {
+    /// `message` about this line.
+    fn err(&self, message: String) -> ImportError {
+        ImportError::at(self.source, Some(self.lineno), message)
+    }
+
+    /// Field `idx`, which holds `what`.
+    fn field(&self, idx: usize, what: &str) -> Result<&'a str, ImportError> {
+        self.fields.get(idx).copied().ok_or_else(|| {
+            self.err(format!(
+                "no field {idx} for {what}: the line has {} fields",
+                self.fields.len()
+            ))
+        })
+    }
+
+    /// Field `idx`, which holds `what`, as a finite number.
+    fn num(&self, idx: usize, what: &str) -> Result<f64, ImportError> {
+        let f = self.field(idx, what)?;
+        match f.parse::<f64>() {
+            Ok(x) if x.is_finite() => Ok(x),
+            _ => Err(self.err(format!("{what} (field {idx}) '{f}' is not a finite number"))),
+        }
+    }
+}
+
+/// Reads the inputs' lines into rows, carrying over what a line is checked against or
+/// counted in.
+struct Importer<'s> {
+    spec: &'s ImportSpec,
+    /// Imported as a free recording.
+    free: bool,
+    /// Each condition's last time: time must not go backwards.
+    last_t: Vec<(Condition, f64)>,
+    /// With a section list: rows per mapped section, in map order.
+    per_pose: Vec<usize>,
+    /// With a section list: the data-row position.
+    data_row: usize,
+}
+
+impl<'s> Importer<'s> {
+    /// Input `k`'s data lines, named `name`, written to `w`: how many there were.
+    fn input<W: Write>(
+        &mut self,
+        k: usize,
+        name: &str,
+        reader: Box<dyn BufRead + '_>,
+        w: &mut Writer<W>,
+    ) -> Result<usize, ImportError> {
+        let spec = self.spec;
         let mut n = 0;
         for (i, line) in reader.lines().enumerate() {
             let lineno = i + 1;
-            let err = |message: String| ImportError {
-                source_name: name.clone(),
-                line: Some(lineno),
-                message,
-            };
-            let line = line.map_err(|e| err(format!("cannot read: {e}")))?;
+            let line =
+                line.map_err(|e| ImportError::at(name, Some(lineno), format!("cannot read: {e}")))?;
             let trimmed = line.trim();
             if i < spec.skip || trimmed.is_empty() || trimmed.starts_with('#') {
                 continue;
@@ -364,118 +462,115 @@ pub fn import<W: Write>(
             // The pose of this data row, if a section list is given.
             let mut pose: Option<(&str, [f64; 3], usize)> = None;
             if let Some(p) = &spec.poses {
-                let at = data_row;
-                data_row += 1;
+                let at = self.data_row;
+                self.data_row += 1;
                 let section = p.sections.iter().find(|s| (s.1..s.2).contains(&at));
                 match section.and_then(|s| p.map.iter().enumerate().find(|(_, m)| m.0 == s.0)) {
                     Some((mi, (pname, g))) => pose = Some((pname.as_str(), *g, mi)),
                     None => continue,
                 }
             }
-            let fields = split(trimmed);
-            let field = |idx: usize, what: &str| -> Result<&str, ImportError> {
-                fields.get(idx).copied().ok_or_else(|| {
-                    err(format!(
-                        "no field {idx} for {what}: the line has {} fields",
-                        fields.len()
-                    ))
-                })
+            let data = Line {
+                source: name,
+                lineno,
+                fields: split(trimmed),
             };
-            let num = |idx: usize, what: &str| -> Result<f64, ImportError> {
-                let f = field(idx, what)?;
-                match f.parse::<f64>() {
-                    Ok(x) if x.is_finite() => Ok(x),
-                    _ => Err(err(format!(
-                        "{what} (field {idx}) '{f}' is not a finite number"
-                    ))),
-                }
-            };
-            let condition = match c.condition {
-                _ if pose.is_some() || free => Condition::X,
-                Some(idx) => {
-                    let f = field(idx, "condition")?;
-                    let mut chars = f.chars();
-                    match (chars.next().and_then(Condition::from_letter), chars.next()) {
-                        (Some(c), None) => c,
-                        _ => return Err(err(format!("condition '{f}': expected x, y or z"))),
-                    }
-                }
-                None => *spec
-                    .conditions
-                    .get(k)
-                    .ok_or_else(|| err("no condition for this input".into()))?,
-            };
-            let mut row = Row::new(condition, num(c.u, "u")?, num(c.v, "v")?, num(c.w, "w")?);
-            if let Some(idx) = c.t {
-                let t = num(idx, "t")? * spec.time_scale;
-                match last_t.iter_mut().find(|(cd, _)| *cd == condition) {
-                    Some((_, prev)) if t < *prev => {
-                        return Err(err(match pose {
-                            Some(_) => format!("time went backwards: {t} s after {prev} s"),
-                            None => format!(
-                                "time went backwards in condition {}: {t} s after {prev} s",
-                                condition.letter()
-                            ),
-                        }))
-                    }
-                    Some((_, prev)) => *prev = t,
-                    None => last_t.push((condition, t)),
-                }
-                row.t_s = Some(t);
-            }
-            if let Some(idx) = c.angle {
-                row.angle_deg = Some(num(idx, "angle")?);
-            }
-            if let Some(idx) = c.temp {
-                row.temp_c = Some(num(idx, "temp")?);
-            }
-            if let Some(idx) = c.seq {
-                let f = field(idx, "seq")?;
-                row.seq =
-                    Some(f.parse().map_err(|_| {
-                        err(format!("seq (field {idx}) '{f}' is not a whole number"))
-                    })?);
-            }
-            if let Some((pname, g, mi)) = pose {
-                row.pose = Some(pname);
-                row.gravity = Some(g);
-                if let Some(c) = per_pose.get_mut(mi) {
-                    *c += 1;
-                }
-            }
-            w.write_row(&row).map_err(|e| err(e.to_string()))?;
+            let row = self.row(k, &data, pose)?;
+            w.write_row(&row).map_err(|e| data.err(e.to_string()))?;
             n += 1;
         }
         if let Some(p) = &spec.poses {
-            if let Some(s) = p.sections.iter().find(|s| s.2 > data_row) {
-                return Err(ImportError {
-                    source_name: name,
-                    line: None,
-                    message: format!(
-                        "section '{}' ends at data row {} (exclusive), but the input has only {data_row} data rows",
-                        s.0, s.2
+            if let Some(s) = p.sections.iter().find(|s| s.2 > self.data_row) {
+                return Err(ImportError::at(
+                    name,
+                    None,
+                    format!(
+                        "section '{}' ends at data row {} (exclusive), but the input has only {} data rows",
+                        s.0, s.2, self.data_row
                     ),
-                });
+                ));
             }
         }
         if n == 0 {
-            return Err(ImportError {
-                source_name: name,
-                line: None,
-                message: "no data lines".into(),
-            });
+            return Err(ImportError::at(name, None, "no data lines".into()));
         }
-        counts.rows.push(n);
+        Ok(n)
     }
-    w.flush().map_err(|e| whole(e.to_string()))?;
-    if let Some(p) = &spec.poses {
-        counts.poses = p.map.iter().map(|m| m.0.clone()).zip(per_pose).collect();
-        counts.skipped_sections = p
-            .sections
-            .iter()
-            .filter(|s| !p.map.iter().any(|m| m.0 == s.0))
-            .map(|s| s.0.clone())
-            .collect();
+
+    /// The row of data line `line` of input `k` (`pose`: its pose's name, ĝ and place in
+    /// the map, with a section list).
+    fn row(
+        &mut self,
+        k: usize,
+        line: &Line<'_>,
+        pose: Option<(&'s str, [f64; 3], usize)>,
+    ) -> Result<Row<'s>, ImportError> {
+        let c = &self.spec.columns;
+        let condition = self.condition(k, line, pose.is_some())?;
+        let mut row = Row::new(
+            condition,
+            line.num(c.u, "u")?,
+            line.num(c.v, "v")?,
+            line.num(c.w, "w")?,
+        );
+        if let Some(idx) = c.t {
+            let t = line.num(idx, "t")? * self.spec.time_scale;
+            match self.last_t.iter_mut().find(|(cd, _)| *cd == condition) {
+                Some((_, prev)) if t < *prev => {
+                    return Err(line.err(match pose {
+                        Some(_) => format!("time went backwards: {t} s after {prev} s"),
+                        None => format!(
+                            "time went backwards in condition {}: {t} s after {prev} s",
+                            condition.letter()
+                        ),
+                    }))
+                }
+                Some((_, prev)) => *prev = t,
+                None => self.last_t.push((condition, t)),
+            }
+            row.t_s = Some(t);
+        }
+        if let Some(idx) = c.angle {
+            row.angle_deg = Some(line.num(idx, "angle")?);
+        }
+        if let Some(idx) = c.temp {
+            row.temp_c = Some(line.num(idx, "temp")?);
+        }
+        if let Some(idx) = c.seq {
+            let f = line.field(idx, "seq")?;
+            row.seq =
+                Some(f.parse().map_err(|_| {
+                    line.err(format!("seq (field {idx}) '{f}' is not a whole number"))
+                })?);
+        }
+        if let Some((pname, g, mi)) = pose {
+            row.pose = Some(pname);
+            row.gravity = Some(g);
+            if let Some(c) = self.per_pose.get_mut(mi) {
+                *c += 1;
+            }
+        }
+        Ok(row)
     }
-    Ok(counts)
+
+    /// The condition of data line `line` of input `k`: its column's letter, else the
+    /// input's condition; x for poses (`posed`) and free recordings, which have none.
+    fn condition(&self, k: usize, line: &Line<'_>, posed: bool) -> Result<Condition, ImportError> {
+        let spec = self.spec;
+        Ok(match spec.columns.condition {
+            _ if posed || self.free => Condition::X,
+            Some(idx) => {
+                let f = line.field(idx, "condition")?;
+                let mut chars = f.chars();
+                match (chars.next().and_then(Condition::from_letter), chars.next()) {
+                    (Some(c), None) => c,
+                    _ => return Err(line.err(format!("condition '{f}': expected x, y or z"))),
+                }
+            }
+            None => *spec
+                .conditions
+                .get(k)
+                .ok_or_else(|| line.err("no condition for this input".into()))?,
+        })
+    }
 }
