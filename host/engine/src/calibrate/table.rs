@@ -4,8 +4,10 @@
 //! calibration JSON it summarises, so the table and the file cannot disagree.
 
 use super::budget::{Budget, Kind};
-use super::json::{self, CalibrationJson, NoiseJson};
+use super::json::{self, CalibrationJson, FreeJson, NoiseJson, PosesJson, RateJson};
+use super::methods::McSummary;
 use super::poses;
+use std::collections::BTreeMap;
 use std::fmt::Write as _;
 
 fn render_poses(p: &json::PosesJson, units: &str) -> String {
@@ -169,7 +171,6 @@ pub fn decimals(u: f64) -> usize {
 /// The terminal table: value ± U (k = 2) with units, U to two significant digits.
 pub fn render(c: &CalibrationJson) -> String {
     let mut o = String::new();
-    let su = format!("{} per m/s²", c.units);
     let _ = writeln!(
         o,
         "method {}, g_loc = {} m/s²; ± is the expanded uncertainty U (95 %, k = 2 unless stated; k from the\n\
@@ -177,162 +178,219 @@ pub fn render(c: &CalibrationJson) -> String {
         c.method, c.g_loc
     );
     for r in &c.by_rate {
-        let rate = r
-            .rate_hz
-            .map(|f| format!("rotation at {f} Hz"))
-            .unwrap_or_else(|| {
-                if r.free.is_some() {
-                    "free poses (unknown orientation)".into()
-                } else {
-                    "static".into()
-                }
-            });
-        let _ = writeln!(o, "\n{rate}");
-        if let Some(f) = &r.free {
-            let found: usize = f.detection.iter().map(|d| d.intervals.len()).sum();
-            let _ = writeln!(
-                o,
-                "  {} poses fitted of {found} still intervals found (JSON free.detection); \
-                 χ² = {:.1} on {} degrees of freedom, τ = {:.2e} m/s², condition number {:.1}",
-                f.poses.len(),
-                f.chi2,
-                f.dof,
-                f.tau_ms2,
-                f.condition_number
-            );
-            for d in &f.detection {
-                for i in d
-                    .intervals
-                    .iter()
-                    .filter(|i| i.interval.verdict != crate::calibrate::still::Verdict::Kept)
-                {
-                    let _ = writeln!(
-                        o,
-                        "  left out: {} ({:.2}–{:.2} s): {}",
-                        i.interval.name, i.interval.span_s.0, i.interval.span_s.1, i.reason
-                    );
-                }
-            }
-            if let Some(s) = &f.suggestion {
-                let _ = writeln!(o, "  badly conditioned: add poses with gravity near {s}");
-            }
-        }
-        if let Some(p) = &r.poses {
-            if (p.k - json::K).abs() > 1e-12 {
-                let nu = p.nu.iter().fold(f64::INFINITY, |a, b| a.min(*b));
-                let why = match p.scatter {
-                    poses::Scatter::PerChannel => format!(
-                        "the poses' scatter about the model, estimated from {} poses − 4",
-                        p.list.len()
-                    ),
-                    _ if p.chi2_dof_joint.is_some() => format!(
-                        "the poses' scatter in the joint fit, 3 × {} poses − 12",
-                        p.list.len()
-                    ),
-                    _ => "the readings' scatter within the poses".to_string(),
-                };
-                let _ = writeln!(o, "  k = {:.2}: Student's t for ν = {nu} ({why})", p.k);
-            }
-        }
-        let q = |name: &str, x: &json::Quantity, unit: &str| {
-            let d = decimals(x.expanded_unc);
-            let k = if (x.k - json::K).abs() > 1e-12 {
-                format!(" (k = {:.2})", x.k)
+        o += &render_rate(r, &c.units);
+    }
+    o
+}
+
+/// One entry of `by_rate`, its readings in `units`: every part its JSON has, in order.
+fn render_rate(r: &RateJson, units: &str) -> String {
+    let mut o = String::new();
+    let _ = writeln!(o, "\n{}", rate_title(r));
+    if let Some(f) = &r.free {
+        o += &render_free(f);
+    }
+    if let Some(p) = &r.poses {
+        o += &render_k(p);
+    }
+    let su = format!("{units} per m/s²");
+    o += &render_uvw("s", &r.intrinsic.sensitivity, &su);
+    o += &render_angles(&r.intrinsic.angle_deg);
+    if let Some(off) = &r.intrinsic.offset {
+        o += &render_uvw("O", off, units);
+    }
+    if let Some(b) = &r.uncertainty_budget {
+        o += &render_budget(b);
+    }
+    if let Some(n) = &r.noise {
+        o += &render_noise(n);
+    }
+    if let Some(p) = &r.poses {
+        o += &render_poses(p, units);
+    }
+    if let Some(cj) = &r.correction {
+        o += &render_correction(cj);
+    }
+    if let Some(p) = &r.angle_deg_phase_method {
+        let _ = writeln!(
+            o,
+            "  phase-difference angles (seed 000 eqs. 12–16, for comparison; biased when tilted):"
+        );
+        o += &render_angles(p);
+    }
+    if let Some(mc) = &r.monte_carlo {
+        o += &render_monte_carlo(r, mc);
+    }
+    o + &render_fitted_rates(&r.fits)
+}
+
+/// What one entry of `by_rate` is: a rotation rate, static or free poses.
+fn rate_title(r: &RateJson) -> String {
+    r.rate_hz
+        .map(|f| format!("rotation at {f} Hz"))
+        .unwrap_or_else(|| {
+            if r.free.is_some() {
+                "free poses (unknown orientation)".into()
             } else {
-                String::new()
-            };
-            format!(
-                "  {name:<7} {:>16.d$} ± {:<12.d$} {unit}{k}\n",
-                x.value, x.expanded_unc
-            )
-        };
-        let s = &r.intrinsic.sensitivity;
-        let a = &r.intrinsic.angle_deg;
-        o += &q("s_u", &s.u, &su);
-        o += &q("s_v", &s.v, &su);
-        o += &q("s_w", &s.w, &su);
-        o += &q("φ_uv", &a.uv, "°");
-        o += &q("φ_vw", &a.vw, "°");
-        o += &q("φ_wu", &a.wu, "°");
-        if let Some(off) = &r.intrinsic.offset {
-            o += &q("O_u", &off.u, &c.units);
-            o += &q("O_v", &off.v, &c.units);
-            o += &q("O_w", &off.w, &c.units);
-        }
-        if let Some(b) = &r.uncertainty_budget {
-            o += &render_budget(b);
-        }
-        if let Some(n) = &r.noise {
-            o += &render_noise(n);
-        }
-        if let Some(p) = &r.poses {
-            o += &render_poses(p, &c.units);
-        }
-        if let Some(cj) = &r.correction {
-            let d = &cj.device_frame;
-            let _ = writeln!(
-                o,
-                "  correction a = M·(y − O) to m/s² (device frame; JSON 'correction'; rotacal apply/export):"
-            );
-            for (i, row) in d.matrix.iter().enumerate() {
-                let _ = writeln!(
-                    o,
-                    "    M[{i}] = [{:+.8} {:+.8} {:+.8}]  O[{i}] = {:+.6} {}",
-                    row[0], row[1], row[2], d.offset[i], cj.units_in
-                );
+                "static".into()
             }
-        }
-        if let Some(p) = &r.angle_deg_phase_method {
-            let _ = writeln!(o, "  phase-difference angles (seed 000 eqs. 12–16, for comparison; biased when tilted):");
-            o += &q("φ_uv", &p.uv, "°");
-            o += &q("φ_vw", &p.vw, "°");
-            o += &q("φ_wu", &p.wu, "°");
-        }
-        if let Some(mc) = &r.monte_carlo {
-            let _ = writeln!(
-                o,
-                "  Monte Carlo (GUM S1) check of the type-A term: standard uncertainty and 95 % interval"
-            );
-            // The draws are of the fits (or the pose fit) only: compare with the budget's
-            // type-A line, not with the combined uncertainty.
-            let type_a = r.uncertainty_budget.as_ref().and_then(|b| {
-                b.sources
-                    .iter()
-                    .find(|x| x.kind == Kind::A && (x.source == "fits" || x.source == "poses"))
-            });
-            for (i, (key, q)) in json::MC_KEYS
-                .iter()
-                .zip([&s.u, &s.v, &s.w, &a.uv, &a.vw, &a.wu])
-                .enumerate()
-            {
-                let linear = type_a
-                    .and_then(|x| x.contribution.get(i).copied())
-                    .unwrap_or(q.std_unc);
-                if let Some(m) = mc.get(*key) {
-                    let _ = writeln!(
-                        o,
-                        "  {key:<7} u = {:.6} (linear {:.6}), [{:.6}, {:.6}]",
-                        m.std_unc, linear, m.low_95, m.high_95
-                    );
-                }
-            }
-        }
-        let fitted: Vec<String> = r
-            .fits
+        })
+}
+
+/// The free poses' fit, the still intervals left out and a conditioning warning.
+fn render_free(f: &FreeJson) -> String {
+    let mut o = String::new();
+    let found: usize = f.detection.iter().map(|d| d.intervals.len()).sum();
+    let _ = writeln!(
+        o,
+        "  {} poses fitted of {found} still intervals found (JSON free.detection); \
+         χ² = {:.1} on {} degrees of freedom, τ = {:.2e} m/s², condition number {:.1}",
+        f.poses.len(),
+        f.chi2,
+        f.dof,
+        f.tau_ms2,
+        f.condition_number
+    );
+    for d in &f.detection {
+        for i in d
+            .intervals
             .iter()
-            .filter(|f| f.channel == "u")
-            .filter_map(|f| {
-                f.rate_hz_fitted
-                    .map(|h| format!("{} {h:.9} Hz", f.condition))
-            })
-            .collect();
-        if !fitted.is_empty() {
+            .filter(|i| i.interval.verdict != crate::calibrate::still::Verdict::Kept)
+        {
             let _ = writeln!(
                 o,
-                "  rate differs from nominal; fitted: {}",
-                fitted.join(", ")
+                "  left out: {} ({:.2}–{:.2} s): {}",
+                i.interval.name, i.interval.span_s.0, i.interval.span_s.1, i.reason
             );
         }
+    }
+    if let Some(s) = &f.suggestion {
+        let _ = writeln!(o, "  badly conditioned: add poses with gravity near {s}");
+    }
+    o
+}
+
+/// The pose fit's coverage factor and the degrees of freedom behind it, when it is not
+/// [`json::K`]; else nothing.
+fn render_k(p: &PosesJson) -> String {
+    let mut o = String::new();
+    if (p.k - json::K).abs() > 1e-12 {
+        let nu = p.nu.iter().fold(f64::INFINITY, |a, b| a.min(*b));
+        let why = match p.scatter {
+            poses::Scatter::PerChannel => format!(
+                "the poses' scatter about the model, estimated from {} poses − 4",
+                p.list.len()
+            ),
+            _ if p.chi2_dof_joint.is_some() => format!(
+                "the poses' scatter in the joint fit, 3 × {} poses − 12",
+                p.list.len()
+            ),
+            _ => "the readings' scatter within the poses".to_string(),
+        };
+        let _ = writeln!(o, "  k = {:.2}: Student's t for ν = {nu} ({why})", p.k);
+    }
+    o
+}
+
+/// One quantity's line: value ± U in `unit`, U to two significant digits, and k when it
+/// is not [`json::K`].
+fn render_quantity(name: &str, x: &json::Quantity, unit: &str) -> String {
+    let d = decimals(x.expanded_unc);
+    let k = if (x.k - json::K).abs() > 1e-12 {
+        format!(" (k = {:.2})", x.k)
+    } else {
+        String::new()
+    };
+    format!(
+        "  {name:<7} {:>16.d$} ± {:<12.d$} {unit}{k}\n",
+        x.value, x.expanded_unc
+    )
+}
+
+/// The lines of a quantity per channel, named `{symbol}_u`, `{symbol}_v`, `{symbol}_w`.
+fn render_uvw(symbol: &str, x: &json::Uvw, unit: &str) -> String {
+    render_quantity(&format!("{symbol}_u"), &x.u, unit)
+        + &render_quantity(&format!("{symbol}_v"), &x.v, unit)
+        + &render_quantity(&format!("{symbol}_w"), &x.w, unit)
+}
+
+/// The lines of the three angles between the channels, degrees.
+fn render_angles(a: &json::Pairs) -> String {
+    render_quantity("φ_uv", &a.uv, "°")
+        + &render_quantity("φ_vw", &a.vw, "°")
+        + &render_quantity("φ_wu", &a.wu, "°")
+}
+
+/// The correction matrix and offsets, one line per row.
+fn render_correction(cj: &json::CorrectionJson) -> String {
+    let mut o = String::new();
+    let d = &cj.device_frame;
+    let _ = writeln!(
+        o,
+        "  correction a = M·(y − O) to m/s² (device frame; JSON 'correction'; rotacal apply/export):"
+    );
+    for (i, row) in d.matrix.iter().enumerate() {
+        let _ = writeln!(
+            o,
+            "    M[{i}] = [{:+.8} {:+.8} {:+.8}]  O[{i}] = {:+.6} {}",
+            row[0], row[1], row[2], d.offset[i], cj.units_in
+        );
+    }
+    o
+}
+
+/// The Monte Carlo check `mc` of entry `r`: each property's standard uncertainty and 95 %
+/// interval beside the budget's linear type-A one.
+fn render_monte_carlo(r: &RateJson, mc: &BTreeMap<String, McSummary>) -> String {
+    let mut o = String::new();
+    let (s, a) = (&r.intrinsic.sensitivity, &r.intrinsic.angle_deg);
+    let _ = writeln!(
+        o,
+        "  Monte Carlo (GUM S1) check of the type-A term: standard uncertainty and 95 % interval"
+    );
+    // The draws are of the fits (or the pose fit) only: compare with the budget's
+    // type-A line, not with the combined uncertainty.
+    let type_a = r.uncertainty_budget.as_ref().and_then(|b| {
+        b.sources
+            .iter()
+            .find(|x| x.kind == Kind::A && (x.source == "fits" || x.source == "poses"))
+    });
+    for (i, (key, q)) in json::MC_KEYS
+        .iter()
+        .zip([&s.u, &s.v, &s.w, &a.uv, &a.vw, &a.wu])
+        .enumerate()
+    {
+        let linear = type_a
+            .and_then(|x| x.contribution.get(i).copied())
+            .unwrap_or(q.std_unc);
+        if let Some(m) = mc.get(*key) {
+            let _ = writeln!(
+                o,
+                "  {key:<7} u = {:.6} (linear {:.6}), [{:.6}, {:.6}]",
+                m.std_unc, linear, m.low_95, m.high_95
+            );
+        }
+    }
+    o
+}
+
+/// The rates fitted where they differ from nominal, one per condition; else nothing.
+fn render_fitted_rates(fits: &[json::FitJson]) -> String {
+    let mut o = String::new();
+    let fitted: Vec<String> = fits
+        .iter()
+        .filter(|f| f.channel == "u")
+        .filter_map(|f| {
+            f.rate_hz_fitted
+                .map(|h| format!("{} {h:.9} Hz", f.condition))
+        })
+        .collect();
+    if !fitted.is_empty() {
+        let _ = writeln!(
+            o,
+            "  rate differs from nominal; fitted: {}",
+            fitted.join(", ")
+        );
     }
     o
 }
