@@ -3,10 +3,12 @@
 
 use std::io::{self, BufReader, Read};
 
-use super::head::{Parser, Res};
+use super::head::{ColumnIndex, Parser, Res};
 use super::row::parse_row;
 use super::{shrink, GroupSink, Parse, Router};
-use crate::recording::{Group, Oriented, Recording, RecordingErrorKind, Series};
+use crate::recording::{
+    Group, Metadata, Method, Oriented, Recording, RecordingErrorKind, Row, Series,
+};
 
 // ---------------------------------------------------------------------------------------
 // Reader internals
@@ -39,6 +41,91 @@ impl<R: Read> Read for FinalNewline<R> {
             }
             _ => Ok(0),
         }
+    }
+}
+
+/// The rows of a file without conditions, as read: its poses (a `gx, gy, gz` file) or its
+/// continuous series (a free file). A file with conditions has neither.
+struct Collected {
+    oriented: Option<Oriented>,
+    series: Option<Series>,
+}
+
+impl Collected {
+    /// Nothing yet, with the optional columns `cols` has (`free`: a file without
+    /// conditions or orientations).
+    fn new(cols: &ColumnIndex, free: bool) -> Collected {
+        Collected {
+            series: free.then(|| Series {
+                t_s: Vec::new(),
+                y: Vec::new(),
+                pose: cols.pose.map(|_| Vec::new()),
+                seq: cols.seq.map(|_| Vec::new()),
+                temp_c: cols.temp_c.map(|_| Vec::new()),
+                line: Vec::new(),
+            }),
+            oriented: cols.gravity.map(|_| Oriented {
+                gravity: Vec::new(),
+                pose: cols.pose.map(|_| Vec::new()),
+                y: Vec::new(),
+                t_s: cols.t_s.map(|_| Vec::new()),
+                seq: cols.seq.map(|_| Vec::new()),
+                temp_c: cols.temp_c.map(|_| Vec::new()),
+                unc: cols.unc.map(|_| Vec::new()),
+                line: Vec::new(),
+            }),
+        }
+    }
+
+    /// Keeps `row`, of file line `line`, when the file's rows are poses or a series, and
+    /// says whether it did; a series' time must not go backwards.
+    fn take(&mut self, row: &Row<'_>, line: u64) -> Result<bool, RecordingErrorKind> {
+        if let (Some(o), Some(g)) = (self.oriented.as_mut(), row.gravity) {
+            o.gravity.push(g);
+            o.y.push([row.u, row.v, row.w]);
+            o.line.push(line);
+            if let (Some(v), Some(p)) = (o.pose.as_mut(), row.pose) {
+                v.push(p.to_string());
+            }
+            if let (Some(v), Some(t)) = (o.t_s.as_mut(), row.t_s) {
+                v.push(t);
+            }
+            if let (Some(v), Some(s)) = (o.seq.as_mut(), row.seq) {
+                v.push(s);
+            }
+            if let (Some(v), Some(t)) = (o.temp_c.as_mut(), row.temp_c) {
+                v.push(t);
+            }
+            if let (Some(v), Some(u)) = (o.unc.as_mut(), row.unc) {
+                v.push(u);
+            }
+            return Ok(true);
+        }
+        if let Some(s) = self.series.as_mut() {
+            let t = row.t_s.unwrap_or(f64::NAN);
+            if let Some(&prev) = s.t_s.last() {
+                if t < prev {
+                    return Err(RecordingErrorKind::TimeWentBackwardsFree {
+                        previous: prev,
+                        got: t,
+                    });
+                }
+            }
+            s.t_s.push(t);
+            s.y.push([row.u, row.v, row.w]);
+            s.line.push(line);
+            if let (Some(v), Some(p)) = (s.pose.as_mut(), row.pose) {
+                v.push(p.to_string());
+            }
+            if let (Some(v), Some(x)) = (s.seq.as_mut(), row.seq) {
+                v.push(x);
+            }
+            if let (Some(v), Some(x)) = (s.temp_c.as_mut(), row.temp_c) {
+                v.push(x);
+            }
+            return Ok(true);
+        }
+        Ok(false)
     }
 }
 
@@ -114,24 +201,7 @@ impl Parser<'_> {
         }
         sink.start(&meta, method, &cols);
         let mut router = Router::new(method);
-        let mut series = free.then(|| Series {
-            t_s: Vec::new(),
-            y: Vec::new(),
-            pose: cols.pose.map(|_| Vec::new()),
-            seq: cols.seq.map(|_| Vec::new()),
-            temp_c: cols.temp_c.map(|_| Vec::new()),
-            line: Vec::new(),
-        });
-        let mut oriented = cols.gravity.map(|_| Oriented {
-            gravity: Vec::new(),
-            pose: cols.pose.map(|_| Vec::new()),
-            y: Vec::new(),
-            t_s: cols.t_s.map(|_| Vec::new()),
-            seq: cols.seq.map(|_| Vec::new()),
-            temp_c: cols.temp_c.map(|_| Vec::new()),
-            unc: cols.unc.map(|_| Vec::new()),
-            line: Vec::new(),
-        });
+        let mut rows = Collected::new(&cols, free);
         while self.next(&mut rdr, &mut rec)? {
             if rec.len() != cols.n {
                 if is_blank(&rec) {
@@ -146,66 +216,28 @@ impl Parser<'_> {
                     },
                 ));
             }
-            let row = match parse_row(&rec, &cols, Parse::All) {
-                Ok(row) => row,
-                Err(kind) => return Err(self.err(Some(self.line_of(&rdr, &rec)), kind)),
-            };
-            if let (Some(o), Some(g)) = (oriented.as_mut(), row.gravity) {
-                o.gravity.push(g);
-                o.y.push([row.u, row.v, row.w]);
-                o.line.push(self.line_of(&rdr, &rec));
-                if let (Some(v), Some(p)) = (o.pose.as_mut(), row.pose) {
-                    v.push(p.to_string());
-                }
-                if let (Some(v), Some(t)) = (o.t_s.as_mut(), row.t_s) {
-                    v.push(t);
-                }
-                if let (Some(v), Some(s)) = (o.seq.as_mut(), row.seq) {
-                    v.push(s);
-                }
-                if let (Some(v), Some(t)) = (o.temp_c.as_mut(), row.temp_c) {
-                    v.push(t);
-                }
-                if let (Some(v), Some(u)) = (o.unc.as_mut(), row.unc) {
-                    v.push(u);
-                }
-                continue;
-            }
-            if let Some(s) = series.as_mut() {
-                let line = self.line_of(&rdr, &rec);
-                let t = row.t_s.unwrap_or(f64::NAN);
-                if let Some(&prev) = s.t_s.last() {
-                    if t < prev {
-                        return Err(self.err(
-                            Some(line),
-                            RecordingErrorKind::TimeWentBackwardsFree {
-                                previous: prev,
-                                got: t,
-                            },
-                        ));
-                    }
-                }
-                s.t_s.push(t);
-                s.y.push([row.u, row.v, row.w]);
-                s.line.push(line);
-                if let (Some(v), Some(p)) = (s.pose.as_mut(), row.pose) {
-                    v.push(p.to_string());
-                }
-                if let (Some(v), Some(x)) = (s.seq.as_mut(), row.seq) {
-                    v.push(x);
-                }
-                if let (Some(v), Some(x)) = (s.temp_c.as_mut(), row.temp_c) {
-                    v.push(x);
-                }
-                continue;
-            }
             let line = self.line_of(&rdr, &rec);
-            router
-                .route(&row, line, &cols, sink)
-                .map_err(|kind| self.err(Some(line), kind))?;
+            let at = |kind| self.err(Some(line), kind);
+            let row = parse_row(&rec, &cols, Parse::All).map_err(at)?;
+            if !rows.take(&row, line).map_err(at)? {
+                router.route(&row, line, &cols, sink).map_err(at)?;
+            }
         }
+        self.finish(meta, method, rows, &router).map(Some)
+    }
 
+    /// The recording once every row is read: the poses or the series collected, else
+    /// (the rows went to the sink) one without rows, once the router has checked its
+    /// groups are complete.
+    fn finish(
+        &self,
+        meta: Metadata,
+        method: Method,
+        rows: Collected,
+        router: &Router,
+    ) -> Res<Recording> {
         // Poses or a continuous series, when read as such, are the recording.
+        let Collected { oriented, series } = rows;
         let series = series.filter(|_| oriented.is_none());
         let rows = oriented
             .as_ref()
@@ -215,19 +247,16 @@ impl Parser<'_> {
             if n == 0 {
                 return Err(self.err(None, RecordingErrorKind::NoData));
             }
-            return Ok(Some(Recording {
-                source: self.source.to_string(),
-                meta,
-                method,
-                groups: Vec::new(),
+            return Ok(Recording {
                 oriented,
                 series,
-            }));
+                ..self.without_rows(meta, method)
+            });
         }
         router
             .finish(self.complete)
             .map_err(|kind| self.err(None, kind))?;
-        Ok(Some(self.without_rows(meta, method)))
+        Ok(self.without_rows(meta, method))
     }
 
     fn next<R: Read>(&self, rdr: &mut csv::Reader<R>, rec: &mut csv::ByteRecord) -> Res<bool> {
