@@ -272,11 +272,12 @@ pub fn run(seed: u64, dir: &Path, inject: Option<Inject>) -> anyhow::Result<Demo
     let mean_inv_count = inv_sum / rows.max(1) as f64;
     let log_text = std::fs::read_to_string(fits_path)?;
     let log =
-        crate::recording::from_device::read_fit_log(&log_text, &fits_path.display().to_string())
-            .map_err(anyhow::Error::msg)?;
-    let crosscheck =
-        crate::verify::recorded::crosscheck(&rec, &log, crate::verify::recorded::DEFAULT_THRESHOLD)
-            .map_err(anyhow::Error::msg)?;
+        crate::recording::from_device::read_fit_log(&log_text, &fits_path.display().to_string())?;
+    let crosscheck = crate::verify::recorded::crosscheck(
+        &rec,
+        &log,
+        crate::verify::recorded::DEFAULT_THRESHOLD,
+    )?;
     std::fs::write(
         dir.join("calibration.json"),
         serde_json::to_string_pretty(&calibration)? + "\n",
@@ -378,12 +379,7 @@ fn applied(d: &Demo) -> Option<Applied> {
     let s = &r.intrinsic.sensitivity;
     let (mut ss, mut n) = (0.0, 0.0);
     for f in &r.fits {
-        let sens = match f.channel.as_str() {
-            "u" => s.u.value,
-            "v" => s.v.value,
-            "w" => s.w.value,
-            _ => f64::NAN,
-        };
+        let sens = *f.channel.of(&[s.u.value, s.v.value, s.w.value]);
         ss += f.n as f64 * (f.rms_residual / sens).powi(2);
         n += f.n as f64;
     }

@@ -12,10 +12,13 @@
 )]
 pub enum Condition {
     /// Rotation about the platter's x axis.
+    #[cfg_attr(feature = "serde", serde(alias = "X"))]
     X,
     /// Rotation about the platter's y axis.
+    #[cfg_attr(feature = "serde", serde(alias = "Y"))]
     Y,
     /// Rotation about the platter's z axis.
+    #[cfg_attr(feature = "serde", serde(alias = "Z"))]
     Z,
 }
 
@@ -111,5 +114,28 @@ impl Channel {
             Channel::V => 'v',
             Channel::W => 'w',
         }
+    }
+
+    /// This channel's element of a per-channel array (no index to check).
+    pub const fn of<T>(self, per_channel: &[T; 3]) -> &T {
+        match self {
+            Channel::U => &per_channel[0],
+            Channel::V => &per_channel[1],
+            Channel::W => &per_channel[2],
+        }
+    }
+}
+
+impl core::fmt::Display for Condition {
+    /// The letter used in files.
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        write!(f, "{}", self.letter())
+    }
+}
+
+impl core::fmt::Display for Channel {
+    /// The letter used in files.
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        write!(f, "{}", self.letter())
     }
 }

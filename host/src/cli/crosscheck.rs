@@ -23,10 +23,8 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     let log_name = a.fit_log.display().to_string();
     let text =
         std::fs::read_to_string(&a.fit_log).map_err(|e| anyhow::anyhow!("{log_name}: {e}"))?;
-    let log = rotacal::recording::from_device::read_fit_log(&text, &log_name)
-        .map_err(anyhow::Error::msg)?;
-    let report = rotacal::verify::recorded::crosscheck(&rec, &log, a.threshold)
-        .map_err(anyhow::Error::msg)?;
+    let log = rotacal::recording::from_device::read_fit_log(&text, &log_name)?;
+    let report = rotacal::verify::recorded::crosscheck(&rec, &log, a.threshold)?;
     if let Some(path) = &a.json {
         std::fs::write(path, serde_json::to_string_pretty(&report)? + "\n")
             .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;

@@ -21,7 +21,7 @@ use crate::calibrate::{self, calibrate, CalibrateError, Options, CLOCK};
 use crate::fit::harmonics::{HarmonicSums, HARMONICS};
 use crate::recording::{Group, Method, Recording, Scanned};
 use plotters::prelude::*;
-use rotacal_shared::{PhaseStep, Ticks};
+use rotacal_shared::{Channel, Condition, PhaseStep, Ticks};
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
@@ -190,9 +190,9 @@ impl Series {
     }
 }
 
-fn coef(fits: &[FitJson], cond: char, ch: &str) -> Option<[f64; 3]> {
+fn coef(fits: &[FitJson], cond: Condition, ch: Channel) -> Option<[f64; 3]> {
     fits.iter()
-        .find(|f| f.condition.starts_with(cond) && f.channel == ch)
+        .find(|f| f.condition == cond && f.channel == ch)
         .map(|f| [f.a, f.b, f.c])
 }
 
@@ -204,13 +204,13 @@ struct GroupPlot {
 }
 
 impl GroupPlot {
-    fn new(cond: char, entry: &RateJson, rotation: bool) -> Result<Self, ReportError> {
-        let coefs = ["u", "v", "w"].map(|ch| coef(&entry.fits, cond, ch).unwrap_or([f64::NAN; 3]));
+    fn new(cond: Condition, entry: &RateJson, rotation: bool) -> Result<Self, ReportError> {
+        let coefs = Channel::ALL.map(|ch| coef(&entry.fits, cond, ch).unwrap_or([f64::NAN; 3]));
         let step = if rotation {
             let rate = entry
                 .fits
                 .iter()
-                .find(|f| f.condition.starts_with(cond))
+                .find(|f| f.condition == cond)
                 .and_then(|f| f.rate_hz_fitted)
                 .or(entry.rate_hz)
                 .unwrap_or(0.0);
@@ -274,7 +274,7 @@ fn series(rec: &Recording, g: &Group, entry: &RateJson) -> Result<Series, Report
         }
         Method::Static => false,
     };
-    let plot = GroupPlot::new(cond, entry, rotation)?;
+    let plot = GroupPlot::new(g.condition, entry, rotation)?;
     let (title, stem) = names(cond, entry.rate_hz);
     let mut s = Series::new(title, stem, x_label(rotation), rotation);
     let samples = if rotation {
@@ -647,7 +647,7 @@ fn streamed_series(
                 let made = entry.and_then(|i| {
                     let e = cal.by_rate.get(i)?;
                     let cond = condition.letter();
-                    match GroupPlot::new(cond, e, true) {
+                    match GroupPlot::new(condition, e, true) {
                         Ok(plot) => {
                             let (title, stem) = names(cond, e.rate_hz);
                             let list = out.get_mut(i)?;

@@ -12,6 +12,7 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, StandardNormal};
 use rotacal::fit::noise::{clipped, NoiseModel};
+use rotacal_shared::{Channel, Condition};
 use std::f64::consts::TAU;
 
 /// AR(1) noise of marginal sd `sd` and coefficient `rho`, started stationary.
@@ -203,7 +204,7 @@ fn calibrate_leaves_a_clipping_channel_out_of_its_noise() {
             n.channel,
             n.sd
         );
-        if n.channel == "u" && n.condition != "x" {
+        if n.channel == Channel::U && n.condition != Condition::X {
             clipped += n.n_excluded;
         }
     }

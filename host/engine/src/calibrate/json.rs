@@ -5,7 +5,9 @@
 use crate::calibrate::correction::Correction;
 use crate::calibrate::methods::{RotationCalibration, StaticCalibration};
 use crate::calibrate::poses::{self, OffsetEstimator, Weights};
+use crate::recording::Method;
 use rotacal_shared::intrinsic::Estimate;
+use rotacal_shared::{Channel, Condition};
 use serde::Serialize;
 
 /// Coverage factor of every expanded uncertainty.
@@ -271,9 +273,9 @@ pub struct MatrixJson {
 #[derive(Clone, Debug, Serialize)]
 pub struct FitJson {
     /// x, y or z.
-    pub condition: String,
+    pub condition: Condition,
     /// u, v or w.
-    pub channel: String,
+    pub channel: Channel,
     /// Coefficient of sin α.
     #[serde(rename = "A")]
     pub a: f64,
@@ -340,9 +342,9 @@ pub struct RateJson {
 #[derive(Clone, Debug, Serialize)]
 pub struct NoiseJson {
     /// x, y or z.
-    pub condition: String,
+    pub condition: Condition,
     /// u, v or w.
-    pub channel: String,
+    pub channel: Channel,
     /// How it was estimated.
     pub model: String,
     /// Standard deviation of one sample's noise, output units.
@@ -369,14 +371,14 @@ pub struct NoiseJson {
 impl NoiseJson {
     /// From a model; `omega` is the rotation's angle per sample (rad).
     pub fn new(
-        condition: char,
-        channel: char,
+        condition: Condition,
+        channel: Channel,
         m: &crate::fit::noise::NoiseModel,
         omega: f64,
     ) -> Self {
         NoiseJson {
-            condition: condition.to_string(),
-            channel: channel.to_string(),
+            condition,
+            channel,
             model: format!(
                 "AR({}) by Yule–Walker on the fit residuals, order by BIC (≤ {})",
                 m.order(),
@@ -408,8 +410,8 @@ pub fn mc_map(
 /// The whole file.
 #[derive(Clone, Debug, Serialize)]
 pub struct CalibrationJson {
-    /// "rotation" or "static".
-    pub method: String,
+    /// "rotation", "static" or "free".
+    pub method: Method,
     /// m/s².
     pub g_loc: f64,
     /// Output units.
@@ -489,11 +491,11 @@ pub fn static_entry(
     budget: &crate::calibrate::budget::Budget,
 ) -> RateJson {
     let mut fits = Vec::new();
-    for (cond, per_ch) in ['x', 'y', 'z'].iter().zip(cal.fits.iter().flatten()) {
-        for (ch, f) in ['u', 'v', 'w'].iter().zip(per_ch) {
+    for (condition, per_ch) in Condition::ALL.into_iter().zip(cal.fits.iter().flatten()) {
+        for (channel, f) in Channel::ALL.into_iter().zip(per_ch) {
             fits.push(FitJson {
-                condition: cond.to_string(),
-                channel: ch.to_string(),
+                condition,
+                channel,
                 a: f.coef[0],
                 b: f.coef[1],
                 c: f.coef[2],

@@ -108,7 +108,7 @@ impl Preflight {
     /// The calibration JSON of `by_rate` (one entry for the static and free methods).
     pub fn json(self, by_rate: Vec<json::RateJson>) -> CalibrationJson {
         CalibrationJson {
-            method: self.method.as_str().to_string(),
+            method: self.method,
             g_loc: self.g_loc,
             units: self.units,
             by_rate,

@@ -226,32 +226,40 @@ fn rotation_entry(
     Ok(entry)
 }
 
+/// The JSON `fits` of a condition: its three channels' sine fits.
 fn fit_json(f: &GroupFit) -> Vec<FitJson> {
-    ['u', 'v', 'w']
-        .iter()
-        .enumerate()
-        .map(|(ch, name)| FitJson {
-            condition: f.condition.letter().to_string(),
-            channel: name.to_string(),
-            a: f.coef(ch, Param::A),
-            b: f.coef(ch, Param::B),
-            c: f.coef(ch, Param::C),
-            se_a: f.std_unc(ch, 0),
-            se_b: f.std_unc(ch, 1),
-            se_c: f.std_unc(ch, 2),
-            n: u64::from(f.fit.n),
-            rms_residual: f.fit.channels[ch].rms_residual,
-            rate_hz_fitted: f.rate_fitted,
+    Channel::ALL
+        .map(|channel| {
+            let ch = channel.index();
+            FitJson {
+                condition: f.condition,
+                channel,
+                a: f.coef(ch, Param::A),
+                b: f.coef(ch, Param::B),
+                c: f.coef(ch, Param::C),
+                se_a: f.std_unc(ch, 0),
+                se_b: f.std_unc(ch, 1),
+                se_c: f.std_unc(ch, 2),
+                n: u64::from(f.fit.n),
+                rms_residual: channel.of(&f.fit.channels).rms_residual,
+                rate_hz_fitted: f.rate_fitted,
+            }
         })
-        .collect()
+        .into()
 }
 
+/// The JSON `noise` of a condition: its three channels' noise models.
 fn noise_json(f: &GroupFit) -> Vec<NoiseJson> {
-    ['u', 'v', 'w']
-        .iter()
-        .zip(&f.noise)
-        .map(|(name, m)| NoiseJson::new(f.condition.letter(), *name, m, f.omega_per_sample))
-        .collect()
+    Channel::ALL
+        .map(|channel| {
+            NoiseJson::new(
+                f.condition,
+                channel,
+                channel.of(&f.noise),
+                f.omega_per_sample,
+            )
+        })
+        .into()
 }
 
 /// Multi-rate rotation: each condition's C_j against ω² is a line whose intercept is the

@@ -7,6 +7,7 @@ use super::budget::{Budget, Kind};
 use super::json::{self, CalibrationJson, FreeJson, NoiseJson, PosesJson, RateJson};
 use super::methods::McSummary;
 use super::poses;
+use rotacal_shared::Channel;
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
 
@@ -379,7 +380,7 @@ fn render_fitted_rates(fits: &[json::FitJson]) -> String {
     let mut o = String::new();
     let fitted: Vec<String> = fits
         .iter()
-        .filter(|f| f.channel == "u")
+        .filter(|f| f.channel == Channel::U)
         .filter_map(|f| {
             f.rate_hz_fitted
                 .map(|h| format!("{} {h:.9} Hz", f.condition))

@@ -12,7 +12,7 @@
 
 use crate::recording::{Columns, Metadata, Row, Writer, TICK_HZ_KEY};
 use rotacal_shared::packet::{FitReport, Packet, QuickLook};
-use rotacal_shared::{Aperture, Ticks};
+use rotacal_shared::{Aperture, Condition, Ticks};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::io::{self, Write};
@@ -63,12 +63,12 @@ impl Channel {
 }
 
 /// One line of the fit log: a device fit report. It mirrors `packet::FitReport` field by
-/// field (rotacal-shared is no_std, without serde), with the standard errors widened to
-/// f64 and the device's tick rate added, so that the line stands alone.
+/// field (the packet types have no serde), with the standard errors widened to f64 and
+/// the device's tick rate added, so that the line stands alone.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct FitLine {
     /// x, y or z.
-    pub condition: char,
+    pub condition: Condition,
     /// At stop (true) or periodic.
     pub is_final: bool,
     /// Samples fitted.
@@ -95,7 +95,7 @@ impl FitLine {
     /// From a report, with the device's tick rate.
     pub fn new(f: &FitReport, tick_hz: u32) -> Self {
         FitLine {
-            condition: f.condition.letter(),
+            condition: f.condition,
             is_final: f.is_final,
             n: f.n,
             first_seq: f.first_seq,
@@ -435,27 +435,21 @@ impl<W: Write, F: Write> Recorder<W, F> {
 }
 
 impl FitLine {
-    /// What makes the line unusable, if anything: the condition, the device clock, the
-    /// window and the numbers.
-    pub fn check(&self) -> Result<(), String> {
-        if rotacal_shared::Condition::from_letter(self.condition).is_none() {
-            return Err(format!(
-                "condition '{}': expected x, y or z",
-                self.condition
-            ));
-        }
+    /// What makes the line unusable, if anything: the device clock, the window and the
+    /// numbers (its condition is one by its type).
+    pub fn check(&self) -> Result<(), FitLogProblem> {
         if self.tick_hz == 0 {
-            return Err("tick_hz is 0".into());
+            return Err(FitLogProblem::NoTickRate);
         }
         if self.first_seq > self.last_seq {
-            return Err(format!(
-                "first_seq {} is after last_seq {}",
-                self.first_seq, self.last_seq
-            ));
+            return Err(FitLogProblem::Window {
+                first_seq: self.first_seq,
+                last_seq: self.last_seq,
+            });
         }
         let finite = self.coef.iter().chain(&self.se).flatten().chain(&self.rms);
         if finite.into_iter().any(|x| !x.is_finite()) {
-            return Err("a coefficient, standard error or rms is not finite".into());
+            return Err(FitLogProblem::NotFinite);
         }
         Ok(())
     }
@@ -481,14 +475,52 @@ pub fn from_hex(s: &str) -> Option<Vec<u8>> {
         .collect()
 }
 
+/// What is wrong with a line of the fit log.
+#[derive(Debug, thiserror::Error)]
+pub enum FitLogProblem {
+    /// Not a fit report or quick-look as JSON.
+    #[error(transparent)]
+    Json(#[from] serde_json::Error),
+    /// A device clock of 0 ticks per second.
+    #[error("tick_hz is 0")]
+    NoTickRate,
+    /// A window that ends before it starts.
+    #[error("first_seq {first_seq} is after last_seq {last_seq}")]
+    Window {
+        /// Its first sample's seq.
+        first_seq: u32,
+        /// Its last sample's seq.
+        last_seq: u32,
+    },
+    /// A number that is not finite.
+    #[error("a coefficient, standard error or rms is not finite")]
+    NotFinite,
+}
+
+/// A fit log's problem, with the file and the 1-based line.
+#[derive(Debug, thiserror::Error)]
+#[error("{source_name}:{line}: {problem}")]
+pub struct FitLogError {
+    /// The file.
+    pub source_name: String,
+    /// The line.
+    pub line: usize,
+    /// What is wrong.
+    pub problem: FitLogProblem,
+}
+
 /// Read a fit log: one JSON object per line; errors name the line.
-pub fn read_fit_log(text: &str, source: &str) -> Result<Vec<LogLine>, String> {
+pub fn read_fit_log(text: &str, source: &str) -> Result<Vec<LogLine>, FitLogError> {
     text.lines()
         .enumerate()
         .filter(|(_, l)| !l.trim().is_empty())
         .map(|(i, l)| {
-            let at = |e: String| format!("{source}:{}: {e}", i + 1);
-            let line: LogLine = serde_json::from_str(l).map_err(|e| at(e.to_string()))?;
+            let at = |problem: FitLogProblem| FitLogError {
+                source_name: source.to_string(),
+                line: i + 1,
+                problem,
+            };
+            let line: LogLine = serde_json::from_str(l).map_err(|e| at(e.into()))?;
             if let LogLine::Fit(f) = &line {
                 f.check().map_err(at)?;
             }

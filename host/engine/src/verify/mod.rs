@@ -33,13 +33,62 @@ pub struct Comparison {
     pub max_delta_crlb: f64,
 }
 
+/// Why a device fit could not be checked against the recording.
+#[derive(Debug, thiserror::Error)]
+pub enum VerifyError {
+    /// A fit report with a device clock of 0 ticks per second.
+    #[error("fit log: tick_hz 0")]
+    NoTickRate,
+    /// The host's f64 fit of the device's window failed.
+    #[error("condition {condition}: host fit: {source}")]
+    HostFit {
+        /// The condition.
+        condition: rotacal_shared::Condition,
+        /// Why.
+        source: batch::BatchError,
+    },
+    /// A recording without `seq`, in which the device's windows cannot be found.
+    #[error("{source_name}: no seq column, so the device's windows can't be found")]
+    NoSeq {
+        /// The recording.
+        source_name: String,
+    },
+    /// A recording without `t_s`.
+    #[error("recording has no t_s")]
+    NoTime,
+    /// A row's time beyond the device clock's range.
+    #[error("{source_name}: t_s {t_s} out of range")]
+    TimeOutOfRange {
+        /// The recording.
+        source_name: String,
+        /// The time, s.
+        t_s: f64,
+    },
+    /// A row's conversions beyond what an aperture holds.
+    #[error("{source_name}: conv_gaps of seq {seq}")]
+    Conversions {
+        /// The recording.
+        source_name: String,
+        /// The row's seq.
+        seq: u64,
+    },
+    /// A file of poses or a free recording: no conditions to check.
+    #[error(transparent)]
+    Recording(#[from] crate::recording::RecordingError),
+}
+
 /// Fit `window` (conversion instants in ticks of the device clock, averages of u, v, w) in
 /// f64 with the device's phase step and clock, weighted as the device weights, and
 /// compare with its coefficients. σ_CRLB counts every conversion.
-pub fn compare(window: &[batch::Sample], f: &FitLine) -> Result<Comparison, String> {
-    let clock = TickRate::new(f.tick_hz).ok_or("fit log: tick_hz 0")?;
-    let host = batch::fit(window, PhaseStep(f.step), clock, Model::SINE, Ticks(0))
-        .map_err(|e| format!("condition {}: host fit: {e}", f.condition))?;
+pub fn compare(window: &[batch::Sample], f: &FitLine) -> Result<Comparison, VerifyError> {
+    let clock = TickRate::new(f.tick_hz).ok_or(VerifyError::NoTickRate)?;
+    let host =
+        batch::fit(window, PhaseStep(f.step), clock, Model::SINE, Ticks(0)).map_err(|source| {
+            VerifyError::HostFit {
+                condition: f.condition,
+                source,
+            }
+        })?;
     let (mut max_se, mut max_crlb) = (0.0f64, 0.0f64);
     let conversions: usize = window.iter().map(|(ap, _)| ap.len()).sum();
     for (h, device) in host.channels.iter().zip(&f.coef) {

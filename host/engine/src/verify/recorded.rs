@@ -9,7 +9,7 @@
 
 use crate::recording::from_device::{FitLine, LogLine};
 use crate::recording::Recording;
-use crate::verify::compare;
+use crate::verify::{compare, VerifyError};
 use rotacal_shared::{Condition, Ticks};
 use serde::Serialize;
 use std::fmt::Write as _;
@@ -21,7 +21,7 @@ pub const DEFAULT_THRESHOLD: f64 = 0.01;
 #[derive(Clone, Debug, Serialize)]
 pub struct FitCheck {
     /// x, y or z.
-    pub condition: char,
+    pub condition: Condition,
     /// At stop or periodic.
     pub is_final: bool,
     /// The device's window.
@@ -53,28 +53,29 @@ pub struct CrosscheckReport {
     pub passed: bool,
 }
 
-fn check_one(rec: &Recording, f: &FitLine, threshold: f64) -> Result<FitCheck, String> {
-    let cond = Condition::from_letter(f.condition)
-        .ok_or_else(|| format!("fit log: condition '{}'", f.condition))?;
+fn check_one(rec: &Recording, f: &FitLine, threshold: f64) -> Result<FitCheck, VerifyError> {
     let mut window = Vec::new();
-    for g in rec.groups.iter().filter(|g| g.condition == cond) {
-        let seq = g.seq.as_ref().ok_or_else(|| {
-            format!(
-                "{}: no seq column, so the device's windows can't be found",
-                rec.source
-            )
+    for g in rec.groups.iter().filter(|g| g.condition == f.condition) {
+        let seq = g.seq.as_ref().ok_or_else(|| VerifyError::NoSeq {
+            source_name: rec.source.clone(),
         })?;
         for (i, s) in seq.iter().enumerate() {
             if (u64::from(f.first_seq)..=u64::from(f.last_seq)).contains(s) {
-                let t = g.t_s.get(i).ok_or("recording has no t_s")?;
+                let t = *g.t_s.get(i).ok_or(VerifyError::NoTime)?;
                 let ticks = (t * f64::from(f.tick_hz)).round();
                 if !(0.0..1.8e19).contains(&ticks) {
-                    return Err(format!("{}: t_s {t} out of range", rec.source));
+                    return Err(VerifyError::TimeOutOfRange {
+                        source_name: rec.source.clone(),
+                        t_s: t,
+                    });
                 }
                 // The conversions the row averages, in the same device ticks.
-                let ap = g
-                    .aperture(i, Ticks(ticks as u64), 1.0)
-                    .ok_or_else(|| format!("{}: conv_gaps of seq {s}", rec.source))?;
+                let ap = g.aperture(i, Ticks(ticks as u64), 1.0).ok_or_else(|| {
+                    VerifyError::Conversions {
+                        source_name: rec.source.clone(),
+                        seq: *s,
+                    }
+                })?;
                 window.push((ap, [g.u[i], g.v[i], g.w[i]]));
             }
         }
@@ -104,9 +105,8 @@ pub fn crosscheck(
     rec: &Recording,
     log: &[LogLine],
     threshold: f64,
-) -> Result<CrosscheckReport, String> {
-    rec.require_conditions("the cross-check")
-        .map_err(|e| e.to_string())?;
+) -> Result<CrosscheckReport, VerifyError> {
+    rec.require_conditions("the cross-check")?;
     let fits = log
         .iter()
         .filter_map(|l| match l {

@@ -9,7 +9,7 @@ use rotacal_shared::device::simulated::SessionSpec;
 use rotacal_shared::device::{Config, Device, RING};
 use rotacal_shared::intrinsic::{self, ConditionFit};
 use rotacal_shared::packet::{Packet, MAX_PACKET};
-use rotacal_shared::{Aperture, TickRate, Ticks};
+use rotacal_shared::{Aperture, Condition, TickRate, Ticks};
 
 /// The device's clock in the simulated session (`Config::FEATHER`).
 const CLOCK: TickRate = Config::FEATHER.clock;
@@ -76,7 +76,7 @@ pub fn host_packets() -> Vec<Vec<u8>> {
 #[derive(Clone, Debug, Serialize)]
 pub struct FitComparison {
     /// x, y or z.
-    pub condition: char,
+    pub condition: Condition,
     /// Final (at stop) or periodic.
     pub is_final: bool,
     /// Samples in the window.
@@ -156,7 +156,7 @@ pub fn check(device: &[Vec<u8>]) -> anyhow::Result<SessionReport> {
             }
         }
         fits.push(FitComparison {
-            condition: f.condition.letter(),
+            condition: f.condition,
             is_final: f.is_final,
             n: f.n,
             max_ratio_crlb: worst,
