@@ -205,6 +205,25 @@ pub enum GroupError {
     TooManyRows,
 }
 
+impl GroupError {
+    /// This failure of the fit of `condition` in `rec`, whose rows start at `line`.
+    pub(crate) fn of(
+        self,
+        rec: &Recording,
+        line: Option<u64>,
+        condition: Condition,
+    ) -> CalibrateError {
+        err(
+            rec,
+            line,
+            CalibrateErrorKind::Group {
+                condition,
+                source: self,
+            },
+        )
+    }
+}
+
 impl From<FitError> for GroupError {
     fn from(e: FitError) -> Self {
         GroupError::Fit(e)

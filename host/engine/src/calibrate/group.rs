@@ -212,16 +212,7 @@ pub(crate) fn fit_group(
     s: &[batch::Sample],
     nominal_hz: f64,
 ) -> Result<GroupFit, CalibrateError> {
-    let fail = |e: GroupError| {
-        err(
-            rec,
-            Some(g.first_line),
-            CalibrateErrorKind::Group {
-                condition: g.condition,
-                source: e,
-            },
-        )
-    };
+    let fail = |e: GroupError| e.of(rec, Some(g.first_line), g.condition);
     let nominal = PhaseStep::from_hz(nominal_hz, CLOCK).ok_or_else(|| {
         err(
             rec,

@@ -142,16 +142,7 @@ pub(super) fn finish(
     p: &Prepared,
     r: Residuals,
 ) -> Result<GroupFit, CalibrateError> {
-    let fail = |e: GroupError| {
-        err(
-            rec,
-            Some(gs.first_line),
-            CalibrateErrorKind::Group {
-                condition: gs.condition,
-                source: e,
-            },
-        )
-    };
+    let fail = |e: GroupError| e.of(rec, Some(gs.first_line), gs.condition);
     let span_s = p.span_ticks as f64 / f64::from(CLOCK.hz());
     let omega = TAU * p.four.rate_hz * span_s / (p.rows.max(2) - 1) as f64;
     let freqs: Vec<f64> = WIDE_HARMONIC
@@ -278,16 +269,7 @@ pub(super) fn prepare(
 ) -> Result<Prepared, CalibrateError> {
     let line = Some(gs.first_line);
     let condition = gs.condition;
-    let fail = |e: GroupError| {
-        err(
-            rec,
-            line,
-            CalibrateErrorKind::Group {
-                condition,
-                source: e,
-            },
-        )
-    };
+    let fail = |e: GroupError| e.of(rec, line, condition);
     if gs.t0.is_none() {
         return Err(err(rec, line, CalibrateErrorKind::NoTime));
     }

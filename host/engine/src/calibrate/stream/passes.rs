@@ -176,16 +176,7 @@ impl Engine<'_> {
             p.pieces_fitted = pilots.into_pieces(&all);
             let all = all.dense();
             let gs = self.group(p.index)?;
-            let fail = |e: GroupError| {
-                err(
-                    self.rec,
-                    Some(gs.first_line),
-                    CalibrateErrorKind::Group {
-                        condition: gs.condition,
-                        source: e,
-                    },
-                )
-            };
+            let fail = |e: GroupError| e.of(self.rec, Some(gs.first_line), gs.condition);
             // (`all` is gathered about p.fitted: it reaches it by construction.)
             if !p.moments.within(p.fitted, REACH_FIT) {
                 // The first expansion could not reach the rate: fit again from here.
@@ -223,14 +214,7 @@ impl Engine<'_> {
         for p in prepared {
             let gs = self.group(p.index)?;
             sines.push(sine_pair(p).map_err(|e| {
-                err(
-                    self.rec,
-                    Some(gs.first_line),
-                    CalibrateErrorKind::Group {
-                        condition: gs.condition,
-                        source: e.into(),
-                    },
-                )
+                GroupError::from(e).of(self.rec, Some(gs.first_line), gs.condition)
             })?);
         }
         let fresh = || -> Vec<Residuals> {
