@@ -1,0 +1,8 @@
+//! The engine's integration tests, one binary (`cargo test --release -p rotacal-engine
+//! --test engine`; one module: `... --test engine -- poses::`). They use only the engine's
+//! public API, so they build without the application and its device crates (tokio,
+//! btleplug, dbus, plotters, clap, indicatif): `scripts/test-all` checks that with
+//! `cargo tree`. One binary links once.
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
+
+mod poses;
