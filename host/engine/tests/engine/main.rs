@@ -5,4 +5,5 @@
 //! `cargo tree`. One binary links once.
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
+mod config;
 mod poses;
