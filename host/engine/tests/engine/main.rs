@@ -5,5 +5,6 @@
 //! `cargo tree`. One binary links once.
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
+mod budget;
 mod config;
 mod poses;
