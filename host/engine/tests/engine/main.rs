@@ -8,3 +8,4 @@
 mod budget;
 mod config;
 mod poses;
+mod reader;
