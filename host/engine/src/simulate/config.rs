@@ -4,9 +4,9 @@
 //! table is present. Units are stated per key. Unknown keys are errors, so that a typo
 //! never silently turns an effect off. See docs/simulator.md.
 
+use super::FilterError;
 use crate::recording::Method;
 use serde::Deserialize;
-use std::fmt;
 
 /// The presets, as TOML documents (host/presets/).
 pub const PRESETS: [(&str, &str); 3] = [
@@ -534,29 +534,120 @@ pub struct RateRipple {
     pub phase_deg: f64,
 }
 
-/// A configuration problem, naming the key.
-#[derive(Clone, Debug, PartialEq)]
-pub struct ConfigError(pub String);
-
-impl fmt::Display for ConfigError {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(&self.0)
-    }
+/// A configuration problem, naming the key (or the file or preset).
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    /// A key's value, or a combination of keys, is refused.
+    #[error("{key}: {why}")]
+    Invalid {
+        /// The key or keys, dotted (`timing.jitter_s`).
+        key: &'static str,
+        /// What the value must be.
+        why: &'static str,
+    },
+    /// A key holds a value that is not finite.
+    #[error("{key}: values must be finite")]
+    NotFinite {
+        /// The key, dotted.
+        key: &'static str,
+    },
+    /// A key that belongs to another method.
+    #[error("{key}: applies to method = \"{method}\" only")]
+    OtherMethod {
+        /// The key, dotted.
+        key: &'static str,
+        /// The method or methods it belongs to.
+        method: &'static str,
+    },
+    /// No noise level, and units the LSM6DS33 default does not apply to.
+    #[error(
+        "{key}: give it (the LSM6DS33 default applies only to units = \"counts\", not \"{units}\")"
+    )]
+    NoNoiseLevel {
+        /// `sensor.noise.sd` or `sensor.noise_sigma`.
+        key: &'static str,
+        /// The configuration's units.
+        units: String,
+    },
+    /// A low-pass cutoff outside (0, fs/2).
+    #[error(
+        "sensor.noise.lowpass_hz: must lie between 0 and half the sample rate ({nyquist_hz} Hz)"
+    )]
+    Lowpass {
+        /// Half the sample rate, Hz.
+        nyquist_hz: f64,
+    },
+    /// A noise filter that cannot be simulated. Its text is part of this one's (not a
+    /// `source`: the CLI prints the chain, which would repeat it).
+    #[error("sensor.noise.{key}: {cause}")]
+    NoiseFilter {
+        /// `ar` or `lowpass_hz`.
+        key: &'static str,
+        /// Why.
+        cause: FilterError,
+    },
+    /// Not TOML.
+    #[error("{}", syntax_text(.0))]
+    Syntax(toml::de::Error),
+    /// TOML, but not a configuration (an unknown key, a wrong type).
+    #[error("{}", .0.to_string().trim_end())]
+    Schema(toml::de::Error),
+    /// `preset = "…"` names no preset.
+    #[error("unknown preset '{name}' (presets: {})", preset_names())]
+    UnknownPreset {
+        /// The name given.
+        name: String,
+    },
+    /// A built-in preset that is not TOML: a bug, as the presets are part of rotacal.
+    #[error("internal: preset {name}: {cause} (a bug in rotacal; please report it)")]
+    Preset {
+        /// The preset.
+        name: String,
+        /// The parser's complaint.
+        cause: toml::de::Error,
+    },
+    /// Neither a file nor a preset.
+    #[error("{name}: no such file, and not a preset (presets: {})", preset_names())]
+    NotFound {
+        /// The name or path given.
+        name: String,
+    },
+    /// The file could not be read.
+    #[error("{path}: {cause}")]
+    Read {
+        /// The file.
+        path: String,
+        /// Why.
+        cause: std::io::Error,
+    },
+    /// The file's configuration is refused.
+    #[error("{path}: {cause}")]
+    InFile {
+        /// The file.
+        path: String,
+        /// Why.
+        cause: Box<ConfigError>,
+    },
 }
 
-impl std::error::Error for ConfigError {}
+/// A TOML syntax error's text, its snippet's lines indented under the first.
+fn syntax_text(e: &toml::de::Error) -> String {
+    e.to_string().trim_end().replace('\n', "\n  ")
+}
+
+/// The presets' names, for messages.
+fn preset_names() -> String {
+    let names: Vec<&str> = PRESETS.iter().map(|(n, _)| *n).collect();
+    names.join(", ")
+}
 
 fn preset_text(name: &str) -> Result<&'static str, ConfigError> {
     PRESETS
         .iter()
         .find(|(n, _)| *n == name)
         .map(|(_, t)| *t)
-        .ok_or_else(|| {
-            let names: Vec<&str> = PRESETS.iter().map(|(n, _)| *n).collect();
-            ConfigError(format!(
-                "unknown preset '{name}' (presets: {})",
-                names.join(", ")
-            ))
+        .ok_or_else(|| ConfigError::UnknownPreset {
+            name: name.to_string(),
         })
 }
 
@@ -635,40 +726,50 @@ impl Config {
     pub fn load(name_or_path: &str) -> Result<Config, ConfigError> {
         let path = std::path::Path::new(name_or_path);
         if path.exists() {
-            let text = std::fs::read_to_string(path)
-                .map_err(|e| ConfigError(format!("{name_or_path}: {e}")))?;
-            Config::from_toml(&text).map_err(|e| ConfigError(format!("{name_or_path}: {e}")))
+            let text = std::fs::read_to_string(path).map_err(|cause| ConfigError::Read {
+                path: name_or_path.to_string(),
+                cause,
+            })?;
+            Config::from_toml(&text).map_err(|cause| ConfigError::InFile {
+                path: name_or_path.to_string(),
+                cause: Box::new(cause),
+            })
         } else if PRESETS.iter().any(|(n, _)| *n == name_or_path) {
             Config::preset(name_or_path)
         } else {
-            let names: Vec<&str> = PRESETS.iter().map(|(n, _)| *n).collect();
-            Err(ConfigError(format!(
-                "{name_or_path}: no such file, and not a preset (presets: {})",
-                names.join(", ")
-            )))
+            Err(ConfigError::NotFound {
+                name: name_or_path.to_string(),
+            })
         }
     }
 
     /// Parse TOML text; a `preset = "…"` key layers it over that preset.
     pub fn from_toml(text: &str) -> Result<Config, ConfigError> {
-        let table: toml::Table = text.parse().map_err(|e: toml::de::Error| {
-            ConfigError(e.to_string().trim_end().replace('\n', "\n  "))
-        })?;
+        let table: toml::Table = text.parse().map_err(ConfigError::Syntax)?;
         let merged = match table.get("preset") {
             Some(toml::Value::String(name)) => {
-                let mut base: toml::Table = preset_text(name)?
-                    .parse()
-                    .map_err(|e| ConfigError(format!("preset {name}: {e}")))?;
+                let mut base: toml::Table =
+                    preset_text(name)?
+                        .parse()
+                        .map_err(|cause| ConfigError::Preset {
+                            name: name.clone(),
+                            cause,
+                        })?;
                 drop_replaced(&mut base, &table);
                 merge(&mut base, table);
                 base
             }
-            Some(_) => return Err(ConfigError("preset: expected a preset name".into())),
+            Some(_) => {
+                return Err(ConfigError::Invalid {
+                    key: "preset",
+                    why: "expected a preset name",
+                })
+            }
             None => table,
         };
         let cfg: Config = toml::Value::Table(merged)
             .try_into()
-            .map_err(|e: toml::de::Error| ConfigError(e.to_string().trim_end().into()))?;
+            .map_err(ConfigError::Schema)?;
         cfg.validate()?;
         Ok(cfg)
     }
@@ -680,15 +781,14 @@ impl Config {
             None if self.units == "counts" => Ok(LSM6DS33_NOISE_DENSITY_G
                 * (self.timing.sample_rate_hz / 2.0).sqrt()
                 / LSM6DS33_G_PER_COUNT),
-            None => Err(ConfigError(format!(
-                "{}: give it (the LSM6DS33 default applies only to units = \"counts\", not \"{}\")",
-                if self.sensor.noise.is_some() {
+            None => Err(ConfigError::NoNoiseLevel {
+                key: if self.sensor.noise.is_some() {
                     "sensor.noise.sd"
                 } else {
                     "sensor.noise_sigma"
                 },
-                self.units
-            ))),
+                units: self.units.clone(),
+            }),
         }
     }
 
@@ -1137,25 +1237,23 @@ impl Centripetal {
 }
 
 /// The error for `key`, saying why its value is refused.
-fn bad(key: &str, why: &str) -> Result<(), ConfigError> {
-    Err(ConfigError(format!("{key}: {why}")))
+fn bad(key: &'static str, why: &'static str) -> Result<(), ConfigError> {
+    Err(ConfigError::Invalid { key, why })
 }
 
 /// Refuse non-finite values of `key`.
-fn finite(key: &str, xs: &[f64]) -> Result<(), ConfigError> {
+fn finite(key: &'static str, xs: &[f64]) -> Result<(), ConfigError> {
     if xs.iter().all(|x| x.is_finite()) {
         Ok(())
     } else {
-        Err(ConfigError(format!("{key}: values must be finite")))
+        Err(ConfigError::NotFinite { key })
     }
 }
 
 /// Refuse keys that belong to the other method.
-fn only_for(method: &str, keys: &[(&str, bool)]) -> Result<(), ConfigError> {
+fn only_for(method: &'static str, keys: &[(&'static str, bool)]) -> Result<(), ConfigError> {
     match keys.iter().find(|(_, set)| *set) {
-        Some((key, _)) => Err(ConfigError(format!(
-            "{key}: applies to method = \"{method}\" only"
-        ))),
+        Some(&(key, _)) => Err(ConfigError::OtherMethod { key, method }),
         None => Ok(()),
     }
 }

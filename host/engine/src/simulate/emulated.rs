@@ -81,7 +81,7 @@ pub struct EmulatedDevice {
     /// Device time processed up to.
     now: Duration,
     /// The running condition's stream, its start time and the next conversion.
-    running: Option<(usize, Duration, usize)>,
+    running: Option<(Condition, Duration, usize)>,
     next_temperature: Duration,
     next_poll: Duration,
     out: VecDeque<(Channel, Vec<u8>)>,
@@ -201,7 +201,7 @@ impl EmulatedDevice {
     pub fn advance(&mut self, t: Duration) {
         loop {
             let conv = self.running.and_then(|(c, start, k)| {
-                let x = self.streams.get(c)?.get(k)?;
+                let x = self.streams.get(c.index())?.get(k)?;
                 Some(start + Duration::from_secs_f64(x.t))
             });
             let next = [Some(self.next_poll), conv]
@@ -218,7 +218,7 @@ impl EmulatedDevice {
             let mut packets = Vec::new();
             if conv == Some(next) {
                 if let Some((c, start, k)) = self.running {
-                    if let Some(x) = self.streams.get(c).and_then(|s| s.get(k)).copied() {
+                    if let Some(x) = self.streams.get(c.index()).and_then(|s| s.get(k)).copied() {
                         self.device
                             .on_sample(Self::capture(next), x.counts, false, &mut |p| {
                                 packets.push(p)
@@ -232,7 +232,11 @@ impl EmulatedDevice {
                 self.next_poll += POLL_EVERY;
             } else {
                 if let Some((c, _, k)) = self.running {
-                    if let Some(x) = self.streams.get(c).and_then(|s| s.get(k.saturating_sub(1))) {
+                    if let Some(x) = self
+                        .streams
+                        .get(c.index())
+                        .and_then(|s| s.get(k.saturating_sub(1)))
+                    {
                         let centi = (x.temp_c * 100.0).round() as i16;
                         self.device.on_temperature(centi, &mut |p| packets.push(p));
                     }
@@ -305,12 +309,40 @@ impl EmulatedDevice {
         // The stream starts on a whole microsecond (a tick of the 1 MHz clock), so the
         // conversions' ticks relative to it do not depend on the moment the Start came.
         let start = Duration::from_micros(self.now.as_nanos().div_ceil(1000) as u64);
-        self.running = Some((condition.index(), start, 0));
+        self.running = Some((condition, start, 0));
         self.next_temperature = start + TEMPERATURE_EVERY / 2;
     }
 }
 
-fn version(v: &str, bad: &dyn Fn(&str) -> String) -> Result<[u8; 3], String> {
+/// Why a `--faults` list is refused; `item` is the `key=value` concerned.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum FaultsError {
+    /// No `=` in the item.
+    #[error("'{item}': expected key=value")]
+    NotKeyValue {
+        /// The item.
+        item: String,
+    },
+    /// A known key with a value it does not take.
+    #[error("'{item}': {expected}")]
+    BadValue {
+        /// The item.
+        item: String,
+        /// What the value must be.
+        expected: &'static str,
+    },
+    /// A key that names no fault.
+    #[error(
+        "'{key}': unknown fault (outage, drop, burst, garbage, firmware, protocol, replaced, \
+         mute_after, seed)"
+    )]
+    UnknownFault {
+        /// The key.
+        key: String,
+    },
+}
+
+fn version(v: &str, bad: &dyn Fn(&'static str) -> FaultsError) -> Result<[u8; 3], FaultsError> {
     let parts: Vec<u8> = v
         .split('.')
         .map(|p| p.parse().map_err(|_| bad("expected A.B.C")))
@@ -321,19 +353,22 @@ fn version(v: &str, bad: &dyn Fn(&str) -> String) -> Result<[u8; 3], String> {
 }
 
 impl std::str::FromStr for Faults {
-    type Err = String;
+    type Err = FaultsError;
 
     /// `outage=AT:LEN` (seconds; repeatable), `drop=P`, `burst=L`, `garbage=N`,
     /// `firmware=A.B.C`, `protocol=V`, `replaced=A.B.C`, `mute_after=N`, `seed=N`,
     /// comma-separated.
-    fn from_str(s: &str) -> Result<Self, String> {
+    fn from_str(s: &str) -> Result<Self, FaultsError> {
         let mut f = Faults::default();
         for item in s.split(',').map(str::trim).filter(|i| !i.is_empty()) {
             let (k, v) = item
                 .split_once('=')
-                .ok_or_else(|| format!("'{item}': expected key=value"))?;
-            let bad = |what: &str| format!("'{item}': {what}");
-            let num = |x: &str| -> Result<f64, String> {
+                .ok_or_else(|| FaultsError::NotKeyValue { item: item.into() })?;
+            let bad = |expected: &'static str| FaultsError::BadValue {
+                item: item.into(),
+                expected,
+            };
+            let num = |x: &str| -> Result<f64, FaultsError> {
                 x.parse::<f64>()
                     .ok()
                     .filter(|x| x.is_finite() && *x >= 0.0)
@@ -375,12 +410,7 @@ impl std::str::FromStr for Faults {
                     f.mute_after = Some(v.parse().map_err(|_| bad("expected a whole number"))?)
                 }
                 "seed" => f.seed = v.parse().map_err(|_| bad("expected a whole number"))?,
-                _ => {
-                    return Err(format!(
-                        "'{k}': unknown fault (outage, drop, burst, garbage, firmware, protocol, \
-                         replaced, mute_after, seed)"
-                    ))
-                }
+                _ => return Err(FaultsError::UnknownFault { key: k.into() }),
             }
         }
         Ok(f)

@@ -22,13 +22,13 @@ pub mod geometry;
 
 pub use config::{Config, ConfigError, Noise, NoiseSd, StepError, PRESETS};
 
-use crate::recording::{self, Columns, Metadata, Method, Recording, Row, Writer};
+use crate::recording::{self, Columns, Metadata, Method, Recording, RecordingError, Row, Writer};
 use crate::simulate::geometry::sensitivity_from_intrinsic;
 use crate::simulate::geometry::{mounted, rotation};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::StandardNormal;
-use rotacal_shared::Condition;
+use rotacal_shared::{Channel, Condition};
 use std::f64::consts::{PI, SQRT_2, TAU};
 use std::io::{self, Write};
 use std::path::Path;
@@ -65,14 +65,10 @@ impl Truth {
         [s[0], s[1], s[2], a[0], a[1], a[2], o[0], o[1], o[2]]
     }
 
-    /// The theoretical autocorrelation of channel `channel`'s noise (0 = u, 1 = v, 2 = w)
-    /// at `lag` samples; NaN for a channel beyond w.
-    pub fn noise_autocorrelation(&self, channel: usize, lag: u64) -> f64 {
-        if channel < 3 {
-            self.noise_process.autocorrelation(lag)
-        } else {
-            f64::NAN
-        }
+    /// The theoretical autocorrelation of a channel's noise at `lag` samples (the
+    /// channels share the process's shape).
+    pub fn noise_autocorrelation(&self, _channel: Channel, lag: u64) -> f64 {
+        self.noise_process.autocorrelation(lag)
     }
 }
 
@@ -91,6 +87,34 @@ pub struct NoiseProcess {
     radius: f64,
     /// Innovations run before the first sample so that it starts stationary.
     burn_in: u64,
+}
+
+/// Why a noise filter cannot be simulated (the key is named by [`ConfigError::NoiseFilter`]).
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum FilterError {
+    /// A pole on or outside the unit circle, of this modulus.
+    #[error("not stationary: its largest pole has modulus {radius:.6} (it must be below 1)")]
+    NotStationary {
+        /// The largest pole modulus.
+        radius: f64,
+    },
+    /// Not stationary, and the poles' moduli could not be computed.
+    #[error("not stationary: a pole lies on or outside the unit circle")]
+    NotStationaryUnknownRadius,
+    /// Stationary, but the poles' moduli could not be computed.
+    #[error("its poles could not be computed")]
+    NoPoles,
+    /// A pole so near the unit circle that the burn-in would exceed [`MAX_NOISE_BURN_IN`].
+    #[error(
+        "its memory is too long: the largest pole has modulus {radius:.9}, which needs more \
+         than {} samples to decay below {:e}",
+        MAX_NOISE_BURN_IN,
+        BURN_IN_DECAY
+    )]
+    MemoryTooLong {
+        /// The largest pole modulus.
+        radius: f64,
+    },
 }
 
 /// The longest burn-in allowed, samples: a longer memory is refused.
@@ -113,65 +137,58 @@ impl NoiseProcess {
 
     /// The process `[sensor.noise]` describes at sample rate `fs` (Hz); errors name the key.
     pub fn new(noise: &Noise, fs: f64) -> Result<NoiseProcess, ConfigError> {
-        let err = |key: &str, why: String| ConfigError(format!("sensor.noise.{key}: {why}"));
         let (key, b, a) = match (&noise.ar, noise.lowpass_hz) {
             (Some(_), Some(_)) => {
-                return Err(ConfigError(
-                    "sensor.noise.ar and sensor.noise.lowpass_hz: give one, not both".into(),
-                ))
+                return Err(ConfigError::Invalid {
+                    key: "sensor.noise.ar and sensor.noise.lowpass_hz",
+                    why: "give one, not both",
+                })
             }
             (None, None) => return Ok(NoiseProcess::white()),
             (Some(phi), None) => {
                 if phi.is_empty() {
-                    return Err(err(
-                        "ar",
-                        "give at least one coefficient (leave ar out for white noise)".into(),
-                    ));
+                    return Err(ConfigError::Invalid {
+                        key: "sensor.noise.ar",
+                        why: "give at least one coefficient (leave ar out for white noise)",
+                    });
                 }
                 if phi.iter().any(|x| !x.is_finite()) {
-                    return Err(err("ar", "values must be finite".into()));
+                    return Err(ConfigError::NotFinite {
+                        key: "sensor.noise.ar",
+                    });
                 }
                 ("ar", vec![1.0], phi.iter().map(|x| -x).collect())
             }
             (None, Some(fc)) => {
                 if !(fc.is_finite() && fc > 0.0 && fc < fs / 2.0) {
-                    return Err(err(
-                        "lowpass_hz",
-                        format!(
-                            "must lie between 0 and half the sample rate ({} Hz)",
-                            fs / 2.0
-                        ),
-                    ));
+                    return Err(ConfigError::Lowpass {
+                        nyquist_hz: fs / 2.0,
+                    });
                 }
                 let (b, a) = butterworth(fc, fs);
                 ("lowpass_hz", b, a)
             }
         };
-        NoiseProcess::from_filter(b, a).map_err(|why| err(key, why))
+        NoiseProcess::from_filter(b, a).map_err(|cause| ConfigError::NoiseFilter { key, cause })
     }
 
     /// Check stationarity and memory, and compute the autocovariances.
-    fn from_filter(b: Vec<f64>, a: Vec<f64>) -> Result<NoiseProcess, String> {
+    fn from_filter(b: Vec<f64>, a: Vec<f64>) -> Result<NoiseProcess, FilterError> {
         let radius = pole_radius(&a);
         if !reflection_stable(&a) {
             return Err(match radius {
-                Some(r) => format!(
-                    "not stationary: its largest pole has modulus {r:.6} (it must be below 1)"
-                ),
-                None => "not stationary: a pole lies on or outside the unit circle".into(),
+                Some(radius) => FilterError::NotStationary { radius },
+                None => FilterError::NotStationaryUnknownRadius,
             });
         }
-        let radius = radius.ok_or("its poles could not be computed")?;
+        let radius = radius.ok_or(FilterError::NoPoles)?;
         let burn_in = if radius == 0.0 {
             0.0
         } else {
             (BURN_IN_DECAY.ln() / radius.ln()).ceil()
         };
         if !(radius < 1.0 && burn_in <= MAX_NOISE_BURN_IN as f64) {
-            return Err(format!(
-                "its memory is too long: the largest pole has modulus {radius:.9}, which needs more \
-                 than {MAX_NOISE_BURN_IN} samples to decay below {BURN_IN_DECAY:e}"
-            ));
+            return Err(FilterError::MemoryTooLong { radius });
         }
         let burn_in = burn_in as u64;
         let lags = a.len().max(b.len().saturating_sub(1));
@@ -437,6 +454,18 @@ pub fn intrinsic_of(s: &[[f64; 3]; 3]) -> ([f64; 3], [f64; 3]) {
     )
 }
 
+/// Why a simulation's recording could not be written and read back
+/// ([`Simulation::recording`]).
+#[derive(Debug, thiserror::Error)]
+pub enum ReadBackError {
+    /// Writing it (or running it through the device's logic).
+    #[error(transparent)]
+    Write(#[from] io::Error),
+    /// Reading it back.
+    #[error(transparent)]
+    Read(#[from] RecordingError),
+}
+
 /// What a run produced.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct Summary {
@@ -478,18 +507,20 @@ impl Simulation {
             (Some(s), Some(a), None) => sensitivity_from_intrinsic(s, a),
             (None, None, Some(m)) => m,
             _ => {
-                return Err(ConfigError(
-                    "device: give either sensitivity and angles_deg, or matrix".into(),
-                ))
+                return Err(ConfigError::Invalid {
+                    key: "device",
+                    why: "give either sensitivity and angles_deg, or matrix",
+                })
             }
         };
         let (sensitivity, angles_deg) = intrinsic_of(&device);
         if sensitivity.iter().any(|s| s.is_nan() || *s <= 0.0)
             || angles_deg.iter().any(|a| !a.is_finite())
         {
-            return Err(ConfigError(
-                "device: the sensitivity matrix has a zero or non-finite row".into(),
-            ));
+            return Err(ConfigError::Invalid {
+                key: "device",
+                why: "the sensitivity matrix has a zero or non-finite row",
+            });
         }
         let s = mounted(&device, &mount(&cfg));
         let norm = s.map(|r| r.iter().map(|v| v * v).sum::<f64>().sqrt());
@@ -615,9 +646,10 @@ impl Simulation {
         p.t0_c + p.ramp_c_per_h * t / 3600.0 + p.swing_c * (TAU * t / p.period_s).sin()
     }
 
-    /// The analog output of channel j (before noise) for specific force `f` (m/s²,
+    /// The analog output of channel `ch` (before noise) for specific force `f` (m/s²,
     /// platter frame) at session time `t` and temperature `temp`.
-    pub fn analog(&self, j: usize, f: [f64; 3], t: f64, temp: f64) -> f64 {
+    pub fn analog(&self, ch: Channel, f: [f64; 3], t: f64, temp: f64) -> f64 {
+        let j = ch.index();
         let (row, sj) = (self.s[j], self.norm[j]);
         let e = &self.cfg.effects;
         let a = row.iter().zip(f).map(|(s, f)| s * f).sum::<f64>() / sj;
@@ -720,10 +752,10 @@ impl Simulation {
                             let t = t0 + tau;
                             let temp = self.temperature(t);
                             let mut y = noise.draw(&mut rng);
-                            for (j, yj) in y.iter_mut().enumerate() {
-                                let f = self.specific_force(cond, omega, start, tau, j);
-                                *yj =
-                                    self.output(self.analog(j, f, t, temp) + *yj, &mut sum.clipped);
+                            for (ch, yj) in Channel::ALL.into_iter().zip(&mut y) {
+                                let f = self.specific_force(cond, omega, start, tau, ch);
+                                *yj = self
+                                    .output(self.analog(ch, f, t, temp) + *yj, &mut sum.clipped);
                             }
                             let mut row = Row::new(cond, y[0], y[1], y[2]);
                             row.rate_hz = multi.then_some(rate);
@@ -755,9 +787,9 @@ impl Simulation {
                             let t = t0 + k as f64 * dwell + f64::from(r) / fs;
                             let temp = self.temperature(t);
                             let mut y = noise.draw(&mut rng);
-                            for (j, yj) in y.iter_mut().enumerate() {
-                                *yj =
-                                    self.output(self.analog(j, f, t, temp) + *yj, &mut sum.clipped);
+                            for (ch, yj) in Channel::ALL.into_iter().zip(&mut y) {
+                                *yj = self
+                                    .output(self.analog(ch, f, t, temp) + *yj, &mut sum.clipped);
                             }
                             let mut row = Row::new(cond, y[0], y[1], y[2]);
                             row.angle_deg = Some(*deg);
@@ -806,8 +838,8 @@ impl Simulation {
                 let temp = self.temperature(t);
                 let f = g.map(|v| c.g_loc * v);
                 let mut y = noise.draw(rng);
-                for (j, yj) in y.iter_mut().enumerate() {
-                    *yj = self.output(self.analog(j, f, t, temp) + scale * *yj, &mut sum.clipped);
+                for (ch, yj) in Channel::ALL.into_iter().zip(&mut y) {
+                    *yj = self.output(self.analog(ch, f, t, temp) + scale * *yj, &mut sum.clipped);
                 }
                 let mut row = Row::new(Condition::X, y[0], y[1], y[2]);
                 emit(&mut row, t, rng, sum)
@@ -841,18 +873,21 @@ impl Simulation {
         Ok(k as f64 / fs + c.timing.gap_s)
     }
 
-    /// Specific force on channel j's sample `tau` seconds into a condition (the channel's
-    /// own sampling instant, with skew).
+    /// Specific force on channel `ch`'s sample `tau` seconds into a condition (the
+    /// channel's own sampling instant, with skew).
     fn specific_force(
         &self,
         cond: Condition,
         omega: f64,
         start: f64,
         tau: f64,
-        j: usize,
+        ch: Channel,
     ) -> [f64; 3] {
         let e = &self.cfg.effects;
-        let tj = tau + e.axis_time_skew.as_ref().map_or(0.0, |s| s.skew_s[j]);
+        let tj = tau
+            + e.axis_time_skew
+                .as_ref()
+                .map_or(0.0, |s| s.skew_s[ch.index()]);
         let mut alpha = start + omega * tj;
         if let Some(r) = &e.rate_ripple {
             let psi = r.phase_deg.to_radians();
@@ -885,14 +920,14 @@ impl Simulation {
 
     /// The recording as `calibrate` would read it from the file (written to memory and
     /// read back, so tests go through the same parser as users).
-    pub fn recording(&self) -> anyhow::Result<Recording> {
+    pub fn recording(&self) -> Result<Recording, ReadBackError> {
         let (_, buf) = self.write(Vec::new())?;
         Ok(recording::read_from(&buf[..], "simulated")?)
     }
 
     /// The recording the device would stream of this simulation, its conversions averaged
     /// by the firmware's logic ([`device::record`]), read back as `calibrate` reads it.
-    pub fn recording_through_device(&self) -> anyhow::Result<Recording> {
+    pub fn recording_through_device(&self) -> Result<Recording, ReadBackError> {
         let (mut rows, mut fits) = (Vec::new(), Vec::new());
         device::record(self, &mut rows, &mut fits)?;
         Ok(recording::read_from(
