@@ -138,7 +138,7 @@ fn puzzle(seed: u64, dir: &Path) -> anyhow::Result<Puzzle> {
         .map_err(|e| anyhow::anyhow!("{}: {e}", csv.display()))?;
     let rec = crate::recording::read(&csv)?;
     let cal = crate::calibrate::calibrate(&rec, &Default::default())?;
-    let a = crate::discrepancy::run(&rec, &Default::default()).map_err(anyhow::Error::msg)?;
+    let a = crate::discrepancy::run(&rec, &Default::default())?;
     std::fs::write(
         dir.join("puzzle.discrepancy.json"),
         serde_json::to_string_pretty(&a)? + "\n",

@@ -37,7 +37,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         rate_hz: a.rate_hz,
         alpha: a.alpha,
     };
-    let analysis = rotacal::discrepancy::run(&rec, &opts).map_err(anyhow::Error::msg)?;
+    let analysis = rotacal::discrepancy::run(&rec, &opts)?;
     if let Some(path) = &a.json {
         std::fs::write(path, serde_json::to_string_pretty(&analysis)? + "\n")
             .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;

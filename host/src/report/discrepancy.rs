@@ -3,6 +3,7 @@
 
 use crate::discrepancy::{Analysis, Criterion, RateIntrinsic};
 use crate::report::{self, ReportError, Series};
+use rotacal_shared::Channel;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
@@ -68,7 +69,7 @@ pub fn render(a: &Analysis) -> String {
         "Noise sd: u {:.3}, v {:.3}, w {:.3} ({})",
         n.u, n.v, n.w, n.source
     );
-    for ch in ["u", "v", "w"] {
+    for ch in Channel::ALL {
         let ms: Vec<_> = a.noise_model.iter().filter(|m| m.channel == ch).collect();
         let lag1 = ms
             .iter()
@@ -80,8 +81,9 @@ pub fn render(a: &Analysis) -> String {
         let excluded: usize = ms.iter().map(|m| m.n_excluded).sum();
         let _ = writeln!(
             o,
-            "  {ch}: {} groups, AR order up to {order}, lag-1 autocorrelation {:.3} to {:.3}, \
+            "  {}: {} groups, AR order up to {order}, lag-1 autocorrelation {:.3} to {:.3}, \
              {excluded} readings at a rail left out",
+            ch.letter(),
             ms.len(),
             lag1.0,
             lag1.1

@@ -7,6 +7,7 @@
 use rotacal::discrepancy::model::Effect;
 use rotacal::discrepancy::trials::{self, Noise};
 use rotacal::discrepancy::Analysis;
+use rotacal_shared::Channel;
 use std::collections::BTreeMap;
 
 fn limits(key: &str) -> BTreeMap<String, f64> {
@@ -155,7 +156,7 @@ fn pairs_of_effects_are_both_named() {
 fn u_left_out(a: &rotacal::discrepancy::Analysis) -> usize {
     a.noise_model
         .iter()
-        .filter(|m| m.channel == "u")
+        .filter(|m| m.channel == Channel::U)
         .map(|m| m.n_excluded)
         .sum()
 }
@@ -305,15 +306,15 @@ fn noise_model_matches(noise: Noise, rho: f64, seed: u64, extra: &str) -> Analys
         for m in a
             .noise_model
             .iter()
-            .filter(|m| m.channel == ["u", "v", "w"][j])
+            .filter(|m| m.channel == Channel::ALL[j])
         {
             let r1 = m.lag1_autocorrelation;
             let se = ((1.0 - rho1 * rho1) / m.n as f64).sqrt();
             assert!(
                 (r1 - rho1).abs() <= 4.0 * se,
                 "{} {}: lag-1 {r1} against {rho1} ± {se}",
-                m.condition,
-                m.channel
+                m.condition.letter(),
+                m.channel.letter()
             );
         }
     }

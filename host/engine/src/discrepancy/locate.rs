@@ -9,16 +9,74 @@
 
 use super::model::{Data, Fit};
 use super::RateIntrinsic;
+use rotacal_shared::{Channel, Condition};
 use serde::Serialize;
+use std::fmt;
 
 /// z beyond which a finding is listed.
 pub const Z_LIST: f64 = 5.0;
+
+/// Where a finding lies. Written (and serialised) as text: "x at 0.1 Hz, channel u".
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Place {
+    /// One group's channel.
+    Group {
+        /// The group's condition.
+        condition: Condition,
+        /// Its nominal rate, Hz.
+        rate_hz: f64,
+        /// The channel.
+        channel: Channel,
+    },
+    /// A condition's channel, over its groups at every rate.
+    AcrossRatesOf {
+        /// The condition.
+        condition: Condition,
+        /// The channel.
+        channel: Channel,
+    },
+    /// The intrinsic properties over the rates.
+    AcrossRates,
+    /// Every reading of the file (the rails).
+    AllChannels,
+}
+
+impl fmt::Display for Place {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Place::Group {
+                condition,
+                rate_hz,
+                channel,
+            } => write!(
+                f,
+                "{} at {rate_hz} Hz, channel {}",
+                condition.letter(),
+                channel.letter()
+            ),
+            Place::AcrossRatesOf { condition, channel } => write!(
+                f,
+                "{} across rates, channel {}",
+                condition.letter(),
+                channel.letter()
+            ),
+            Place::AcrossRates => f.write_str("across rates"),
+            Place::AllChannels => f.write_str("all channels"),
+        }
+    }
+}
+
+impl Serialize for Place {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        s.collect_str(self)
+    }
+}
 
 /// One place where the residuals are not noise.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct Finding {
     /// Condition, rate and channel.
-    pub at: String,
+    pub at: Place,
     /// What: "harmonic 2", "trend", "temperature", "rails", "offset vs ω²".
     pub what: String,
     /// Size, output units (per s for a trend, per °C, per (rad/s)²).
@@ -51,31 +109,30 @@ fn sample_interval(tau: &[f64]) -> f64 {
 /// The findings for `fit`'s residuals.
 pub fn locate(data: &Data, fit: &Fit) -> Vec<Finding> {
     let mut out = Vec::new();
-    let names = ['u', 'v', 'w'];
     let temperature = data.temperature_varies();
     for (gi, g) in data.groups.iter().enumerate() {
         let alpha: Vec<f64> = g.tau.iter().map(|t| g.omega() * t).collect();
         let omega = g.omega() * sample_interval(&g.tau);
-        for (j, name) in names.iter().enumerate() {
+        for channel in Channel::ALL {
+            let j = channel.index();
             let r = &fit.residuals[gi][j];
             let model = data.noise.get(gi).and_then(|m| m.get(j));
             // The sd of a slowly varying coefficient (trend, temperature) and of one at k·ω.
             let sd_at =
                 |w: f64| model.map_or(data.sigma[j], |m| m.sd() * m.variance_factor(w).sqrt());
             let sigma = sd_at(0.0);
-            let at = format!(
-                "{} at {} Hz, channel {}",
-                g.condition.letter(),
-                g.rate_hz,
-                name
-            );
+            let at = Place::Group {
+                condition: g.condition,
+                rate_hz: g.rate_hz,
+                channel,
+            };
             // Amplitudes at k·ω; a coefficient's variance is ≈ 2σ²/n under white noise.
             let amps = crate::fit::harmonics::harmonic_amplitudes(&alpha, r);
             for k in [2, 3] {
                 let se = sd_at(k as f64 * omega) * (2.0 / r.len() as f64).sqrt();
                 let amp = amps.get(k - 1).copied().unwrap_or(f64::NAN);
                 out.push(Finding {
-                    at: at.clone(),
+                    at,
                     what: format!("harmonic {k}"),
                     size: amp,
                     z: amp / se,
@@ -83,7 +140,7 @@ pub fn locate(data: &Data, fit: &Fit) -> Vec<Finding> {
             }
             let (b, z) = slope(&g.tau, r, sigma);
             out.push(Finding {
-                at: at.clone(),
+                at,
                 what: "trend (per s)".into(),
                 size: b,
                 z: z.abs(),
@@ -91,7 +148,7 @@ pub fn locate(data: &Data, fit: &Fit) -> Vec<Finding> {
             if temperature {
                 let (b, z) = slope(&g.temp, r, sigma);
                 out.push(Finding {
-                    at: at.clone(),
+                    at,
                     what: "temperature (per °C)".into(),
                     size: b,
                     z: z.abs(),
@@ -109,7 +166,7 @@ pub fn locate(data: &Data, fit: &Fit) -> Vec<Finding> {
                 .filter(|&&x| x == v)
                 .count();
             out.push(Finding {
-                at: "all channels".into(),
+                at: Place::AllChannels,
                 what: format!("{n} readings at the {side} rail {v}"),
                 size: v,
                 z: f64::INFINITY,
@@ -119,8 +176,9 @@ pub fn locate(data: &Data, fit: &Fit) -> Vec<Finding> {
     if data.rates().len() > 1 {
         // Offsets against ω²: each group's mean residual (the baseline shares one offset
         // across rates).
-        for c in rotacal_shared::Condition::ALL {
-            for (j, name) in names.iter().enumerate() {
+        for c in Condition::ALL {
+            for channel in Channel::ALL {
+                let j = channel.index();
                 let (mut w2, mut m) = (Vec::new(), Vec::new());
                 let mut n_min = usize::MAX;
                 let mut sd = 0.0f64;
@@ -138,7 +196,10 @@ pub fn locate(data: &Data, fit: &Fit) -> Vec<Finding> {
                 if w2.len() > 1 {
                     let (b, z) = slope(&w2, &m, sd / (n_min as f64).sqrt());
                     out.push(Finding {
-                        at: format!("{} across rates, channel {name}", c.letter()),
+                        at: Place::AcrossRatesOf {
+                            condition: c,
+                            channel,
+                        },
                         what: "offset vs ω² (per (rad/s)²)".into(),
                         size: b,
                         z: z.abs(),
@@ -176,7 +237,7 @@ pub fn angles_against_rate(per_rate: &[RateIntrinsic]) -> Vec<Finding> {
             let z = b / (sw / det).sqrt();
             if z.abs() > Z_LIST {
                 out.push(Finding {
-                    at: "across rates".into(),
+                    at: Place::AcrossRates,
                     what: format!("{name} vs ω (° per rad/s)"),
                     size: b,
                     z: z.abs(),

@@ -17,8 +17,10 @@ pub mod trials;
 
 use crate::calibrate::json::Quantity;
 use crate::recording::{Method, Recording};
-use model::{Data, Effect, Fit, GroupData};
+use model::{Data, Effect, Fit, GroupData, ModelError};
+use noise::NoiseEstimateError;
 use rotacal_shared::intrinsic::{self, ConditionFit};
+use rotacal_shared::{Channel, Condition};
 use serde::Serialize;
 use statrs::distribution::{ContinuousCDF, FisherSnedecor};
 use std::collections::BTreeMap;
@@ -48,6 +50,39 @@ impl Default for Options {
     }
 }
 
+/// Why the workflow could not run on a recording.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum DiscrepancyError {
+    /// Not a rotation recording.
+    #[error("{source_name}: the discrepancy workflow needs a rotation recording (t_s)")]
+    NotRotation {
+        /// The recording.
+        source_name: String,
+        /// Its method.
+        method: Method,
+    },
+    /// Neither the options nor the file give local gravity.
+    #[error("{source_name}: local gravity unknown: give --g-loc")]
+    NoGravity {
+        /// The recording.
+        source_name: String,
+    },
+    /// A group whose rate neither the file nor the options give.
+    #[error("{source_name}: rotation rate unknown: give --rate-hz")]
+    NoRate {
+        /// The recording.
+        source_name: String,
+        /// The group's condition.
+        condition: Condition,
+    },
+    /// The noise models.
+    #[error(transparent)]
+    Noise(#[from] NoiseEstimateError),
+    /// The baseline model's fit.
+    #[error(transparent)]
+    Fit(#[from] ModelError),
+}
+
 /// The noise level per channel and where it came from (always the estimate from the
 /// data; the per-group models are in [`Analysis::noise_model`]).
 #[derive(Clone, Debug, PartialEq, Serialize)]
@@ -66,12 +101,12 @@ pub struct NoiseSigma {
 /// One group's channel's noise model (JSON `noise_model`).
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct NoiseModelJson {
-    /// x, y or z.
-    pub condition: String,
+    /// The group's condition (JSON: x, y or z).
+    pub condition: Condition,
     /// Nominal rate, Hz.
     pub rate_hz: f64,
     /// u, v or w.
-    pub channel: String,
+    pub channel: Channel,
     /// AR coefficients φ₁ … φ_p (empty: white).
     pub ar: Vec<f64>,
     /// One sample's noise sd, output units.
@@ -108,8 +143,8 @@ pub struct NoiseStatement {
 /// The statement checked against the estimated models.
 fn check_statement(stated: f64, data: &Data) -> NoiseStatement {
     let mut why = Vec::new();
-    let names = ['u', 'v', 'w'];
-    for (j, name) in names.iter().enumerate() {
+    for ch in Channel::ALL {
+        let (j, name) = (ch.index(), ch.letter());
         let mut worst_order = 0;
         let mut nu = 0.0;
         for m in data.noise.iter().filter_map(|g| g.get(j)) {
@@ -150,11 +185,11 @@ pub fn noise_model_json(data: &Data) -> Vec<NoiseModelJson> {
             _ => 0.0,
         };
         let omega = g.omega() * dt;
-        for (m, name) in models.iter().zip(['u', 'v', 'w']) {
+        for (m, channel) in models.iter().zip(Channel::ALL) {
             out.push(NoiseModelJson {
-                condition: g.condition.letter().to_string(),
+                condition: g.condition,
                 rate_hz: g.rate_hz,
-                channel: name.to_string(),
+                channel,
                 ar: m.ar.clone(),
                 sd: m.sd(),
                 innovation_sd: m.innovation_var.sqrt(),
@@ -289,17 +324,19 @@ pub struct Analysis {
 
 /// The recording as the model's data, with its noise model estimated from the data (a
 /// stated `noise_sigma` is not used: see [`NoiseStatement`]).
-pub fn data_from(rec: &Recording, opts: &Options) -> Result<(Data, NoiseSigma), String> {
+pub fn data_from(rec: &Recording, opts: &Options) -> Result<(Data, NoiseSigma), DiscrepancyError> {
     if rec.method != Method::Rotation {
-        return Err(format!(
-            "{}: the discrepancy workflow needs a rotation recording (t_s)",
-            rec.source
-        ));
+        return Err(DiscrepancyError::NotRotation {
+            source_name: rec.source.clone(),
+            method: rec.method,
+        });
     }
     let g_loc = opts
         .g_loc
         .or(rec.meta.g_loc)
-        .ok_or_else(|| format!("{}: local gravity unknown: give --g-loc", rec.source))?;
+        .ok_or_else(|| DiscrepancyError::NoGravity {
+            source_name: rec.source.clone(),
+        })?;
     let t_mean = {
         let (s, n) = rec
             .groups
@@ -322,10 +359,13 @@ pub fn data_from(rec: &Recording, opts: &Options) -> Result<(Data, NoiseSigma), 
     };
     let mut groups = Vec::new();
     for g in &rec.groups {
-        let rate = rec
-            .nominal_rate(g)
-            .or(opts.rate_hz)
-            .ok_or_else(|| format!("{}: rotation rate unknown: give --rate-hz", rec.source))?;
+        let rate =
+            rec.nominal_rate(g)
+                .or(opts.rate_hz)
+                .ok_or_else(|| DiscrepancyError::NoRate {
+                    source_name: rec.source.clone(),
+                    condition: g.condition,
+                })?;
         let t0 = g.t_s.first().copied().unwrap_or(0.0);
         groups.push(GroupData {
             condition: g.condition,
@@ -535,7 +575,7 @@ pub fn analyse(
     noise: NoiseSigma,
     stated: Option<f64>,
     alpha: f64,
-) -> Result<Analysis, String> {
+) -> Result<Analysis, DiscrepancyError> {
     let n = (data.rows() * 3) as f64;
     let (candidates, untestable) = applicable(&data);
     let baseline = model::fit(&data, &[], None)?;
@@ -614,7 +654,7 @@ pub fn analyse(
 }
 
 /// Read, prepare and analyse a recording.
-pub fn run(rec: &Recording, opts: &Options) -> Result<Analysis, String> {
+pub fn run(rec: &Recording, opts: &Options) -> Result<Analysis, DiscrepancyError> {
     let (data, noise) = data_from(rec, opts)?;
     analyse(data, noise, rec.meta.noise_sigma, opts.alpha)
 }

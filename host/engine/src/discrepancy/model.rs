@@ -26,10 +26,35 @@
 //! a reading the model puts at a rail (fixed by the rail: no residual degree of freedom)
 //! are left out, and not counted in the degrees of freedom.
 
+use crate::fit::batch::BatchError;
 use crate::fit::noise::NoiseModel;
 use nalgebra::{DMatrix, DVector};
-use rotacal_shared::Condition;
+use rotacal_shared::{Channel, Condition};
 use std::f64::consts::TAU;
+
+/// Why the model could not be fitted.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum ModelError {
+    /// Not more rows than parameters.
+    #[error("too few rows for the model")]
+    TooFewRows,
+    /// The Jacobian is (numerically) rank deficient: some effect is not determined. The
+    /// cause is kept but not a `source`: its text would only repeat this one's.
+    #[error("the model's parameters are not all determined by the data")]
+    Undetermined(BatchError),
+    /// [`Data::noise`] has no model for a group ([`super::data_from`] and
+    /// [`Data::set_white`] give every group one).
+    #[error("no noise model for group {group}, channel {}", channel.index())]
+    NoNoiseModel {
+        /// The group's place in [`Data::groups`].
+        group: usize,
+        /// The channel.
+        channel: Channel,
+    },
+    /// An invariant of the fit failed: a bug in rotacal, not a problem of the data.
+    #[error("internal: {0} (a bug in rotacal; please report it)")]
+    Internal(&'static str),
+}
 
 /// The effects the workflow can add (formats.md names).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
@@ -394,7 +419,7 @@ impl Fit {
 }
 
 /// Fit the model with `effects` on, starting from `start` where given.
-pub fn fit(data: &Data, effects: &[Effect], start: Option<&Params>) -> Result<Fit, String> {
+pub fn fit(data: &Data, effects: &[Effect], start: Option<&Params>) -> Result<Fit, ModelError> {
     // The effects' derivatives vanish at A = B = 0: start them from the baseline's A, B.
     let base;
     let start = match start {
@@ -427,7 +452,7 @@ pub fn fit(data: &Data, effects: &[Effect], start: Option<&Params>) -> Result<Fi
     let layout = Layout::new(&p, data);
     let n_rows = data.rows();
     if n_rows * 3 <= layout.n * 3 + 1 {
-        return Err("too few rows for the model".into());
+        return Err(ModelError::TooFewRows);
     }
     let mut last_chi2 = f64::INFINITY;
     let mut result = None;
@@ -447,7 +472,7 @@ pub fn fit(data: &Data, effects: &[Effect], start: Option<&Params>) -> Result<Fi
             break;
         }
     }
-    let step = result.ok_or("no iteration")?;
+    let step = result.ok_or(ModelError::Internal("the fit made no iteration"))?;
     let s = p.sensitivity(data);
     // Residuals and χ² (whitened) at the final parameters. Readings the model puts at a
     // rail are fixed by the rail, not fitted: no residual degree of freedom, and the
@@ -458,7 +483,8 @@ pub fn fit(data: &Data, effects: &[Effect], start: Option<&Params>) -> Result<Fi
     let mut residuals = Vec::with_capacity(data.groups.len());
     for (gi, g) in data.groups.iter().enumerate() {
         let mut r: [Vec<f64>; 3] = Default::default();
-        for (j, rj) in r.iter_mut().enumerate() {
+        for (ch, rj) in Channel::ALL.into_iter().zip(r.iter_mut()) {
+            let j = ch.index();
             let mut clipped = Vec::with_capacity(g.tau.len());
             for k in 0..g.tau.len() {
                 let e = eval(&p, s[j], gi, g, j, k);
@@ -467,7 +493,7 @@ pub fn fit(data: &Data, effects: &[Effect], start: Option<&Params>) -> Result<Fi
                 ss[j] += res * res;
                 rj.push(res);
             }
-            let m = noise_of(data, gi, j)?;
+            let m = noise_of(data, gi, ch)?;
             let (c, n) = whitened_ss(m, rj, &clipped);
             chi2 += c;
             used += n;
@@ -522,12 +548,15 @@ pub fn fit(data: &Data, effects: &[Effect], start: Option<&Params>) -> Result<Fi
     })
 }
 
-/// Group `gi`'s channel `j`'s noise model.
-fn noise_of(data: &Data, gi: usize, j: usize) -> Result<&NoiseModel, String> {
+/// Group `gi`'s channel `ch`'s noise model.
+fn noise_of(data: &Data, gi: usize, ch: Channel) -> Result<&NoiseModel, ModelError> {
     data.noise
         .get(gi)
-        .and_then(|m| m.get(j))
-        .ok_or_else(|| format!("no noise model for group {gi}, channel {j}"))
+        .and_then(|m| m.get(ch.index()))
+        .ok_or(ModelError::NoNoiseModel {
+            group: gi,
+            channel: ch,
+        })
 }
 
 /// One Gauss–Newton increment and the covariance at the current point.
@@ -539,7 +568,7 @@ struct Step {
     chi2_before: f64,
 }
 
-fn gauss_newton_step(data: &Data, p: &Params, l: &Layout, s: [f64; 3]) -> Result<Step, String> {
+fn gauss_newton_step(data: &Data, p: &Params, l: &Layout, s: [f64; 3]) -> Result<Step, ModelError> {
     let n_rows = data.rows();
     let with_delta = p.delta.is_some();
     // Per channel: QR of the weighted Jacobian; projections for the Schur complement.
@@ -553,7 +582,8 @@ fn gauss_newton_step(data: &Data, p: &Params, l: &Layout, s: [f64; 3]) -> Result
     let mut zz = 0.0;
     let mut zr = 0.0;
     let mut chi2 = 0.0;
-    for (j, sj) in s.into_iter().enumerate() {
+    for (ch, sj) in Channel::ALL.into_iter().zip(s) {
+        let j = ch.index();
         // Column-major: column c of the Jacobian at xs[c * n_rows ..].
         let mut xs = vec![0.0; n_rows * l.n];
         let mut r = vec![0.0; n_rows];
@@ -599,7 +629,7 @@ fn gauss_newton_step(data: &Data, p: &Params, l: &Layout, s: [f64; 3]) -> Result
                 }
             }
             // Prewhiten the group's rows of the residual and of every column.
-            let m = noise_of(data, gi, j)?;
+            let m = noise_of(data, gi, ch)?;
             let keep = kept(m.order(), &clipped);
             let rows = row0..row0 + n;
             whiten(m, &mut r[rows.clone()], &keep);
@@ -636,15 +666,16 @@ fn gauss_newton_step(data: &Data, p: &Params, l: &Layout, s: [f64; 3]) -> Result
             Some(d) => &c.r - &c.z * d,
             None => c.r.clone(),
         };
-        let undetermined = "the model's parameters are not all determined by the data";
         let qt = c.q.transpose();
         let rr = &c.rr;
-        let mut cj = crate::fit::batch::unscaled_cov(rr).map_err(|_| undetermined)?;
+        let mut cj = crate::fit::batch::unscaled_cov(rr).map_err(ModelError::Undetermined)?;
+        // The solves fail on a zero on R's diagonal, which unscaled_cov refuses first.
+        let singular = ModelError::Undetermined(BatchError::Singular);
         let beta = rr
             .solve_upper_triangular(&(&qt * &rhs))
-            .ok_or(undetermined)?;
+            .ok_or_else(|| singular.clone())?;
         if let Some(v) = delta_var {
-            let wv = rr.solve_upper_triangular(&(&qt * &c.z)).ok_or("singular")?;
+            let wv = rr.solve_upper_triangular(&(&qt * &c.z)).ok_or(singular)?;
             cj += &wv * wv.transpose() * v;
         }
         local[j] = beta;

@@ -10,9 +10,59 @@
 //! The models are estimated once, before any physical model is fitted, and held fixed
 //! through the baseline and every step, so nested tests compare like with like.
 
-use super::model::Data;
-use crate::fit::noise::{self, NoiseModel};
+use super::model::{Data, GroupData};
+use crate::fit::noise::{self, NoiseError, NoiseModel};
 use nalgebra::{DMatrix, DVector};
+use rotacal_shared::{Channel, Condition};
+
+/// Why a group's channel has no noise model.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum ChannelNoiseError {
+    /// The AR model of the generic fit's residuals.
+    #[error(transparent)]
+    Model(#[from] NoiseError),
+    /// Not enough whitened rows beyond the generic fit's coefficients.
+    #[error("too few rows to estimate the noise")]
+    TooFewRows,
+    /// The innovations' level came out zero or not finite.
+    #[error("the noise estimate is zero: are the readings constant?")]
+    Zero,
+}
+
+/// Why the noise models could not be estimated; the group is named by its condition and
+/// rate.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum NoiseEstimateError {
+    /// A group too short for the generic fit.
+    #[error(
+        "a group has fewer than {} rows: too few to estimate the noise",
+        MIN_ROWS
+    )]
+    ShortGroup {
+        /// The group's condition.
+        condition: Condition,
+        /// Its nominal rate, Hz.
+        rate_hz: f64,
+        /// Its rows.
+        rows: usize,
+    },
+    /// One channel's model. Its text is part of this one's (not a `source`: the CLI
+    /// prints the chain, which would repeat it).
+    #[error("noise model of a group's channel: {cause}")]
+    Channel {
+        /// The group's condition.
+        condition: Condition,
+        /// Its nominal rate, Hz.
+        rate_hz: f64,
+        /// The channel.
+        channel: Channel,
+        /// Why.
+        cause: ChannelNoiseError,
+    },
+}
+
+/// The fewest rows a group needs for its noise to be estimated.
+const MIN_ROWS: usize = 30;
 
 /// How the estimate is made (for the JSON's `source`).
 pub const HOW: &str = "AR(p) per group and channel, Yule-Walker with the order by BIC, of the \
@@ -64,7 +114,7 @@ fn whitened_level(
     x: &DMatrix<f64>,
     y: &DVector<f64>,
     flagged: &[bool],
-) -> Result<f64, String> {
+) -> Result<f64, ChannelNoiseError> {
     let keep = whiten_keep(m, flagged);
     let rows = keep.iter().filter(|&&k| k).count();
     let mut xw = x.clone();
@@ -75,7 +125,7 @@ fn whitened_level(
     super::model::whiten(m, yw.as_mut_slice(), &keep);
     let q = xw.ncols();
     if rows <= q + 10 {
-        return Err("too few rows to estimate the noise".into());
+        return Err(ChannelNoiseError::TooFewRows);
     }
     let qr = xw.qr();
     let qm = qr.q();
@@ -84,7 +134,7 @@ fn whitened_level(
     if level.is_finite() && level > 0.0 {
         Ok(level)
     } else {
-        Err("the noise estimate is zero: are the readings constant?".into())
+        Err(ChannelNoiseError::Zero)
     }
 }
 
@@ -100,7 +150,7 @@ fn model_of(
     omega: f64,
     temp: Option<&[f64]>,
     flagged: &[bool],
-) -> Result<NoiseModel, String> {
+) -> Result<NoiseModel, ChannelNoiseError> {
     let x = design(tau, omega, temp, flagged);
     let yv = DVector::from_iterator(
         y.len(),
@@ -111,45 +161,47 @@ fn model_of(
     let qr = x.clone().qr();
     let q = qr.q();
     let e = &yv - &q * (q.transpose() * &yv);
-    let m = NoiseModel::estimate(e.as_slice(), flagged)
-        .and_then(|m| m.rescaled(&x))
-        .map_err(|err| err.to_string())?;
+    let m = NoiseModel::estimate(e.as_slice(), flagged).and_then(|m| m.rescaled(&x))?;
     let factor = whitened_level(&m, &x, &yv, flagged)?;
     Ok(m.scaled(factor))
 }
 
 /// The noise model per group and channel (u, v, w).
-pub fn estimate(data: &Data) -> Result<Vec<[NoiseModel; 3]>, String> {
-    let mut out = Vec::with_capacity(data.groups.len());
-    for g in &data.groups {
-        let n = g.tau.len();
-        if n < 30 {
-            return Err("a group has fewer than 30 rows: too few to estimate the noise".into());
-        }
-        // The temperature is a regressor only where it varies within the group.
-        let (lo, hi) = g
-            .temp
-            .iter()
-            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &x| {
-                (lo.min(x), hi.max(x))
-            });
-        let temp = (hi - lo > 0.05).then_some(g.temp.as_slice());
-        let mut models = Vec::with_capacity(3);
-        for y in &g.y {
-            let flagged = noise::clipped(y);
-            // Without the temperature if it makes the fit singular (a temperature that is
-            // a straight line in time).
-            let m = model_of(y, &g.tau, g.omega(), temp, &flagged)
-                .or_else(|e| {
-                    temp.map_or(Err(e), |_| model_of(y, &g.tau, g.omega(), None, &flagged))
-                })
-                .map_err(|err| format!("noise model of a group's channel: {err}"))?;
-            models.push(m);
-        }
-        let [u, v, w]: [NoiseModel; 3] = models
-            .try_into()
-            .map_err(|_| "noise model: three channels expected".to_string())?;
-        out.push([u, v, w]);
+pub fn estimate(data: &Data) -> Result<Vec<[NoiseModel; 3]>, NoiseEstimateError> {
+    data.groups.iter().map(group_models).collect()
+}
+
+/// One group's models, u, v, w.
+fn group_models(g: &GroupData) -> Result<[NoiseModel; 3], NoiseEstimateError> {
+    let rows = g.tau.len();
+    if rows < MIN_ROWS {
+        return Err(NoiseEstimateError::ShortGroup {
+            condition: g.condition,
+            rate_hz: g.rate_hz,
+            rows,
+        });
     }
-    Ok(out)
+    // The temperature is a regressor only where it varies within the group.
+    let (lo, hi) = g
+        .temp
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &x| {
+            (lo.min(x), hi.max(x))
+        });
+    let temp = (hi - lo > 0.05).then_some(g.temp.as_slice());
+    let model = |channel: Channel| {
+        let y = &g.y[channel.index()];
+        let flagged = noise::clipped(y);
+        // Without the temperature if it makes the fit singular (a temperature that is a
+        // straight line in time).
+        model_of(y, &g.tau, g.omega(), temp, &flagged)
+            .or_else(|e| temp.map_or(Err(e), |_| model_of(y, &g.tau, g.omega(), None, &flagged)))
+            .map_err(|cause| NoiseEstimateError::Channel {
+                condition: g.condition,
+                rate_hz: g.rate_hz,
+                channel,
+                cause,
+            })
+    };
+    Ok([model(Channel::U)?, model(Channel::V)?, model(Channel::W)?])
 }

@@ -3,8 +3,22 @@
 //! given magnitude hidden in it, and the analysis of each seed.
 
 use super::model::Effect;
-use super::{Analysis, Options};
-use crate::simulate::{Config, Simulation};
+use super::{Analysis, DiscrepancyError, Options};
+use crate::simulate::{Config, ConfigError, ReadBackError, Simulation};
+
+/// Why a trial failed: its configuration, its simulation or its analysis.
+#[derive(Debug, thiserror::Error)]
+pub enum TrialError {
+    /// The configuration is refused.
+    #[error(transparent)]
+    Config(#[from] ConfigError),
+    /// The simulated recording could not be written and read back.
+    #[error(transparent)]
+    Recording(#[from] ReadBackError),
+    /// The workflow failed on it.
+    #[error(transparent)]
+    Analysis(#[from] DiscrepancyError),
+}
 
 /// Single-rate trials: seed 000's 10 mHz run, with the lab's temperature swinging ±1 °C
 /// over 10 minutes (so that a temperature coefficient can be told from a drift).
@@ -103,21 +117,24 @@ pub fn base(e: Effect) -> &'static str {
 }
 
 /// Simulate `toml` with `seed` and analyse it.
-pub fn analyse(toml: &str, seed: u64) -> Result<Analysis, String> {
-    let mut cfg = Config::from_toml(toml).map_err(|e| e.to_string())?;
+pub fn analyse(toml: &str, seed: u64) -> Result<Analysis, TrialError> {
+    let mut cfg = Config::from_toml(toml)?;
     cfg.seed = seed;
-    let sim = Simulation::new(cfg).map_err(|e| e.to_string())?;
-    let rec = sim.recording().map_err(|e| e.to_string())?;
-    super::run(&rec, &Options::default())
+    let rec = Simulation::new(cfg)?.recording()?;
+    Ok(super::run(&rec, &Options::default())?)
 }
 
 /// One trial: `effects` at their magnitudes, hidden in their base, white noise not stated.
-pub fn trial(effects: &[(Effect, f64)], seed: u64) -> Result<Analysis, String> {
+pub fn trial(effects: &[(Effect, f64)], seed: u64) -> Result<Analysis, TrialError> {
     trial_in(Noise::White, effects, seed)
 }
 
 /// One trial under `noise`: `effects` at their magnitudes, hidden in their base.
-pub fn trial_in(noise: Noise, effects: &[(Effect, f64)], seed: u64) -> Result<Analysis, String> {
+pub fn trial_in(
+    noise: Noise,
+    effects: &[(Effect, f64)],
+    seed: u64,
+) -> Result<Analysis, TrialError> {
     let multi = effects.iter().any(|(e, _)| *e == Effect::Centripetal);
     let mut toml = String::from(base(if multi {
         Effect::Centripetal
