@@ -8,25 +8,136 @@
 
 use crate::calibrate::correction::{Correction, Frame};
 use crate::calibrate::json::CorrectionJson;
-use crate::recording::{Columns, Metadata, Recording, Row, Scanned, Writer};
+use crate::recording::{Columns, Metadata, Recording, RecordingError, Row, Scanned, Writer};
 use std::fmt::Write as _;
 use std::io::Write;
 use std::path::Path;
 
-/// A problem reading a calibration file or applying it.
+/// A problem reading a calibration file or applying it, naming the file concerned.
 #[derive(Debug, thiserror::Error)]
-#[error("{source_name}: {message}")]
+#[error("{source_name}: {kind}")]
 pub struct ApplyError {
     /// The file concerned.
     pub source_name: String,
     /// What is wrong.
-    pub message: String,
+    pub kind: ApplyErrorKind,
 }
 
-fn bad(source: &str, message: impl Into<String>) -> ApplyError {
+/// What is wrong; `entry` is the place in the calibration file's `by_rate` list.
+#[derive(Debug, thiserror::Error)]
+pub enum ApplyErrorKind {
+    /// Reading or writing the file.
+    #[error(transparent)]
+    Io(#[from] std::io::Error),
+    /// The calibration file is not JSON.
+    #[error("line {}: not JSON: {}", .0.line(), .0)]
+    NotJson(serde_json::Error),
+    /// JSON without a `by_rate` list.
+    #[error("not a calibration file: no 'by_rate' list")]
+    NoByRate,
+    /// An empty `by_rate` list.
+    #[error("'by_rate' is empty")]
+    EmptyByRate,
+    /// An entry without a correction (written by an older rotacal).
+    #[error("by_rate[{entry}] has no 'correction': calibrate again with this version of rotacal")]
+    NoCorrection {
+        /// The entry.
+        entry: usize,
+    },
+    /// A correction that does not read as one.
+    #[error("by_rate[{entry}].correction: {cause}")]
+    BadCorrection {
+        /// The entry.
+        entry: usize,
+        /// The JSON reader's complaint.
+        cause: serde_json::Error,
+    },
+    /// A frame's matrix or offset with a value that is not finite.
+    #[error(
+        "by_rate[{entry}].correction: {} frame: a matrix or offset value is not finite",
+        frame.as_str()
+    )]
+    NotFinite {
+        /// The entry.
+        entry: usize,
+        /// The frame.
+        frame: Frame,
+    },
+    /// A frame's covariance that is not 12×12.
+    #[error(
+        "by_rate[{entry}].correction: {} frame: the covariance must be 12×12",
+        frame.as_str()
+    )]
+    CovarianceShape {
+        /// The entry.
+        entry: usize,
+        /// The frame.
+        frame: Frame,
+    },
+    /// Several calibrations and no `--rate-hz` to choose.
+    #[error(
+        "{} calibrations (rates {}): choose one with --rate-hz",
+        rates.len(),
+        rate_list(rates)
+    )]
+    RateNeeded {
+        /// Each entry's rate (None: static).
+        rates: Vec<Option<f64>>,
+    },
+    /// No calibration at the rate asked for.
+    #[error("no calibration at rate {rate_hz} Hz")]
+    NoRate {
+        /// The rate asked for, Hz.
+        rate_hz: f64,
+    },
+    /// The platter frame asked of a calibration that has none.
+    #[error(
+        "no platter-frame correction: the rotation method does not fix how the device sat on \
+         the platter; use --frame device"
+    )]
+    NoPlatterFrame,
+    /// A recording that is `apply`'s output.
+    #[error("already corrected (by {by}): apply a calibration to raw readings")]
+    AlreadyCorrected {
+        /// Its `# calibration=`.
+        by: String,
+    },
+    /// A recording in other units than the calibration's readings.
+    #[error("units '{units}', but the calibration {cal_name} is for readings in '{units_in}'")]
+    WrongUnits {
+        /// The recording's units.
+        units: String,
+        /// The calibration file.
+        cal_name: String,
+        /// The calibration's readings units.
+        units_in: String,
+    },
+}
+
+/// Why [`run`] failed: the calibration or the output, or the recording.
+#[derive(Debug, thiserror::Error)]
+pub enum RunError {
+    /// The calibration file, applying it, or writing the output.
+    #[error(transparent)]
+    Apply(#[from] ApplyError),
+    /// Reading the recording.
+    #[error(transparent)]
+    Recording(#[from] RecordingError),
+}
+
+/// Rates for a message: `0.1, 0.5`, `static` for a static entry.
+fn rate_list(rates: &[Option<f64>]) -> String {
+    let rates: Vec<String> = rates
+        .iter()
+        .map(|r| r.map_or("static".into(), |r| format!("{r}")))
+        .collect();
+    rates.join(", ")
+}
+
+fn bad(source: &str, kind: impl Into<ApplyErrorKind>) -> ApplyError {
     ApplyError {
         source_name: source.to_string(),
-        message: message.into(),
+        kind: kind.into(),
     }
 }
 
@@ -39,7 +150,7 @@ pub fn read_corrections(
 }
 
 fn parse(text: &str, source: &str) -> Result<serde_json::Value, ApplyError> {
-    serde_json::from_str(text).map_err(|e| bad(source, format!("line {}: not JSON: {e}", e.line())))
+    serde_json::from_str(text).map_err(|e| bad(source, ApplyErrorKind::NotJson(e)))
 }
 
 /// A calibration file's chosen correction, with the file's `g_loc`.
@@ -57,7 +168,7 @@ pub struct Loaded {
 /// `frame` (`rotacal apply` and `rotacal export`).
 pub fn load(cal: &Path, rate_hz: Option<f64>, frame: Frame) -> Result<Loaded, ApplyError> {
     let name = cal.display().to_string();
-    let text = std::fs::read_to_string(cal).map_err(|e| bad(&name, e.to_string()))?;
+    let text = std::fs::read_to_string(cal).map_err(|e| bad(&name, e))?;
     let v = parse(&text, &name)?;
     let (json, correction) = choose(&corrections_of(&v, &name)?, rate_hz, frame, &name)?;
     Ok(Loaded {
@@ -74,32 +185,29 @@ fn corrections_of(
     let entries = v
         .get("by_rate")
         .and_then(|b| b.as_array())
-        .ok_or_else(|| bad(source, "not a calibration file: no 'by_rate' list"))?;
+        .ok_or_else(|| bad(source, ApplyErrorKind::NoByRate))?;
     let mut out = Vec::new();
-    for (i, e) in entries.iter().enumerate() {
+    for (entry, e) in entries.iter().enumerate() {
         let rate = e.get("rate_hz").and_then(serde_json::Value::as_f64);
-        let c = e.get("correction").ok_or_else(|| {
-            bad(
-                source,
-                format!(
-                    "by_rate[{i}] has no 'correction': calibrate again with this version of rotacal"
-                ),
-            )
-        })?;
+        let c = e
+            .get("correction")
+            .ok_or_else(|| bad(source, ApplyErrorKind::NoCorrection { entry }))?;
         let c: CorrectionJson = serde_json::from_value(c.clone())
-            .map_err(|e| bad(source, format!("by_rate[{i}].correction: {e}")))?;
+            .map_err(|cause| bad(source, ApplyErrorKind::BadCorrection { entry, cause }))?;
         for f in std::iter::once(&c.device_frame).chain(c.platter_frame.as_ref()) {
-            check(f).map_err(|m| bad(source, format!("by_rate[{i}].correction: {m}")))?;
+            check(f, entry).map_err(|kind| bad(source, kind))?;
         }
         out.push((rate, c));
     }
     if out.is_empty() {
-        return Err(bad(source, "'by_rate' is empty"));
+        return Err(bad(source, ApplyErrorKind::EmptyByRate));
     }
     Ok(out)
 }
 
-fn check(c: &Correction) -> Result<(), String> {
+/// Entry `entry`'s correction `c` has finite values and a 12×12 covariance.
+fn check(c: &Correction, entry: usize) -> Result<(), ApplyErrorKind> {
+    let frame = c.frame;
     let finite = c
         .matrix
         .iter()
@@ -107,20 +215,14 @@ fn check(c: &Correction) -> Result<(), String> {
         .chain(&c.offset)
         .all(|x| x.is_finite());
     if !finite {
-        return Err(format!(
-            "{} frame: a matrix or offset value is not finite",
-            c.frame.as_str()
-        ));
+        return Err(ApplyErrorKind::NotFinite { entry, frame });
     }
     if c.covariance.len() != crate::calibrate::correction::PARAMS
         || c.covariance
             .iter()
             .any(|r| r.len() != crate::calibrate::correction::PARAMS)
     {
-        return Err(format!(
-            "{} frame: the covariance must be 12×12",
-            c.frame.as_str()
-        ));
+        return Err(ApplyErrorKind::CovarianceShape { entry, frame });
     }
     Ok(())
 }
@@ -135,33 +237,25 @@ pub fn choose(
     let entry = match (rate_hz, all) {
         (None, [one]) => one,
         (None, _) => {
-            let rates: Vec<String> = all
-                .iter()
-                .map(|(r, _)| r.map_or("static".into(), |r| format!("{r}")))
-                .collect();
             return Err(bad(
                 source,
-                format!(
-                    "{} calibrations (rates {}): choose one with --rate-hz",
-                    all.len(),
-                    rates.join(", ")
-                ),
+                ApplyErrorKind::RateNeeded {
+                    rates: all.iter().map(|(r, _)| *r).collect(),
+                },
             ));
         }
         (Some(r), _) => all
             .iter()
             .find(|(x, _)| x.is_some_and(|x| (x - r).abs() <= 1e-12 * r.abs()))
-            .ok_or_else(|| bad(source, format!("no calibration at rate {r} Hz")))?,
+            .ok_or_else(|| bad(source, ApplyErrorKind::NoRate { rate_hz: r }))?,
     };
     let c = match frame {
         Frame::Device => entry.1.device_frame.clone(),
-        Frame::Platter => entry.1.platter_frame.clone().ok_or_else(|| {
-            bad(
-                source,
-                "no platter-frame correction: the rotation method does not fix how the device \
-                 sat on the platter; use --frame device",
-            )
-        })?,
+        Frame::Platter => entry
+            .1
+            .platter_frame
+            .clone()
+            .ok_or_else(|| bad(source, ApplyErrorKind::NoPlatterFrame))?,
     };
     Ok((entry.1.clone(), c))
 }
@@ -230,16 +324,17 @@ fn check_meta(meta: &Metadata, source: &str, job: &Job<'_>) -> Result<(), ApplyE
     if let Some(cal) = meta.other.get("calibration") {
         return Err(bad(
             source,
-            format!("already corrected (by {cal}): apply a calibration to raw readings"),
+            ApplyErrorKind::AlreadyCorrected { by: cal.clone() },
         ));
     }
     match &meta.units {
         Some(u) if u.trim() != job.units_in.trim() => Err(bad(
             source,
-            format!(
-                "units '{u}', but the calibration {} is for readings in '{}'",
-                job.cal_name, job.units_in
-            ),
+            ApplyErrorKind::WrongUnits {
+                units: u.clone(),
+                cal_name: job.cal_name.to_string(),
+                units_in: job.units_in.to_string(),
+            },
         )),
         _ => Ok(()),
     }
@@ -307,7 +402,7 @@ impl<'a, W: Write> Corrector<'a, W> {
             .insert("coverage_factor".into(), format!("{}", job.k));
         meta.method = Some(method);
         let w = Writer::new(out, &meta, &Columns { unc: true, ..cols })
-            .map_err(|e| bad(job.out_name, e.to_string()))?;
+            .map_err(|e| bad(job.out_name, e))?;
         Ok(Corrector {
             job,
             w,
@@ -333,7 +428,7 @@ impl<'a, W: Write> Corrector<'a, W> {
         row.pose = r.pose;
         self.w
             .write_row(&row)
-            .map_err(|e| bad(self.job.out_name, e.to_string()))?;
+            .map_err(|e| bad(self.job.out_name, e))?;
         self.rows += 1;
         let Some(g) = self.g else {
             return Ok(());
@@ -378,9 +473,7 @@ impl<'a, W: Write> Corrector<'a, W> {
     }
 
     fn finish(mut self) -> Result<Summary, ApplyError> {
-        self.w
-            .flush()
-            .map_err(|e| bad(self.job.out_name, e.to_string()))?;
+        self.w.flush().map_err(|e| bad(self.job.out_name, e))?;
         let (rows, g) = (self.rows, self.g);
         let rms = |ss: f64| (rows > 0 && g.is_some()).then(|| (ss / rows as f64).sqrt());
         Ok(Summary {
@@ -473,7 +566,7 @@ pub fn run(
     out: &Path,
     frame: Frame,
     rate_hz: Option<f64>,
-) -> anyhow::Result<(Summary, String)> {
+) -> Result<(Summary, String), RunError> {
     let Loaded {
         json,
         correction: corr,
@@ -504,8 +597,7 @@ pub fn run(
                 groups.clear();
                 rate_col = columns.rate_hz;
                 state = check_meta(&meta, &source, &job).and_then(|()| {
-                    let file = std::fs::File::create(&partial)
-                        .map_err(|e| bad(&out_name, e.to_string()))?;
+                    let file = std::fs::File::create(&partial).map_err(|e| bad(&out_name, e))?;
                     let cols = Columns {
                         t_s: columns.t_s,
                         angle_deg: columns.angle_deg,
@@ -562,7 +654,7 @@ pub fn run(
             let s = c.finish().inspect_err(|_| discard())?;
             std::fs::rename(&partial, out).map_err(|e| {
                 discard();
-                bad(&out_name, e.to_string())
+                bad(&out_name, e)
             })?;
             s
         }
@@ -576,7 +668,7 @@ pub fn run(
             let rec = crate::recording::read(recording)?;
             // Checked before the output is created: a refused input leaves no file.
             check_units(&rec, &job)?;
-            let file = std::fs::File::create(out).map_err(|e| bad(&out_name, e.to_string()))?;
+            let file = std::fs::File::create(out).map_err(|e| bad(&out_name, e))?;
             apply(&rec, &job, file)?
         }
     };
