@@ -10,7 +10,7 @@ use super::{
     correction, err, methods, nominal_rate, CalibrateError, CalibrateErrorKind, Options, Preflight,
     RateError, TypeB, CLOCK,
 };
-use crate::recording::{Group, Recording};
+use crate::recording::{same_rate, Group, Recording};
 use nalgebra::DMatrix;
 use rotacal_shared::intrinsic::{self, ConditionFit};
 use rotacal_shared::{Channel, Condition, Param};
@@ -32,10 +32,9 @@ pub(super) fn plan(
     keys: &[(Condition, Option<f64>)],
     opts: &Options,
 ) -> Result<Vec<RatePlan>, CalibrateError> {
-    let same = |a: Option<f64>, b: Option<f64>| a.map(f64::to_bits) == b.map(f64::to_bits);
     let mut rates: Vec<Option<f64>> = Vec::new();
     for (_, rate) in keys {
-        if !rates.iter().any(|r| same(*r, *rate)) {
+        if !rates.iter().any(|r| same_rate(*r, *rate)) {
             rates.push(*rate);
         }
     }
@@ -48,7 +47,7 @@ pub(super) fn plan(
             for (slot, cond) in groups.iter_mut().zip(Condition::ALL) {
                 *slot = keys
                     .iter()
-                    .position(|(c, r)| *c == cond && same(*r, rate))
+                    .position(|(c, r)| *c == cond && same_rate(*r, rate))
                     .ok_or_else(|| {
                         err(
                             rec,

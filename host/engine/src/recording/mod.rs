@@ -314,7 +314,8 @@ impl Recording {
     }
 }
 
-fn same_rate(a: Option<f64>, b: Option<f64>) -> bool {
+/// Whether two `rate_hz` values name the same nominal rate (bit for bit, `None` alike).
+pub(crate) fn same_rate(a: Option<f64>, b: Option<f64>) -> bool {
     a.map(f64::to_bits) == b.map(f64::to_bits)
 }
 
