@@ -1,0 +1,152 @@
+//! The poses from the readings: repeated readings at one orientation averaged into a
+//! pose mean, with its standard error from the readings' own noise.
+
+use super::{Pose, PoseError, PoseNoise, StaticCondition, NOISE_MODEL_MIN};
+use crate::recording::Oriented;
+
+/// Each channel's noise model at a pose, when it has enough readings: the mean's variance
+/// is the AR sandwich for a regressor of ones. A channel whose model cannot be made (a
+/// constant reading, say) keeps std/√n.
+fn pose_noise(rows: &[[f64; 3]], mean: &[f64; 3]) -> Option<[Option<PoseNoise>; 3]> {
+    if rows.len() < NOISE_MODEL_MIN {
+        return None;
+    }
+    let ones = nalgebra::DMatrix::from_element(rows.len(), 1, 1.0);
+    Some([0, 1, 2].map(|j| {
+        let resid: Vec<f64> = rows.iter().map(|r| r[j] - mean[j]).collect();
+        let (m, cov) = crate::fit::noise::NoiseModel::estimate(&resid, &[])
+            .ok()?
+            .regression_cov(&ones)
+            .ok()?;
+        let var = cov[(0, 0)];
+        Some(PoseNoise {
+            lag1: m.autocorrelation(1),
+            order: m.order(),
+            se: var.max(0.0).sqrt(),
+            n_eff: m.var / var,
+        })
+    }))
+}
+
+fn mean_std(rows: &[[f64; 3]]) -> ([f64; 3], Option<[f64; 3]>) {
+    let n = rows.len() as f64;
+    let mean = [0, 1, 2].map(|c| rows.iter().map(|r| r[c]).sum::<f64>() / n);
+    let std = (rows.len() >= 2).then(|| {
+        [0, 1, 2].map(|c| {
+            (rows.iter().map(|r| (r[c] - mean[c]).powi(2)).sum::<f64>() / (n - 1.0)).sqrt()
+        })
+    });
+    (mean, std)
+}
+
+/// A direction as text: `+x` for an axis, else the vector.
+pub fn direction_name(g: &[f64; 3]) -> String {
+    for (k, axis) in ['x', 'y', 'z'].iter().enumerate() {
+        let others = (0..3).filter(|&i| i != k).all(|i| g[i].abs() < 1e-9);
+        if others {
+            if let Some(&c) = g.get(k) {
+                if (c - 1.0).abs() < 1e-9 {
+                    return format!("+{axis}");
+                }
+                if (c + 1.0).abs() < 1e-9 {
+                    return format!("-{axis}");
+                }
+            }
+        }
+    }
+    format!("({:.4}, {:.4}, {:.4})", g[0], g[1], g[2])
+}
+
+/// The poses of a file with gravity directions: by the `pose` column, else by direction.
+pub fn poses_from_oriented(o: &Oriented) -> Result<Vec<Pose>, PoseError> {
+    // (key, gravity, rows, first line)
+    type Rows = Vec<[f64; 3]>;
+    let mut groups: Vec<(String, [f64; 3], Rows, u64)> = Vec::new();
+    for (i, (g, y)) in o.gravity.iter().zip(&o.y).enumerate() {
+        let line = o.line.get(i).copied().unwrap_or(0);
+        // Without names, a pose is one exact direction (named after grouping).
+        let key = match &o.pose {
+            Some(names) => names.get(i).cloned().unwrap_or_default(),
+            None => format!("{:?}", g.map(f64::to_bits)),
+        };
+        match groups.iter_mut().find(|p| p.0 == key) {
+            Some(p) => {
+                if p.1.iter().zip(g).any(|(a, b)| (a - b).abs() > 1e-9) {
+                    return Err(PoseError::PoseDirection {
+                        name: key,
+                        first: p.3,
+                        line,
+                    });
+                }
+                p.2.push(*y);
+            }
+            None => groups.push((key, *g, vec![*y], line)),
+        }
+    }
+    let named = o.pose.is_some();
+    let mut names: Vec<String> = Vec::new();
+    Ok(groups
+        .into_iter()
+        .map(|(key, gravity, rows, first_line)| {
+            let (mean, std) = mean_std(&rows);
+            let noise = pose_noise(&rows, &mean);
+            let name = if named {
+                key
+            } else {
+                // Directions that print alike get the line of their first reading too.
+                let d = direction_name(&gravity);
+                let name = if names.contains(&d) {
+                    format!("{d} (line {first_line})")
+                } else {
+                    d
+                };
+                names.push(name.clone());
+                name
+            };
+            Pose {
+                name,
+                gravity,
+                n: rows.len(),
+                mean,
+                std,
+                first_line,
+                noise,
+                angle_direction: None,
+            }
+        })
+        .collect())
+}
+
+/// The poses of a stepped (condition, angle) record: one per condition and table angle.
+pub fn poses_from_conditions(conds: &[StaticCondition<'_>]) -> Vec<Pose> {
+    let mut out = Vec::new();
+    for g in conds {
+        let mut angles: Vec<(u64, Vec<[f64; 3]>)> = Vec::new();
+        for (i, a) in g.angle_deg.iter().enumerate() {
+            let y = g.y.map(|c| c.get(i).copied().unwrap_or(f64::NAN));
+            match angles.iter_mut().find(|(k, _)| *k == a.to_bits()) {
+                Some((_, rows)) => rows.push(y),
+                None => angles.push((a.to_bits(), vec![y])),
+            }
+        }
+        for (bits, rows) in angles {
+            let deg = f64::from_bits(bits);
+            let (mean, std) = mean_std(&rows);
+            let noise = pose_noise(&rows, &mean);
+            out.push(Pose {
+                name: format!("{} {deg}°", g.condition.letter()),
+                gravity: g.condition.gravity_direction(deg.to_radians()),
+                n: rows.len(),
+                mean,
+                std,
+                first_line: g.first_line,
+                noise,
+                angle_direction: Some(
+                    g.condition
+                        .gravity_direction(deg.to_radians() + std::f64::consts::FRAC_PI_2),
+                ),
+            });
+        }
+    }
+    out
+}
