@@ -1,6 +1,6 @@
 //! The streaming calibration (`calibrate::stream`, docs/streaming.md) through its public
 //! entry, `calibrate_file`: its coverage on long correlated records, and the fast reader
-//! against the csv reader on the test corpus. The comparisons of the streaming engine with
+//! against the csv reader on the test corpus and on simulated files. The comparisons of the streaming engine with
 //! the engine that holds every row, and of one pass with two, are the engine's own tests
 //! (`cargo test --release -p rotacal-engine -- stream::`).
 
@@ -72,9 +72,25 @@ fn the_fast_reader_reads_as_the_csv_reader_does() {
     assert!(paths.len() > TEXTS.len() + 10, "the corpus was not found");
     for p in &paths {
         let fast = recording::read(p).map_err(|e| e.to_string());
+        let name = p.display().to_string();
         let file = std::fs::File::open(p).unwrap();
-        let csv = recording::read_from(file, &p.display().to_string()).map_err(|e| e.to_string());
-        assert_eq!(fast, csv, "{}", p.display());
+        let csv = recording::read_from(file, &name).map_err(|e| e.to_string());
+        assert_eq!(fast, csv, "{name}");
+        // The same bytes held in memory (as `Simulation::recording` reads them).
+        let held = recording::read_bytes(&std::fs::read(p).unwrap(), &name);
+        assert_eq!(held.map_err(|e| e.to_string()), csv, "{name} from memory");
+    }
+    // Every preset's file, and a 104 Hz one with every optional column the simulator
+    // writes, read from memory by both readers.
+    let mut configs: Vec<Config> = rotacal::simulate::config::PRESETS
+        .iter()
+        .map(|(name, _)| Config::preset(name).unwrap())
+        .collect();
+    configs.push(config(7, 3000, Some(vec![0.6]), None));
+    for cfg in configs {
+        let (_, bytes) = Simulation::new(cfg).unwrap().write(Vec::new()).unwrap();
+        let csv = recording::read_from(&bytes[..], "simulated").unwrap();
+        assert_eq!(recording::read_bytes(&bytes, "simulated").unwrap(), csv);
     }
 }
 

@@ -47,7 +47,8 @@ mod write;
 
 pub use error::{RecordingError, RecordingErrorKind};
 pub use read::{
-    read, read_as, read_from, read_in_progress, read_preamble, scan, Parse, PartRow, Parts, Scanned,
+    read, read_as, read_bytes, read_from, read_in_progress, read_preamble, scan, Parse, PartRow,
+    Parts, Scanned,
 };
 pub use write::Writer;
 

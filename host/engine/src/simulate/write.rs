@@ -24,10 +24,11 @@ impl Simulation {
     }
 
     /// The recording as `calibrate` would read it from the file (written to memory and
-    /// read back, so tests go through the same parser as users).
+    /// read back by the readers `calibrate FILE` uses, so tests go through the same parser
+    /// as users).
     pub fn recording(&self) -> Result<Recording, ReadBackError> {
         let (_, buf) = self.write(Vec::new())?;
-        Ok(recording::read_from(&buf[..], "simulated")?)
+        Ok(recording::read_bytes(&buf, "simulated")?)
     }
 
     /// The recording the device would stream of this simulation, its conversions averaged
@@ -35,8 +36,8 @@ impl Simulation {
     pub fn recording_through_device(&self) -> Result<Recording, ReadBackError> {
         let (mut rows, mut fits) = (Vec::new(), Vec::new());
         device::record(self, &mut rows, &mut fits)?;
-        Ok(recording::read_from(
-            &rows[..],
+        Ok(recording::read_bytes(
+            &rows,
             "simulated through the device",
         )?)
     }

@@ -47,19 +47,36 @@ fn read_file(
     method: Option<Method>,
 ) -> Result<Recording, RecordingError> {
     let source = path.display().to_string();
+    read_fast_or_csv(|| open(path), &source, complete, method)
+}
+
+/// What `open` gives, by the fast reader or, failing that (a quote, a free or pose file,
+/// any problem), read again by the csv one.
+fn read_fast_or_csv<R: Read>(
+    open: impl Fn() -> Result<R, RecordingError>,
+    source: &str,
+    complete: bool,
+    method: Option<Method>,
+) -> Result<Recording, RecordingError> {
     let parser = || Parser {
-        source: &source,
+        source,
         complete,
         line_offset: 0,
         method,
     };
     let mut groups: Vec<Group> = Vec::new();
-    if let Some(Some(mut rec)) = parser().run_fast(open(path)?, &mut groups, false, Parse::All)? {
+    if let Some(Some(mut rec)) = parser().run_fast(open()?, &mut groups, false, Parse::All)? {
         shrink(&mut groups);
         rec.groups = groups;
         return Ok(rec);
     }
-    parser().run(open(path)?)
+    parser().run(open()?)
+}
+
+/// Read a recording held in memory as [`read`] reads a file: by the fast reader, or (a
+/// quote, a free or pose file, any problem) the csv one. `source` names it in messages.
+pub fn read_bytes(bytes: &[u8], source: &str) -> Result<Recording, RecordingError> {
+    read_fast_or_csv(|| Ok(bytes), source, true, None)
 }
 
 /// Read a recording from `reader`; `source` names it in messages.
