@@ -1,12 +1,13 @@
 //! What can be wrong with a recording, and where: [`RecordingError`] names the file, the
-//! line and the problem ([`RecordingErrorKind`]).
+//! line and the problem ([`RecordingErrorKind`]); a bad metadata value or combination is a
+//! [`MetadataError`], naming the key.
 
 use std::fmt;
 use std::io;
 
 use rotacal_shared::Condition;
 
-use super::COLUMN_NAMES;
+use super::{COLUMN_NAMES, TICK_HZ_KEY};
 
 /// A problem with a recording: which file, which line (if one applies) and what.
 #[derive(Debug)]
@@ -56,8 +57,9 @@ pub enum RecordingErrorKind {
     DuplicateColumn(String),
     /// Lines end in a bare carriage return (old Mac line endings).
     BadLineEndings,
-    /// A `# key=value` line with a bad value for a known key, or a known key given twice.
-    BadMetadata(String),
+    /// A `# key=value` line with a bad value for a known key, a known key given twice, or
+    /// columns the metadata or one another rule out.
+    BadMetadata(MetadataError),
     /// A row with a different number of fields than the header.
     WrongFieldCount {
         /// Fields in the header.
@@ -241,3 +243,116 @@ impl fmt::Display for RecordingErrorKind {
         }
     }
 }
+
+/// What is wrong with the metadata: the key (or column) and the value.
+#[derive(Debug, Clone, PartialEq)]
+pub enum MetadataError {
+    /// `method` names none of the methods.
+    Method(UnknownMethod),
+    /// A numeric key's value is not a number.
+    NotANumber {
+        /// The key.
+        key: &'static str,
+        /// The value (possibly shortened).
+        text: String,
+    },
+    /// A numeric key's value is NaN or an infinity.
+    NotFinite {
+        /// The key.
+        key: &'static str,
+        /// The value.
+        value: f64,
+    },
+    /// A key that must be ≥ 0 (`noise_sigma`) is negative.
+    Negative {
+        /// The key.
+        key: &'static str,
+        /// The value.
+        value: f64,
+    },
+    /// A key that must be positive (`rate_hz`, `g_loc`, `sample_rate_hz`) is not.
+    NotPositive {
+        /// The key.
+        key: &'static str,
+        /// The value.
+        value: f64,
+    },
+    /// An uncertainty key (`u_g_loc` and the like) that is not a finite number ≥ 0.
+    NotUncertainty {
+        /// The key.
+        key: &'static str,
+        /// The value.
+        value: f64,
+    },
+    /// A key given twice with different values.
+    Twice {
+        /// The key.
+        key: &'static str,
+        /// 1-based line of its first value.
+        first_line: u64,
+    },
+    /// `angle_deg` or `rate_hz` beside `gx, gy, gz`.
+    ReplacedByGravity {
+        /// The column.
+        column: &'static str,
+    },
+    /// A `conv_gaps` column without a `tick_hz` to count its ticks in.
+    NoTickRate,
+    /// `method=rotation` in a file with `gx, gy, gz` columns.
+    RotationWithGravity,
+}
+
+impl fmt::Display for MetadataError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        use MetadataError as M;
+        match self {
+            M::Method(e) => write!(f, "method: {e}"),
+            M::NotANumber { key, text } => write!(f, "{key}: '{text}' is not a number"),
+            M::NotFinite { key, value } => write!(f, "{key}: {value} is not finite"),
+            M::Negative { key, value } => write!(f, "{key}: {value} is negative"),
+            M::NotPositive { key, value } => write!(f, "{key}: {value} is not positive"),
+            M::NotUncertainty { key, value } => write!(
+                f,
+                "{key}: {value} is not a standard uncertainty (a finite number ≥ 0)"
+            ),
+            M::Twice { key, first_line } => write!(
+                f,
+                "{key} given twice with different values (first on line {first_line})"
+            ),
+            M::ReplacedByGravity { column } => write!(
+                f,
+                "column {column} with gx, gy, gz: the gravity direction replaces it"
+            ),
+            M::NoTickRate => write!(
+                f,
+                "column conv_gaps counts device ticks: it needs '# {TICK_HZ_KEY}=<ticks per \
+                 second>' (a positive integer)"
+            ),
+            M::RotationWithGravity => {
+                f.write_str("method rotation, but the file has gx, gy, gz columns (static poses)")
+            }
+        }
+    }
+}
+
+impl std::error::Error for MetadataError {}
+
+/// A method name that is none of `rotation`, `static` and `free`.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct UnknownMethod {
+    /// The name given (trimmed, possibly shortened).
+    pub text: String,
+}
+
+impl fmt::Display for UnknownMethod {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(
+            f,
+            "expected 'rotation' or 'static', got '{}' (or 'free': still poses of unknown \
+             orientation)",
+            self.text
+        )
+    }
+}
+
+impl std::error::Error for UnknownMethod {}

@@ -17,7 +17,8 @@
 //!   [`Series`] rows, [`Metadata`], the rows and columns a file has ([`Row`], [`Columns`])
 //!   and the format's rules that reader and writer share;
 //! - `error`: [`RecordingError`], which names the file, the 1-based physical line
-//!   (comment and blank lines count) and the problem; no input makes the reader panic;
+//!   (comment and blank lines count) and the problem, a bad metadata value a
+//!   [`MetadataError`] naming the key; no input makes the reader panic;
 //! - `read/`: [`read`] and its variants (held in memory, grouped by condition and
 //!   nominal rate), [`scan`] (row by row) and [`Parts`] (byte ranges on several threads),
 //!   by a fast line reader or, for anything it does not take, the `csv` crate's;
@@ -45,7 +46,7 @@ pub mod import;
 mod read;
 mod write;
 
-pub use error::{RecordingError, RecordingErrorKind};
+pub use error::{MetadataError, RecordingError, RecordingErrorKind, UnknownMethod};
 pub use read::{
     read, read_as, read_bytes, read_from, read_in_progress, read_preamble, scan, Parse, PartRow,
     Parts, Scanned,
@@ -88,9 +89,9 @@ impl fmt::Display for Method {
 }
 
 impl std::str::FromStr for Method {
-    type Err = String;
+    type Err = UnknownMethod;
     /// `rotation`, `static` or `free` (any case, surrounding spaces ignored).
-    fn from_str(s: &str) -> Result<Self, String> {
+    fn from_str(s: &str) -> Result<Self, UnknownMethod> {
         let t = s.trim();
         if t.eq_ignore_ascii_case("rotation") {
             Ok(Method::Rotation)
@@ -99,11 +100,9 @@ impl std::str::FromStr for Method {
         } else if t.eq_ignore_ascii_case("free") {
             Ok(Method::Free)
         } else {
-            Err(format!(
-                "expected 'rotation' or 'static', got '{}' (or 'free': still poses of unknown \
-                 orientation)",
-                snippet(t.as_bytes())
-            ))
+            Err(UnknownMethod {
+                text: snippet(t.as_bytes()),
+            })
         }
     }
 }
@@ -355,15 +354,15 @@ fn is_key(key: &str) -> bool {
             .all(|b| b.is_ascii_alphanumeric() || matches!(b, b'_' | b'-' | b'.'))
 }
 
-/// Check a known numeric metadata value; the message names the key.
-fn check_meta_number(key: &str, x: f64) -> Result<(), String> {
+/// Check a known numeric metadata value `x` of `key`.
+fn check_meta_number(key: &'static str, x: f64) -> Result<(), MetadataError> {
     if !x.is_finite() {
-        return Err(format!("{key}: {x} is not finite"));
+        return Err(MetadataError::NotFinite { key, value: x });
     }
     match key {
-        "noise_sigma" if x < 0.0 => Err(format!("{key}: {x} is negative")),
+        "noise_sigma" if x < 0.0 => Err(MetadataError::Negative { key, value: x }),
         "rate_hz" | "g_loc" | "sample_rate_hz" if x <= 0.0 => {
-            Err(format!("{key}: {x} is not positive"))
+            Err(MetadataError::NotPositive { key, value: x })
         }
         _ => Ok(()),
     }
@@ -582,7 +581,66 @@ impl Row<'static> {
 
 #[cfg(test)]
 mod tests {
+    use super::{check_meta_number, Columns, Metadata, MetadataError, Method, Writer};
     use proptest::prelude::*;
+
+    #[test]
+    fn an_unknown_method_keeps_its_text() {
+        let e = " Spin ".parse::<Method>().unwrap_err();
+        assert_eq!(e.text, "Spin");
+        assert_eq!(
+            e.to_string(),
+            "expected 'rotation' or 'static', got 'Spin' (or 'free': still poses of unknown \
+             orientation)"
+        );
+        let long = "q".repeat(41);
+        let e = long.parse::<Method>().unwrap_err();
+        assert_eq!(e.text, format!("{}…", "q".repeat(40)));
+        assert_eq!(" FREE ".parse::<Method>(), Ok(Method::Free));
+    }
+
+    #[test]
+    fn metadata_numbers_are_checked_by_key() {
+        let cases = [
+            ("g_loc", f64::NAN, "g_loc: NaN is not finite"),
+            ("noise_sigma", -1.5, "noise_sigma: -1.5 is negative"),
+            ("sample_rate_hz", 0.0, "sample_rate_hz: 0 is not positive"),
+            ("rate_hz", -0.01, "rate_hz: -0.01 is not positive"),
+        ];
+        for (key, x, want) in cases {
+            let e = check_meta_number(key, x).unwrap_err();
+            assert_eq!(e.to_string(), want);
+        }
+        assert_eq!(
+            check_meta_number("rate_hz", -2.0),
+            Err(MetadataError::NotPositive {
+                key: "rate_hz",
+                value: -2.0
+            })
+        );
+        assert_eq!(check_meta_number("noise_sigma", 0.0), Ok(()));
+        assert_eq!(check_meta_number("units", -1.0), Ok(()));
+    }
+
+    #[test]
+    fn the_writer_refuses_a_bad_number_with_its_key() {
+        let meta = Metadata {
+            sample_rate_hz: Some(-100.0),
+            ..Metadata::default()
+        };
+        let Err(e) = Writer::new(Vec::new(), &meta, &Columns::ROTATION) else {
+            panic!("written");
+        };
+        assert_eq!(e.kind(), std::io::ErrorKind::InvalidInput);
+        assert_eq!(e.to_string(), "sample_rate_hz: -100 is not positive");
+        assert_eq!(
+            e.get_ref().and_then(|e| e.downcast_ref::<MetadataError>()),
+            Some(&MetadataError::NotPositive {
+                key: "sample_rate_hz",
+                value: -100.0
+            })
+        );
+    }
 
     /// round_ticks is f64::round, bounds included.
     fn same_round(x: f64) {

@@ -110,7 +110,8 @@ impl<W: Write> Writer<W> {
                     kv("units", u)?;
                 }
             } else if let Some(x) = x {
-                check_meta_number(key, x).map_err(invalid)?;
+                check_meta_number(key, x)
+                    .map_err(|e| io::Error::new(io::ErrorKind::InvalidInput, e))?;
                 kv(key, &format!("{x:?}"))?;
             }
         }

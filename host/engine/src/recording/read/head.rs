@@ -4,8 +4,8 @@ use std::collections::BTreeMap;
 use std::io::{self, BufRead};
 
 use crate::recording::{
-    check_meta_number, is_key, snippet, tick_hz, Metadata, Method, Recording, RecordingError,
-    RecordingErrorKind, COLUMN_NAMES, KNOWN_KEYS, TICK_HZ_KEY, UNCERTAINTY_KEYS,
+    check_meta_number, is_key, snippet, tick_hz, Metadata, MetadataError, Method, Recording,
+    RecordingError, RecordingErrorKind, COLUMN_NAMES, KNOWN_KEYS, UNCERTAINTY_KEYS,
 };
 
 /// Where each known column is in the header.
@@ -109,27 +109,29 @@ impl Parser<'_> {
         if !is_key(key) {
             return Ok(()); // a plain comment that happens to hold '='
         }
-        let bad = |m: String| self.err(Some(lineno), RecordingErrorKind::BadMetadata(m));
+        let bad = |m: MetadataError| self.err(Some(lineno), RecordingErrorKind::BadMetadata(m));
         let Some(&known) = KNOWN_KEYS.iter().find(|k| **k == key) else {
             if let Some(&ukey) = UNCERTAINTY_KEYS.iter().find(|k| **k == key) {
                 if let (Some(&first), Some(before)) = (seen.get(ukey), meta.other.get(ukey)) {
                     if before != value {
-                        return Err(bad(format!(
-                            "{key} given twice with different values (first on line {first})"
-                        )));
+                        return Err(bad(MetadataError::Twice {
+                            key: ukey,
+                            first_line: first,
+                        }));
                     }
                 }
                 seen.insert(ukey, lineno);
                 let x: f64 = value.parse().map_err(|_| {
-                    bad(format!(
-                        "{key}: '{}' is not a number",
-                        snippet(value.as_bytes())
-                    ))
+                    bad(MetadataError::NotANumber {
+                        key: ukey,
+                        text: snippet(value.as_bytes()),
+                    })
                 })?;
                 if !(x.is_finite() && x >= 0.0) {
-                    return Err(bad(format!(
-                        "{key}: {x} is not a standard uncertainty (a finite number ≥ 0)"
-                    )));
+                    return Err(bad(MetadataError::NotUncertainty {
+                        key: ukey,
+                        value: x,
+                    }));
                 }
             }
             meta.other.insert(key.to_string(), value.to_string());
@@ -141,17 +143,17 @@ impl Parser<'_> {
                 meta.method = Some(
                     value
                         .parse::<Method>()
-                        .map_err(|m| bad(format!("method: {m}")))?,
+                        .map_err(|m| bad(MetadataError::Method(m)))?,
                 )
             }
             "units" => meta.units = Some(value.to_string()),
             "device" => meta.device = Some(value.to_string()),
             _ => {
                 let x: f64 = value.parse().map_err(|_| {
-                    bad(format!(
-                        "{known}: '{}' is not a number",
-                        snippet(value.as_bytes())
-                    ))
+                    bad(MetadataError::NotANumber {
+                        key: known,
+                        text: snippet(value.as_bytes()),
+                    })
                 })?;
                 check_meta_number(known, x).map_err(bad)?;
                 match known {
@@ -164,9 +166,10 @@ impl Parser<'_> {
         }
         if let Some(&first) = seen.get(known) {
             if before != *meta {
-                return Err(bad(format!(
-                    "{known} given twice with different values (first on line {first})"
-                )));
+                return Err(bad(MetadataError::Twice {
+                    key: known,
+                    first_line: first,
+                }));
             }
         } else {
             seen.insert(known, lineno);
@@ -234,10 +237,13 @@ impl Parser<'_> {
             None => Some(require("condition")?),
         };
         if gravity.is_some() {
-            if let Some(c) = ["angle_deg", "rate_hz"].iter().find(|c| idx(c).is_some()) {
-                return Err(at(RecordingErrorKind::BadMetadata(format!(
-                    "column {c} with gx, gy, gz: the gravity direction replaces it"
-                ))));
+            if let Some(c) = ["angle_deg", "rate_hz"]
+                .into_iter()
+                .find(|c| idx(c).is_some())
+            {
+                return Err(at(RecordingErrorKind::BadMetadata(
+                    MetadataError::ReplacedByGravity { column: c },
+                )));
             }
         }
         let unc = if ["u_unc", "v_unc", "w_unc"].iter().any(|n| idx(n).is_some()) {
@@ -251,10 +257,9 @@ impl Parser<'_> {
         let t_s = idx("t_s");
         let conv_gaps = idx("conv_gaps");
         if conv_gaps.is_some() && tick_hz(meta).is_none() {
-            return Err(at(RecordingErrorKind::BadMetadata(format!(
-                "column conv_gaps counts device ticks: it needs '# {TICK_HZ_KEY}=<ticks per \
-                 second>' (a positive integer)"
-            ))));
+            return Err(at(RecordingErrorKind::BadMetadata(
+                MetadataError::NoTickRate,
+            )));
         }
         let method = self.method.or(meta.method).unwrap_or(if gravity.is_some() {
             Method::Static
@@ -266,7 +271,7 @@ impl Parser<'_> {
         match method {
             Method::Rotation if gravity.is_some() => {
                 return Err(at(RecordingErrorKind::BadMetadata(
-                    "method rotation, but the file has gx, gy, gz columns (static poses)".into(),
+                    MetadataError::RotationWithGravity,
                 )));
             }
             Method::Rotation => {
@@ -318,5 +323,115 @@ impl Parser<'_> {
             oriented: None,
             series: None,
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use crate::recording::{read_from, MetadataError, RecordingErrorKind, UnknownMethod};
+
+    const BODY: &str = "condition,t_s,u,v,w\nx,0,1,2,3\n";
+
+    /// The metadata error reading `preamble` then a small body: its line and problem.
+    fn bad(preamble: &str) -> (Option<u64>, MetadataError, String) {
+        let text = format!("{preamble}{BODY}");
+        let e = read_from(text.as_bytes(), "m.csv").unwrap_err();
+        let message = e.to_string();
+        match e.kind {
+            RecordingErrorKind::BadMetadata(m) => (e.line, m, message),
+            other => panic!("not bad metadata: {other:?}"),
+        }
+    }
+
+    #[test]
+    fn a_bad_value_names_its_line_and_key() {
+        let (line, m, text) = bad("# rotacal recording v1\n# units=counts\n# g_loc=-9.8\n");
+        assert_eq!(line, Some(3));
+        assert_eq!(
+            m,
+            MetadataError::NotPositive {
+                key: "g_loc",
+                value: -9.8
+            }
+        );
+        assert_eq!(text, "m.csv:3: bad metadata: g_loc: -9.8 is not positive");
+        let (line, m, text) = bad("#\n# noise_sigma = -0.5\n");
+        assert_eq!(line, Some(2));
+        assert_eq!(
+            m,
+            MetadataError::Negative {
+                key: "noise_sigma",
+                value: -0.5
+            }
+        );
+        assert_eq!(text, "m.csv:2: bad metadata: noise_sigma: -0.5 is negative");
+        let (line, m, text) = bad("# rate_hz=inf\n");
+        assert_eq!(line, Some(1));
+        assert!(
+            matches!(m, MetadataError::NotFinite { key: "rate_hz", value } if value.is_infinite())
+        );
+        assert_eq!(text, "m.csv:1: bad metadata: rate_hz: inf is not finite");
+    }
+
+    #[test]
+    fn an_unknown_method_names_its_line_and_text() {
+        let (line, m, text) = bad("# units=V\n# method= Spin \n");
+        assert_eq!(line, Some(2));
+        assert_eq!(
+            m,
+            MetadataError::Method(UnknownMethod {
+                text: "Spin".into()
+            })
+        );
+        assert_eq!(
+            text,
+            "m.csv:2: bad metadata: method: expected 'rotation' or 'static', got 'Spin' (or \
+             'free': still poses of unknown orientation)"
+        );
+    }
+
+    #[test]
+    fn a_key_given_twice_names_both_lines() {
+        let (line, m, text) = bad("# u_g_loc=0.001\n# device=a\n# u_g_loc=0.002\n");
+        assert_eq!(line, Some(3));
+        assert_eq!(
+            m,
+            MetadataError::Twice {
+                key: "u_g_loc",
+                first_line: 1
+            }
+        );
+        assert_eq!(
+            text,
+            "m.csv:3: bad metadata: u_g_loc given twice with different values (first on line 1)"
+        );
+        let (line, m, _) = bad("# method=static\n# method=rotation\n");
+        assert_eq!(line, Some(2));
+        assert_eq!(
+            m,
+            MetadataError::Twice {
+                key: "method",
+                first_line: 1
+            }
+        );
+    }
+
+    #[test]
+    fn header_rules_name_the_header_line() {
+        let e = read_from(
+            &b"# g_loc=9.8\ngx,gy,gz,rate_hz,u,v,w\n0,0,1,1,1,2,3\n"[..],
+            "h.csv",
+        )
+        .unwrap_err();
+        assert_eq!(e.line, Some(2));
+        assert!(matches!(
+            e.kind,
+            RecordingErrorKind::BadMetadata(MetadataError::ReplacedByGravity { column: "rate_hz" })
+        ));
+        assert_eq!(
+            e.to_string(),
+            "h.csv:2: bad metadata: column rate_hz with gx, gy, gz: the gravity direction \
+             replaces it"
+        );
     }
 }
