@@ -1,4 +1,5 @@
 //! `rotacal import`: the command line of `rotacal::recording::import`.
+use anyhow::Context;
 use rotacal_shared::Condition;
 use std::path::PathBuf;
 
@@ -73,7 +74,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
                     &list.display().to_string(),
                 )?,
                 map: rotacal::recording::import::PoseSections::map_from_str(map)
-                    .map_err(|e| anyhow::anyhow!("--poses: {e}"))?,
+                    .context("--poses")?,
             })
         }
         None => None,

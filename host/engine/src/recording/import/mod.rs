@@ -12,10 +12,20 @@
 //! counted from 0 after the skipped lines, `start` inclusive and `end` exclusive) and a
 //! pose map that gives each section's gravity direction (`x_p=+x,x_a=-x,...`). Rows in
 //! mapped sections are written with `pose, gx, gy, gz`; other rows are left out.
+//!
+//! Problems are [`ImportError`]s (`error`): the input, the line, and the field and its
+//! text as fields of an [`ImportErrorKind`].
+
+mod error;
+#[cfg(test)]
+mod tests;
+
+pub use error::{ColumnMapError, ImportError, ImportErrorKind, PoseMapError, SpecError};
 
 use crate::recording::{Columns, Metadata, Method, Row, Writer};
 use rotacal_shared::Condition;
 use std::io::{BufRead, Write};
+use ImportErrorKind as K;
 
 /// Which field holds what.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -39,19 +49,20 @@ pub struct ColumnMap {
 }
 
 impl std::str::FromStr for ColumnMap {
-    type Err = String;
+    type Err = ColumnMapError;
     /// `t=0,u=1,v=2,w=3[,condition=4][,angle=5][,temp=6][,seq=7]`.
-    fn from_str(s: &str) -> Result<Self, String> {
+    fn from_str(s: &str) -> Result<Self, ColumnMapError> {
         let mut m = ColumnMap::default();
         let (mut u, mut v, mut w) = (None, None, None);
         for part in s.split(',').map(str::trim).filter(|p| !p.is_empty()) {
             let (k, i) = part
                 .split_once('=')
-                .ok_or_else(|| format!("'{part}': expected NAME=INDEX"))?;
-            let i: usize = i
-                .trim()
-                .parse()
-                .map_err(|_| format!("'{part}': the index must be a whole number (0-based)"))?;
+                .ok_or_else(|| ColumnMapError::NoIndex {
+                    part: part.to_string(),
+                })?;
+            let i: usize = i.trim().parse().map_err(|_| ColumnMapError::BadIndex {
+                part: part.to_string(),
+            })?;
             let slot = match k.trim() {
                 "t" => &mut m.t,
                 "u" => &mut u,
@@ -62,13 +73,15 @@ impl std::str::FromStr for ColumnMap {
                 "temp" => &mut m.temp,
                 "seq" => &mut m.seq,
                 other => {
-                    return Err(format!(
-                        "unknown column '{other}' (known: t, u, v, w, condition, angle, temp, seq)"
-                    ))
+                    return Err(ColumnMapError::UnknownColumn {
+                        name: other.to_string(),
+                    })
                 }
             };
             if slot.replace(i).is_some() {
-                return Err(format!("'{}' given twice", k.trim()));
+                return Err(ColumnMapError::Twice {
+                    name: k.trim().to_string(),
+                });
             }
         }
         match (u, v, w) {
@@ -77,10 +90,10 @@ impl std::str::FromStr for ColumnMap {
                 m.v = v;
                 m.w = w;
             }
-            _ => return Err("u, v and w are all required".into()),
+            _ => return Err(ColumnMapError::NoChannels),
         }
         if m.t.is_none() && m.angle.is_none() {
-            return Err("give t (rotation) or angle (static)".into());
+            return Err(ColumnMapError::NoTimeOrAngle);
         }
         Ok(m)
     }
@@ -119,53 +132,51 @@ impl PoseSections {
         text: &str,
         source: &str,
     ) -> Result<Vec<(String, usize, usize)>, ImportError> {
-        let bad = |message: String| ImportError {
-            source_name: source.to_string(),
-            line: None,
-            message,
-        };
-        let v: serde_json::Value = serde_json::from_str(text).map_err(|e| ImportError {
-            source_name: source.to_string(),
-            line: Some(e.line()),
-            message: format!("not a JSON section list: {e}"),
-        })?;
-        let obj = v.as_object().ok_or_else(|| {
-            bad(
-                "expected an object of sections: {\"name\": {\"start\": N, \"end\": M}, ...}"
-                    .into(),
-            )
-        })?;
+        let bad = |kind: ImportErrorKind| ImportError::at(source, None, kind);
+        let v: serde_json::Value = serde_json::from_str(text)
+            .map_err(|e| ImportError::at(source, Some(e.line()), K::NotJson(e)))?;
+        let obj = v.as_object().ok_or_else(|| bad(K::NotSections))?;
         let mut out = Vec::new();
         for (name, sec) in obj {
-            let idx = |key: &str| -> Result<usize, ImportError> {
-                let x = sec
-                    .get(key)
-                    .ok_or_else(|| bad(format!("section '{name}': no '{key}'")))?;
+            let idx = |key: &'static str| -> Result<usize, ImportError> {
+                let x = sec.get(key).ok_or_else(|| {
+                    bad(K::NoBound {
+                        section: name.clone(),
+                        key,
+                    })
+                })?;
                 x.as_u64()
                     .and_then(|n| usize::try_from(n).ok())
                     .ok_or_else(|| {
-                        bad(format!(
-                            "section '{name}': '{key}' {x} is not a row index (a whole number ≥ 0)"
-                        ))
+                        bad(K::NotRowIndex {
+                            section: name.clone(),
+                            key,
+                            text: x.to_string(),
+                        })
                     })
             };
             let (start, end) = (idx("start")?, idx("end")?);
             if end <= start {
-                return Err(bad(format!(
-                    "section '{name}': end {end} is not after start {start}"
-                )));
+                return Err(bad(K::EmptySection {
+                    section: name.clone(),
+                    start,
+                    end,
+                }));
             }
             out.push((name.clone(), start, end));
         }
         if out.is_empty() {
-            return Err(bad("no sections".into()));
+            return Err(bad(K::NoSections));
         }
         let mut sorted = out.clone();
         sorted.sort_by_key(|s| s.1);
         for w in sorted.windows(2) {
             if let [a, b] = w {
                 if b.1 < a.2 {
-                    return Err(bad(format!("sections '{}' and '{}' overlap", a.0, b.0)));
+                    return Err(bad(K::Overlap {
+                        first: a.0.clone(),
+                        second: b.0.clone(),
+                    }));
                 }
             }
         }
@@ -174,12 +185,14 @@ impl PoseSections {
 
     /// Parse a pose map: `NAME=DIR,...` where DIR is `+x`, `-x`, `+y`, `-y`, `+z`, `-z`
     /// (the axis that reads +g or −g) or a unit vector `gx:gy:gz`.
-    pub fn map_from_str(s: &str) -> Result<Vec<(String, [f64; 3])>, String> {
+    pub fn map_from_str(s: &str) -> Result<Vec<(String, [f64; 3])>, PoseMapError> {
         let mut out: Vec<(String, [f64; 3])> = Vec::new();
         for part in s.split(',').map(str::trim).filter(|p| !p.is_empty()) {
             let (name, dir) = part
                 .split_once('=')
-                .ok_or_else(|| format!("'{part}': expected NAME=DIRECTION, e.g. x_p=+x"))?;
+                .ok_or_else(|| PoseMapError::NoDirection {
+                    part: part.to_string(),
+                })?;
             let (name, dir) = (name.trim(), dir.trim());
             let g = match dir {
                 "+x" | "x" => [1.0, 0.0, 0.0],
@@ -193,47 +206,38 @@ impl PoseSections {
                         .split(':')
                         .map(|x| x.trim().parse::<f64>())
                         .collect::<Result<_, _>>()
-                        .map_err(|_| {
-                            format!("'{part}': the direction must be ±x, ±y, ±z or gx:gy:gz")
+                        .map_err(|_| PoseMapError::BadDirection {
+                            part: part.to_string(),
                         })?;
                     let [x, y, z] = c.as_slice() else {
-                        return Err(format!(
-                            "'{part}': a vector direction has three components gx:gy:gz"
-                        ));
+                        return Err(PoseMapError::NotThree {
+                            part: part.to_string(),
+                        });
                     };
                     let norm = (x * x + y * y + z * z).sqrt();
                     if (norm - 1.0).abs().is_nan()
                         || (norm - 1.0).abs() > crate::recording::UNIT_TOLERANCE
                     {
-                        return Err(format!(
-                            "'{part}': the direction must be a unit vector (length {norm})"
-                        ));
+                        return Err(PoseMapError::NotUnit {
+                            part: part.to_string(),
+                            norm,
+                        });
                     }
                     [x / norm, y / norm, z / norm]
                 }
             };
             if out.iter().any(|(n, _)| n == name) {
-                return Err(format!("pose '{name}' given twice"));
+                return Err(PoseMapError::Twice {
+                    name: name.to_string(),
+                });
             }
             out.push((name.to_string(), g));
         }
         if out.is_empty() {
-            return Err("the pose map is empty".into());
+            return Err(PoseMapError::Empty);
         }
         Ok(out)
     }
-}
-
-/// A problem, naming the place.
-#[derive(Debug, thiserror::Error)]
-#[error("{source_name}{}: {message}", line.map(|l| format!(":{l}")).unwrap_or_default())]
-pub struct ImportError {
-    /// The input.
-    pub source_name: String,
-    /// Its line, if one.
-    pub line: Option<usize>,
-    /// What is wrong.
-    pub message: String,
 }
 
 fn split(line: &str) -> Vec<&str> {
@@ -264,17 +268,17 @@ pub fn import<W: Write>(
     out: W,
 ) -> Result<Counts, ImportError> {
     let c = &spec.columns;
-    let whole = |message: String| ImportError::at("import", None, message);
+    let whole = |kind: ImportErrorKind| ImportError::at("import", None, kind);
     // Neither conditions nor a section list: a free recording (still poses of unknown
     // orientation, found by `calibrate --method free`).
     let free = c.condition.is_none()
         && spec.poses.is_none()
         && spec.conditions.is_empty()
         && c.angle.is_none();
-    check_spec(spec, inputs.len(), free).map_err(whole)?;
+    check_spec(spec, inputs.len(), free).map_err(|e| whole(K::Spec(e)))?;
     let mut meta = spec.meta.clone();
     meta.method = meta.method.or(Some(method(spec, free)));
-    let mut w = Writer::new(out, &meta, &columns(spec)).map_err(|e| whole(e.to_string()))?;
+    let mut w = Writer::new(out, &meta, &columns(spec)).map_err(|e| whole(K::Write(e)))?;
     let mut importer = Importer {
         spec,
         free,
@@ -287,7 +291,7 @@ pub fn import<W: Write>(
         let n = importer.input(k, &name, reader, &mut w)?;
         counts.rows.push(n);
     }
-    w.flush().map_err(|e| whole(e.to_string()))?;
+    w.flush().map_err(|e| whole(K::Write(e)))?;
     if let Some(p) = &spec.poses {
         counts.poses = p
             .map
@@ -307,45 +311,33 @@ pub fn import<W: Write>(
 
 /// Refuse a spec that does not fit its `inputs` inputs (`free`: imported as a free
 /// recording), before anything is written.
-fn check_spec(spec: &ImportSpec, inputs: usize, free: bool) -> Result<(), String> {
+fn check_spec(spec: &ImportSpec, inputs: usize, free: bool) -> Result<(), SpecError> {
     let c = &spec.columns;
     if free && (inputs != 1 || c.t.is_none()) {
-        return Err(
-            "without conditions or a section list the input is imported as a free recording \
-             (method free), which needs one input with a time column (t=)"
-                .into(),
-        );
+        return Err(SpecError::Free);
     }
     if !free && c.condition.is_none() && spec.poses.is_none() && spec.conditions.len() != inputs {
-        return Err(format!(
-            "{inputs} input(s) but {} condition(s): give one --condition per input, or a condition column",
-            spec.conditions.len()
-        ));
+        return Err(SpecError::Conditions {
+            inputs,
+            conditions: spec.conditions.len(),
+        });
     }
     if !(spec.time_scale.is_finite() && spec.time_scale > 0.0) {
-        return Err("--time-scale must be positive".into());
+        return Err(SpecError::TimeScale(spec.time_scale));
     }
     if let Some(p) = &spec.poses {
         if inputs != 1 {
-            return Err(format!(
-                "a section list describes one input; {inputs} given"
-            ));
+            return Err(SpecError::SectionsInputs { inputs });
         }
         if c.condition.is_some() || c.angle.is_some() || !spec.conditions.is_empty() {
-            return Err(
-                "with a section list, poses replace conditions and angles: give neither a \
-                 condition nor an angle (column or --condition)"
-                    .into(),
-            );
+            return Err(SpecError::PosesAndConditions);
         }
         if let Some((name, _)) = p
             .map
             .iter()
             .find(|(n, _)| !p.sections.iter().any(|s| &s.0 == n))
         {
-            return Err(format!(
-                "the pose map names '{name}', which the section list lacks"
-            ));
+            return Err(SpecError::UnknownSection { pose: name.clone() });
         }
     }
     Ok(())
@@ -381,17 +373,6 @@ fn method(spec: &ImportSpec, free: bool) -> Method {
     }
 }
 
-impl ImportError {
-    /// `message` about `line` of `source` (`None`: about the whole of it).
-    fn at(source: &str, line: Option<usize>, message: String) -> ImportError {
-        ImportError {
-            source_name: source.to_string(),
-            line,
-            message,
-        }
-    }
-}
-
 /// One data line's fields, and where the line is (for its errors).
 struct Line<'a> {
     source: &'a str,
@@ -401,27 +382,32 @@ struct Line<'a> {
 }
 
 impl<'a> Line<'a> {
-    /// `message` about this line.
-    fn err(&self, message: String) -> ImportError {
-        ImportError::at(self.source, Some(self.lineno), message)
+    /// `kind` at this line.
+    fn err(&self, kind: ImportErrorKind) -> ImportError {
+        ImportError::at(self.source, Some(self.lineno), kind)
     }
 
-    /// Field `idx`, which holds `what`.
-    fn field(&self, idx: usize, what: &str) -> Result<&'a str, ImportError> {
+    /// Field `idx`, which holds `column`.
+    fn field(&self, idx: usize, column: &'static str) -> Result<&'a str, ImportError> {
         self.fields.get(idx).copied().ok_or_else(|| {
-            self.err(format!(
-                "no field {idx} for {what}: the line has {} fields",
-                self.fields.len()
-            ))
+            self.err(K::NoField {
+                field: idx,
+                column,
+                fields: self.fields.len(),
+            })
         })
     }
 
-    /// Field `idx`, which holds `what`, as a finite number.
-    fn num(&self, idx: usize, what: &str) -> Result<f64, ImportError> {
-        let f = self.field(idx, what)?;
+    /// Field `idx`, which holds `column`, as a finite number.
+    fn num(&self, idx: usize, column: &'static str) -> Result<f64, ImportError> {
+        let f = self.field(idx, column)?;
         match f.parse::<f64>() {
             Ok(x) if x.is_finite() => Ok(x),
-            _ => Err(self.err(format!("{what} (field {idx}) '{f}' is not a finite number"))),
+            _ => Err(self.err(K::NotFinite {
+                field: idx,
+                column,
+                text: f.to_string(),
+            })),
         }
     }
 }
@@ -453,8 +439,7 @@ impl<'s> Importer<'s> {
         let mut n = 0;
         for (i, line) in reader.lines().enumerate() {
             let lineno = i + 1;
-            let line =
-                line.map_err(|e| ImportError::at(name, Some(lineno), format!("cannot read: {e}")))?;
+            let line = line.map_err(|e| ImportError::at(name, Some(lineno), K::Read(e)))?;
             let trimmed = line.trim();
             if i < spec.skip || trimmed.is_empty() || trimmed.starts_with('#') {
                 continue;
@@ -476,7 +461,7 @@ impl<'s> Importer<'s> {
                 fields: split(trimmed),
             };
             let row = self.row(k, &data, pose)?;
-            w.write_row(&row).map_err(|e| data.err(e.to_string()))?;
+            w.write_row(&row).map_err(|e| data.err(K::Write(e)))?;
             n += 1;
         }
         if let Some(p) = &spec.poses {
@@ -484,15 +469,16 @@ impl<'s> Importer<'s> {
                 return Err(ImportError::at(
                     name,
                     None,
-                    format!(
-                        "section '{}' ends at data row {} (exclusive), but the input has only {} data rows",
-                        s.0, s.2, self.data_row
-                    ),
+                    K::SectionPastEnd {
+                        section: s.0.clone(),
+                        end: s.2,
+                        rows: self.data_row,
+                    },
                 ));
             }
         }
         if n == 0 {
-            return Err(ImportError::at(name, None, "no data lines".into()));
+            return Err(ImportError::at(name, None, K::NoData));
         }
         Ok(n)
     }
@@ -517,12 +503,10 @@ impl<'s> Importer<'s> {
             let t = line.num(idx, "t")? * self.spec.time_scale;
             match self.last_t.iter_mut().find(|(cd, _)| *cd == condition) {
                 Some((_, prev)) if t < *prev => {
-                    return Err(line.err(match pose {
-                        Some(_) => format!("time went backwards: {t} s after {prev} s"),
-                        None => format!(
-                            "time went backwards in condition {}: {t} s after {prev} s",
-                            condition.letter()
-                        ),
+                    return Err(line.err(K::TimeWentBackwards {
+                        condition: pose.is_none().then_some(condition),
+                        t_s: t,
+                        previous: *prev,
                     }))
                 }
                 Some((_, prev)) => *prev = t,
@@ -538,10 +522,12 @@ impl<'s> Importer<'s> {
         }
         if let Some(idx) = c.seq {
             let f = line.field(idx, "seq")?;
-            row.seq =
-                Some(f.parse().map_err(|_| {
-                    line.err(format!("seq (field {idx}) '{f}' is not a whole number"))
-                })?);
+            row.seq = Some(f.parse().map_err(|_| {
+                line.err(K::NotWhole {
+                    field: idx,
+                    text: f.to_string(),
+                })
+            })?);
         }
         if let Some((pname, g, mi)) = pose {
             row.pose = Some(pname);
@@ -564,13 +550,18 @@ impl<'s> Importer<'s> {
                 let mut chars = f.chars();
                 match (chars.next().and_then(Condition::from_letter), chars.next()) {
                     (Some(c), None) => c,
-                    _ => return Err(line.err(format!("condition '{f}': expected x, y or z"))),
+                    _ => {
+                        return Err(line.err(K::BadCondition {
+                            field: idx,
+                            text: f.to_string(),
+                        }))
+                    }
                 }
             }
             None => *spec
                 .conditions
                 .get(k)
-                .ok_or_else(|| line.err("no condition for this input".into()))?,
+                .ok_or_else(|| line.err(K::NoCondition))?,
         })
     }
 }
