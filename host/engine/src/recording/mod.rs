@@ -463,9 +463,9 @@ pub struct Columns {
 }
 
 impl Columns {
-    /// A plain rotation file: `condition,t_s,u,v,w`.
-    pub const ROTATION: Columns = Columns {
-        t_s: true,
+    /// None of the optional columns: `condition,u,v,w` (what `Default` gives, as a const).
+    const BARE: Columns = Columns {
+        t_s: false,
         angle_deg: false,
         seq: false,
         temp_c: false,
@@ -475,17 +475,15 @@ impl Columns {
         unc: false,
         conv_gaps: false,
     };
+    /// A plain rotation file: `condition,t_s,u,v,w`.
+    pub const ROTATION: Columns = Columns {
+        t_s: true,
+        ..Columns::BARE
+    };
     /// A plain static file: `condition,angle_deg,u,v,w`.
     pub const STATIC: Columns = Columns {
-        t_s: false,
         angle_deg: true,
-        seq: false,
-        temp_c: false,
-        rate_hz: false,
-        gravity: false,
-        pose: false,
-        unc: false,
-        conv_gaps: false,
+        ..Columns::BARE
     };
 
     /// The header line's names, in the order the writer puts them.
