@@ -59,6 +59,28 @@ pub struct GroupFit {
 }
 
 impl GroupFit {
+    /// The fit of `condition` at the rate `rate` chose, with its covariance under `noise`
+    /// and the rotation's angle per sample, rad.
+    pub(crate) fn new(
+        condition: Condition,
+        fit: FitResult<f64>,
+        rate: RateChoice,
+        cov: [[[f64; 3]; 3]; 3],
+        noise: [NoiseModel; 3],
+        omega_per_sample: f64,
+    ) -> GroupFit {
+        GroupFit {
+            condition,
+            fit,
+            rate_hz: rate.rate_hz,
+            rate_fitted: rate.rate_fitted,
+            u_rate_hz: rate.u_rate_hz,
+            cov,
+            noise,
+            omega_per_sample,
+        }
+    }
+
     /// (A, B) per channel and their covariance.
     pub fn condition_fit(&self) -> ConditionFit {
         let mut cf = ConditionFit::from_fit(&self.fit);
@@ -175,9 +197,23 @@ fn sine_cov(
     Ok(covs)
 }
 
-/// The rate's standard error under the channels' noise, and whether the fitted rate
-/// differs from nominal (by more than 3 of it), from the IEEE 1057 fit's (rate, standard
-/// error) and coefficients (A, B, C per channel).
+/// The rate a condition's fit uses ([`rate_choice`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) struct RateChoice {
+    /// The fitted rate, which differs from nominal by more than 3 of its standard errors.
+    pub(crate) fitted: bool,
+    /// The rate the fit uses, Hz.
+    pub(crate) rate_hz: f64,
+    /// That rate, when it is the fitted one.
+    pub(crate) rate_fitted: Option<f64>,
+    /// Its standard uncertainty, Hz: the fitted rate's standard error, and at the nominal
+    /// rate the distance to the fitted one too.
+    pub(crate) u_rate_hz: f64,
+}
+
+/// The rate the fit uses: the fitted one if it differs from nominal by more than 3 of its
+/// standard error under the channels' noise, else the nominal; from the IEEE 1057 fit's
+/// (rate, standard error) and coefficients (A, B, C per channel).
 ///
 /// The rate's standard error is that of one unweighted joint fit with a pooled σ̂² (the
 /// mean of the channels' variances). Under the channels' own noise its variance is
@@ -189,7 +225,7 @@ pub(crate) fn rate_choice(
     noise: &[NoiseModel; 3],
     omega_per_sample: f64,
     nominal_hz: f64,
-) -> (f64, bool) {
+) -> RateChoice {
     let (mut num, mut den) = (0.0, 0.0);
     for (m, c) in noise.iter().zip(coef) {
         let amp2 = c[0] * c[0] + c[1] * c[1];
@@ -203,7 +239,21 @@ pub(crate) fn rate_choice(
         1.0
     };
     let se_rate = se_rate_hz * factor.max(1e-6).sqrt();
-    (se_rate, (rate_hz - nominal_hz).abs() > 3.0 * se_rate)
+    if (rate_hz - nominal_hz).abs() > 3.0 * se_rate {
+        RateChoice {
+            fitted: true,
+            rate_hz,
+            rate_fitted: Some(rate_hz),
+            u_rate_hz: se_rate,
+        }
+    } else {
+        RateChoice {
+            fitted: false,
+            rate_hz: nominal_hz,
+            rate_fitted: None,
+            u_rate_hz: se_rate.hypot(rate_hz - nominal_hz),
+        }
+    }
 }
 
 pub(crate) fn fit_group(
@@ -253,31 +303,28 @@ pub(crate) fn fit_group(
     // The noise is modelled once, about the fitted rate (the best description of the
     // data): at the nominal rate a rate error's growing quadrature would read as noise.
     let noise = noise_models(s, fitted_step).map_err(|e| fail(e.into()))?;
-    let (se_rate, differs) = rate_choice(
+    let rate = rate_choice(
         (four.rate_hz, four.se_rate_hz),
         &four_coef,
         &noise,
         omega_per_sample,
         nominal_hz,
     );
-    let (step, fit, rate_hz, rate_fitted, u_rate_hz) = if differs {
+    let (step, fit) = if rate.fitted {
         let fit = fit_at(s, fitted_step).map_err(|e| fail(e.into()))?;
-        (fitted_step, fit, four.rate_hz, Some(four.rate_hz), se_rate)
+        (fitted_step, fit)
     } else {
-        let u = se_rate.hypot(four.rate_hz - nominal_hz);
-        (nominal, at_nominal, nominal_hz, None, u)
+        (nominal, at_nominal)
     };
     let cov = sine_cov(s, step, &noise).map_err(|e| fail(e.into()))?;
-    Ok(GroupFit {
-        condition: g.condition,
+    Ok(GroupFit::new(
+        g.condition,
         fit,
-        rate_hz,
-        rate_fitted,
-        u_rate_hz,
+        rate,
         cov,
         noise,
         omega_per_sample,
-    })
+    ))
 }
 
 /// The sine fit of a condition refitted at another rate (the budget's sensitivity to the

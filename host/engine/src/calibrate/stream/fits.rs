@@ -164,24 +164,17 @@ pub(super) fn finish(
             CalibrateErrorKind::Internal("three channels' noise models expected"),
         ));
     };
-    let (se_rate, differs) = rate_choice(
+    let rate = rate_choice(
         (p.four.rate_hz, p.four.se_rate_hz),
         &p.four.coef,
         &noise,
         omega,
         p.nominal_hz,
     );
-    let (step, rate_hz, rate_fitted, u_rate_hz, rss) = if differs {
-        (
-            p.fitted,
-            p.four.rate_hz,
-            Some(p.four.rate_hz),
-            se_rate,
-            r.rss_fitted,
-        )
+    let (step, rss) = if rate.fitted {
+        (p.fitted, r.rss_fitted)
     } else {
-        let u = se_rate.hypot(p.four.rate_hz - p.nominal_hz);
-        (p.nominal, p.nominal_hz, None, u, r.rss_nominal)
+        (p.nominal, r.rss_nominal)
     };
     let normal = p.moments.sine_at(step);
     let fit = sine_result(&normal, rss, p).map_err(fail)?;
@@ -197,16 +190,7 @@ pub(super) fn finish(
             }
         }
     }
-    Ok(GroupFit {
-        condition: gs.condition,
-        fit,
-        rate_hz,
-        rate_fitted,
-        u_rate_hz,
-        cov,
-        noise,
-        omega_per_sample: omega,
-    })
+    Ok(GroupFit::new(gs.condition, fit, rate, cov, noise, omega))
 }
 
 /// The sine fit as the streaming fit reports it ([`rotacal_shared::SineFit::solve`]),
