@@ -847,221 +847,257 @@ impl Packet {
         if got > want {
             return Err(DecodeError::TooLong { want, got });
         }
-        let zero = |offset: usize, v: u8, name| {
-            if v == 0 {
-                Ok(())
-            } else {
-                Err(DecodeError::Field { offset, name })
-            }
-        };
-        // Bytes 2 and 3, where a kind leaves them unused.
-        let reserved = || zero(2, b2, "reserved").and_then(|()| zero(3, b3, "reserved"));
-        let cond = |offset: usize, v: u8| {
-            cond_from(v).ok_or(DecodeError::Field {
-                offset,
-                name: "condition",
-            })
-        };
+        let h = Head { kind: k, b2, b3 };
         let mut i = In { buf: bytes, at: 4 };
-        let packet = match k {
-            kind::SAMPLES => {
-                if b2 == 0 || usize::from(b2) > max_samples {
-                    return Err(DecodeError::Field {
-                        offset: 2,
-                        name: "sample count",
-                    });
-                }
-                zero(3, b3 & 0x7C, "batch flags")?;
-                let condition = cond(3, b3 & 0x03)?;
-                let (replay, first_seq, t0) = (b3 & 0x80 != 0, i.u32(), i.u64());
-                if averaged {
-                    let b = AverageBatch::new(condition, replay, first_seq, t0);
-                    return read_averages(&mut i, b, b2).map(Packet::Averages);
-                }
-                let mut b = SampleBatch::new(condition, replay, first_seq, t0);
-                for slot in b.samples.iter_mut().take(usize::from(b2)) {
-                    let dt = i.u32();
-                    let counts = [i.i16(), i.i16(), i.i16()];
-                    let flags = i.u8();
-                    if flags & !SampleFlags::ALL != 0 {
-                        return Err(i.field("sample flags"));
-                    }
-                    *slot = Sample { dt, counts, flags };
-                }
-                b.len = b2;
-                Packet::Samples(b)
-            }
+        match k {
+            kind::SAMPLES => decode_samples(&mut i, h, averaged, max_samples),
             kind::TEMPERATURE => {
-                reserved()?;
-                Packet::Temperature(Temperature {
+                h.reserved()?;
+                Ok(Packet::Temperature(Temperature {
                     seq: i.u32(),
                     centi_c: i.i16(),
-                })
+                }))
             }
-            kind::FIT => {
-                let condition = cond(2, b2)?;
-                if b3 > 1 {
-                    return Err(DecodeError::Field {
-                        offset: 3,
-                        name: "final flag",
-                    });
-                }
-                let (n, first_seq, last_seq, rate_uhz, step) =
-                    (i.u32(), i.u32(), i.u32(), i.u32(), i.u64());
-                let mut coef = [[0.0f64; 3]; 3];
-                let mut se = [[0.0f32; 3]; 3];
-                for (c, s) in coef.iter_mut().zip(se.iter_mut()) {
-                    *c = i.f64x3();
-                    *s = i.f32x3();
-                }
-                Packet::Fit(FitReport {
-                    condition,
-                    is_final: b3 == 1,
-                    n,
-                    first_seq,
-                    last_seq,
-                    rate_uhz,
-                    step,
-                    coef,
-                    se,
-                    rms: i.f32x3(),
-                })
-            }
+            kind::FIT => decode_fit(&mut i, h),
             kind::QUICK_LOOK => {
-                reserved()?;
-                Packet::QuickLook(QuickLook {
+                h.reserved()?;
+                Ok(Packet::QuickLook(QuickLook {
                     sensitivity: i.f64x3(),
                     sensitivity_u: i.f32x3(),
                     angle_deg: i.f64x3(),
                     angle_u: i.f32x3(),
                     g_loc: i.f64(),
-                })
+                }))
             }
-            kind::INFO => {
-                reserved()?;
-                let firmware = [i.u8(), i.u8(), i.u8()];
-                let chip = match i.u8() {
-                    0 => Chip::None,
-                    1 => Chip::Lsm6ds33,
-                    2 => Chip::Lsm6ds3trc,
-                    _ => return Err(i.field("chip")),
-                };
-                let clock = match i.u8() {
-                    0 => ClockSource::TimerHfxo,
-                    1 => ClockSource::RtcLfrc,
-                    _ => return Err(i.field("clock source")),
-                };
-                Packet::Info(DeviceInfo {
-                    firmware,
-                    chip,
-                    clock,
-                    tick_hz: i.u32(),
-                    sensor_odr_mhz: i.u32(),
-                    sample_rate_mhz: i.u32(),
-                    full_scale_g: i.u8(),
-                    ring_capacity: i.u16(),
-                })
+            kind::INFO => decode_info(&mut i, h),
+            kind::STATUS => decode_status(&mut i, h),
+            // The commands (every other kind returned above).
+            _ => decode_command(&mut i, h).map(Packet::Command),
+        }
+    }
+}
+
+/// A packet's kind and its bytes 2 and 3, whose meaning depends on the kind.
+#[derive(Clone, Copy)]
+struct Head {
+    kind: u8,
+    b2: u8,
+    b3: u8,
+}
+
+impl Head {
+    /// `v`, at byte `offset`, must be zero.
+    fn zero(offset: usize, v: u8, name: &'static str) -> Result<(), DecodeError> {
+        if v == 0 {
+            Ok(())
+        } else {
+            Err(DecodeError::Field { offset, name })
+        }
+    }
+
+    /// Bytes 2 and 3, where a kind leaves them unused.
+    fn reserved(self) -> Result<(), DecodeError> {
+        Head::zero(2, self.b2, "reserved").and_then(|()| Head::zero(3, self.b3, "reserved"))
+    }
+
+    /// The condition code `v` at byte `offset`.
+    fn cond(offset: usize, v: u8) -> Result<Condition, DecodeError> {
+        cond_from(v).ok_or(DecodeError::Field {
+            offset,
+            name: "condition",
+        })
+    }
+}
+
+/// A batch of samples (version 1) or of averages (version 2).
+fn decode_samples(
+    i: &mut In<'_>,
+    h: Head,
+    averaged: bool,
+    max_samples: usize,
+) -> Result<Packet, DecodeError> {
+    let Head { b2, b3, .. } = h;
+    if b2 == 0 || usize::from(b2) > max_samples {
+        return Err(DecodeError::Field {
+            offset: 2,
+            name: "sample count",
+        });
+    }
+    Head::zero(3, b3 & 0x7C, "batch flags")?;
+    let condition = Head::cond(3, b3 & 0x03)?;
+    let (replay, first_seq, t0) = (b3 & 0x80 != 0, i.u32(), i.u64());
+    if averaged {
+        let b = AverageBatch::new(condition, replay, first_seq, t0);
+        return read_averages(i, b, b2).map(Packet::Averages);
+    }
+    let mut b = SampleBatch::new(condition, replay, first_seq, t0);
+    for slot in b.samples.iter_mut().take(usize::from(b2)) {
+        let dt = i.u32();
+        let counts = [i.i16(), i.i16(), i.i16()];
+        let flags = i.u8();
+        if flags & !SampleFlags::ALL != 0 {
+            return Err(i.field("sample flags"));
+        }
+        *slot = Sample { dt, counts, flags };
+    }
+    b.len = b2;
+    Ok(Packet::Samples(b))
+}
+
+/// A fit report.
+fn decode_fit(i: &mut In<'_>, h: Head) -> Result<Packet, DecodeError> {
+    let condition = Head::cond(2, h.b2)?;
+    if h.b3 > 1 {
+        return Err(DecodeError::Field {
+            offset: 3,
+            name: "final flag",
+        });
+    }
+    let (n, first_seq, last_seq, rate_uhz, step) = (i.u32(), i.u32(), i.u32(), i.u32(), i.u64());
+    let mut coef = [[0.0f64; 3]; 3];
+    let mut se = [[0.0f32; 3]; 3];
+    for (c, s) in coef.iter_mut().zip(se.iter_mut()) {
+        *c = i.f64x3();
+        *s = i.f32x3();
+    }
+    Ok(Packet::Fit(FitReport {
+        condition,
+        is_final: h.b3 == 1,
+        n,
+        first_seq,
+        last_seq,
+        rate_uhz,
+        step,
+        coef,
+        se,
+        rms: i.f32x3(),
+    }))
+}
+
+/// The device's description.
+fn decode_info(i: &mut In<'_>, h: Head) -> Result<Packet, DecodeError> {
+    h.reserved()?;
+    let firmware = [i.u8(), i.u8(), i.u8()];
+    let chip = match i.u8() {
+        0 => Chip::None,
+        1 => Chip::Lsm6ds33,
+        2 => Chip::Lsm6ds3trc,
+        _ => return Err(i.field("chip")),
+    };
+    let clock = match i.u8() {
+        0 => ClockSource::TimerHfxo,
+        1 => ClockSource::RtcLfrc,
+        _ => return Err(i.field("clock source")),
+    };
+    Ok(Packet::Info(DeviceInfo {
+        firmware,
+        chip,
+        clock,
+        tick_hz: i.u32(),
+        sensor_odr_mhz: i.u32(),
+        sample_rate_mhz: i.u32(),
+        full_scale_g: i.u8(),
+        ring_capacity: i.u16(),
+    }))
+}
+
+/// The device's state.
+fn decode_status(i: &mut In<'_>, h: Head) -> Result<Packet, DecodeError> {
+    let state = match h.b2 {
+        0 => RunState::Idle,
+        1 => RunState::Running,
+        2 => RunState::Complete,
+        _ => {
+            return Err(DecodeError::Field {
+                offset: 2,
+                name: "run state",
+            })
+        }
+    };
+    let sensor = match h.b3 {
+        0 => SensorStatus::Ok,
+        1 => SensorStatus::Absent,
+        2 => SensorStatus::UnknownChip,
+        3 => SensorStatus::BusError,
+        4 => SensorStatus::NoDataReady,
+        _ => {
+            return Err(DecodeError::Field {
+                offset: 3,
+                name: "sensor status",
+            })
+        }
+    };
+    // Byte 4: condition code in the low nibble, error code in the high one.
+    let ce = i.u8();
+    let condition = match ce & 0x0F {
+        0 => None,
+        c => Some(Head::cond(4, c)?),
+    };
+    let last_error = match ce >> 4 {
+        0 => None,
+        1 => Some(CommandError::Busy),
+        2 => Some(CommandError::NotRunning),
+        3 => Some(CommandError::BadRate),
+        4 => Some(CommandError::SensorFault),
+        5 => Some(CommandError::NotInRing),
+        6 => Some(CommandError::FitFailed),
+        _ => {
+            return Err(DecodeError::Field {
+                offset: 4,
+                name: "error code",
+            })
+        }
+    };
+    Ok(Packet::Status(Status {
+        state,
+        sensor,
+        condition,
+        lost: i.u32(),
+        ring_oldest: i.u32(),
+        ring_newest: i.u32(),
+        last_error,
+    }))
+}
+
+/// A command from the host: Start, SetSampleRate, Stop, Reset or Backfill.
+fn decode_command(i: &mut In<'_>, h: Head) -> Result<Command, DecodeError> {
+    match h.kind {
+        kind::START => {
+            let condition = Head::cond(2, h.b2)?;
+            Head::zero(3, h.b3, "reserved")?;
+            let rate_uhz = i.u32();
+            if rate_uhz == 0 {
+                return Err(DecodeError::Field {
+                    offset: 4,
+                    name: "rate",
+                });
             }
-            kind::STATUS => {
-                let state = match b2 {
-                    0 => RunState::Idle,
-                    1 => RunState::Running,
-                    2 => RunState::Complete,
-                    _ => {
-                        return Err(DecodeError::Field {
-                            offset: 2,
-                            name: "run state",
-                        })
-                    }
-                };
-                let sensor = match b3 {
-                    0 => SensorStatus::Ok,
-                    1 => SensorStatus::Absent,
-                    2 => SensorStatus::UnknownChip,
-                    3 => SensorStatus::BusError,
-                    4 => SensorStatus::NoDataReady,
-                    _ => {
-                        return Err(DecodeError::Field {
-                            offset: 3,
-                            name: "sensor status",
-                        })
-                    }
-                };
-                // Byte 4: condition code in the low nibble, error code in the high one.
-                let ce = i.u8();
-                let condition = match ce & 0x0F {
-                    0 => None,
-                    c => Some(cond(4, c)?),
-                };
-                let last_error = match ce >> 4 {
-                    0 => None,
-                    1 => Some(CommandError::Busy),
-                    2 => Some(CommandError::NotRunning),
-                    3 => Some(CommandError::BadRate),
-                    4 => Some(CommandError::SensorFault),
-                    5 => Some(CommandError::NotInRing),
-                    6 => Some(CommandError::FitFailed),
-                    _ => {
-                        return Err(DecodeError::Field {
-                            offset: 4,
-                            name: "error code",
-                        })
-                    }
-                };
-                Packet::Status(Status {
-                    state,
-                    sensor,
-                    condition,
-                    lost: i.u32(),
-                    ring_oldest: i.u32(),
-                    ring_newest: i.u32(),
-                    last_error,
-                })
+            Ok(Command::Start {
+                condition,
+                rate_uhz,
+            })
+        }
+        kind::SET_SAMPLE_RATE => {
+            h.reserved()?;
+            let mhz = i.u32();
+            if mhz == 0 {
+                return Err(DecodeError::Field {
+                    offset: 4,
+                    name: "sample rate",
+                });
             }
-            kind::START => {
-                let condition = cond(2, b2)?;
-                zero(3, b3, "reserved")?;
-                let rate_uhz = i.u32();
-                if rate_uhz == 0 {
-                    return Err(DecodeError::Field {
-                        offset: 4,
-                        name: "rate",
-                    });
-                }
-                Packet::Command(Command::Start {
-                    condition,
-                    rate_uhz,
-                })
-            }
-            kind::SET_SAMPLE_RATE => {
-                reserved()?;
-                let mhz = i.u32();
-                if mhz == 0 {
-                    return Err(DecodeError::Field {
-                        offset: 4,
-                        name: "sample rate",
-                    });
-                }
-                Packet::Command(Command::SetSampleRate { mhz })
-            }
-            kind::STOP | kind::RESET => {
-                reserved()?;
-                Packet::Command(if k == kind::STOP {
-                    Command::Stop
-                } else {
-                    Command::Reset
-                })
-            }
-            _ => {
-                // kind::BACKFILL (every other kind returned above).
-                reserved()?;
-                Packet::Command(Command::Backfill {
-                    from_seq: i.u32(),
-                    count: i.u16(),
-                })
-            }
-        };
-        Ok(packet)
+            Ok(Command::SetSampleRate { mhz })
+        }
+        kind::STOP => h.reserved().map(|()| Command::Stop),
+        kind::RESET => h.reserved().map(|()| Command::Reset),
+        _ => {
+            // kind::BACKFILL (decode checked the kind).
+            h.reserved()?;
+            Ok(Command::Backfill {
+                from_seq: i.u32(),
+                count: i.u16(),
+            })
+        }
     }
 }
 
