@@ -19,16 +19,17 @@
 //! the `levenberg-marquardt` crate (MINPACK's trust region); weights and biases are
 //! refreshed between its runs. The covariance of (L, O) is (JᵀWJ)⁻¹ at the solution.
 
+#![deny(clippy::indexing_slicing)]
+
 use crate::calibrate::budget::coverage_factor;
 use crate::calibrate::still::{median, Interval, Verdict};
 use levenberg_marquardt::{LeastSquaresProblem, LevenbergMarquardt};
 use nalgebra::{DMatrix, Dyn, Matrix3, OMatrix, OVector, SMatrix, SVector, Vector3, U9};
+use rotacal_shared::Channel;
 use statrs::distribution::{ChiSquared, ContinuousCDF, Normal};
 
 /// The fit's parameters: L₀₀, L₁₀, L₁₁, L₂₀, L₂₁, L₂₂, O_u, O_v, O_w.
 pub const PARAMS: usize = 9;
-/// (row, column) of each of L's parameters.
-const L_INDEX: [(usize, usize); 6] = [(0, 0), (1, 0), (1, 1), (2, 0), (2, 1), (2, 2)];
 
 /// Condition numbers of the unit design above this are flagged (random poses: about 3 to
 /// 10; poses on a hemisphere: some hundreds).
@@ -165,12 +166,36 @@ pub struct FreeFit {
 }
 
 /// L from the parameters.
-fn l_of(x: &[f64]) -> Matrix3<f64> {
-    let mut l = Matrix3::zeros();
-    for (k, (i, j)) in L_INDEX.iter().enumerate() {
-        l[(*i, *j)] = x.get(k).copied().unwrap_or(f64::NAN);
-    }
-    l
+fn l_of(x: &SVector<f64, PARAMS>) -> Matrix3<f64> {
+    let [l00, l10, l11, l20, l21, l22, ..]: [f64; PARAMS] = (*x).into();
+    Matrix3::new(l00, 0.0, 0.0, l10, l11, 0.0, l20, l21, l22)
+}
+
+/// O from the parameters.
+fn offsets_of(x: &SVector<f64, PARAMS>) -> [f64; 3] {
+    let [.., o_u, o_v, o_w]: [f64; PARAMS] = (*x).into();
+    [o_u, o_v, o_w]
+}
+
+/// p_i·q_j for each of L's parameters L_ij, in their order.
+fn lower_products(p: &Vector3<f64>, q: &Vector3<f64>) -> SVector<f64, 6> {
+    let ([p0, p1, p2], [q0, q1, q2]): ([f64; 3], [f64; 3]) = ((*p).into(), (*q).into());
+    SVector::from([p0 * q0, p1 * q0, p1 * q1, p2 * q0, p2 * q1, p2 * q2])
+}
+
+/// The parameters from L's six and O's three.
+fn join(l: [f64; 6], o: [f64; 3]) -> [f64; PARAMS] {
+    let [l00, l10, l11, l20, l21, l22] = l;
+    let [o_u, o_v, o_w] = o;
+    [l00, l10, l11, l20, l21, l22, o_u, o_v, o_w]
+}
+
+/// The parameters' places among the 12 of (S row-major, O), `zero` where L is zero.
+fn to_twelve<T: Copy>(x: [T; PARAMS], zero: T) -> [T; 12] {
+    let [l00, l10, l11, l20, l21, l22, o_u, o_v, o_w] = x;
+    [
+        l00, zero, zero, l10, l11, zero, l20, l21, l22, o_u, o_v, o_w,
+    ]
 }
 
 /// A pose's corrected mean at θ: a = L⁻¹(ȳ − O), q = |a|, n̂ = a/q and w = L⁻ᵀn̂ (what
@@ -183,9 +208,9 @@ struct Geometry {
     w: Vector3<f64>,
 }
 
-fn geometry(x: &[f64], pose: &Pose) -> Option<Geometry> {
+fn geometry(x: &SVector<f64, PARAMS>, pose: &Pose) -> Option<Geometry> {
     let l = l_of(x);
-    let o = Vector3::new(x[6], x[7], x[8]);
+    let o = Vector3::from(offsets_of(x));
     let a = l.solve_lower_triangular(&(Vector3::from(pose.mean) - o))?;
     let q = a.norm();
     if !(q.is_finite() && q > 0.0) {
@@ -204,14 +229,17 @@ struct At {
     bias: f64,
 }
 
-fn at(x: &[f64], pose: &Pose, g: f64) -> Option<At> {
+fn at(x: &SVector<f64, PARAMS>, pose: &Pose, g: f64) -> Option<At> {
     let geo = geometry(x, pose)?;
     let linv = geo.l.solve_lower_triangular(&Matrix3::identity())?;
-    let se2 = Vector3::from(pose.std_err.map(|s| s * s));
-    let var = (0..3).map(|k| geo.w[k] * geo.w[k] * se2[k]).sum::<f64>();
-    let tr = (0..3)
-        .flat_map(|i| (0..3).map(move |k| (i, k)))
-        .map(|(i, k)| linv[(i, k)].powi(2) * se2[k])
+    let se2 = pose.std_err.map(|s| s * s);
+    let var = geo.w.iter().zip(&se2).map(|(w, s)| w * w * s).sum::<f64>();
+    // Row by row: Lᵀ column-major is L row-major, each row against se2 again.
+    let tr = linv
+        .transpose()
+        .iter()
+        .zip(se2.iter().cycle())
+        .map(|(l, s)| l.powi(2) * s)
         .sum::<f64>();
     Some(At {
         geo,
@@ -222,7 +250,7 @@ fn at(x: &[f64], pose: &Pose, g: f64) -> Option<At> {
 
 /// Cov(|a|, ∂|a|/∂θ) of one pose to second order in its noise: with C = L⁻¹ΣL⁻ᵀ,
 /// m = C·n̂ and v = L⁻ᵀ(I − n̂n̂ᵀ)m/|a|, it is −v_k for O_k and −a_j·v_i − w_i·m_j for L_ij.
-fn score_cov(x: &[f64], pose: &Pose) -> Option<SVector<f64, 9>> {
+fn score_cov(x: &SVector<f64, PARAMS>, pose: &Pose) -> Option<SVector<f64, 9>> {
     let Geometry { l, a, q, n, w } = geometry(x, pose)?;
     let linv = l.solve_lower_triangular(&Matrix3::identity())?;
     let sigma = Matrix3::from_diagonal(&Vector3::from(pose.std_err.map(|s| s * s)));
@@ -230,14 +258,9 @@ fn score_cov(x: &[f64], pose: &Pose) -> Option<SVector<f64, 9>> {
     let m = c * n;
     let proj = Matrix3::identity() - n * n.transpose();
     let v = linv.transpose() * proj * m / q;
-    let mut out = SVector::<f64, 9>::zeros();
-    for (k, (i, j)) in L_INDEX.iter().enumerate() {
-        out[k] = -a[*j] * v[*i] - w[*i] * m[*j];
-    }
-    for k in 0..3 {
-        out[6 + k] = -v[k];
-    }
-    Some(out)
+    // −a_j·v_i − w_i·m_j: the negated product is the product of the negated factor.
+    let l = -lower_products(&v, &a) - lower_products(&w, &m);
+    Some(SVector::from(join(l.into(), (-v).into())))
 }
 
 /// The least-squares problem at fixed weights and biases.
@@ -251,22 +274,28 @@ struct Problem<'a> {
 }
 
 impl Problem<'_> {
-    fn row(&self, i: usize) -> Option<(f64, [f64; PARAMS])> {
-        let p = self.poses.get(i)?;
-        let (inv_sd, bias) = *self.weight.get(i)?;
-        let s = geometry(self.x.as_slice(), p)?;
+    /// Each pose's weighted residual and Jacobian row (none if a pose has no weight).
+    fn rows(&self) -> Option<Vec<(f64, [f64; PARAMS])>> {
+        if self.weight.len() < self.poses.len() {
+            return None;
+        }
+        self.poses
+            .iter()
+            .zip(&self.weight)
+            .map(|(p, w)| self.row(p, *w))
+            .collect()
+    }
+
+    fn row(&self, p: &Pose, (inv_sd, bias): (f64, f64)) -> Option<(f64, [f64; PARAMS])> {
+        let s = geometry(&self.x, p)?;
         let (r, scale) = match self.residual {
             Residual::Geometric => (s.q - self.g - bias, 1.0),
             Residual::Algebraic => ((s.q * s.q - self.g * self.g) / (2.0 * self.g), s.q / self.g),
         };
-        let mut j = [0.0; PARAMS];
-        for (k, (a, b)) in L_INDEX.iter().enumerate() {
-            j[k] = -s.w[*a] * s.a[*b] * scale * inv_sd;
-        }
-        for k in 0..3 {
-            j[6 + k] = -s.w[k] * scale * inv_sd;
-        }
-        Some((r * inv_sd, j))
+        // −w_i·a_j: the negated product is the product of the negated factor.
+        let l = lower_products(&s.w, &s.a).map(|p| -p * scale * inv_sd);
+        let o = s.w.map(|w| -w * scale * inv_sd);
+        Some((r * inv_sd, join(l.into(), o.into())))
     }
 }
 
@@ -284,22 +313,17 @@ impl LeastSquaresProblem<f64, Dyn, U9> for Problem<'_> {
     }
 
     fn residuals(&self) -> Option<OVector<f64, Dyn>> {
-        let mut r = OVector::<f64, Dyn>::zeros(self.poses.len());
-        for i in 0..self.poses.len() {
-            r[i] = self.row(i)?.0;
-        }
-        Some(r)
+        let r = self.rows()?.into_iter().map(|(r, _)| r).collect();
+        Some(OVector::<f64, Dyn>::from_vec(r))
     }
 
     fn jacobian(&self) -> Option<OMatrix<f64, Dyn, U9>> {
-        let mut m = OMatrix::<f64, Dyn, U9>::zeros(self.poses.len());
-        for i in 0..self.poses.len() {
-            let (_, j) = self.row(i)?;
-            for (k, v) in j.iter().enumerate() {
-                m[(i, k)] = *v;
-            }
-        }
-        Some(m)
+        let rows = self.rows()?;
+        let n = rows.len();
+        Some(OMatrix::<f64, Dyn, U9>::from_row_iterator(
+            n,
+            rows.into_iter().flat_map(|(_, j)| j),
+        ))
     }
 }
 
@@ -314,57 +338,52 @@ fn start(poses: &[Pose], g: f64) -> Option<SVector<f64, 9>> {
         m += h * h.transpose();
         b += h * (y[0] * y[0] + y[1] * y[1] + y[2] * y[2]);
     }
-    let c = m.try_inverse()? * b;
-    let r2 = c[3] + c[0] * c[0] + c[1] * c[1] + c[2] * c[2];
+    let [c0, c1, c2, c3]: [f64; 4] = (m.try_inverse()? * b).into();
+    let r2 = c3 + c0 * c0 + c1 * c1 + c2 * c2;
     let s = (r2.max(0.0)).sqrt() / g;
-    (s > 0.0).then(|| SVector::from([s, 0.0, s, 0.0, 0.0, s, c[0], c[1], c[2]]))
+    (s > 0.0).then(|| SVector::from([s, 0.0, s, 0.0, 0.0, s, c0, c1, c2]))
 }
 
 /// The unit design: the Jacobian rows of L = I, O = 0, g = 1 at unit directions.
 fn unit_row(n: &[f64; 3]) -> [f64; PARAMS] {
-    let mut r = [0.0; PARAMS];
-    for (k, (i, j)) in L_INDEX.iter().enumerate() {
-        r[k] = n[*i] * n[*j];
-    }
-    r[6..].copy_from_slice(n);
-    r
+    let v = Vector3::from(*n);
+    join(lower_products(&v, &v).into(), *n)
 }
 
-fn cond_of(rows: &[[f64; PARAMS]]) -> (f64, SVector<f64, 9>) {
-    let m = DMatrix::from_fn(rows.len().max(PARAMS), PARAMS, |i, j| {
-        rows.get(i).map_or(0.0, |r| r[j])
-    });
-    let (smin, smax, v) = crate::calibrate::poses::weakest(m);
-    let v = SVector::from_fn(|j, _| v.get(j).copied().unwrap_or(0.0));
-    let cond = if smin > smax * 1e-15 {
+/// The condition number of the unit design rows (padded with zero rows to nine).
+fn cond_of(rows: &[[f64; PARAMS]]) -> f64 {
+    let padded = rows.iter().flatten().copied().chain(std::iter::repeat(0.0));
+    let m = DMatrix::from_row_iterator(rows.len().max(PARAMS), PARAMS, padded);
+    let (smin, smax, _) = crate::calibrate::poses::weakest(m);
+    if smin > smax * 1e-15 {
         smax / smin
     } else {
         f64::INFINITY
-    };
-    (cond, v)
+    }
 }
 
 /// Candidate directions to suggest: the axes, the edges and the corners of a cube.
 fn candidates() -> Vec<([f64; 3], String)> {
     let axis = ["x", "y", "z"];
     let mut out = Vec::new();
-    for a in 0..3 {
+    for (a, name) in axis.iter().enumerate() {
         for s in [1.0, -1.0] {
-            let mut v = [0.0; 3];
-            v[a] = s;
-            out.push((v, format!("{}{}", if s > 0.0 { "+" } else { "−" }, axis[a])));
+            let v = std::array::from_fn(|k| if k == a { s } else { 0.0 });
+            out.push((v, format!("{}{}", if s > 0.0 { "+" } else { "−" }, name)));
         }
     }
-    for a in 0..3 {
-        for b in (a + 1)..3 {
+    for (a, name_a) in axis.iter().enumerate() {
+        for (b, name_b) in axis.iter().enumerate().skip(a + 1) {
             for (sa, sb) in [(1.0, 1.0), (1.0, -1.0), (-1.0, 1.0), (-1.0, -1.0)] {
-                let mut v = [0.0; 3];
-                v[a] = sa / 2f64.sqrt();
-                v[b] = sb / 2f64.sqrt();
+                let v = std::array::from_fn(|k| match k {
+                    k if k == a => sa / 2f64.sqrt(),
+                    k if k == b => sb / 2f64.sqrt(),
+                    _ => 0.0,
+                });
                 let sign = |s: f64| if s > 0.0 { "+" } else { "−" };
                 out.push((
                     v,
-                    format!("({}{}{}{})/√2", sign(sa), axis[a], sign(sb), axis[b]),
+                    format!("({}{}{}{})/√2", sign(sa), name_a, sign(sb), name_b),
                 ));
             }
         }
@@ -395,7 +414,7 @@ fn suggest(rows: &[[f64; PARAMS]]) -> String {
     let mut picked: Vec<String> = Vec::new();
     let cands = candidates();
     for _ in 0..6 {
-        if rows.len() >= PARAMS && cond_of(&rows).0 <= WELL_CONDITIONED {
+        if rows.len() >= PARAMS && cond_of(&rows) <= WELL_CONDITIONED {
             break;
         }
         let best = cands
@@ -414,13 +433,10 @@ fn suggest(rows: &[[f64; PARAMS]]) -> String {
             None => break,
         }
     }
-    match picked.len() {
-        0 => "other directions".into(),
-        1 => picked.concat(),
-        _ => {
-            let last = picked.pop().unwrap_or_default();
-            format!("{} and {last}", picked.join(", "))
-        }
+    match picked.split_last() {
+        None => "other directions".into(),
+        Some((only, [])) => only.clone(),
+        Some((last, rest)) => format!("{} and {last}", rest.join(", ")),
     }
 }
 
@@ -461,10 +477,13 @@ fn planar(poses: &[Pose]) -> Option<FreeError> {
     if poses.len() < 3 {
         return None;
     }
-    let c = [0, 1, 2].map(|k| poses.iter().map(|p| p.mean[k]).sum::<f64>() / n);
-    let m = DMatrix::from_fn(poses.len(), 3, |i, k| {
-        poses.get(i).map_or(0.0, |p| p.mean[k] - c[k])
+    let [c_u, c_v, c_w] =
+        Channel::ALL.map(|ch| poses.iter().map(|p| *ch.of(&p.mean)).sum::<f64>() / n);
+    let centred = poses.iter().flat_map(|p| {
+        let [u, v, w] = p.mean;
+        [u - c_u, v - c_v, w - c_w]
     });
+    let m = DMatrix::from_row_iterator(poses.len(), 3, centred);
     let svd = m.svd(false, true);
     let sv = &svd.singular_values;
     let (imin, smin) = sv
@@ -504,9 +523,9 @@ pub const PLANAR: f64 = 0.02;
 /// What degenerate poses have in common, for the message.
 fn why_degenerate(dirs: &[[f64; 3]]) -> String {
     // The directions' plane: the smallest singular vector of [n, 1].
-    let m = DMatrix::from_fn(dirs.len().max(4), 4, |i, j| {
-        dirs.get(i).map_or(0.0, |d| if j < 3 { d[j] } else { 1.0 })
-    });
+    let rows = dirs.iter().flat_map(|&[x, y, z]| [x, y, z, 1.0]);
+    let padded = rows.chain(std::iter::repeat(0.0));
+    let m = DMatrix::from_row_iterator(dirs.len().max(4), 4, padded);
     let svd = m.svd(false, true);
     let smin = svd
         .singular_values
@@ -542,8 +561,9 @@ pub fn fit(poses: &[Pose], g: f64, residual: Residual) -> Result<FreeFit, FreeEr
         let dirs: Vec<[f64; 3]> = poses
             .iter()
             .map(|p| {
-                let c = x0.map_or([0.0; 3], |x| [x[6], x[7], x[8]]);
-                let d = [0, 1, 2].map(|k| p.mean[k] - c[k]);
+                let [c_u, c_v, c_w] = x0.map_or([0.0; 3], |x| offsets_of(&x));
+                let [u, v, w] = p.mean;
+                let d = [u - c_u, v - c_v, w - c_w];
                 let n = d.iter().map(|v| v * v).sum::<f64>().sqrt().max(1e-300);
                 d.map(|v| v / n)
             })
@@ -564,7 +584,7 @@ pub fn fit(poses: &[Pose], g: f64, residual: Residual) -> Result<FreeFit, FreeEr
                 add: suggest(&one_each),
             });
         }
-        let (cond, _) = cond_of(&rows);
+        let cond = cond_of(&rows);
         let Some(x0) = x0.filter(|_| cond <= SINGULAR) else {
             return Err(FreeError::UnderDetermined {
                 poses: poses.len(),
@@ -604,20 +624,20 @@ pub fn fit(poses: &[Pose], g: f64, residual: Residual) -> Result<FreeFit, FreeEr
             .unwrap_or(4.0);
         let worst = z
             .iter()
+            .zip(&fit.poses)
             .enumerate()
-            .max_by(|a, b| a.1.abs().total_cmp(&b.1.abs()))
-            .map(|(i, v)| (i, *v));
+            .max_by(|a, b| a.1 .0.abs().total_cmp(&b.1 .0.abs()))
+            .map(|(i, (v, p))| (i, *v, p));
         let significant = fit.dof > 0 && chi2_p(fit.chi2, fit.dof) < 0.01;
-        if let Some((i, zi)) = worst {
-            let r = fit.poses.get(i).map_or(0.0, |p| p.residual_ms2);
+        if let Some((i, zi, p)) = worst {
+            let r = p.residual_ms2;
             if significant
                 && zi.abs() > z_crit
                 && (r.abs() > OUTLIER_ROBUST_Z * mad)
                 && poses.len() > PARAMS
             {
-                let name = poses.get(i).map(|p| p.name.clone()).unwrap_or_default();
                 rejected.push((
-                    name,
+                    p.name.clone(),
                     Verdict::DoesNotFit {
                         residual_ms2: r,
                         z: zi,
@@ -630,8 +650,7 @@ pub fn fit(poses: &[Pose], g: f64, residual: Residual) -> Result<FreeFit, FreeEr
         // Scatter beyond the noise, when χ² demands it.
         if significant {
             let tau = tau_for(&fit, fit.dof);
-            let x: Vec<f64> = fit_params(&fit);
-            let mut with = solve(&poses, g, residual, SVector::from_column_slice(&x), tau)?;
+            let mut with = solve(&poses, g, residual, fit_params(&fit), tau)?;
             with.condition_number = fit.condition_number;
             with.suggestion = fit.suggestion.clone();
             with.chi2 = fit.chi2;
@@ -655,10 +674,9 @@ fn chi2_p(chi2: f64, dof: usize) -> f64 {
     ChiSquared::new(dof as f64).map_or(1.0, |d| 1.0 - d.cdf(chi2))
 }
 
-fn fit_params(f: &FreeFit) -> Vec<f64> {
-    let mut x: Vec<f64> = L_INDEX.iter().map(|(i, j)| f.l[*i][*j]).collect();
-    x.extend(f.offsets);
-    x
+fn fit_params(f: &FreeFit) -> SVector<f64, PARAMS> {
+    let [[l00, _, _], [l10, l11, _], [l20, l21, l22]] = f.l;
+    SVector::from(join([l00, l10, l11, l20, l21, l22], f.offsets))
 }
 
 /// τ such that Σ r²/(σ² + τ²) = dof (bisection on τ²).
@@ -702,7 +720,7 @@ fn solve(
     let weights_at = |x: &SVector<f64, 9>| -> Result<Vec<(f64, f64)>, FreeError> {
         let mut w = Vec::with_capacity(poses.len());
         for p in poses {
-            let s = at(x.as_slice(), p, g)
+            let s = at(x, p, g)
                 .ok_or_else(|| FreeError::NoConvergence("a pose maps to zero".into()))?;
             w.push((s.var, s.bias));
         }
@@ -755,6 +773,7 @@ fn solve(
     let j = problem
         .jacobian()
         .ok_or_else(|| FreeError::NoConvergence("no Jacobian at the solution".into()))?;
+    // `jacobian` answers only with a weight for every pose: the loops below pair them.
     let jtj = j.tr_mul(&j);
     let cov9 = jtj
         .try_inverse()
@@ -764,9 +783,8 @@ fn solve(
         // the estimating equation's expectation β = Σ Cov(r_p, J_p)/σ_p², to second order
         // in the noise, biases θ by −(JᵀWJ)⁻¹β. Taken out in one step.
         let mut beta = SVector::<f64, 9>::zeros();
-        for (i, p) in poses.iter().enumerate() {
-            let (inv_sd, _) = problem.weight.get(i).copied().unwrap_or((1.0, 0.0));
-            if let Some(c) = score_cov(x.as_slice(), p) {
+        for (p, (inv_sd, _)) in poses.iter().zip(problem.weight.iter().copied()) {
+            if let Some(c) = score_cov(&x, p) {
                 beta += c * inv_sd * inv_sd;
             }
         }
@@ -774,33 +792,22 @@ fn solve(
         problem.x += step;
         x = problem.x;
     }
-    // To (S row-major, O).
-    let index12 = |k: usize| match L_INDEX.get(k) {
-        Some((i, j)) => 3 * i + j,
-        None => 9 + (k - 6),
-    };
-    let mut cov = SMatrix::<f64, 12, 12>::zeros();
-    for a in 0..PARAMS {
-        for b in 0..PARAMS {
-            cov[(index12(a), index12(b))] = cov9[(a, b)];
-        }
-    }
-    let l = l_of(x.as_slice());
+    // To (S row-major, O): each column, and the columns, spread to twelve with zeros.
+    let cols9: [[f64; PARAMS]; PARAMS] = cov9.into();
+    let cov = SMatrix::<f64, 12, 12>::from(to_twelve(cols9.map(|c| to_twelve(c, 0.0)), [0.0; 12]));
     let mut results = Vec::with_capacity(poses.len());
     let mut chi2 = 0.0;
-    for (i, p) in poses.iter().enumerate() {
-        let s = at(x.as_slice(), p, g)
-            .ok_or_else(|| FreeError::NoConvergence("a pose maps to zero".into()))?;
-        let (inv_sd, bias) = problem.weight.get(i).copied().unwrap_or((1.0, 0.0));
+    for (p, (inv_sd, bias)) in poses.iter().zip(problem.weight.iter().copied()) {
+        let s =
+            at(&x, p, g).ok_or_else(|| FreeError::NoConvergence("a pose maps to zero".into()))?;
         let r = s.geo.q - g - bias;
         let sd_noise = s.var.max((ROUND_OFF * g).powi(2)).sqrt();
         if sd_noise > 0.0 {
             chi2 += (r / sd_noise).powi(2);
         }
-        let n = s.geo.n;
         results.push(PoseResult {
             name: p.name.clone(),
-            direction: [n[0], n[1], n[2]],
+            direction: s.geo.n.into(),
             residual_ms2: r,
             residual_std_ms2: 1.0 / inv_sd,
         });
@@ -808,8 +815,9 @@ fn solve(
     let dof = poses.len().saturating_sub(PARAMS);
     let nu = if tau > 0.0 { dof as f64 } else { f64::INFINITY };
     Ok(FreeFit {
-        l: [0, 1, 2].map(|i| [0, 1, 2].map(|j| l[(i, j)])),
-        offsets: [x[6], x[7], x[8]],
+        // The columns of Lᵀ: the rows of L.
+        l: l_of(&x).transpose().into(),
+        offsets: offsets_of(&x),
         cov,
         poses: results,
         rejected: Vec::new(),
