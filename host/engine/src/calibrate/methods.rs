@@ -5,10 +5,13 @@
 //! properties and the phase-difference angles with their uncertainties
 //! (`rotacal_shared::intrinsic`); and the static stepped method (seed 001).
 
+#![deny(clippy::indexing_slicing)]
+
 use crate::calibrate::poses::{self, PoseError, PoseFit, StaticCondition};
 use crate::fit::batch::{self, BatchError};
 use nalgebra::{DMatrix, DVector};
 use rotacal_shared::intrinsic::{self, ConditionFit, Estimate, Intrinsic, IntrinsicError};
+use rotacal_shared::Channel;
 
 /// The rotation method's result for one rate.
 #[derive(Clone, Debug)]
@@ -96,6 +99,9 @@ pub enum StaticError {
     /// No intrinsic properties.
     #[error(transparent)]
     Intrinsic(#[from] IntrinsicError),
+    /// An invariant of the engine failed: a bug in rotacal, not a problem of the data.
+    #[error("internal: {0} (a bug in rotacal; please report it)")]
+    Internal(&'static str),
 }
 
 /// The stepped static method (seed 001): the per-condition sine fits of its Table 1 and
@@ -109,7 +115,9 @@ pub fn static_method(
 ) -> Result<StaticCalibration, StaticError> {
     let mut by_cond: [Option<&StaticCondition<'_>>; 3] = [None; 3];
     for c in conds {
-        let slot = &mut by_cond[c.condition.index()];
+        let slot = by_cond
+            .get_mut(c.condition.index())
+            .ok_or(StaticError::Internal("a condition beyond x, y and z"))?;
         if slot.is_some() {
             return Err(StaticError::Conditions);
         }
@@ -132,17 +140,22 @@ pub fn static_method(
     }; 3]; 3];
     for (fc, c) in fits.iter_mut().zip(ordered) {
         let n = c.angle_deg.len();
-        let h = DMatrix::from_fn(n, 3, |i, j| {
-            let a = c.angle_deg[i].to_radians();
-            [a.sin(), a.cos(), 1.0][j]
+        let regressors = c.angle_deg.iter().flat_map(|a| {
+            let a = a.to_radians();
+            [a.sin(), a.cos(), 1.0]
         });
+        let h = DMatrix::from_row_iterator(n, 3, regressors);
         let ys: Vec<DVector<f64>> = c.y.iter().map(|y| DVector::from_column_slice(y)).collect();
         let r =
             batch::least_squares(h, &ys).map_err(|e| StaticError::Fit(c.condition.letter(), e))?;
         for (out, ch) in fc.iter_mut().zip(&r.channels) {
+            let three = |v: &[f64]| {
+                <[f64; 3]>::try_from(v)
+                    .map_err(|_| StaticError::Internal("a sine fit without three coefficients"))
+            };
             *out = SineFit3 {
-                coef: [ch.coef[0], ch.coef[1], ch.coef[2]],
-                se: [ch.se[0], ch.se[1], ch.se[2]],
+                coef: three(&ch.coef)?,
+                se: three(&ch.se)?,
                 rms_residual: (ch.rss / n as f64).sqrt(),
                 n,
             };
@@ -153,26 +166,24 @@ pub fn static_method(
 
     // Seed 001 eqs. 20–21: S_jx from A of y and z, S_jy from A of x and B of z, S_jz
     // from B of x and y; offsets averaged over the three conditions.
-    let mean2 = |p: (usize, usize), q: (usize, usize), j: usize| {
-        let (f1, f2) = (fits[p.0][j], fits[q.0][j]);
-        Estimate {
-            value: (f1.coef[p.1] + f2.coef[q.1]) / (2.0 * g),
-            std_unc: f1.se[p.1].hypot(f2.se[q.1]) / (2.0 * g),
-        }
+    let mean2 = |(c1, se1): (f64, f64), (c2, se2): (f64, f64)| Estimate {
+        value: (c1 + c2) / (2.0 * g),
+        std_unc: se1.hypot(se2) / (2.0 * g),
     };
-    let dup_s = [0, 1, 2].map(|j| {
-        [
-            mean2((1, 0), (2, 0), j),
-            mean2((0, 0), (2, 1), j),
-            mean2((0, 1), (1, 1), j),
-        ]
+    // A and B of a fit, each with its standard error.
+    let ab = |f: &SineFit3| {
+        let ([a, b, _], [se_a, se_b, _]) = (f.coef, f.se);
+        ((a, se_a), (b, se_b))
+    };
+    // Channel j's fits in conditions x, y, z.
+    let by_channel = Channel::ALL.map(|ch| fits.each_ref().map(|fc| *ch.of(fc)));
+    let dup_s = by_channel.map(|[fx, fy, fz]| {
+        let ((ax, bx), (ay, by), (az, bz)) = (ab(&fx), ab(&fy), ab(&fz));
+        [mean2(ay, az), mean2(ax, bz), mean2(bx, by)]
     });
-    let dup_o = [0, 1, 2].map(|j| {
-        let f = [fits[0][j], fits[1][j], fits[2][j]];
-        Estimate {
-            value: f.iter().map(|x| x.coef[2]).sum::<f64>() / 3.0,
-            std_unc: f.iter().map(|x| x.se[2].powi(2)).sum::<f64>().sqrt() / 3.0,
-        }
+    let dup_o = by_channel.map(|f| Estimate {
+        value: f.iter().map(|x| x.coef[2]).sum::<f64>() / 3.0,
+        std_unc: f.iter().map(|x| x.se[2].powi(2)).sum::<f64>().sqrt() / 3.0,
     });
     cal.duplicate_average = Some(DuplicateAverage {
         s: dup_s,
@@ -222,16 +233,18 @@ fn summarise(mut v: Vec<f64>) -> McSummary {
     let mean = v.iter().sum::<f64>() / n;
     let var = v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1.0);
     v.sort_by(f64::total_cmp);
+    // The trial a fraction p of the way through the sorted trials.
     let q = |p: f64| {
         v.get(((v.len() as f64 - 1.0) * p).round() as usize)
             .copied()
-            .unwrap_or(f64::NAN)
     };
+    // Without trials (--monte-carlo 0) there is no interval: NaN, null in the JSON.
+    let (low_95, high_95) = q(0.025).zip(q(0.975)).unwrap_or((f64::NAN, f64::NAN));
     McSummary {
         mean,
         std_unc: var.sqrt(),
-        low_95: q(0.025),
-        high_95: q(0.975),
+        low_95,
+        high_95,
     }
 }
 
@@ -239,17 +252,35 @@ fn summarise(mut v: Vec<f64>) -> McSummary {
 /// pivot gives a zero column).
 fn chol<const N: usize>(c: &[[f64; N]; N]) -> [[f64; N]; N] {
     let mut l = [[0.0; N]; N];
-    for i in 0..N {
-        for j in 0..=i {
-            let s = c[i][j] - (0..j).map(|k| l[i][k] * l[j][k]).sum::<f64>();
-            l[i][j] = if i == j {
-                s.max(0.0).sqrt()
-            } else if l[j][j] > 0.0 {
-                s / l[j][j]
-            } else {
-                0.0
+    // Row by row, each entry L_ij (j ≤ i) from the row's entries before it: off the
+    // diagonal with row j above and its diagonal L_jj, then the diagonal.
+    let mut above: Vec<([f64; N], f64)> = Vec::with_capacity(N);
+    for (c_row, l_row) in c.iter().zip(l.iter_mut()) {
+        let mut row: Vec<f64> = Vec::with_capacity(N);
+        let mut diagonal = 0.0;
+        let with = above.iter().map(Some).chain(std::iter::once(None));
+        for (c_ij, row_j) in c_row.iter().zip(with) {
+            let dot = |l_j: &[f64]| row.iter().zip(l_j).map(|(a, b)| a * b).sum::<f64>();
+            let l_ij = match row_j {
+                Some((l_j, l_jj)) => {
+                    let s = c_ij - dot(l_j);
+                    if *l_jj > 0.0 {
+                        s / l_jj
+                    } else {
+                        0.0
+                    }
+                }
+                None => {
+                    diagonal = (c_ij - dot(&row)).max(0.0).sqrt();
+                    diagonal
+                }
             };
+            row.push(l_ij);
         }
+        for (out, v) in l_row.iter_mut().zip(row) {
+            *out = v;
+        }
+        above.push((*l_row, diagonal));
     }
     l
 }
@@ -257,7 +288,17 @@ fn chol<const N: usize>(c: &[[f64; N]; N]) -> [[f64; N]; N] {
 fn draw<const N: usize, R: rand::Rng>(mean: [f64; N], l: &[[f64; N]; N], rng: &mut R) -> [f64; N] {
     use rand_distr::{Distribution, StandardNormal};
     let z: [f64; N] = std::array::from_fn(|_| StandardNormal.sample(rng));
-    std::array::from_fn(|i| mean[i] + (0..=i).map(|k| l[i][k] * z[k]).sum::<f64>())
+    let mut out = mean;
+    // L is lower triangular: row i against z_0 … z_i.
+    for (i, (o, l_i)) in out.iter_mut().zip(l).enumerate() {
+        *o += l_i
+            .iter()
+            .zip(&z)
+            .take(i + 1)
+            .map(|(l, z)| l * z)
+            .sum::<f64>();
+    }
+    out
 }
 
 /// GUM Supplement 1 check of the rotation method: `trials` draws of every fit's (A, B)
@@ -275,11 +316,10 @@ pub fn monte_carlo_rotation(
     let mut out: [Vec<f64>; 6] = Default::default();
     for _ in 0..trials {
         let mut draw_fits = *fits;
-        for ((df, f), ls) in draw_fits.iter_mut().zip(fits).zip(&factors) {
-            for (ch, l) in ls.iter().enumerate() {
-                let [a, b] = draw([f.a[ch], f.b[ch]], l, &mut rng);
-                df.a[ch] = a;
-                df.b[ch] = b;
+        // Each channel's (A, B) drawn in place of the fit's (a copy of it).
+        for (df, ls) in draw_fits.iter_mut().zip(&factors) {
+            for ((a, b), l) in df.a.iter_mut().zip(df.b.iter_mut()).zip(ls) {
+                [*a, *b] = draw([*a, *b], l, &mut rng);
             }
         }
         let r = intrinsic::from_gram(&draw_fits, g, 0.0)?;
@@ -303,11 +343,12 @@ pub fn monte_carlo_static(
     use rand::SeedableRng;
     let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
     let l = chol(&cal.s_cov);
-    let mean: [f64; 9] = std::array::from_fn(|i| cal.s[i / 3][i % 3]);
+    let [[s00, s01, s02], [s10, s11, s12], [s20, s21, s22]] = cal.s;
+    let mean = [s00, s01, s02, s10, s11, s12, s20, s21, s22];
     let mut out: [Vec<f64>; 6] = Default::default();
     for _ in 0..trials {
-        let d = draw(mean, &l, &mut rng);
-        let s = [0, 1, 2].map(|j| [0, 1, 2].map(|k| d[3 * j + k]));
+        let [d00, d01, d02, d10, d11, d12, d20, d21, d22] = draw(mean, &l, &mut rng);
+        let s = [[d00, d01, d02], [d10, d11, d12], [d20, d21, d22]];
         let r = intrinsic::from_matrix_cov(&s, &cal.s_cov)?;
         for (o, e) in out
             .iter_mut()
