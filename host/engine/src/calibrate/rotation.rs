@@ -2,6 +2,8 @@
 //! its rows ([`super::group`]) or from a streamed file's sums ([`super::stream`]), and one
 //! assembly of the entries for both: budgets, corrections, offsets at rest.
 
+#![deny(clippy::indexing_slicing)]
+
 use super::budget::{Budget, Kind};
 use super::group::{fit_group, samples, GroupFit, Refit};
 use super::json::{self, CalibrationJson, CorrectionJson, FitJson, NoiseJson};
@@ -11,7 +13,7 @@ use super::{
     RateError, TypeB, CLOCK,
 };
 use crate::recording::{same_rate, Group, Recording};
-use nalgebra::DMatrix;
+use nalgebra::{DMatrix, SMatrix};
 use rotacal_shared::intrinsic::{self, ConditionFit};
 use rotacal_shared::{Channel, Condition, Param};
 use std::f64::consts::TAU;
@@ -182,7 +184,7 @@ fn rotation_entry(
     set: &Setting<'_>,
 ) -> Result<json::RateJson, CalibrateError> {
     let g = set.g;
-    let cf = [0, 1, 2].map(|c| fits[c].condition_fit());
+    let cf = fits.each_ref().map(GroupFit::condition_fit);
     let at_rate = |e: RateError| {
         err(
             rec,
@@ -269,7 +271,7 @@ fn offsets_at_rest(fits: &[[GroupFit; 3]]) -> Result<([f64; 3], [f64; 3]), Calib
     let mut offset = [0.0; 3];
     let mut var = [0.0; 3];
     for condition in Condition::ALL {
-        for channel in Channel::ALL {
+        for ((offset, var), channel) in offset.iter_mut().zip(var.iter_mut()).zip(Channel::ALL) {
             let j = channel.index();
             // (ω², C, se_C) over the rates.
             let pts: Vec<(f64, f64, f64)> = fits
@@ -297,8 +299,8 @@ fn offsets_at_rest(fits: &[[GroupFit; 3]]) -> Result<([f64; 3], [f64; 3]), Calib
             if !(det.is_finite() && det > 0.0) {
                 return Err(CalibrateErrorKind::OffsetsAtRest { condition, channel });
             }
-            offset[j] += (sxx * sy - sx * sxy) / det / 3.0;
-            var[j] += sxx / det / 9.0;
+            *offset += (sxx * sy - sx * sxy) / det / 3.0;
+            *var += sxx / det / 9.0;
         }
     }
     Ok((offset, var))
@@ -337,19 +339,25 @@ pub fn rotation_correction(
     fits: &[GroupFit; 3],
     g: f64,
 ) -> Result<correction::Correction, correction::CorrectionError> {
+    // θ: (A, B) of each channel of each condition; its covariance block diagonal, a 2 × 2
+    // block for each.
     let mut theta = Vec::with_capacity(18);
-    let mut cov = DMatrix::zeros(18, 18);
-    for (c, f) in fits.iter().map(GroupFit::condition_fit).enumerate() {
-        for j in 0..3 {
-            let base = 6 * c + 2 * j;
-            theta.extend([f.a[j], f.b[j]]);
-            for a in 0..2 {
-                for b in 0..2 {
-                    cov[(base + a, base + b)] = f.cov[j][a][b];
-                }
-            }
+    let mut blocks: Vec<[[f64; 2]; 2]> = Vec::with_capacity(9);
+    for f in fits.iter().map(GroupFit::condition_fit) {
+        for ((a, b), cov) in f.a.iter().zip(&f.b).zip(f.cov) {
+            theta.extend([*a, *b]);
+            blocks.push(cov);
         }
     }
+    let n = theta.len();
+    let rows = blocks.iter().enumerate().flat_map(|(k, block)| {
+        block.iter().flat_map(move |row| {
+            let before = std::iter::repeat_n(0.0, 2 * k);
+            let after = std::iter::repeat_n(0.0, n.saturating_sub(2 * k + 2));
+            before.chain(row.iter().copied()).chain(after)
+        })
+    });
+    let cov = DMatrix::from_row_iterator(n, n, rows);
     let gram = move |t: &[f64]| -> Option<[[f64; 3]; 3]> {
         let mut gm = [[0.0; 3]; 3];
         for c in 0..3 {
@@ -363,17 +371,19 @@ pub fn rotation_correction(
         }
         Some(gm)
     };
-    let mut offset = [0.0; 3];
-    let mut offset_std = [0.0; 3];
-    for j in 0..3 {
-        offset[j] = fits.iter().map(|f| f.coef(j, Param::C)).sum::<f64>() / 3.0;
-        offset_std[j] = fits
-            .iter()
-            .map(|f| f.std_unc(j, 2).powi(2))
+    let offset = Channel::ALL.map(|ch| {
+        fits.iter()
+            .map(|f| f.coef(ch.index(), Param::C))
+            .sum::<f64>()
+            / 3.0
+    });
+    let offset_std = Channel::ALL.map(|ch| {
+        fits.iter()
+            .map(|f| f.std_unc(ch.index(), 2).powi(2))
             .sum::<f64>()
             .sqrt()
-            / 3.0;
-    }
+            / 3.0
+    });
     correction::from_gram(&gram, &theta, &cov, offset, offset_std)
 }
 
@@ -391,14 +401,20 @@ fn rotation_budget(
     let mut b = new_budget(units, false);
     let cf = fits.clone().map(|f| f.condition_fit());
     let values = values6(&cal.intrinsic);
-    let diag = |c: &[[f64; 6]; 6]| [0, 1, 2, 3, 4, 5].map(|q| c[q][q].max(0.0));
+    // (The diagonal of the transpose nalgebra makes of the rows.)
+    let diag = |c: &[[f64; 6]; 6]| -> [f64; 6] {
+        SMatrix::<f64, 6, 6>::from(*c)
+            .diagonal()
+            .map(|x| x.max(0.0))
+            .into()
+    };
     // Type A. The nine channel fits are independent, so each one's share of the variance
     // is the propagation with the others' covariance set to zero; their degrees of freedom
     // combine by Welch–Satterthwaite.
     let total = diag(&cal.intrinsic.cov);
     let mut per_dof = [0.0; 6];
     for (c, fit) in fits.iter().enumerate() {
-        for j in 0..3 {
+        for (j, noise) in fit.noise.iter().enumerate() {
             let mut only = cf;
             for (oc, f) in only.iter_mut().enumerate() {
                 for (oj, m) in f.cov.iter_mut().enumerate() {
@@ -408,14 +424,16 @@ fn rotation_budget(
                 }
             }
             let part = diag(&intrinsic::from_gram(&only, g, 0.0)?.cov);
-            let nu = fit.noise[j].dof(3);
+            let nu = noise.dof(3);
             for (d, x) in per_dof.iter_mut().zip(part) {
                 *d += x * x / nu;
             }
         }
     }
-    let dof: Vec<Option<f64>> = (0..6)
-        .map(|q| (per_dof[q] > 0.0).then(|| total[q] * total[q] / per_dof[q]))
+    let dof: Vec<Option<f64>> = per_dof
+        .iter()
+        .zip(&total)
+        .map(|(p, t)| (*p > 0.0).then(|| t * t / p))
         .collect();
     b.vector(
         "fits",
@@ -437,11 +455,15 @@ fn rotation_budget(
     for (c, (f, s)) in fits.iter().zip(refits).enumerate() {
         let u = f.u_rate_hz;
         let at = |rate: f64| -> Result<[f64; 6], RateError> {
+            let refit = s.refit(rate)?;
             let mut moved = cf;
-            moved[c] = ConditionFit {
-                cov: cf[c].cov,
-                ..s.refit(rate)?
-            };
+            // Condition c refitted at the rate, its covariance kept.
+            for (_, m) in moved.iter_mut().enumerate().filter(|(k, _)| *k == c) {
+                *m = ConditionFit {
+                    cov: m.cov,
+                    ..refit
+                };
+            }
             Ok(values6(&intrinsic::from_gram(&moved, g, 0.0)?))
         };
         // The Gram form is blind to the common phase a rate error makes, so what is left is
@@ -449,9 +471,11 @@ fn rotation_budget(
         // the larger one-sided change per u is taken.
         let sens: Vec<f64> = if u > 0.0 {
             let (hi, lo) = (at(f.rate_hz + u)?, at(f.rate_hz - u)?);
-            (0..6)
-                .map(|q| {
-                    let (a, b) = (hi[q] - values[q], lo[q] - values[q]);
+            hi.iter()
+                .zip(&lo)
+                .zip(&values)
+                .map(|((hi, lo), v)| {
+                    let (a, b) = (hi - v, lo - v);
                     if a.abs() >= b.abs() {
                         a / u
                     } else {
@@ -490,11 +514,13 @@ fn rotation_budget(
     let jitter = inputs.u_time_s.unwrap_or(0.0);
     let sigma_t = (resolution * resolution / 12.0 + jitter * jitter).sqrt();
     let omega = TAU * fits.iter().map(|f| f.rate_hz).fold(0.0, f64::max);
-    let ct: Vec<f64> = (0..6)
-        .map(|q| {
+    let ct: Vec<f64> = values
+        .iter()
+        .enumerate()
+        .map(|(q, v)| {
             if q < 3 {
                 // c·σ_t = −s(ωσ_t)²/2: the attenuation lowers s.
-                -values[q] * omega * omega * sigma_t / 2.0
+                -v * omega * omega * sigma_t / 2.0
             } else {
                 0.0
             }
