@@ -12,8 +12,11 @@
 //!
 //! Every candidate is reported with its span, mean, scatter and verdict.
 
+#![deny(clippy::indexing_slicing)]
+
 use crate::fit::noise::NoiseModel;
 use nalgebra::DMatrix;
+use rotacal_shared::Channel;
 
 /// Choices of the detection.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
@@ -145,14 +148,13 @@ pub enum StillError {
 /// The median of `v` (sorted in place); NaN when empty.
 pub fn median(v: &mut [f64]) -> f64 {
     v.sort_by(f64::total_cmp);
-    match v.len() {
-        0 => f64::NAN,
-        n if n % 2 == 1 => v.get(n / 2).copied().unwrap_or(f64::NAN),
-        n => {
-            (v.get(n / 2 - 1).copied().unwrap_or(f64::NAN)
-                + v.get(n / 2).copied().unwrap_or(f64::NAN))
-                / 2.0
-        }
+    let n = v.len();
+    // The middle one (n odd) or two (n even) of the sorted values.
+    let mut middle = v.iter().skip(n.saturating_sub(1) / 2);
+    match (middle.next(), middle.next()) {
+        (Some(a), Some(b)) if n % 2 == 0 => (a + b) / 2.0,
+        (Some(m), _) => *m,
+        (None, _) => f64::NAN,
     }
 }
 
@@ -171,8 +173,9 @@ pub fn detect(
         ));
     }
     let mut dt: Vec<f64> = t_s
-        .windows(2)
-        .map(|w| w[1] - w[0])
+        .iter()
+        .zip(t_s.iter().skip(1))
+        .map(|(t0, t1)| t1 - t0)
         .filter(|d| *d > 0.0)
         .collect();
     let step = median(&mut dt);
@@ -190,22 +193,27 @@ pub fn detect(
         )));
     }
     // Each window's variance per channel.
-    let var: Vec<[f64; 3]> = (0..blocks)
-        .map(|b| {
-            let rows = y.get(b * w..(b + 1) * w).unwrap_or(&[]);
+    let var: Vec<[f64; 3]> = y
+        .chunks_exact(w)
+        .take(blocks)
+        .map(|rows| {
             let m = rows.len().max(1) as f64;
-            [0, 1, 2].map(|j| {
-                let mean = rows.iter().map(|r| r[j]).sum::<f64>() / m;
-                rows.iter().map(|r| (r[j] - mean).powi(2)).sum::<f64>() / (m - 1.0).max(1.0)
+            Channel::ALL.map(|ch| {
+                let mean = rows.iter().map(|r| *ch.of(r)).sum::<f64>() / m;
+                rows.iter().map(|r| (ch.of(r) - mean).powi(2)).sum::<f64>() / (m - 1.0).max(1.0)
             })
         })
         .collect();
     // The noise: from the quietest tenth of the windows, then from the windows found still,
     // until the set stops changing.
-    let mut order: Vec<usize> = (0..blocks).collect();
     let score = |v: &[f64; 3]| v.iter().map(|x| x.max(1e-300).ln()).sum::<f64>();
-    order.sort_by(|a, b| score(&var[*a]).total_cmp(&score(&var[*b])));
-    let quiet: Vec<usize> = order.iter().take((blocks / 10).max(1)).copied().collect();
+    let mut order: Vec<(f64, &[f64; 3])> = var.iter().map(|v| (score(v), v)).collect();
+    order.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let quiet: Vec<&[f64; 3]> = order
+        .iter()
+        .take((blocks / 10).max(1))
+        .map(|(_, v)| *v)
+        .collect();
     // Below 1e-10 of the readings' size the data are noise-free: that is the floor.
     let scale = y
         .iter()
@@ -213,10 +221,14 @@ pub fn detect(
         .sum::<f64>()
         / n.max(1) as f64;
     let floor = 1e-20 * scale;
-    let mut noise = [0, 1, 2]
-        .map(|j| median(&mut quiet.iter().map(|b| var[*b][j]).collect::<Vec<_>>()).max(floor));
+    let mut noise = Channel::ALL
+        .map(|ch| median(&mut quiet.iter().map(|v| *ch.of(v)).collect::<Vec<_>>()).max(floor));
     let ratio = |v: &[f64; 3], noise: &[f64; 3]| {
-        (0..3).map(|j| v[j] / noise[j].max(1e-300)).sum::<f64>() / 3.0
+        v.iter()
+            .zip(noise)
+            .map(|(v, n)| v / n.max(1e-300))
+            .sum::<f64>()
+            / 3.0
     };
     let mut still: Vec<bool> = vec![false; blocks];
     for _ in 0..50 {
@@ -228,12 +240,12 @@ pub fn detect(
         if count == 0 {
             break;
         }
-        noise = [0, 1, 2]
-            .map(|j| {
+        noise = Channel::ALL
+            .map(|ch| {
                 var.iter()
                     .zip(&next)
                     .filter(|(_, s)| **s)
-                    .map(|(v, _)| v[j])
+                    .map(|(v, _)| *ch.of(v))
                     .sum::<f64>()
                     / count as f64
             })
@@ -249,14 +261,13 @@ pub fn detect(
     let mut intervals = Vec::new();
     let mut b = 0;
     while b < blocks {
-        if !still.get(b).copied().unwrap_or(false) {
+        let run = still.iter().skip(b).take_while(|s| **s).count();
+        if run == 0 {
             b += 1;
             continue;
         }
         let start = b;
-        while still.get(b).copied().unwrap_or(false) {
-            b += 1;
-        }
+        b += run;
         let (lo, hi) = if b - start > 2 {
             ((start + 1) * w, (b - 1) * w)
         } else {
@@ -330,15 +341,15 @@ fn interval(
     line: &[u64],
     (lo, hi): (usize, usize),
 ) -> Result<Interval, StillError> {
-    let rows = y
-        .get(lo..hi)
-        .ok_or_else(|| StillError::Data("interval beyond the data".into()))?;
-    let times = t_s.get(lo..hi).unwrap_or(&[]);
+    let beyond = || StillError::Data("interval beyond the data".into());
+    let rows = y.get(lo..hi).ok_or_else(beyond)?;
+    let times = t_s.get(lo..hi).ok_or_else(beyond)?;
     let n = rows.len();
     let m = n.max(1) as f64;
-    let mean = [0, 1, 2].map(|j| rows.iter().map(|r| r[j]).sum::<f64>() / m);
-    let std = [0, 1, 2].map(|j| {
-        (rows.iter().map(|r| (r[j] - mean[j]).powi(2)).sum::<f64>() / (m - 1.0).max(1.0)).sqrt()
+    let mean = Channel::ALL.map(|ch| rows.iter().map(|r| *ch.of(r)).sum::<f64>() / m);
+    let std = Channel::ALL.map(|ch| {
+        let sq = rows.iter().map(|r| (ch.of(r) - ch.of(&mean)).powi(2));
+        (sq.sum::<f64>() / (m - 1.0).max(1.0)).sqrt()
     });
     let t0 = times.first().copied().unwrap_or(0.0);
     let t1 = times.last().copied().unwrap_or(t0);
@@ -349,10 +360,7 @@ fn interval(
     if n >= crate::calibrate::poses::NOISE_MODEL_MIN {
         // A line through each channel: its residuals give the noise model, its slope the
         // change over the interval.
-        let h = DMatrix::from_fn(n, 2, |i, k| match k {
-            0 => 1.0,
-            _ => (times.get(i).copied().unwrap_or(tm) - tm) / half,
-        });
+        let h = DMatrix::from_row_iterator(n, 2, times.iter().flat_map(|t| [1.0, (t - tm) / half]));
         let hth = h.tr_mul(&h);
         let inv = hth.try_inverse().ok_or_else(|| {
             StillError::Data(format!(
@@ -362,8 +370,9 @@ fn interval(
         })?;
         let mut change = [0.0; 3];
         let mut z_max: f64 = 0.0;
-        for j in 0..3 {
-            let yj = nalgebra::DVector::from_iterator(n, rows.iter().map(|r| r[j]));
+        let each = std_err.iter_mut().zip(change.iter_mut());
+        for (ch, (se, change)) in Channel::ALL.into_iter().zip(each) {
+            let yj = nalgebra::DVector::from_iterator(n, rows.iter().map(|r| *ch.of(r)));
             let beta = &inv * h.tr_mul(&yj);
             let resid = &yj - &h * &beta;
             let Ok((_, cov)) =
@@ -371,14 +380,18 @@ fn interval(
             else {
                 continue;
             };
-            if let Some(se) = std_err.get_mut(j) {
-                *se = cov[(0, 0)].max(0.0).sqrt();
-            }
+            let diagonal = cov.diagonal();
+            let ([_, slope], [var_0, var_1]) = (beta.as_slice(), diagonal.as_slice()) else {
+                return Err(StillError::Data(
+                    "internal: a line's fit without two coefficients (a bug in rotacal)".into(),
+                ));
+            };
+            *se = var_0.max(0.0).sqrt();
             // The line's change from the first to the last row: 2·slope (its error not
             // below 1e-10 of the reading: round-off of noise-free data).
-            let d = 2.0 * beta[1];
-            let se_d = (2.0 * cov[(1, 1)].max(0.0).sqrt()).max(1e-10 * mean[j].abs());
-            change[j] = d;
+            let d = 2.0 * slope;
+            let se_d = (2.0 * var_1.max(0.0).sqrt()).max(1e-10 * ch.of(&mean).abs());
+            *change = d;
             if se_d > 0.0 {
                 z_max = z_max.max(d.abs() / se_d);
             }
