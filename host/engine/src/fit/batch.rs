@@ -6,8 +6,10 @@
 //! a given reference tick, so A, B, C mean the same as the streaming fit's re-referenced
 //! values without going through its transformation.
 
+#![deny(clippy::indexing_slicing)]
+
 use nalgebra::{DMatrix, DVector};
-use rotacal_shared::{Aperture, Model, PhaseStep, TickRate, Ticks};
+use rotacal_shared::{Aperture, Channel, Model, PhaseStep, TickRate, Ticks};
 use std::f64::consts::TAU;
 
 /// One fitted channel.
@@ -51,6 +53,9 @@ pub enum BatchError {
     /// The iterated fit did not converge.
     #[error("four-parameter fit did not converge in {0} iterations")]
     NoConvergence(usize),
+    /// An invariant of the fit failed: a bug in rotacal, not a problem of the data.
+    #[error("internal: {0} (a bug in rotacal; please report it)")]
+    Internal(&'static str),
 }
 
 /// Seconds from `t_ref` to `t` (negative before it).
@@ -188,7 +193,7 @@ impl IncrementalQr {
         }
         let r = t.view((0, 0), (p, p)).into_owned();
         let z = t.view((0, p), (p, 1)).into_owned();
-        let rss = t[(p, p)].powi(2);
+        let rss = t.get((p, p)).ok_or(BatchError::Singular)?.powi(2);
         let unscaled_cov = unscaled_cov(&r)?;
         let coef = r.solve_upper_triangular(&z).ok_or(BatchError::Singular)?;
         Ok(BatchFit {
@@ -232,13 +237,12 @@ pub fn fit(
     t_ref: Ticks,
 ) -> Result<BatchFit, BatchError> {
     let h = design(samples, step, clock, model, t_ref);
-    let mut ys = vec![DVector::zeros(samples.len()); 3];
-    for (i, (ap, y)) in samples.iter().enumerate() {
-        let w = root_weight(ap);
-        for (ch, v) in y.iter().enumerate() {
-            ys[ch][i] = w * *v;
-        }
-    }
+    let ys = Channel::ALL.map(|ch| {
+        DVector::from_iterator(
+            samples.len(),
+            samples.iter().map(|(ap, y)| root_weight(ap) * *ch.of(y)),
+        )
+    });
     solve_qr(h, &ys)
 }
 
@@ -253,7 +257,7 @@ pub fn design(
 ) -> DMatrix<f64> {
     let p = model.n_params();
     let mut h = DMatrix::zeros(samples.len(), p);
-    for (i, (ap, _)) in samples.iter().enumerate() {
+    for (mut h_row, (ap, _)) in h.row_iter_mut().zip(samples) {
         let w = root_weight(ap);
         let [s, c, tau, ts, tc] = mean_over(ap, |t| {
             let (s, c) = step.phase_at(t).sin_cos::<f64>();
@@ -268,8 +272,8 @@ pub fn design(
             row.push(ts);
             row.push(tc);
         }
-        for (j, v) in row.into_iter().enumerate() {
-            h[(i, j)] = w * v;
+        for (h, v) in h_row.iter_mut().zip(row) {
+            *h = w * v;
         }
     }
     h
@@ -325,6 +329,7 @@ pub fn fit_four_param(
     let mut last = fit(samples, nominal, clock, Model::SINE, t_mid)?;
     for iter in 1..=MAX_ITER {
         let step = PhaseStep::from_hz(rate, clock).ok_or(BatchError::Singular)?;
+        let ab = sine_ab(&last)?;
         // Joint unknowns: (A, B, C) × 3 channels, then δω; 3N rows, folded in blocks.
         let mut joint = IncrementalQr::new(10);
         for (ap, v) in samples {
@@ -335,20 +340,18 @@ pub fn fit_four_param(
                 let tau = seconds_between(t, t_mid, clock);
                 [s.hi, c.hi, tau * s.hi, tau * c.hi]
             });
-            for ch in 0..3 {
-                let a = last.channels[ch].coef[0];
-                let b = last.channels[ch].coef[1];
-                let mut h = [0.0; 10];
-                h[3 * ch] = w * s;
-                h[3 * ch + 1] = w * c;
-                h[3 * ch + 2] = w;
-                h[9] = w * (a * tc - b * ts);
-                joint.push(&h, w * v[ch]);
+            for ((ch, [a, b]), y) in Channel::ALL.into_iter().zip(ab).zip(v) {
+                let h = joint_row(ch, [w * s, w * c, w], w * (a * tc - b * ts));
+                joint.push(&h, w * y);
             }
         }
         let joint = joint.solve()?;
-        let dw = joint.channels[0].coef[9];
-        let se_dw = joint.channels[0].se[9];
+        let (dw, se_dw) = joint
+            .channels
+            .first()
+            .and_then(|c| c.coef.get(9).zip(c.se.get(9)))
+            .map(|(dw, se)| (*dw, *se))
+            .ok_or(BatchError::Internal("the joint fit has no rate column"))?;
         rate += dw / TAU;
         let next = PhaseStep::from_hz(rate, clock).ok_or(BatchError::Singular)?;
         last = fit(samples, next, clock, Model::SINE, t_mid)?;
@@ -362,4 +365,26 @@ pub fn fit_four_param(
         }
     }
     Err(BatchError::NoConvergence(MAX_ITER))
+}
+
+/// A and B of each channel of a sine fit (three channels, coefficients A, B, C).
+fn sine_ab(fit: &BatchFit) -> Result<[[f64; 2]; 3], BatchError> {
+    let ab = |c: &BatchChannel| match c.coef.as_slice() {
+        [a, b, ..] => Ok([*a, *b]),
+        _ => Err(BatchError::Internal("a sine fit without A and B")),
+    };
+    match fit.channels.as_slice() {
+        [u, v, w] => Ok([ab(u)?, ab(v)?, ab(w)?]),
+        _ => Err(BatchError::Internal("a sine fit without three channels")),
+    }
+}
+
+/// A row of the joint rate fit for channel `ch`: its (sin, cos, 1) in its own three
+/// columns, the others' zero, and the rate column last.
+fn joint_row(ch: Channel, [s, c, one]: [f64; 3], rate: f64) -> [f64; 10] {
+    match ch {
+        Channel::U => [s, c, one, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, rate],
+        Channel::V => [0.0, 0.0, 0.0, s, c, one, 0.0, 0.0, 0.0, rate],
+        Channel::W => [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, s, c, one, rate],
+    }
 }

@@ -1,6 +1,8 @@
 //! Harmonic analysis of fit residuals against the table angle: how much of each harmonic
 //! k·α is left. The report plots it; the discrepancy workflow reads it to name effects.
 
+#![deny(clippy::indexing_slicing)]
+
 use nalgebra::{Matrix3, Vector3};
 
 /// Harmonics of ω whose residual amplitude is reported.
@@ -42,7 +44,7 @@ impl HarmonicSums {
             .map(|(m, v)| {
                 m.lu()
                     .solve(v)
-                    .map_or(f64::NAN, |c| (c[0] * c[0] + c[1] * c[1]).sqrt())
+                    .map_or(f64::NAN, |c| (c.x * c.x + c.y * c.y).sqrt())
             })
             .collect()
     }
