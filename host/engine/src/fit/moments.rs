@@ -12,6 +12,8 @@
 //! noise model's widened fit, whose residuals are taken in a second pass at the exact step.
 //! [`Moments::within`] says whether a step is near enough for that.
 
+#![deny(clippy::indexing_slicing)]
+
 use crate::fit::batch::BatchError;
 use nalgebra::{DMatrix, Matrix3, SMatrix, SVector, Vector3};
 use rotacal_shared::{Aperture, PhaseStep, TickRate, Ticks};
@@ -47,15 +49,36 @@ pub fn wide_row(s: f64, c: f64, u: f64) -> [f64; WIDE] {
 
 /// D, the derivative in α, as a matrix on the wide columns: d/dα f = D f.
 pub fn wide_d() -> M10 {
-    let mut d = M10::zeros();
-    for (i, k) in WIDE_HARMONIC.iter().enumerate().step_by(2) {
-        if *k > 0 && i + 1 < WIDE {
-            let k = f64::from(*k);
-            d[(i, i + 1)] = k; // d/dα sin kα = k cos kα
-            d[(i + 1, i)] = -k; // d/dα cos kα = −k sin kα
+    // Row a, column b: how much of column b is in d/dα of column a.
+    grid(&COLS, &COLS, |a, b| match (a, b) {
+        (Col::Sin(k), Col::Cos(l)) if k == l => k as f64, // d/dα sin kα = k cos kα
+        (Col::Cos(k), Col::Sin(l)) if k == l => -(k as f64), // d/dα cos kα = −k sin kα
+        _ => 0.0,
+    })
+}
+
+/// The matrix of `f(a, b)` for the columns `a` of its rows and `b` of its columns.
+fn grid<const R: usize, const C: usize>(
+    rows: &[Col; R],
+    cols: &[Col; C],
+    f: impl Fn(Col, Col) -> f64,
+) -> SMatrix<f64, R, C> {
+    SMatrix::from(cols.map(|b| rows.map(|a| f(a, b))))
+}
+
+/// [`grid`] of a function that may fail (`None` if `f` fails anywhere).
+fn try_grid<const R: usize, const C: usize>(
+    rows: &[Col; R],
+    cols: &[Col; C],
+    f: impl Fn(Col, Col) -> Option<f64>,
+) -> Option<SMatrix<f64, R, C>> {
+    let mut out = SMatrix::<f64, R, C>::zeros();
+    for (mut row, a) in out.row_iter_mut().zip(rows) {
+        for (x, b) in row.iter_mut().zip(cols) {
+            *x = f(*a, *b)?;
         }
     }
-    d
+    Some(out)
 }
 
 /// D on the sine fit's columns (sin α, cos α, 1).
@@ -128,52 +151,46 @@ const COLS: [Col; WIDE] = [
 ];
 
 impl Harmonic {
-    /// Σ u^e·a·b over the rows, for columns a and b.
-    fn product(&self, a: Col, b: Col, e: usize) -> f64 {
-        let c = |p: usize, m: usize| {
-            self.cos
-                .get(p)
-                .and_then(|r| r.get(m))
-                .copied()
-                .unwrap_or(0.0)
-        };
+    /// Σ u^e·a·b over the rows, for columns a and b: `None` if that needs a power of u or
+    /// a harmonic beyond the sums (not for the columns and powers this module asks for).
+    fn product(&self, a: Col, b: Col, e: usize) -> Option<f64> {
+        let c = |p: usize, m: usize| self.cos.get(p)?.get(m).copied();
         let s = |p: usize, m: isize| {
-            let v = self
-                .sin
-                .get(p)
-                .and_then(|r| r.get(m.unsigned_abs()))
-                .copied()
-                .unwrap_or(0.0);
-            if m < 0 {
-                -v
-            } else {
-                v
-            }
+            let v = *self.sin.get(p)?.get(m.unsigned_abs())?;
+            Some(if m < 0 { -v } else { v })
         };
-        match (a, b) {
-            (Col::One(pa), Col::One(pb)) => c(pa + pb + e, 0),
-            (Col::One(pa), Col::Sin(l)) | (Col::Sin(l), Col::One(pa)) => s(pa + e, l as isize),
-            (Col::One(pa), Col::Cos(l)) | (Col::Cos(l), Col::One(pa)) => c(pa + e, l),
-            (Col::Sin(k), Col::Sin(l)) => (c(e, k.abs_diff(l)) - c(e, k + l)) / 2.0,
-            (Col::Cos(k), Col::Cos(l)) => (c(e, k.abs_diff(l)) + c(e, k + l)) / 2.0,
+        Some(match (a, b) {
+            (Col::One(pa), Col::One(pb)) => c(pa + pb + e, 0)?,
+            (Col::One(pa), Col::Sin(l)) | (Col::Sin(l), Col::One(pa)) => s(pa + e, l as isize)?,
+            (Col::One(pa), Col::Cos(l)) | (Col::Cos(l), Col::One(pa)) => c(pa + e, l)?,
+            (Col::Sin(k), Col::Sin(l)) => (c(e, k.abs_diff(l))? - c(e, k + l)?) / 2.0,
+            (Col::Cos(k), Col::Cos(l)) => (c(e, k.abs_diff(l))? + c(e, k + l)?) / 2.0,
             (Col::Sin(k), Col::Cos(l)) | (Col::Cos(l), Col::Sin(k)) => {
-                (s(e, (k + l) as isize) + s(e, k as isize - l as isize)) / 2.0
+                (s(e, (k + l) as isize)? + s(e, k as isize - l as isize)?) / 2.0
             }
-        }
+        })
     }
 
-    /// Σ u^e·a·y over the rows, per channel.
-    fn with_y(&self, a: Col, e: usize) -> [f64; 3] {
+    /// Σ u^e·a·y over the rows, per channel (`None` as for [`Harmonic::product`]).
+    fn with_y(&self, a: Col, e: usize) -> Option<[f64; 3]> {
         let (p, g) = match a {
             Col::One(pa) => (pa + e, 0),
-            Col::Sin(k) => (e, 2 * k - 1),
+            Col::Sin(k) => (e, (2 * k).checked_sub(1)?),
             Col::Cos(k) => (e, 2 * k),
         };
-        self.y
-            .get(p)
-            .and_then(|r| r.get(g))
-            .copied()
-            .unwrap_or([0.0; 3])
+        self.y.get(p)?.get(g).copied()
+    }
+
+    /// Σ u^e·a·y over the rows for the columns `a` of `rows` (a row each), per channel
+    /// (a column each).
+    fn with_y_grid<const R: usize>(&self, rows: &[Col; R], e: usize) -> Option<SMatrix<f64, R, 3>> {
+        let mut out = SMatrix::<f64, R, 3>::zeros();
+        for (mut row, a) in out.row_iter_mut().zip(rows) {
+            for (x, v) in row.iter_mut().zip(self.with_y(*a, e)?) {
+                *x = v;
+            }
+        }
+        Some(out)
     }
 
     /// Add a row of one conversion at angle (sin, cos) = (`s`, `c`), time `u`; its wide
@@ -253,19 +270,9 @@ pub const PAIR: usize = 2 * WIDE + 2;
 pub fn pair_row(s: f64, c: f64, u: f64) -> [f64; PAIR] {
     let f = wide_row(s, c, u);
     let mut v = [0.0; PAIR];
-    for (i, x) in f.iter().enumerate() {
-        if let Some(a) = v.get_mut(i) {
-            *a = *x;
-        }
-        if let Some(b) = v.get_mut(i + WIDE) {
-            *b = u * x;
-        }
-    }
-    if let Some([a, b]) = v
-        .get_mut(2 * WIDE..)
-        .and_then(|t| <&mut [f64; 2]>::try_from(t).ok())
-    {
-        (*a, *b) = (u * u * s, u * u * c);
+    let parts = f.iter().copied().chain(f.map(|x| u * x));
+    for (a, x) in v.iter_mut().zip(parts.chain([u * u * s, u * u * c])) {
+        *a = x;
     }
     v
 }
@@ -406,7 +413,8 @@ impl Moments {
     pub fn pair_sums(&self) -> Option<PairSums> {
         let h = self.harm.as_ref()?;
         // Σ 1 over the rows of one conversion: all of them, or some went to the dense sums.
-        if h.cos[0][0] != self.rows as f64 || self.rows == 0 {
+        let [[ones, ..], ..] = h.cos;
+        if ones != self.rows as f64 || self.rows == 0 {
             return None;
         }
         let mut out = PairSums {
@@ -414,22 +422,22 @@ impl Moments {
             y: SMatrix::zeros(),
             v: SVector::zeros(),
         };
-        // Index, column and power of u of each entry of V.
-        let entries: Vec<(usize, Col, usize)> = COLS
+        // Column and power of u of each entry of V, in order.
+        let entries: Vec<(Col, usize)> = COLS
             .iter()
-            .enumerate()
-            .map(|(i, a)| (i, *a, 0))
-            .chain(COLS.iter().enumerate().map(|(i, a)| (i + WIDE, *a, 1)))
-            .chain([(2 * WIDE, Col::Sin(1), 2), (2 * WIDE + 1, Col::Cos(1), 2)])
+            .map(|a| (*a, 0))
+            .chain(COLS.iter().map(|a| (*a, 1)))
+            .chain([(Col::Sin(1), 2), (Col::Cos(1), 2)])
             .collect();
-        for (i, a, pa) in &entries {
-            for (j, b, pb) in &entries {
-                out.p[(*i, *j)] = h.product(*a, *b, pa + pb);
+        let rows = out.p.row_iter_mut().zip(out.y.row_iter_mut());
+        for (((mut p_row, mut y_row), v), (a, pa)) in rows.zip(out.v.iter_mut()).zip(&entries) {
+            for (x, (b, pb)) in p_row.iter_mut().zip(&entries) {
+                *x = h.product(*a, *b, pa + pb)?;
             }
-            for (ch, x) in h.with_y(*a, *pa).iter().enumerate() {
-                out.y[(*i, ch)] = *x;
+            for (x, y) in y_row.iter_mut().zip(h.with_y(*a, *pa)?) {
+                *x = y;
             }
-            out.v[*i] = h.product(*a, Col::One(0), *pa);
+            *v = h.product(*a, Col::One(0), *pa)?;
         }
         Some(out)
     }
@@ -440,29 +448,53 @@ impl Moments {
         let Some(h) = m.harm.take() else {
             return m; // folded already, or no row of one conversion
         };
-        for (i, a) in COLS.iter().enumerate() {
-            for (j, b) in COLS.iter().enumerate() {
-                m.p00[(i, j)] += h.product(*a, *b, 0);
-                m.p01[(i, j)] += h.product(*a, *b, 1);
-            }
-            let (y0, y1) = (h.with_y(*a, 0), h.with_y(*a, 1));
-            for (ch, (a0, a1)) in y0.iter().zip(y1).enumerate() {
-                m.x0[(i, ch)] += a0;
-                m.x1[(i, ch)] += a1;
-            }
-        }
-        for (i, a) in COLS.iter().take(3).enumerate() {
-            for (j, b) in COLS.iter().take(3).enumerate() {
-                m.p02[(i, j)] += h.product(*a, *b, 2);
-                m.p11[(i, j)] += h.product(*a, *b, 2);
-                m.p12[(i, j)] += h.product(*a, *b, 3);
-                m.p22[(i, j)] += h.product(*a, *b, 4);
-            }
-            for (ch, a2) in h.with_y(*a, 2).iter().enumerate() {
-                m.x2[(i, ch)] += a2;
-            }
+        if m.fold(&h).is_none() {
+            // Not reached: the fold reads only sums `Harmonic::add` gathers. Were one
+            // missing, sums of NaN make every fit from them fail rather than leave the
+            // rows of one conversion out unseen.
+            m.poison();
         }
         m
+    }
+
+    /// Add `h`'s sums to the dense ones (`None`, and nothing added, if `h` lacks one).
+    fn fold(&mut self, h: &Harmonic) -> Option<()> {
+        let wide = |e| try_grid(&COLS, &COLS, |a, b| h.product(a, b, e));
+        let (p00, p01) = (wide(0)?, wide(1)?);
+        let (x0, x1) = (h.with_y_grid(&COLS, 0)?, h.with_y_grid(&COLS, 1)?);
+        // The sine's columns: sin α, cos α, 1.
+        let [s1, c1, one, ..] = COLS;
+        let sine = [s1, c1, one];
+        let narrow = |e| try_grid(&sine, &sine, |a, b| h.product(a, b, e));
+        let (q2, q3, q4) = (narrow(2)?, narrow(3)?, narrow(4)?);
+        let x2 = h.with_y_grid(&sine, 2)?;
+        self.p00 += p00;
+        self.p01 += p01;
+        self.x0 += x0;
+        self.x1 += x1;
+        self.p02 += q2;
+        self.p11 += q2;
+        self.p12 += q3;
+        self.p22 += q4;
+        self.x2 += x2;
+        Some(())
+    }
+
+    /// Every dense sum NaN (see [`Moments::dense`]).
+    fn poison(&mut self) {
+        self.p00.fill(f64::NAN);
+        self.p01.fill(f64::NAN);
+        self.x0.fill(f64::NAN);
+        self.x1.fill(f64::NAN);
+        for m in [
+            &mut self.p02,
+            &mut self.p11,
+            &mut self.p12,
+            &mut self.p22,
+            &mut self.x2,
+        ] {
+            m.fill(f64::NAN);
+        }
     }
 
     /// Add a row's contributions, weighted by its `w` conversions.
@@ -540,14 +572,14 @@ impl Moments {
             yy: self.yy,
             rows: self.rows,
         };
-        for a in 0..3 {
-            out.xh += th[a] * xv(a);
-            out.xd += td[a] * xv(a);
-            for b in 0..3 {
+        for (a, (tha, tda)) in th.into_iter().zip(td).enumerate() {
+            out.xh += tha * xv(a);
+            out.xd += tda * xv(a);
+            for (b, (thb, tdb)) in th.into_iter().zip(td).enumerate() {
                 let qab = q(a, b);
-                out.g += th[a] * qab * th[b].transpose();
-                out.k += th[a] * qab * td[b].transpose();
-                out.l += td[a] * qab * td[b].transpose();
+                out.g += tha * qab * thb.transpose();
+                out.k += tha * qab * tdb.transpose();
+                out.l += tda * qab * tdb.transpose();
             }
         }
         out
@@ -685,9 +717,8 @@ pub fn sine_coefficients(m: &Moments, step: PhaseStep) -> Result<[[f64; 3]; 3], 
     let n = m.sine_at(step);
     let chol = n.g.cholesky().ok_or(BatchError::Singular)?;
     let mut out = [[0.0; 3]; 3];
-    for (ch, c) in out.iter_mut().enumerate() {
-        let b = chol.solve(&n.xh.column(ch).into_owned());
-        *c = [b[0], b[1], b[2]];
+    for (c, xh) in out.iter_mut().zip(n.xh.column_iter()) {
+        *c = chol.solve(&xh.into_owned()).into();
     }
     Ok(out)
 }
@@ -714,10 +745,14 @@ pub fn four_param(m: &Moments, start: PhaseStep, clock: TickRate) -> Result<Four
         let s = m.sine_at(step);
         let mut normal = DMatrix::<f64>::zeros(10, 10);
         let mut rhs = DMatrix::<f64>::zeros(10, 1);
+        // The rate's own entries of `normal` and `rhs`: sums over the channels.
+        let (mut ll, mut ly) = (0.0, 0.0);
         let mut yy = 0.0;
-        for (ch, c) in last.iter().enumerate() {
+        let per_channel = s.xh.column_iter().zip(s.xd.column_iter()).zip(s.yy);
+        for (ch, (c, ((xh, xd), y2))) in last.iter().zip(per_channel).enumerate() {
             // g_j = (A_j, B_j, 0)·dh: its cross products from K = Σ h dhᵀ and L = Σ dh dhᵀ.
-            let ab = nalgebra::Vector3::new(c[0], c[1], 0.0);
+            let [a, b_amp, _] = *c;
+            let ab = nalgebra::Vector3::new(a, b_amp, 0.0);
             let b = 3 * ch;
             normal.view_mut((b, b), (3, 3)).copy_from(&s.g);
             let cross = s.k * ab;
@@ -725,18 +760,23 @@ pub fn four_param(m: &Moments, start: PhaseStep, clock: TickRate) -> Result<Four
             normal
                 .view_mut((9, b), (1, 3))
                 .copy_from(&cross.transpose());
-            normal[(9, 9)] += (ab.transpose() * s.l * ab)[0];
-            rhs.view_mut((b, 0), (3, 1)).copy_from(&s.xh.column(ch));
-            rhs[(9, 0)] += ab.dot(&s.xd.column(ch));
-            yy += s.yy.get(ch).copied().unwrap_or(0.0);
+            ll += (ab.transpose() * s.l * ab).x;
+            rhs.view_mut((b, 0), (3, 1)).copy_from(&xh);
+            ly += ab.dot(&xd);
+            yy += y2;
         }
+        let internal = BatchError::Internal("the joint rate fit is not 10 by 10");
+        *normal.get_mut((9, 9)).ok_or(internal.clone())? = ll;
+        *rhs.get_mut((9, 0)).ok_or(internal.clone())? = ly;
         let chol = normal.cholesky().ok_or(BatchError::Singular)?;
         let theta = chol.solve(&rhs);
         let inv = chol.inverse();
         let rss = (yy - theta.dot(&rhs)).max(0.0);
         let dof = (3 * rows).saturating_sub(10).max(1) as f64;
-        let dw = theta[(9, 0)];
-        let se_dw = (rss / dof * inv[(9, 9)]).max(0.0).sqrt();
+        let dw = *theta.get((9, 0)).ok_or(internal.clone())?;
+        let se_dw = (rss / dof * inv.get((9, 9)).ok_or(internal)?)
+            .max(0.0)
+            .sqrt();
         rate += dw / TAU;
         let next = PhaseStep::from_hz(rate, clock).ok_or(BatchError::Singular)?;
         last = sine_coefficients(m, next)?;
@@ -780,27 +820,22 @@ impl Moments {
         let (sp, cp) = self.step.phase_at(Ticks(ticks)).sin_cos::<f64>();
         let (sp, cp) = (sp.hi, cp.hi);
         // f' = A f: each harmonic pair turned by kφ, the trend moved by Δ times the constant.
-        let mut a = M10::zeros();
-        let mut k = 0usize;
-        while k < WIDE {
-            let h = WIDE_HARMONIC.get(k).copied().unwrap_or(0);
-            if h == 0 {
-                a[(k, k)] = 1.0;
-                k += 1;
-                continue;
-            }
-            // sin(kα + kφ) = sin kα cos kφ + cos kα sin kφ; cos(kα + kφ) = cos kα cos kφ − sin kα sin kφ.
+        // sin(kα + kφ) = sin kα cos kφ + cos kα sin kφ; cos(kα + kφ) = cos kα cos kφ − sin kα sin kφ.
+        let turn = |k: usize| {
             let (mut sk, mut ck) = (0.0, 1.0);
-            for _ in 0..h {
+            for _ in 0..k {
                 (sk, ck) = (sk * cp + ck * sp, ck * cp - sk * sp);
             }
-            a[(k, k)] = ck;
-            a[(k, k + 1)] = sk;
-            a[(k + 1, k)] = -sk;
-            a[(k + 1, k + 1)] = ck;
-            k += 2;
-        }
-        a[(3, 2)] = delta; // trend: u + Δ
+            (sk, ck)
+        };
+        let a = grid(&COLS, &COLS, |row, col| match (row, col) {
+            (Col::One(p), Col::One(q)) if p == q => 1.0,
+            (Col::One(1), Col::One(0)) => delta, // trend: u + Δ
+            (Col::Sin(k), Col::Sin(l)) | (Col::Cos(k), Col::Cos(l)) if k == l => turn(k).1,
+            (Col::Sin(k), Col::Cos(l)) if k == l => turn(k).0,
+            (Col::Cos(k), Col::Sin(l)) if k == l => -turn(k).0,
+            _ => 0.0,
+        });
         let r3 = a.fixed_view::<3, 3>(0, 0).into_owned();
         let mut m = self.clone();
         // v₀' = A v₀, v₁' = A(v₁ + Δv₀); for the sine, v₂' = R(v₂ + 2Δv₁ + Δ²v₀).
