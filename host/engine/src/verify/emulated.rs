@@ -79,6 +79,15 @@ fn hex32(s: &str) -> Option<f32> {
     u32::from_str_radix(s, 16).ok().map(f32::from_bits)
 }
 
+/// Each of `hex` as [`hex32`] reads it; `None` if any is not one.
+fn hex_values<const N: usize>(hex: [&str; N]) -> Option<[f32; N]> {
+    let mut out = [0.0; N];
+    for (x, s) in out.iter_mut().zip(hex) {
+        *x = hex32(s)?;
+    }
+    Some(out)
+}
+
 /// Parse the `crosscheck` binary's output.
 pub fn parse_log(text: &str) -> Result<DeviceLog, LogError> {
     let mut log = DeviceLog::default();
@@ -109,26 +118,21 @@ pub fn parse_log(text: &str) -> Result<DeviceLog, LogError> {
                     .insert((name.to_string(), axis, model.to_string()), (n, sum));
             }
             Some("fit") => {
-                if f.len() != 15 {
+                let Ok([_, name, axis, model, ch, hex @ ..]) = <[&str; 15]>::try_from(f.as_slice())
+                else {
                     return Err(bad("expected 15 fields"));
-                }
-                let axis = f[2].parse().map_err(|_| bad("bad axis"))?;
-                let ch = f[4].parse().map_err(|_| bad("bad channel"))?;
-                let v: Vec<f32> = f[5..]
-                    .iter()
-                    .map(|s| hex32(s))
-                    .collect::<Option<_>>()
-                    .ok_or_else(|| bad("bad hex value"))?;
-                let dw = |i: usize| DoubleWord {
-                    hi: v[i],
-                    lo: v[i + 1],
                 };
+                let axis = axis.parse().map_err(|_| bad("bad axis"))?;
+                let ch = ch.parse().map_err(|_| bad("bad channel"))?;
+                let v = hex_values(hex).ok_or_else(|| bad("bad hex value"))?;
+                let [a_hi, a_lo, b_hi, b_lo, c_hi, c_lo, se_a, se_b, se_c, sigma] = v;
+                let dw = |hi, lo| DoubleWord { hi, lo };
                 log.fits.insert(
-                    (f[1].to_string(), axis, f[3].to_string(), ch),
+                    (name.to_string(), axis, model.to_string(), ch),
                     DeviceFit {
-                        coef: [dw(0), dw(2), dw(4)],
-                        se: [v[6], v[7], v[8]],
-                        sigma: v[9],
+                        coef: [dw(a_hi, a_lo), dw(b_hi, b_lo), dw(c_hi, c_lo)],
+                        se: [se_a, se_b, se_c],
+                        sigma,
                     },
                 );
             }
@@ -265,24 +269,35 @@ pub fn check(log: &DeviceLog) -> Result<Report, CheckError> {
                 let t_ref = h32.t_ref.unwrap_or(Ticks(0));
                 let b64 = batch::fit(&samples_f64, spec.step, spec.clock, model, t_ref)
                     .map_err(|e| CheckError::Fit(what.clone(), e.to_string()))?;
-                for (ch, channel) in CHANNELS.into_iter().enumerate() {
+                let b64: &[batch::BatchChannel; 3] = b64
+                    .channels
+                    .as_slice()
+                    .try_into()
+                    .map_err(|_| CheckError::Fit(what.clone(), "not three channels".into()))?;
+                let per_channel = h32.channels.iter().zip(b64);
+                for ((ch, channel), (hc, bc)) in CHANNELS.into_iter().enumerate().zip(per_channel) {
                     let dev = log
                         .fits
                         .get(&(rec.name.to_string(), axis, model_name.to_string(), ch))
                         .ok_or_else(|| {
                             CheckError::Missing(format!("{what} ({model_name}) channel {ch}"))
                         })?;
-                    let hc = &h32.channels[ch];
-                    let same_bits = (0..3).all(|i| {
-                        hc.coef[i].hi.to_bits() == dev.coef[i].hi.to_bits()
-                            && hc.coef[i].lo.to_bits() == dev.coef[i].lo.to_bits()
-                            && hc.se[i].to_bits() == dev.se[i].to_bits()
-                    }) && hc.sigma.to_bits() == dev.sigma.to_bits();
+                    // A, B, C: the device's three against the host's first three.
+                    let host = hc.coef.iter().zip(&hc.se);
+                    let same_bits = host.zip(dev.coef.iter().zip(&dev.se)).all(
+                        |((hcoef, hse), (dcoef, dse))| {
+                            hcoef.hi.to_bits() == dcoef.hi.to_bits()
+                                && hcoef.lo.to_bits() == dcoef.lo.to_bits()
+                                && hse.to_bits() == dse.to_bits()
+                        },
+                    ) && hc.sigma.to_bits() == dev.sigma.to_bits();
                     rep.host_f32_bit_identical &= same_bits;
-                    let bc = &b64.channels[ch];
-                    for (i, param) in ['A', 'B', 'C'].into_iter().enumerate() {
-                        let d = dev.coef[i].to_f64();
-                        let diff = (d - bc.coef[i]).abs();
+                    let params = ['A', 'B', 'C'].into_iter().zip(&dev.coef).zip(&crlb);
+                    for (((param, dcoef), bound), (host, se)) in
+                        params.zip(bc.coef.iter().zip(&bc.se))
+                    {
+                        let d = dcoef.to_f64();
+                        let diff = (d - host).abs();
                         let c = Compared {
                             record: rec.name.to_string(),
                             condition: cond,
@@ -290,9 +305,9 @@ pub fn check(log: &DeviceLog) -> Result<Report, CheckError> {
                             channel,
                             param,
                             device: d,
-                            host_f64: bc.coef[i],
-                            ratio_crlb: diff / crlb[i],
-                            ratio_se: diff / bc.se[i],
+                            host_f64: *host,
+                            ratio_crlb: diff / bound,
+                            ratio_se: diff / se,
                         };
                         if model == Model::SINE {
                             rep.max_ratio_crlb_sine = rep.max_ratio_crlb_sine.max(c.ratio_crlb);

@@ -93,9 +93,11 @@ pub fn compare(window: &[batch::Sample], f: &FitLine) -> Result<Comparison, Veri
     let conversions: usize = window.iter().map(|(ap, _)| ap.len()).sum();
     for (h, device) in host.channels.iter().zip(&f.coef) {
         let crlb = sigma_crlb(h.sigma, conversions);
-        for (k, bound) in crlb.iter().enumerate() {
-            let d = (device[k] - h.coef[k]).abs();
-            max_se = max_se.max(d / h.se[k]);
+        // A, B, C: the device's three against the host's first three (the model's).
+        let params = device.iter().zip(&h.coef).zip(&h.se).zip(&crlb);
+        for (((dev, host), se), bound) in params {
+            let d = (dev - host).abs();
+            max_se = max_se.max(d / se);
             max_crlb = max_crlb.max(d / bound);
         }
     }

@@ -59,7 +59,8 @@ fn check_one(rec: &Recording, f: &FitLine, threshold: f64) -> Result<FitCheck, V
         let seq = g.seq.as_ref().ok_or_else(|| VerifyError::NoSeq {
             source_name: rec.source.clone(),
         })?;
-        for (i, s) in seq.iter().enumerate() {
+        let readings = g.u.iter().zip(&g.v).zip(&g.w);
+        for (i, (s, ((&u, &v), &w))) in seq.iter().zip(readings).enumerate() {
             if (u64::from(f.first_seq)..=u64::from(f.last_seq)).contains(s) {
                 let t = *g.t_s.get(i).ok_or(VerifyError::NoTime)?;
                 let ticks = (t * f64::from(f.tick_hz)).round();
@@ -76,7 +77,7 @@ fn check_one(rec: &Recording, f: &FitLine, threshold: f64) -> Result<FitCheck, V
                         seq: *s,
                     }
                 })?;
-                window.push((ap, [g.u[i], g.v[i], g.w[i]]));
+                window.push((ap, [u, v, w]));
             }
         }
     }

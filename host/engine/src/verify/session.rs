@@ -4,6 +4,7 @@
 //! equal an f64 batch fit (nalgebra QR, independent of the streaming fit) of exactly the
 //! samples of its window; the quick-look must equal the Gram form on those f64 fits.
 
+use crate::fit::batch::{BatchChannel, BatchFit};
 use crate::recording::from_device::FitLine;
 use rotacal_shared::device::simulated::SessionSpec;
 use rotacal_shared::device::{Config, Device, RING};
@@ -108,6 +109,29 @@ pub struct SessionReport {
     pub quick_look_max_ratio_u: Option<f64>,
 }
 
+/// The (A, B) part of a host fit of the 3-parameter model (the Gram form's input): A and
+/// B per channel, and their covariance σ̂²·(HᵀH)⁻¹.
+fn condition_fit(r: &BatchFit) -> anyhow::Result<ConditionFit> {
+    let broken = || anyhow::anyhow!("host fit: not three channels of A, B, C");
+    let at = |i: usize, j: usize| r.unscaled_cov.get((i, j)).copied().ok_or_else(broken);
+    let ab = [[at(0, 0)?, at(0, 1)?], [at(1, 0)?, at(1, 1)?]];
+    let channels: &[BatchChannel; 3] = r.channels.as_slice().try_into().map_err(|_| broken())?;
+    let mut fit = ConditionFit {
+        a: [0.0; 3],
+        b: [0.0; 3],
+        cov: [[[0.0; 2]; 2]; 3],
+    };
+    let out = fit.a.iter_mut().zip(&mut fit.b).zip(&mut fit.cov);
+    for (ch, ((a, b), cov)) in channels.iter().zip(out) {
+        let &[ca, cb, ..] = ch.coef.as_slice() else {
+            return Err(broken());
+        };
+        (*a, *b) = (ca, cb);
+        *cov = ab.map(|row| row.map(|x| ch.sigma.powi(2) * x));
+    }
+    Ok(fit)
+}
+
 /// Decode and check the device's packets.
 pub fn check(device: &[Vec<u8>]) -> anyhow::Result<SessionReport> {
     let host = host_packets();
@@ -151,8 +175,8 @@ pub fn check(device: &[Vec<u8>]) -> anyhow::Result<SessionReport> {
         };
         let mut se_rel = 0.0f64;
         for (host, se) in r.channels.iter().zip(&f.se) {
-            for (k, se) in se.iter().enumerate() {
-                se_rel = se_rel.max((f64::from(*se) - host.se[k]).abs() / host.se[k]);
+            for (se, host) in se.iter().zip(&host.se) {
+                se_rel = se_rel.max((f64::from(*se) - host).abs() / host);
             }
         }
         fits.push(FitComparison {
@@ -164,19 +188,7 @@ pub fn check(device: &[Vec<u8>]) -> anyhow::Result<SessionReport> {
         });
         if f.is_final {
             if let Some(slot) = finals.get_mut(f.condition.index()) {
-                let cov = |i: usize, j: usize, ch: usize| {
-                    r.channels[ch].sigma.powi(2) * r.unscaled_cov[(i, j)]
-                };
-                *slot = Some(ConditionFit {
-                    a: [0, 1, 2].map(|ch| r.channels[ch].coef[0]),
-                    b: [0, 1, 2].map(|ch| r.channels[ch].coef[1]),
-                    cov: [0, 1, 2].map(|ch| {
-                        [
-                            [cov(0, 0, ch), cov(0, 1, ch)],
-                            [cov(1, 0, ch), cov(1, 1, ch)],
-                        ]
-                    }),
-                });
+                *slot = Some(condition_fit(r)?);
             }
         }
     }
@@ -188,10 +200,10 @@ pub fn check(device: &[Vec<u8>]) -> anyhow::Result<SessionReport> {
         (Some(q), [Some(x), Some(y), Some(z)]) => {
             let h = intrinsic::from_gram(&[x, y, z], q.g_loc, 0.0)?;
             let mut worst = 0.0f64;
-            for j in 0..3 {
-                let (s, a) = (h.sensitivity[j], h.angle_deg[j]);
-                worst = worst.max((q.sensitivity[j] - s.value).abs() / s.std_unc);
-                worst = worst.max((q.angle_deg[j] - a.value).abs() / a.std_unc);
+            let host = h.sensitivity.iter().zip(&h.angle_deg);
+            for ((s, a), (qs, qa)) in host.zip(q.sensitivity.iter().zip(&q.angle_deg)) {
+                worst = worst.max((qs - s.value).abs() / s.std_unc);
+                worst = worst.max((qa - a.value).abs() / a.std_unc);
             }
             Some(worst)
         }
