@@ -540,10 +540,11 @@ pub fn apply<W: Write>(rec: &Recording, job: &Job<'_>, out: W) -> Result<Summary
     };
     let mut c = Corrector::new(&rec.meta, rec.method, job, cols, out)?;
     for grp in &rec.groups {
-        for i in 0..grp.len() {
+        let readings = grp.u.iter().zip(&grp.v).zip(&grp.w);
+        for (i, ((&u, &v), &w)) in readings.enumerate() {
             c.row(&RowIn {
                 condition: grp.condition,
-                y: [grp.u[i], grp.v[i], grp.w[i]],
+                y: [u, v, w],
                 t_s: grp.t_s.get(i).copied().filter(|_| cols.t_s),
                 angle_deg: grp.angle_deg.get(i).copied().filter(|_| cols.angle_deg),
                 seq: grp.seq.as_ref().and_then(|s| s.get(i).copied()),
