@@ -30,23 +30,26 @@ pub struct Conversion {
 
 /// The conversions of `sim` (run at the sensor's rate, in counts) per condition x, y, z.
 pub fn conversions(sim: &Simulation) -> io::Result<[Vec<Conversion>; 3]> {
-    let mut streams: [Vec<Conversion>; 3] = Default::default();
-    let mut starts: [Option<f64>; 3] = [None; 3];
+    // Per condition: its conversions, and the time of its first.
+    let mut streams: [(Vec<Conversion>, Option<f64>); 3] = Default::default();
     let count = |x: f64| x.round().clamp(-32768.0, 32767.0) as i16;
     sim.run(|row| {
-        let i = row.condition.index();
+        let [x, y, z] = &mut streams;
+        let (s, t0) = match row.condition {
+            Condition::X => x,
+            Condition::Y => y,
+            Condition::Z => z,
+        };
         let t = row.t_s.unwrap_or(0.0);
-        if let (Some(s), Some(t0)) = (streams.get_mut(i), starts.get_mut(i)) {
-            s.push(Conversion {
-                t: t - *t0.get_or_insert(t),
-                ticks: (t * 1e6).round().max(0.0) as u64,
-                counts: [count(row.u), count(row.v), count(row.w)],
-                temp_c: row.temp_c.unwrap_or(25.0),
-            });
-        }
+        s.push(Conversion {
+            t: t - *t0.get_or_insert(t),
+            ticks: (t * 1e6).round().max(0.0) as u64,
+            counts: [count(row.u), count(row.v), count(row.w)],
+            temp_c: row.temp_c.unwrap_or(25.0),
+        });
         Ok(())
     })?;
-    Ok(streams)
+    Ok(streams.map(|(s, _)| s))
 }
 
 /// Why a simulation cannot go through the device.

@@ -404,9 +404,12 @@ impl Centripetal {
         if let Some(d) = &self.directions {
             finite("effects.centripetal.directions", d.as_flattened())?;
             for (i, dir) in d.iter().enumerate() {
-                let mut p = *dir;
-                p[i] = 0.0;
-                if p.iter().map(|v| v * v).sum::<f64>() < 1e-12 {
+                // The direction with its part along condition i's axis (axis i) zeroed.
+                let across = dir
+                    .iter()
+                    .enumerate()
+                    .map(|(k, v)| if k == i { 0.0 } else { *v });
+                if across.map(|v| v * v).sum::<f64>() < 1e-12 {
                     return bad(
                         "effects.centripetal.directions",
                         "each must have a part across its condition's axis",
@@ -441,16 +444,16 @@ fn only_for(method: &'static str, keys: &[(&'static str, bool)]) -> Result<(), C
 }
 
 fn is_rotation(m: &[[f64; 3]; 3]) -> bool {
+    let [[a, b, c], [d, e, f], [g, h, k]] = *m;
+    let columns = [[a, d, g], [b, e, h], [c, f, k]];
     let mut ok = true;
-    for i in 0..3 {
-        for j in 0..3 {
-            let dot: f64 = (0..3).map(|k| m[k][i] * m[k][j]).sum();
+    for (i, ci) in columns.iter().enumerate() {
+        for (j, cj) in columns.iter().enumerate() {
+            let dot: f64 = ci.iter().zip(cj).map(|(x, y)| x * y).sum();
             let want = if i == j { 1.0 } else { 0.0 };
             ok &= (dot - want).abs() <= 1e-9;
         }
     }
-    let det = m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1])
-        - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
-        + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0]);
+    let det = a * (e * k - f * h) - b * (d * k - f * g) + c * (d * h - e * g);
     ok && (det - 1.0).abs() <= 1e-9
 }
