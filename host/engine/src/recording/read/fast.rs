@@ -368,6 +368,7 @@ impl Parser<'_> {
 }
 
 #[cfg(test)]
+#[allow(clippy::indexing_slicing)]
 mod tests {
     use super::{
         parse_row, plain_plan, plain_row, split_commas, ColumnIndex, Parse, Row, SplitLine,

@@ -11,15 +11,24 @@ pub(super) fn parse_number(f: &[u8]) -> Option<f64> {
 const POW10: [f64; 16] = [
     1e0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8, 1e9, 1e10, 1e11, 1e12, 1e13, 1e14, 1e15,
 ];
-const POW10_INT: [u64; 16] = {
-    let mut p = [1u64; 16];
-    let mut i = 1;
-    while i < 16 {
-        p[i] = p[i - 1] * 10;
-        i += 1;
-    }
-    p
-};
+const POW10_INT: [u64; 16] = [
+    1,
+    10,
+    100,
+    1_000,
+    10_000,
+    100_000,
+    1_000_000,
+    10_000_000,
+    100_000_000,
+    1_000_000_000,
+    10_000_000_000,
+    100_000_000_000,
+    1_000_000_000_000,
+    10_000_000_000_000,
+    100_000_000_000_000,
+    1_000_000_000_000_000,
+];
 
 /// A plain decimal of at most 15 significant digits (`-12.5`, `0.009615`, `541`), which
 /// are nearly all a recording holds, as `str::parse::<f64>` reads it; `None` for anything
@@ -115,8 +124,18 @@ pub(super) fn leading_decimal(rest: &[u8]) -> Option<(f64, usize)> {
 
 #[cfg(test)]
 mod tests {
-    use super::parse_number;
+    use super::{parse_number, POW10, POW10_INT};
     use proptest::prelude::*;
+
+    #[test]
+    fn the_powers_of_ten_are_the_powers_of_ten() {
+        let mut p = 1u64;
+        for (int, float) in POW10_INT.iter().zip(POW10) {
+            assert_eq!(*int, p);
+            assert_eq!(float.to_bits(), (p as f64).to_bits());
+            p *= 10;
+        }
+    }
 
     /// As `str::parse::<f64>` reads it, bit for bit (any NaN for a NaN).
     fn same(s: &str) {
