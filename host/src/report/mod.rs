@@ -100,15 +100,16 @@ impl Envelope {
         }
         let x = x.max(0.0);
         while (x / self.width) as usize >= MAX_BINS {
-            let at = |j: usize| self.bins.get(j).copied().flatten();
-            let merged: Vec<Option<Bin>> = (0..MAX_BINS)
-                .map(|i| {
-                    if 2 * i + 1 < MAX_BINS {
-                        Bin::join(at(2 * i), at(2 * i + 1))
-                    } else {
-                        None
-                    }
+            // Bins 2i and 2i + 1 become bin i; the upper half empties.
+            let merged: Vec<Option<Bin>> = self
+                .bins
+                .chunks_exact(2)
+                .map(|pair| match *pair {
+                    [a, b] => Bin::join(a, b),
+                    _ => None,
                 })
+                .chain(std::iter::repeat(None))
+                .take(MAX_BINS)
                 .collect();
             self.bins = merged;
             self.width *= 2.0;
@@ -170,13 +171,22 @@ impl Series {
     /// A row at `x` (s or deg) and table angle `alpha` (rad): its readings and the model's.
     pub(crate) fn add(&mut self, x: f64, alpha: f64, y: [f64; 3], model: [f64; 3]) {
         self.x_range = (self.x_range.0.min(x), self.x_range.1.max(x));
-        for ch in 0..3 {
-            let r = y[ch] - model[ch];
-            self.data[ch].add(x, y[ch]);
-            self.model[ch].add(x, model[ch]);
-            self.resid[ch].add(x, r);
-            if self.rotation {
-                self.harmonics[ch].add(alpha, r);
+        let rotation = self.rotation;
+        let envelopes = self
+            .data
+            .iter_mut()
+            .zip(&mut self.model)
+            .zip(&mut self.resid);
+        let per_channel = envelopes
+            .zip(&mut self.harmonics)
+            .zip(y.into_iter().zip(model));
+        for ((((data, fit), resid), harmonics), (y, m)) in per_channel {
+            let r = y - m;
+            data.add(x, y);
+            fit.add(x, m);
+            resid.add(x, r);
+            if rotation {
+                harmonics.add(alpha, r);
             }
         }
     }
@@ -225,10 +235,15 @@ impl GroupPlot {
     }
 
     /// The x, angle and model of a row: a rotation row by its conversions (an average is
-    /// drawn at their mean instant), a static one by its table angle (deg).
-    fn point(&self, ap: Option<&rotacal_shared::Aperture>, angle_deg: f64) -> (f64, f64, [f64; 3]) {
-        let (x, alpha) = match (self.step, ap) {
-            (Some(step), Some(ap)) => {
+    /// drawn at their mean instant), a static one by its table angle (deg). A row with
+    /// neither is at x and angle NaN: drawn nowhere.
+    fn point(
+        &self,
+        ap: Option<&rotacal_shared::Aperture>,
+        angle_deg: Option<f64>,
+    ) -> (f64, f64, [f64; 3]) {
+        let (x, alpha) = match (self.step, ap, angle_deg) {
+            (Some(step), Some(ap), _) => {
                 let n = ap.len().max(1) as u64;
                 let mid = Ticks(ap.ticks().map(|t| t.0).sum::<u64>() / n);
                 (
@@ -236,7 +251,8 @@ impl GroupPlot {
                     step.phase_at(mid).radians(),
                 )
             }
-            _ => (angle_deg, angle_deg.to_radians()),
+            (_, _, Some(a)) => (a, a.to_radians()),
+            (_, _, None) => (f64::NAN, f64::NAN),
         };
         let model = self
             .coefs
@@ -282,11 +298,11 @@ fn series(rec: &Recording, g: &Group, entry: &RateJson) -> Result<Series, Report
     } else {
         Vec::new()
     };
-    for i in 0..g.len() {
-        let ap = samples.get(i).map(|(ap, _)| ap);
-        let angle = g.angle_deg.get(i).copied().unwrap_or(f64::NAN);
-        let (x, alpha, model) = plot.point(ap, angle);
-        s.add(x, alpha, [g.u[i], g.v[i], g.w[i]], model);
+    // Rotation: each row's conversions (none for a file without t_s); static: its angle.
+    let (mut aps, mut angles) = (samples.iter().map(|(ap, _)| ap), g.angle_deg.iter());
+    for ((&u, &v), &w) in g.u.iter().zip(&g.v).zip(&g.w) {
+        let (x, alpha, model) = plot.point(aps.next(), angles.next().copied());
+        s.add(x, alpha, [u, v, w], model);
     }
     Ok(s)
 }
@@ -381,21 +397,21 @@ fn plot_fit(s: &Series, path: &Path, units: &str) -> Result<(), ReportError> {
         s.x_label,
         units,
     )?;
-    for ch in 0..3 {
-        let c = COLOURS[ch];
+    let per_channel = s.data.iter().zip(&s.model).zip(COLOURS).zip(CHANNELS);
+    for (((data, model), c), name) in per_channel {
         chart
-            .draw_series(marks(&s.data[ch], c))
+            .draw_series(marks(data, c))
             .map_err(err(path))?
-            .label(format!("{} data", CHANNELS[ch]))
+            .label(format!("{name} data"))
             .legend(move |(x, y)| Circle::new((x + 10, y), 3, c.filled()));
-        let line: Vec<(f64, f64)> = s.model[ch]
+        let line: Vec<(f64, f64)> = model
             .points()
             .flat_map(|(x, lo, hi)| [(x, lo), (x, hi)])
             .collect();
         chart
             .draw_series(LineSeries::new(line, c.stroke_width(1)))
             .map_err(err(path))?
-            .label(format!("{} fit", CHANNELS[ch]))
+            .label(format!("{name} fit"))
             .legend(move |(x, y)| PathElement::new([(x, y), (x + 20, y)], c));
     }
     legend(&mut chart, path)?;
@@ -418,12 +434,11 @@ pub(crate) fn plot_residuals(s: &Series, path: &Path, units: &str) -> Result<(),
         s.x_label,
         &format!("data − fit ({units})"),
     )?;
-    for (ch, e) in s.resid.iter().enumerate() {
-        let c = COLOURS[ch];
+    for ((e, c), name) in s.resid.iter().zip(COLOURS).zip(CHANNELS) {
         chart
             .draw_series(marks(e, c))
             .map_err(err(path))?
-            .label(CHANNELS[ch])
+            .label(name)
             .legend(move |(x, y)| Circle::new((x + 10, y), 3, c.filled()));
     }
     legend(&mut chart, path)?;
@@ -450,8 +465,7 @@ pub(crate) fn plot_spectrum(
         "harmonic k",
         &format!("amplitude ({units})"),
     )?;
-    for (ch, a) in amps.iter().enumerate() {
-        let c = COLOURS[ch];
+    for (ch, ((a, c), name)) in amps.iter().zip(COLOURS).zip(CHANNELS).enumerate() {
         let off = (ch as f64 - 1.0) * 0.2;
         chart
             .draw_series(a.iter().enumerate().map(|(k, v)| {
@@ -459,18 +473,23 @@ pub(crate) fn plot_spectrum(
                 Rectangle::new([(x - 0.09, 0.0), (x + 0.09, *v)], c.filled())
             }))
             .map_err(err(path))?
-            .label(CHANNELS[ch])
+            .label(name)
             .legend(move |(x, y)| Rectangle::new([(x + 5, y - 4), (x + 13, y + 4)], c.filled()));
     }
     legend(&mut chart, path)?;
     root.present().map_err(err(path))
 }
 
-/// s_u, s_v, s_w, φ_uv, φ_vw, φ_wu (not the offsets).
-fn props(e: &RateJson) -> Vec<&Quantity> {
-    let mut q = e.intrinsic.quantities();
-    q.truncate(6);
-    q
+/// s_u, s_v, s_w.
+fn sensitivities(e: &RateJson) -> [&Quantity; 3] {
+    let s = &e.intrinsic.sensitivity;
+    [&s.u, &s.v, &s.w]
+}
+
+/// φ_uv, φ_vw, φ_wu.
+fn angles(e: &RateJson) -> [&Quantity; 3] {
+    let a = &e.intrinsic.angle_deg;
+    [&a.uv, &a.vw, &a.wu]
 }
 
 /// Properties against rate, relative to the lowest rate, with U (k = 2) as error bars:
@@ -485,41 +504,50 @@ fn plot_rates(cal: &CalibrationJson, path: &Path) -> Result<(), ReportError> {
     let Some(first) = entries.first() else {
         return Ok(());
     };
-    let base: Vec<f64> = props(first).iter().map(|q| q.value).collect();
     let root = SVGBackend::new(path, (900, 700)).into_drawing_area();
     root.fill(&WHITE).map_err(err(path))?;
     let (top, bottom) = root.split_vertically(350);
-    let rates: Vec<f64> = entries.iter().map(|e| e.rate_hz.unwrap_or(0.0)).collect();
-    let (x0, x1) = range(rates.iter().copied());
-    for (panel, area, idx, scale, unit) in [
-        ("sensitivities", &top, [0usize, 1, 2], 1e6, "Δs / s (ppm)"),
-        ("angles", &bottom, [3usize, 4, 5], 1.0, "Δφ (deg)"),
+    let rate = |e: &RateJson| e.rate_hz.unwrap_or(0.0);
+    let (x0, x1) = range(entries.iter().map(|e| rate(e)));
+    type Pick = fn(&RateJson) -> [&Quantity; 3];
+    for (panel, area, pick, names, scale, unit) in [
+        (
+            "sensitivities",
+            &top,
+            sensitivities as Pick,
+            ["u", "v", "w"],
+            1e6,
+            "Δs / s (ppm)",
+        ),
+        (
+            "angles",
+            &bottom,
+            angles as Pick,
+            ["uv", "vw", "wu"],
+            1.0,
+            "Δφ (deg)",
+        ),
     ] {
-        let pts: Vec<Vec<(f64, f64, f64)>> = idx
-            .iter()
-            .map(|&k| {
-                entries
-                    .iter()
-                    .map(|e| {
-                        let q = props(e)[k];
-                        let norm = if scale == 1.0 { 1.0 } else { base[k] };
-                        let r = e.rate_hz.unwrap_or(0.0);
-                        (
-                            r,
-                            (q.value - base[k]) / norm * scale,
-                            q.expanded_unc / norm * scale,
-                        )
-                    })
-                    .collect()
-            })
-            .collect();
+        let base = pick(first).map(|q| q.value);
+        // Per property, its points (rate, change, U) in order of rate.
+        let mut pts: [Vec<(f64, f64, f64)>; 3] = Default::default();
+        for e in &entries {
+            for ((series, q), base) in pts.iter_mut().zip(pick(e)).zip(base) {
+                let norm = if scale == 1.0 { 1.0 } else { base };
+                series.push((
+                    rate(e),
+                    (q.value - base) / norm * scale,
+                    q.expanded_unc / norm * scale,
+                ));
+            }
+        }
         let (y0, y1) = range(pts.iter().flatten().flat_map(|(_, v, u)| [v - u, v + u]));
         let mut chart = chart(
             area,
             path,
             &format!(
                 "{panel} against rate, relative to {} Hz (bars: U, k = 2)",
-                rates[0]
+                rate(first)
             ),
             16,
             (x0, x1),
@@ -527,9 +555,7 @@ fn plot_rates(cal: &CalibrationJson, path: &Path) -> Result<(), ReportError> {
             "rotation rate (Hz)",
             unit,
         )?;
-        for (i, series) in pts.iter().enumerate() {
-            let c = COLOURS[i];
-            let name = ["u", "v", "w", "uv", "vw", "wu"][idx[i]];
+        for (i, ((series, c), name)) in pts.iter().zip(COLOURS).zip(names).enumerate() {
             let dx = (x1 - x0) * 0.006 * (i as f64 - 1.0);
             chart
                 .draw_series(series.iter().map(|(x, y, u)| {
@@ -684,7 +710,7 @@ fn streamed_series(
                 else {
                     return;
                 };
-                let (x, alpha, model) = g.plot.point(Some(&ap), f64::NAN);
+                let (x, alpha, model) = g.plot.point(Some(&ap), None);
                 if let Some(s) = out.get_mut(g.entry).and_then(|v| v.get_mut(g.slot)) {
                     s.add(x, alpha, y, model);
                 }
@@ -695,6 +721,116 @@ fn streamed_series(
     match problem {
         Some(e) => Err(e),
         None => Ok((out, rows)),
+    }
+}
+
+/// An entry's table of properties (the six, the offsets and the phase method's angles
+/// when it has them), and its sensitivity matrix if any.
+fn property_tables(md: &mut String, entry: &RateJson, units: &str) {
+    let su = format!("{units}/(m/s²)");
+    let _ = writeln!(
+        md,
+        "| property | value ± U (k = {} unless stated) |\n| --- | --- |",
+        crate::calibrate::json::K
+    );
+    let six = sensitivities(entry).into_iter().map(|x| (x, su.as_str()));
+    let six = six.chain(angles(entry).into_iter().map(|x| (x, "°")));
+    for (name, (x, unit)) in crate::calibrate::json::PROPERTY_NAMES.iter().zip(six) {
+        let _ = writeln!(md, "| {} | {} |", name, q(x, unit));
+    }
+    if let Some(o) = &entry.intrinsic.offset {
+        for (n, x) in [("O_u", &o.u), ("O_v", &o.v), ("O_w", &o.w)] {
+            let _ = writeln!(md, "| {n} | {} |", q(x, units));
+        }
+    }
+    if let Some(p) = &entry.angle_deg_phase_method {
+        for (n, x) in [
+            ("φ_uv (phase method)", &p.uv),
+            ("φ_vw (phase method)", &p.vw),
+            ("φ_wu (phase method)", &p.wu),
+        ] {
+            let _ = writeln!(md, "| {n} | {} |", q(x, "°"));
+        }
+    }
+    if let Some(m) = &entry.sensitivity_matrix {
+        let _ = writeln!(
+            md,
+            "\nSensitivity matrix S ({su}; rows u, v, w; columns platter x, y, z), value (standard uncertainty):\n\n| | x | y | z |\n| --- | --- | --- | --- |"
+        );
+        for ((row, unc), name) in m.value.iter().zip(&m.std_unc).zip(CHANNELS) {
+            let cells: Vec<String> = row
+                .iter()
+                .zip(unc)
+                .map(|(v, u)| format!("{v:.9} ({u:.2e})"))
+                .collect();
+            let _ = writeln!(md, "| {} | {} |", name, cells.join(" | "));
+        }
+    }
+}
+
+/// A static entry's poses: their table, and what the fit says of them.
+fn pose_table(md: &mut String, p: &crate::calibrate::json::PosesJson, units: &str) {
+    let _ = writeln!(
+        md,
+        "\nPoses ({}; condition number {:.2}; {}: τ = {:.2e}, {:.2e}, {:.2e} {units}; k = {:.2} from ν = {}):\n\n\
+         | pose | ĝ | n | std u, v, w (how still) | residual u, v, w (mean − model) |\n| --- | --- | --- | --- | --- |",
+        p.list.len(),
+        p.condition_number,
+        p.scatter,
+        p.tau[0],
+        p.tau[1],
+        p.tau[2],
+        p.k,
+        p.nu.iter().fold(f64::INFINITY, |a, b| a.min(*b))
+    );
+    for q in &p.list {
+        let std = q
+            .std
+            .map(|s| format!("{:.2e}, {:.2e}, {:.2e}", s[0], s[1], s[2]))
+            .unwrap_or_else(|| "single reading".into());
+        let _ = writeln!(
+            md,
+            "| {} | {} | {} | {std} | {:+.2e}, {:+.2e}, {:+.2e} |",
+            q.name,
+            crate::calibrate::poses::direction_name(&q.gravity),
+            q.n,
+            q.residual[0],
+            q.residual[1],
+            q.residual[2]
+        );
+    }
+    if let Some(s) = &p.suggestion {
+        let _ = writeln!(
+            md,
+            "\n**Poorly conditioned**: add a pose with gravity along {s}."
+        );
+    }
+    if !p.not_still.is_empty() {
+        let _ = writeln!(md, "\n**Not still**: {}.", p.not_still.join(", "));
+    }
+    if let Some(d) = p.offsets_difference {
+        let _ = writeln!(
+            md,
+            "\nOffsets of the joint fit minus those of each axis's up/down pair (imucal's estimator): {:+.6}, {:+.6}, {:+.6} {units}.",
+            d[0], d[1], d[2]
+        );
+    }
+}
+
+/// The correction to m/s² in the device frame: its matrix and offsets.
+fn correction_table(md: &mut String, c: &crate::calibrate::json::CorrectionJson, units: &str) {
+    let d = &c.device_frame;
+    let _ = writeln!(
+        md,
+        "\nCorrection to m/s², a = M·(y − O), device frame (`rotacal apply`, `rotacal export`):\n\n| | M (m/s² per {units}) | O ± u ({units}) |\n| --- | --- | --- |"
+    );
+    let rows = d.matrix.iter().zip(&d.offset).zip(&d.offset_std_unc);
+    for (name, ((row, offset), unc)) in ["x′", "y′", "z′"].into_iter().zip(rows) {
+        let _ = writeln!(
+            md,
+            "| {} | {:.9}, {:.9}, {:.9} | {:.6} ± {:.1e} |",
+            name, row[0], row[1], row[2], offset, unc
+        );
     }
 }
 
@@ -718,7 +854,6 @@ fn markdown(
         cal.method,
         cal.g_loc,
     );
-    let su = format!("{units}/(m/s²)");
     for entry in &cal.by_rate {
         let heading = match (entry.rate_hz, &entry.free) {
             (Some(r), _) => format!("Rotation at {r} Hz"),
@@ -726,113 +861,12 @@ fn markdown(
             (None, None) => "Static".into(),
         };
         let _ = writeln!(md, "## {heading}\n");
-        let _ = writeln!(
-            md,
-            "| property | value ± U (k = {} unless stated) |\n| --- | --- |",
-            crate::calibrate::json::K
-        );
-        let names = crate::calibrate::json::PROPERTY_NAMES;
-        for (i, x) in props(entry).iter().enumerate() {
-            let _ = writeln!(
-                md,
-                "| {} | {} |",
-                names[i],
-                q(x, if i < 3 { &su } else { "°" })
-            );
-        }
-        if let Some(o) = &entry.intrinsic.offset {
-            for (n, x) in [("O_u", &o.u), ("O_v", &o.v), ("O_w", &o.w)] {
-                let _ = writeln!(md, "| {n} | {} |", q(x, &units));
-            }
-        }
-        if let Some(p) = &entry.angle_deg_phase_method {
-            for (n, x) in [
-                ("φ_uv (phase method)", &p.uv),
-                ("φ_vw (phase method)", &p.vw),
-                ("φ_wu (phase method)", &p.wu),
-            ] {
-                let _ = writeln!(md, "| {n} | {} |", q(x, "°"));
-            }
-        }
-        if let Some(m) = &entry.sensitivity_matrix {
-            let _ = writeln!(
-                md,
-                "\nSensitivity matrix S ({su}; rows u, v, w; columns platter x, y, z), value (standard uncertainty):\n\n| | x | y | z |\n| --- | --- | --- | --- |"
-            );
-            for (j, row) in m.value.iter().enumerate() {
-                let cells: Vec<String> = row
-                    .iter()
-                    .zip(&m.std_unc[j])
-                    .map(|(v, u)| format!("{v:.9} ({u:.2e})"))
-                    .collect();
-                let _ = writeln!(md, "| {} | {} |", CHANNELS[j], cells.join(" | "));
-            }
-        }
+        property_tables(&mut md, entry, &units);
         if let Some(p) = &entry.poses {
-            let _ = writeln!(
-                md,
-                "\nPoses ({}; condition number {:.2}; {}: τ = {:.2e}, {:.2e}, {:.2e} {units}; k = {:.2} from ν = {}):\n\n\
-                 | pose | ĝ | n | std u, v, w (how still) | residual u, v, w (mean − model) |\n| --- | --- | --- | --- | --- |",
-                p.list.len(),
-                p.condition_number,
-                p.scatter,
-                p.tau[0],
-                p.tau[1],
-                p.tau[2],
-                p.k,
-                p.nu.iter().fold(f64::INFINITY, |a, b| a.min(*b))
-            );
-            for q in &p.list {
-                let std = q
-                    .std
-                    .map(|s| format!("{:.2e}, {:.2e}, {:.2e}", s[0], s[1], s[2]))
-                    .unwrap_or_else(|| "single reading".into());
-                let _ = writeln!(
-                    md,
-                    "| {} | {} | {} | {std} | {:+.2e}, {:+.2e}, {:+.2e} |",
-                    q.name,
-                    crate::calibrate::poses::direction_name(&q.gravity),
-                    q.n,
-                    q.residual[0],
-                    q.residual[1],
-                    q.residual[2]
-                );
-            }
-            if let Some(s) = &p.suggestion {
-                let _ = writeln!(
-                    md,
-                    "\n**Poorly conditioned**: add a pose with gravity along {s}."
-                );
-            }
-            if !p.not_still.is_empty() {
-                let _ = writeln!(md, "\n**Not still**: {}.", p.not_still.join(", "));
-            }
-            if let Some(d) = p.offsets_difference {
-                let _ = writeln!(
-                    md,
-                    "\nOffsets of the joint fit minus those of each axis's up/down pair (imucal's estimator): {:+.6}, {:+.6}, {:+.6} {units}.",
-                    d[0], d[1], d[2]
-                );
-            }
+            pose_table(&mut md, p, &units);
         }
         if let Some(c) = &entry.correction {
-            let d = &c.device_frame;
-            let _ = writeln!(
-                md,
-                "\nCorrection to m/s², a = M·(y − O), device frame (`rotacal apply`, `rotacal export`):\n\n| | M (m/s² per {units}) | O ± u ({units}) |\n| --- | --- | --- |"
-            );
-            for (j, row) in d.matrix.iter().enumerate() {
-                let _ = writeln!(
-                    md,
-                    "| {} | {:.9}, {:.9}, {:.9} | {:.6} ± {:.1e} |",
-                    ["x′", "y′", "z′"][j],
-                    row[0],
-                    row[1],
-                    row[2],
-                    d.offset[j],
-                    d.offset_std_unc[j]
-                );
-            }
+            correction_table(&mut md, c, &units);
         }
         if let Some(f) = &entry.free {
             free(f, &units, &mut md)?;
