@@ -178,10 +178,13 @@ fn series(a: &Analysis, gi: usize, fit: usize, label: &str) -> Option<Series> {
         "time in condition (s)",
         true,
     );
-    for (i, t) in g.tau.iter().enumerate() {
-        let y = [0, 1, 2].map(|j| g.y[j].get(i).copied().unwrap_or(f64::NAN));
-        let e = [0, 1, 2].map(|j| r[j].get(i).copied().unwrap_or(f64::NAN));
-        s.add(*t, g.omega() * t, y, [0, 1, 2].map(|j| y[j] - e[j]));
+    // Every row has its readings and residuals (the fit's residuals are of each reading).
+    let [yu, yv, yw] = &g.y;
+    let [ru, rv, rw] = r;
+    let readings = yu.iter().zip(yv).zip(yw);
+    let residuals = ru.iter().zip(rv).zip(rw);
+    for (t, (((&u, &v), &w), ((&eu, &ev), &ew))) in g.tau.iter().zip(readings.zip(residuals)) {
+        s.add(*t, g.omega() * t, [u, v, w], [u - eu, v - ev, w - ew]);
     }
     Some(s)
 }

@@ -48,6 +48,21 @@ fn class(v: &Verdict) -> Option<usize> {
     }
 }
 
+/// Each pixel column's range of |y|, joined: the envelope of a long record, as the points
+/// of a line (none for a trace without rows).
+fn envelope(t: &Trace) -> Vec<(f64, f64)> {
+    let Some(&t0) = t.x.first() else {
+        return Vec::new();
+    };
+    let mut env = Envelope::default();
+    for (x, m) in t.x.iter().zip(&t.magnitude) {
+        env.add(x - t0, *m);
+    }
+    env.points()
+        .flat_map(|(x, lo, hi)| [(x + t0, lo), (x + t0, hi)])
+        .collect()
+}
+
 /// |y| against time with each interval as a band: green kept, the others by verdict.
 fn plot_magnitude(
     t: &Trace,
@@ -102,21 +117,11 @@ fn plot_magnitude(
             Rectangle::new([(x + 2, y - 5), (x + 18, y + 5)], colour.mix(0.25).filled())
         });
     }
-    // Each pixel column's range of |y|, joined: the envelope of a long record.
-    let mut env = Envelope::default();
-    let t0 = t.x.first().copied().unwrap_or(0.0);
-    for (x, m) in t.x.iter().zip(&t.magnitude) {
-        env.add(x - t0, *m);
-    }
     let line = COLOURS[0];
-    c.draw_series(LineSeries::new(
-        env.points()
-            .flat_map(|(x, lo, hi)| [(x + t0, lo), (x + t0, hi)]),
-        line.stroke_width(1),
-    ))
-    .map_err(err(path))?
-    .label("|y|")
-    .legend(move |(x, y)| PathElement::new([(x, y), (x + 20, y)], line));
+    c.draw_series(LineSeries::new(envelope(t), line.stroke_width(1)))
+        .map_err(err(path))?
+        .label("|y|")
+        .legend(move |(x, y)| PathElement::new([(x, y), (x + 20, y)], line));
     legend(&mut c, path)?;
     root.present().map_err(err(path))
 }
