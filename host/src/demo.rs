@@ -159,28 +159,23 @@ fn puzzle(seed: u64, dir: &Path) -> anyhow::Result<Puzzle> {
         (Some(f), Some(l)) => dev(&f.sensitivity[2], &l.sensitivity[2]),
         _ => anyhow::bail!("the puzzle's analysis has no rates"),
     };
-    let pick = |v: &serde_json::Value| {
-        (
-            v["value"].as_f64().unwrap_or(f64::NAN),
-            v["expanded_unc"].as_f64().unwrap_or(f64::NAN),
-        )
+    // A parameter's value and U; NaN for one the analysis did not name.
+    let pick = |v: Option<&serde_json::Value>| {
+        let number = |key: &str| v.and_then(|v| v.get(key)?.as_f64()).unwrap_or(f64::NAN);
+        (number("value"), number("expanded_unc"))
     };
     let fp = &a.final_parameters;
+    let param = |effect: &str, name: &str| fp.get(effect).and_then(|p| p.get(name));
     Ok(Puzzle {
         rates_hz: cal.by_rate.iter().filter_map(|r| r.rate_hz).collect(),
         true_k2_w,
         true_radius_m,
         named: a.named_effects.clone(),
         chi2_dof: (a.baseline.chi2_dof, a.final_.chi2_dof),
-        k2_w: fp
-            .get("nonlinearity_2nd")
-            .map_or((f64::NAN, f64::NAN), |p| pick(&p["k2"]["w"])),
+        k2_w: pick(param("nonlinearity_2nd", "k2").and_then(|k2| k2.get("w"))),
         radius: ["x", "y", "z"]
             .iter()
-            .map(|c| {
-                fp.get("centripetal")
-                    .map_or((f64::NAN, f64::NAN), |p| pick(&p["radius_m"][*c]))
-            })
+            .map(|c| pick(param("centripetal", "radius_m").and_then(|r| r.get(*c))))
             .collect(),
         deviation_per_rate,
         deviation_modelled,
