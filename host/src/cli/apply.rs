@@ -1,4 +1,7 @@
 //! `rotacal apply`: readings corrected to m/s² with a calibration.
+
+#![deny(clippy::indexing_slicing)]
+
 use super::FrameArg;
 use std::path::PathBuf;
 

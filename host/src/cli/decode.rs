@@ -1,4 +1,7 @@
 //! `rotacal decode`: a recording and its fit log rebuilt from a capture.
+
+#![deny(clippy::indexing_slicing)]
+
 use std::path::PathBuf;
 
 /// `rotacal decode` arguments.

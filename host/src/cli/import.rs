@@ -1,4 +1,7 @@
 //! `rotacal import`: the command line of `rotacal::recording::import`.
+
+#![deny(clippy::indexing_slicing)]
+
 use anyhow::Context;
 use rotacal_shared::Condition;
 use std::path::PathBuf;

@@ -1,5 +1,8 @@
 //! The command line: one file per subcommand, each its arguments (clap) and a `run` that
 //! calls the libraries; the terminal-only parts (progress display) with `record`.
+
+#![deny(clippy::indexing_slicing)]
+
 use clap::ValueEnum;
 
 pub mod apply;

@@ -13,6 +13,8 @@
 //!
 //! SVG needs no fonts at build or run time; the viewer renders the text.
 
+#![deny(clippy::indexing_slicing)]
+
 pub mod discrepancy;
 mod free;
 

@@ -4,6 +4,8 @@
 //! equal an f64 batch fit (nalgebra QR, independent of the streaming fit) of exactly the
 //! samples of its window; the quick-look must equal the Gram form on those f64 fits.
 
+#![deny(clippy::indexing_slicing)]
+
 use crate::fit::batch::{BatchChannel, BatchFit};
 use crate::recording::from_device::FitLine;
 use rotacal_shared::device::simulated::SessionSpec;
