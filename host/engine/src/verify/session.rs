@@ -30,6 +30,28 @@ pub struct LogError {
     pub message: String,
 }
 
+/// Why the session's packets could not be checked.
+#[derive(Debug, thiserror::Error)]
+pub enum SessionError {
+    /// A packet the device sent does not decode.
+    #[error("packet {index}: {cause}")]
+    Packet {
+        /// Its place among the device's packets, from 0.
+        index: usize,
+        /// Why it does not decode.
+        cause: rotacal_shared::packet::DecodeError,
+    },
+    /// A fit report could not be refitted on the host.
+    #[error(transparent)]
+    Refit(#[from] crate::verify::VerifyError),
+    /// The host's refit lacks the three channels of A, B, C (a bug of the engine).
+    #[error("internal: the host fit has not three channels of A, B, C (a bug of rotacal)")]
+    NotThreeChannels,
+    /// The Gram form on the host's fits failed.
+    #[error(transparent)]
+    Intrinsic(#[from] rotacal_shared::intrinsic::IntrinsicError),
+}
+
 /// The packets of a `session` log: every `P <hex>` line, in order. Other lines are
 /// ignored except `session done`, which must be there (a run that died is incomplete).
 pub fn parse_log(text: &str, source_name: &str) -> Result<Vec<Vec<u8>>, LogError> {
@@ -113,8 +135,8 @@ pub struct SessionReport {
 
 /// The (A, B) part of a host fit of the 3-parameter model (the Gram form's input): A and
 /// B per channel, and their covariance σ̂²·(HᵀH)⁻¹.
-fn condition_fit(r: &BatchFit) -> anyhow::Result<ConditionFit> {
-    let broken = || anyhow::anyhow!("host fit: not three channels of A, B, C");
+fn condition_fit(r: &BatchFit) -> Result<ConditionFit, SessionError> {
+    let broken = || SessionError::NotThreeChannels;
     let at = |i: usize, j: usize| r.unscaled_cov.get((i, j)).copied().ok_or_else(broken);
     let ab = [[at(0, 0)?, at(0, 1)?], [at(1, 0)?, at(1, 1)?]];
     let channels: &[BatchChannel; 3] = r.channels.as_slice().try_into().map_err(|_| broken())?;
@@ -135,7 +157,7 @@ fn condition_fit(r: &BatchFit) -> anyhow::Result<ConditionFit> {
 }
 
 /// Decode and check the device's packets.
-pub fn check(device: &[Vec<u8>]) -> anyhow::Result<SessionReport> {
+pub fn check(device: &[Vec<u8>]) -> Result<SessionReport, SessionError> {
     let host = host_packets();
     let first_difference = device
         .iter()
@@ -144,7 +166,7 @@ pub fn check(device: &[Vec<u8>]) -> anyhow::Result<SessionReport> {
         .or((device.len() != host.len()).then_some(device.len().min(host.len())));
     let mut packets = Vec::with_capacity(device.len());
     for (i, bytes) in device.iter().enumerate() {
-        packets.push(Packet::decode(bytes).map_err(|e| anyhow::anyhow!("packet {i}: {e}"))?);
+        packets.push(Packet::decode(bytes).map_err(|cause| SessionError::Packet { index: i, cause })?);
     }
     let mut samples: Vec<(u32, Aperture, [f64; 3])> = Vec::new();
     for p in &packets {
@@ -168,7 +190,7 @@ pub fn check(device: &[Vec<u8>]) -> anyhow::Result<SessionReport> {
             .map(|s| (s.1, s.2))
             .collect();
         let line = FitLine::new(f, CLOCK.hz());
-        let c = crate::verify::compare(&window, &line).map_err(anyhow::Error::msg)?;
+        let c = crate::verify::compare(&window, &line)?;
         let r = &c.host;
         let worst = if window.len() == f.n as usize {
             c.max_delta_crlb
