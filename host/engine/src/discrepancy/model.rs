@@ -26,6 +26,8 @@
 //! a reading the model puts at a rail (fixed by the rail: no residual degree of freedom)
 //! are left out, and not counted in the degrees of freedom.
 
+#![deny(clippy::indexing_slicing)]
+
 use crate::fit::batch::BatchError;
 use crate::fit::noise::NoiseModel;
 use nalgebra::{DMatrix, DVector};
@@ -123,6 +125,65 @@ impl GroupData {
     pub fn omega(&self) -> f64 {
         TAU * self.rate_hz
     }
+
+    /// The rows as channel `ch` sees them.
+    fn rows(&self, ch: Channel) -> impl Iterator<Item = Row> + '_ {
+        self.tau
+            .iter()
+            .zip(&self.t)
+            .zip(&self.temp)
+            .zip(ch.of(&self.y))
+            .map(|(((&tau, &t), &temp), &y)| Row { tau, t, temp, y })
+    }
+
+    /// Whether every column has a value for each time (else [`GroupData::rows`] would
+    /// stop short).
+    fn complete(&self) -> bool {
+        let n = self.tau.len();
+        self.t.len() >= n && self.temp.len() >= n && self.y.iter().all(|y| y.len() >= n)
+    }
+}
+
+/// One row of a group, as one channel sees it.
+struct Row {
+    /// Seconds into the group.
+    tau: f64,
+    /// Session time minus the session's mean time, s.
+    t: f64,
+    /// Temperature minus its mean, °C.
+    temp: f64,
+    /// The channel's reading.
+    y: f64,
+}
+
+/// Condition `c`'s element of a per-condition array (x, y, z).
+pub(super) fn of_condition<T>(c: Condition, per_condition: &[T; 3]) -> &T {
+    let [x, y, z] = per_condition;
+    match c {
+        Condition::X => x,
+        Condition::Y => y,
+        Condition::Z => z,
+    }
+}
+
+/// [`of_condition`], to change it.
+pub(super) fn of_condition_mut<T>(c: Condition, per_condition: &mut [T; 3]) -> &mut T {
+    let [x, y, z] = per_condition;
+    match c {
+        Condition::X => x,
+        Condition::Y => y,
+        Condition::Z => z,
+    }
+}
+
+/// Channel `ch`'s element of a per-channel array, to change it ([`Channel::of`]).
+fn of_channel_mut<T>(ch: Channel, per_channel: &mut [T; 3]) -> &mut T {
+    let [u, v, w] = per_channel;
+    match ch {
+        Channel::U => u,
+        Channel::V => v,
+        Channel::W => w,
+    }
 }
 
 /// A recording as the model sees it.
@@ -141,19 +202,27 @@ pub struct Data {
 
 /// A group's channel's rows through its noise filter: rows `t ≥ p` whose window
 /// `t − p … t` holds no flagged reading become (x_t − Σ φ_k x_{t−k})/σ_ε; the others 0.
-/// `keep[t]` says which rows were kept. In place, from the end (so x_{t−k} is still raw).
+/// `keep[t]` says which rows were kept (a row without one is not). In place, from the end
+/// (so x_{t−k} is still raw).
 pub(super) fn whiten(m: &NoiseModel, x: &mut [f64], keep: &[bool]) {
     let w = 1.0 / m.innovation_var.sqrt().max(f64::MIN_POSITIVE);
-    for t in (0..x.len()).rev() {
-        if !keep.get(t).copied().unwrap_or(false) {
-            x[t] = 0.0;
-            continue;
-        }
-        let mut v = x[t];
-        for (k, f) in m.ar.iter().enumerate() {
-            v -= f * x[t - k - 1];
-        }
-        x[t] = v * w;
+    let (mut rest, beyond) = x.split_at_mut(keep.len().min(x.len()));
+    beyond.fill(0.0);
+    for &k in keep.iter().take(rest.len()).rev() {
+        // The last row left, and the rows before it, still raw.
+        let Some((now, before)) = std::mem::take(&mut rest).split_last_mut() else {
+            break;
+        };
+        *now = if k {
+            let mut v = *now;
+            for (f, x) in m.ar.iter().zip(before.iter().rev()) {
+                v -= f * x;
+            }
+            v * w
+        } else {
+            0.0
+        };
+        rest = before;
     }
 }
 
@@ -286,11 +355,24 @@ impl Params {
         }
         let per_rate = data.rates().len().max(1) as f64;
         let g2 = data.g_loc * data.g_loc;
-        [0, 1, 2].map(|j| {
-            (sum[j] / per_rate / (2.0 * g2))
-                .sqrt()
-                .max(f64::MIN_POSITIVE)
-        })
+        sum.map(|sj| (sj / per_rate / (2.0 * g2)).sqrt().max(f64::MIN_POSITIVE))
+    }
+
+    /// The value of `param` for channel `ch`, if the model has it.
+    fn slot_mut(&mut self, param: Param, ch: Channel) -> Option<&mut f64> {
+        let per_channel = match param {
+            Param::Amp { group, cos } => {
+                let [a, b] = of_channel_mut(ch, self.ab.get_mut(group)?);
+                return Some(if cos { b } else { a });
+            }
+            Param::Offset(c) => of_condition_mut(c, &mut self.offset),
+            Param::Centripetal(c) => of_condition_mut(c, self.centripetal.as_mut()?),
+            Param::K2 => self.k2.as_mut()?,
+            Param::K3 => self.k3.as_mut()?,
+            Param::Drift => self.drift.as_mut()?,
+            Param::Temp => self.temp.as_mut()?,
+        };
+        Some(of_channel_mut(ch, per_channel))
     }
 }
 
@@ -305,19 +387,23 @@ struct Eval {
     clipped: bool,
 }
 
-fn eval(p: &Params, s: f64, gi: usize, g: &GroupData, j: usize, k: usize) -> Eval {
+/// Channel `ch`'s prediction at `row` of group `g`, whose A and B for the channel are
+/// `ab`, at sensitivity `s`.
+fn eval(p: &Params, s: f64, ab: [f64; 2], g: &GroupData, ch: Channel, row: &Row) -> Eval {
     let omega = g.omega();
-    let phi = omega * (1.0 + p.delta.unwrap_or(0.0)) * g.tau[k];
+    let phi = omega * (1.0 + p.delta.unwrap_or(0.0)) * row.tau;
     let (sin, cos) = phi.sin_cos();
-    let [a_amp, b_amp] = p.ab[gi][j];
-    let ci = g.condition.index();
-    let a0 = p.centripetal.map_or(0.0, |b| b[ci][j] * omega * omega / s);
+    let [a_amp, b_amp] = ab;
+    let c = g.condition;
+    let a0 = p
+        .centripetal
+        .map_or(0.0, |b| *ch.of(of_condition(c, &b)) * omega * omega / s);
     let a = (a_amp * sin + b_amp * cos) / s + a0;
-    let k2 = p.k2.map_or(0.0, |k| k[j]);
-    let k3 = p.k3.map_or(0.0, |k| k[j]);
-    let mut y = s * (a + k2 * a * a + k3 * a * a * a) + p.offset[ci][j];
-    y += p.drift.map_or(0.0, |d| d[j] * g.t[k]);
-    y += p.temp.map_or(0.0, |c| c[j] * g.temp[k]);
+    let k2 = p.k2.map_or(0.0, |k| *ch.of(&k));
+    let k3 = p.k3.map_or(0.0, |k| *ch.of(&k));
+    let mut y = s * (a + k2 * a * a + k3 * a * a * a) + *ch.of(of_condition(c, &p.offset));
+    y += p.drift.map_or(0.0, |d| *ch.of(&d) * row.t);
+    y += p.temp.map_or(0.0, |t| *ch.of(&t) * row.temp);
     let mut clipped = false;
     if let Some([lo, hi]) = p.rails {
         if y <= lo || y >= hi {
@@ -335,50 +421,78 @@ fn eval(p: &Params, s: f64, gi: usize, g: &GroupData, j: usize, k: usize) -> Eva
     }
 }
 
-/// Where each of a channel's local parameters sits in its Jacobian.
+/// A channel's local parameter: what a column of its Jacobian is the derivative in.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Param {
+    /// A group's A (`cos` false: with sin φ) or B (`cos` true: with cos φ).
+    Amp { group: usize, cos: bool },
+    /// O of a condition.
+    Offset(Condition),
+    /// b of a condition.
+    Centripetal(Condition),
+    /// K2.
+    K2,
+    /// K3.
+    K3,
+    /// D.
+    Drift,
+    /// c.
+    Temp,
+}
+
+impl Param {
+    /// dy/d(this parameter) at `row` of group `g` (its place `gi`) with the prediction `e`
+    /// at sensitivity `sj`: `None` where the parameter is another group's or condition's.
+    fn derivative(self, g: &GroupData, gi: usize, sj: f64, row: &Row, e: &Eval) -> Option<f64> {
+        let h = e.dyda / sj; // dy/d(amplitude in output units)
+        let omega = g.omega();
+        match self {
+            Param::Amp { group, cos } => {
+                (group == gi).then_some(h * if cos { e.cos } else { e.sin })
+            }
+            Param::Offset(c) => (c == g.condition).then_some(1.0),
+            Param::Centripetal(c) => (c == g.condition).then_some(h * omega * omega),
+            Param::K2 => Some(sj * e.a * e.a),
+            Param::K3 => Some(sj * e.a * e.a * e.a),
+            Param::Drift => Some(row.t),
+            Param::Temp => Some(row.temp),
+        }
+    }
+}
+
+/// A channel's local parameters in the order of its Jacobian's columns: A and B of each
+/// group (group gi's at 2gi and 2gi + 1), O of each condition in the order the groups
+/// first show it, b of x, y and z, K2, K3, D and c: those the model has.
 struct Layout {
-    groups: usize,
-    conditions: [Option<usize>; 3],
-    centripetal: Option<usize>,
-    k2: Option<usize>,
-    k3: Option<usize>,
-    drift: Option<usize>,
-    temp: Option<usize>,
-    n: usize,
+    cols: Vec<Param>,
 }
 
 impl Layout {
     fn new(p: &Params, data: &Data) -> Self {
-        let mut n = 2 * data.groups.len();
-        let mut conditions = [None; 3];
+        let mut cols: Vec<Param> = (0..data.groups.len())
+            .flat_map(|group| [false, true].map(|cos| Param::Amp { group, cos }))
+            .collect();
         for g in &data.groups {
-            let c = g.condition.index();
-            if conditions[c].is_none() {
-                conditions[c] = Some(n);
-                n += 1;
+            if !cols.contains(&Param::Offset(g.condition)) {
+                cols.push(Param::Offset(g.condition));
             }
         }
-        let mut take = |on: bool, w: usize| {
-            on.then(|| {
-                n += w;
-                n - w
-            })
-        };
-        let centripetal = take(p.centripetal.is_some(), 3);
-        let k2 = take(p.k2.is_some(), 1);
-        let k3 = take(p.k3.is_some(), 1);
-        let drift = take(p.drift.is_some(), 1);
-        let temp = take(p.temp.is_some(), 1);
-        Layout {
-            groups: data.groups.len(),
-            conditions,
-            centripetal,
-            k2,
-            k3,
-            drift,
-            temp,
-            n,
+        if p.centripetal.is_some() {
+            cols.extend(Condition::ALL.map(Param::Centripetal));
         }
+        let on = [
+            (p.k2.is_some(), Param::K2),
+            (p.k3.is_some(), Param::K3),
+            (p.drift.is_some(), Param::Drift),
+            (p.temp.is_some(), Param::Temp),
+        ];
+        cols.extend(on.into_iter().filter_map(|(on, param)| on.then_some(param)));
+        Layout { cols }
+    }
+
+    /// Parameters per channel.
+    fn n(&self) -> usize {
+        self.cols.len()
     }
 }
 
@@ -449,9 +563,19 @@ pub fn fit(data: &Data, effects: &[Effect], start: Option<&Params>) -> Result<Fi
             *m = t;
         }
     }
+    if data.groups.iter().any(|g| !g.complete()) {
+        return Err(ModelError::Internal(
+            "a group's columns are shorter than its times",
+        ));
+    }
+    if p.ab.len() < data.groups.len() {
+        return Err(ModelError::Internal(
+            "starting values for fewer groups than the data's",
+        ));
+    }
     let layout = Layout::new(&p, data);
     let n_rows = data.rows();
-    if n_rows * 3 <= layout.n * 3 + 1 {
+    if n_rows * 3 <= layout.n() * 3 + 1 {
         return Err(ModelError::TooFewRows);
     }
     let mut last_chi2 = f64::INFINITY;
@@ -481,16 +605,16 @@ pub fn fit(data: &Data, effects: &[Effect], start: Option<&Params>) -> Result<Fi
     let mut ss = [0.0; 3];
     let mut used = 0usize;
     let mut residuals = Vec::with_capacity(data.groups.len());
-    for (gi, g) in data.groups.iter().enumerate() {
+    for ((gi, g), ab) in data.groups.iter().enumerate().zip(&p.ab) {
         let mut r: [Vec<f64>; 3] = Default::default();
-        for (ch, rj) in Channel::ALL.into_iter().zip(r.iter_mut()) {
-            let j = ch.index();
+        let per_channel = r.iter_mut().zip(ss.iter_mut()).zip(s);
+        for (ch, ((rj, ssj), sj)) in Channel::ALL.into_iter().zip(per_channel) {
             let mut clipped = Vec::with_capacity(g.tau.len());
-            for k in 0..g.tau.len() {
-                let e = eval(&p, s[j], gi, g, j, k);
+            for row in g.rows(ch) {
+                let e = eval(&p, sj, *ch.of(ab), g, ch, &row);
                 clipped.push(e.clipped);
-                let res = g.y[j][k] - e.y;
-                ss[j] += res * res;
+                let res = row.y - e.y;
+                *ssj += res * res;
                 rj.push(res);
             }
             let m = noise_of(data, gi, ch)?;
@@ -500,39 +624,26 @@ pub fn fit(data: &Data, effects: &[Effect], start: Option<&Params>) -> Result<Fi
         }
         residuals.push(r);
     }
-    let n_params = layout.n * 3 + usize::from(p.delta.is_some());
+    let n_params = layout.n() * 3 + usize::from(p.delta.is_some());
     let dof = used as f64 - n_params as f64;
     let mut unc = Params::new(data, effects);
     let mut ab_cov = vec![[[[0.0; 2]; 2]; 3]; data.groups.len()];
-    for j in 0..3 {
-        let cov = &step.cov[j];
-        let sd = |i: usize| cov[(i, i)].max(0.0).sqrt();
-        for gi in 0..layout.groups {
-            unc.ab[gi][j] = [sd(2 * gi), sd(2 * gi + 1)];
-            ab_cov[gi][j] = [
-                [cov[(2 * gi, 2 * gi)], cov[(2 * gi, 2 * gi + 1)]],
-                [cov[(2 * gi + 1, 2 * gi)], cov[(2 * gi + 1, 2 * gi + 1)]],
-            ];
-        }
-        for (c, col) in layout.conditions.iter().enumerate() {
-            if let Some(i) = col {
-                unc.offset[c][j] = sd(*i);
+    for (ch, cov) in Channel::ALL.into_iter().zip(&step.cov) {
+        for (param, var) in layout.cols.iter().zip(cov.diagonal().iter()) {
+            if let Some(x) = unc.slot_mut(*param, ch) {
+                *x = var.max(0.0).sqrt();
             }
         }
-        if let (Some(i), Some(b)) = (layout.centripetal, unc.centripetal.as_mut()) {
-            for (c, row) in b.iter_mut().enumerate() {
-                row[j] = sd(i + c);
-            }
-        }
-        let put = |col: Option<usize>, x: &mut Option<[f64; 3]>| {
-            if let (Some(i), Some(x)) = (col, x.as_mut()) {
-                x[j] = sd(i);
-            }
+        // Group gi's A and B are the layout's columns 2gi and 2gi + 1.
+        let at = |i: usize, j: usize| {
+            cov.get((i, j)).copied().ok_or(ModelError::Internal(
+                "a group's A and B outside the covariance",
+            ))
         };
-        put(layout.k2, &mut unc.k2);
-        put(layout.k3, &mut unc.k3);
-        put(layout.drift, &mut unc.drift);
-        put(layout.temp, &mut unc.temp);
+        for (gi, c) in ab_cov.iter_mut().enumerate() {
+            let (a, b) = (2 * gi, 2 * gi + 1);
+            *of_channel_mut(ch, c) = [[at(a, a)?, at(a, b)?], [at(b, a)?, at(b, b)?]];
+        }
     }
     unc.delta = step.delta_var.map(|v| v.max(0.0).sqrt());
     Ok(Fit {
@@ -543,7 +654,7 @@ pub fn fit(data: &Data, effects: &[Effect], start: Option<&Params>) -> Result<Fi
         chi2,
         dof,
         n_params,
-        rms: [0, 1, 2].map(|j| (ss[j] / n_rows as f64).sqrt()),
+        rms: ss.map(|ssj| (ssj / n_rows as f64).sqrt()),
         residuals,
     })
 }
@@ -552,7 +663,7 @@ pub fn fit(data: &Data, effects: &[Effect], start: Option<&Params>) -> Result<Fi
 fn noise_of(data: &Data, gi: usize, ch: Channel) -> Result<&NoiseModel, ModelError> {
     data.noise
         .get(gi)
-        .and_then(|m| m.get(ch.index()))
+        .map(|m| ch.of(m))
         .ok_or(ModelError::NoNoiseModel {
             group: gi,
             channel: ch,
@@ -583,67 +694,9 @@ fn gauss_newton_step(data: &Data, p: &Params, l: &Layout, s: [f64; 3]) -> Result
     let mut zr = 0.0;
     let mut chi2 = 0.0;
     for (ch, sj) in Channel::ALL.into_iter().zip(s) {
-        let j = ch.index();
-        // Column-major: column c of the Jacobian at xs[c * n_rows ..].
-        let mut xs = vec![0.0; n_rows * l.n];
-        let mut r = vec![0.0; n_rows];
-        let mut z = vec![0.0; n_rows];
-        let mut row0 = 0;
-        for (gi, g) in data.groups.iter().enumerate() {
-            let omega = g.omega();
-            let ci = g.condition.index();
-            let [a_amp, b_amp] = p.ab[gi][j];
-            let n = g.tau.len();
-            let mut clipped = Vec::with_capacity(n);
-            for k in 0..n {
-                let row = row0 + k;
-                let e = eval(p, sj, gi, g, j, k);
-                r[row] = g.y[j][k] - e.y;
-                clipped.push(e.clipped);
-                if !e.clipped {
-                    let mut put = |c: usize, v: f64| xs[c * n_rows + row] = v;
-                    let h = e.dyda / sj; // dy/d(amplitude in output units)
-                    put(2 * gi, h * e.sin);
-                    put(2 * gi + 1, h * e.cos);
-                    if let Some(c) = l.conditions[ci] {
-                        put(c, 1.0);
-                    }
-                    if let Some(c) = l.centripetal {
-                        put(c + ci, h * omega * omega);
-                    }
-                    if let Some(c) = l.k2 {
-                        put(c, sj * e.a * e.a);
-                    }
-                    if let Some(c) = l.k3 {
-                        put(c, sj * e.a * e.a * e.a);
-                    }
-                    if let Some(c) = l.drift {
-                        put(c, g.t[k]);
-                    }
-                    if let Some(c) = l.temp {
-                        put(c, g.temp[k]);
-                    }
-                    if with_delta {
-                        z[row] = h * (a_amp * e.cos - b_amp * e.sin) * omega * g.tau[k];
-                    }
-                }
-            }
-            // Prewhiten the group's rows of the residual and of every column.
-            let m = noise_of(data, gi, ch)?;
-            let keep = kept(m.order(), &clipped);
-            let rows = row0..row0 + n;
-            whiten(m, &mut r[rows.clone()], &keep);
-            if with_delta {
-                whiten(m, &mut z[rows.clone()], &keep);
-            }
-            for c in 0..l.n {
-                let at = c * n_rows;
-                whiten(m, &mut xs[at + row0..at + row0 + n], &keep);
-            }
-            row0 += n;
-        }
+        let System { xs, r, z } = whitened_system(data, p, l, ch, sj)?;
         chi2 += r.iter().map(|v| v * v).sum::<f64>();
-        let x = DMatrix::from_vec(n_rows, l.n, xs);
+        let x = DMatrix::from_vec(n_rows, l.n(), xs);
         let r = DVector::from_vec(r);
         let z = DVector::from_vec(z);
         let qr = x.qr();
@@ -661,7 +714,7 @@ fn gauss_newton_step(data: &Data, p: &Params, l: &Layout, s: [f64; 3]) -> Result
     let delta_var = with_delta.then(|| if zz > 0.0 { 1.0 / zz } else { f64::INFINITY });
     let mut local: [DVector<f64>; 3] = Default::default();
     let mut cov: [DMatrix<f64>; 3] = Default::default();
-    for (j, c) in chans.into_iter().enumerate() {
+    for ((c, local), cov) in chans.into_iter().zip(&mut local).zip(&mut cov) {
         let rhs = match delta {
             Some(d) => &c.r - &c.z * d,
             None => c.r.clone(),
@@ -678,8 +731,8 @@ fn gauss_newton_step(data: &Data, p: &Params, l: &Layout, s: [f64; 3]) -> Result
             let wv = rr.solve_upper_triangular(&(&qt * &c.z)).ok_or(singular)?;
             cj += &wv * wv.transpose() * v;
         }
-        local[j] = beta;
-        cov[j] = cj;
+        *local = beta;
+        *cov = cj;
     }
     Ok(Step {
         local,
@@ -690,32 +743,90 @@ fn gauss_newton_step(data: &Data, p: &Params, l: &Layout, s: [f64; 3]) -> Result
     })
 }
 
+/// A channel's linearised model over every group's rows, prewhitened.
+struct System {
+    /// The Jacobian, column-major: a column of all rows per parameter of the layout.
+    xs: Vec<f64>,
+    /// The residuals.
+    r: Vec<f64>,
+    /// The derivatives in δ.
+    z: Vec<f64>,
+}
+
+/// Channel `ch`'s [`System`] at sensitivity `sj`, each group's rows prewhitened by its
+/// noise model.
+fn whitened_system(
+    data: &Data,
+    p: &Params,
+    l: &Layout,
+    ch: Channel,
+    sj: f64,
+) -> Result<System, ModelError> {
+    let n_rows = data.rows();
+    let with_delta = p.delta.is_some();
+    let mut xs = vec![0.0; n_rows * l.n()];
+    let mut r = vec![0.0; n_rows];
+    let mut z = vec![0.0; n_rows];
+    // The rows of each column, of r and of z below the groups done.
+    let mut cols: Vec<&mut [f64]> = xs.chunks_exact_mut(n_rows.max(1)).collect();
+    let (mut r_rest, mut z_rest) = (r.as_mut_slice(), z.as_mut_slice());
+    for ((gi, g), ab) in data.groups.iter().enumerate().zip(&p.ab) {
+        let omega = g.omega();
+        let [a_amp, b_amp] = *ch.of(ab);
+        let n = g.tau.len();
+        let rows: Vec<(Row, Eval)> = g
+            .rows(ch)
+            .map(|row| {
+                let e = eval(p, sj, [a_amp, b_amp], g, ch, &row);
+                (row, e)
+            })
+            .collect();
+        let (rg, zg) = (take_rows(&mut r_rest, n), take_rows(&mut z_rest, n));
+        for ((rv, zv), (row, e)) in rg.iter_mut().zip(zg.iter_mut()).zip(&rows) {
+            *rv = row.y - e.y;
+            if with_delta && !e.clipped {
+                let h = e.dyda / sj; // dy/d(amplitude in output units)
+                *zv = h * (a_amp * e.cos - b_amp * e.sin) * omega * row.tau;
+            }
+        }
+        let clipped: Vec<bool> = rows.iter().map(|(_, e)| e.clipped).collect();
+        // Prewhiten the group's rows of the residual and of every column.
+        let m = noise_of(data, gi, ch)?;
+        let keep = kept(m.order(), &clipped);
+        whiten(m, rg, &keep);
+        if with_delta {
+            whiten(m, zg, &keep);
+        }
+        for (col, param) in cols.iter_mut().zip(&l.cols) {
+            let part = take_rows(col, n);
+            for (x, (row, e)) in part.iter_mut().zip(&rows) {
+                if !e.clipped {
+                    if let Some(v) = param.derivative(g, gi, sj, row, e) {
+                        *x = v;
+                    }
+                }
+            }
+            whiten(m, part, &keep);
+        }
+    }
+    Ok(System { xs, r, z })
+}
+
+/// The first `n` entries of `rest` (all, if it has fewer), leaving it the others.
+fn take_rows<'a>(rest: &mut &'a mut [f64], n: usize) -> &'a mut [f64] {
+    let all = std::mem::take(rest);
+    let (head, tail) = all.split_at_mut(n.min(all.len()));
+    *rest = tail;
+    head
+}
+
 fn apply(p: &mut Params, l: &Layout, st: &Step) {
-    for j in 0..3 {
-        let b = &st.local[j];
-        for gi in 0..l.groups {
-            p.ab[gi][j][0] += b[2 * gi];
-            p.ab[gi][j][1] += b[2 * gi + 1];
-        }
-        for (c, col) in l.conditions.iter().enumerate() {
-            if let Some(i) = col {
-                p.offset[c][j] += b[*i];
+    for (ch, b) in Channel::ALL.into_iter().zip(&st.local) {
+        for (param, d) in l.cols.iter().zip(b.iter()) {
+            if let Some(x) = p.slot_mut(*param, ch) {
+                *x += d;
             }
         }
-        if let (Some(i), Some(cp)) = (l.centripetal, p.centripetal.as_mut()) {
-            for (c, row) in cp.iter_mut().enumerate() {
-                row[j] += b[i + c];
-            }
-        }
-        let add = |col: Option<usize>, x: &mut Option<[f64; 3]>| {
-            if let (Some(i), Some(x)) = (col, x.as_mut()) {
-                x[j] += b[i];
-            }
-        };
-        add(l.k2, &mut p.k2);
-        add(l.k3, &mut p.k3);
-        add(l.drift, &mut p.drift);
-        add(l.temp, &mut p.temp);
     }
     if let (Some(d), Some(x)) = (st.delta, p.delta.as_mut()) {
         *x += d;
