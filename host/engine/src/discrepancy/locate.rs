@@ -7,6 +7,8 @@
 //! the model's variance factor at the frequency concerned); those beyond 5 are listed,
 //! largest first.
 
+#![deny(clippy::indexing_slicing)]
+
 use super::model::{Data, Fit};
 use super::RateIntrinsic;
 use rotacal_shared::{Channel, Condition};
@@ -110,16 +112,18 @@ fn sample_interval(tau: &[f64]) -> f64 {
 pub fn locate(data: &Data, fit: &Fit) -> Vec<Finding> {
     let mut out = Vec::new();
     let temperature = data.temperature_varies();
-    for (gi, g) in data.groups.iter().enumerate() {
+    for (gi, (g, residuals)) in data.groups.iter().zip(&fit.residuals).enumerate() {
         let alpha: Vec<f64> = g.tau.iter().map(|t| g.omega() * t).collect();
         let omega = g.omega() * sample_interval(&g.tau);
         for channel in Channel::ALL {
-            let j = channel.index();
-            let r = &fit.residuals[gi][j];
-            let model = data.noise.get(gi).and_then(|m| m.get(j));
+            let r = channel.of(residuals);
+            let model = data.noise.get(gi).map(|m| channel.of(m));
             // The sd of a slowly varying coefficient (trend, temperature) and of one at k·ω.
-            let sd_at =
-                |w: f64| model.map_or(data.sigma[j], |m| m.sd() * m.variance_factor(w).sqrt());
+            let sd_at = |w: f64| {
+                model.map_or(*channel.of(&data.sigma), |m| {
+                    m.sd() * m.variance_factor(w).sqrt()
+                })
+            };
             let sigma = sd_at(0.0);
             let at = Place::Group {
                 condition: g.condition,
@@ -128,9 +132,9 @@ pub fn locate(data: &Data, fit: &Fit) -> Vec<Finding> {
             };
             // Amplitudes at k·ω; a coefficient's variance is ≈ 2σ²/n under white noise.
             let amps = crate::fit::harmonics::harmonic_amplitudes(&alpha, r);
-            for k in [2, 3] {
+            // Harmonics 2 and 3 (the first is the signal's).
+            for (k, &amp) in (1usize..).zip(&amps).skip(1).take(2) {
                 let se = sd_at(k as f64 * omega) * (2.0 / r.len() as f64).sqrt();
-                let amp = amps.get(k - 1).copied().unwrap_or(f64::NAN);
                 out.push(Finding {
                     at,
                     what: format!("harmonic {k}"),
@@ -178,14 +182,14 @@ pub fn locate(data: &Data, fit: &Fit) -> Vec<Finding> {
         // across rates).
         for c in Condition::ALL {
             for channel in Channel::ALL {
-                let j = channel.index();
                 let (mut w2, mut m) = (Vec::new(), Vec::new());
                 let mut n_min = usize::MAX;
                 let mut sd = 0.0f64;
-                for (gi, g) in data.groups.iter().enumerate() {
+                let groups = data.groups.iter().zip(&fit.residuals).enumerate();
+                for (gi, (g, residuals)) in groups {
                     if g.condition == c {
-                        let r = &fit.residuals[gi][j];
-                        if let Some(m) = data.noise.get(gi).and_then(|m| m.get(j)) {
+                        let r = channel.of(residuals);
+                        if let Some(m) = data.noise.get(gi).map(|m| channel.of(m)) {
                             sd = sd.max(m.sd() * m.variance_factor(0.0).sqrt());
                         }
                         w2.push(g.omega().powi(2));
@@ -219,18 +223,20 @@ pub fn angles_against_rate(per_rate: &[RateIntrinsic]) -> Vec<Finding> {
     if per_rate.len() < 2 {
         return out;
     }
-    for (i, name) in ["φ_uv", "φ_vw", "φ_wu"].iter().enumerate() {
-        let (mut sw, mut swx, mut swy, mut swxx, mut swxy) = (0.0, 0.0, 0.0, 0.0, 0.0);
-        for r in per_rate {
-            let q = &r.angle_deg[i];
+    // Per angle: Σw, Σwx, Σwy, Σwx², Σwxy over the rates.
+    let mut sums = [[0.0; 5]; 3];
+    for r in per_rate {
+        for ([sw, swx, swy, swxx, swxy], q) in sums.iter_mut().zip(&r.angle_deg) {
             let w = 1.0 / q.std_unc.powi(2);
             let x = std::f64::consts::TAU * r.rate_hz;
-            sw += w;
-            swx += w * x;
-            swy += w * q.value;
-            swxx += w * x * x;
-            swxy += w * x * q.value;
+            *sw += w;
+            *swx += w * x;
+            *swy += w * q.value;
+            *swxx += w * x * x;
+            *swxy += w * x * q.value;
         }
+    }
+    for ([sw, swx, swy, swxx, swxy], name) in sums.into_iter().zip(["φ_uv", "φ_vw", "φ_wu"]) {
         let det = sw * swxx - swx * swx;
         if det > 0.0 {
             let b = (sw * swxy - swx * swy) / det;

@@ -10,6 +10,8 @@
 //! 4. Test every applicable effect by a nested F-test; name the most significant one that
 //!    passes, add it, refit, and repeat until none passes.
 
+#![deny(clippy::indexing_slicing)]
+
 pub mod locate;
 pub mod model;
 pub mod noise;
@@ -144,10 +146,10 @@ pub struct NoiseStatement {
 fn check_statement(stated: f64, data: &Data) -> NoiseStatement {
     let mut why = Vec::new();
     for ch in Channel::ALL {
-        let (j, name) = (ch.index(), ch.letter());
+        let name = ch.letter();
         let mut worst_order = 0;
         let mut nu = 0.0;
-        for m in data.noise.iter().filter_map(|g| g.get(j)) {
+        for m in data.noise.iter().map(|g| ch.of(g)) {
             worst_order = worst_order.max(m.order());
             nu += (m.n - m.excluded).saturating_sub(10) as f64;
         }
@@ -156,7 +158,7 @@ fn check_statement(stated: f64, data: &Data) -> NoiseStatement {
                 "{name} is correlated (AR order up to {worst_order})"
             ));
         }
-        let ratio = (data.sigma[j] / stated).powi(2);
+        let ratio = (ch.of(&data.sigma) / stated).powi(2);
         let bound = 4.0 * (2.0 / nu.max(1.0)).sqrt();
         if (ratio - 1.0).abs() > bound {
             why.push(format!(
@@ -387,12 +389,12 @@ pub fn data_from(rec: &Recording, opts: &Options) -> Result<(Data, NoiseSigma), 
     };
     data.noise = noise::estimate(&data)?;
     let rows = data.rows().max(1) as f64;
-    data.sigma = [0, 1, 2].map(|j| {
+    data.sigma = Channel::ALL.map(|ch| {
         (data
             .noise
             .iter()
             .zip(&data.groups)
-            .map(|(m, g)| m[j].var * g.tau.len() as f64)
+            .map(|(m, g)| ch.of(m).var * g.tau.len() as f64)
             .sum::<f64>()
             / rows)
             .sqrt()
@@ -466,13 +468,13 @@ pub fn intrinsic_per_rate(data: &Data, fit: &Fit) -> Vec<RateIntrinsic> {
     let mut out = Vec::new();
     for rate in data.rates() {
         let mut cf: [Option<ConditionFit>; 3] = [None; 3];
-        for (gi, g) in data.groups.iter().enumerate() {
+        let fitted = fit.params.ab.iter().zip(&fit.ab_cov);
+        for (g, (ab, cov)) in data.groups.iter().zip(fitted) {
             if g.rate_hz == rate {
-                let ab = &fit.params.ab[gi];
-                cf[g.condition.index()] = Some(ConditionFit {
-                    a: [ab[0][0], ab[1][0], ab[2][0]],
-                    b: [ab[0][1], ab[1][1], ab[2][1]],
-                    cov: fit.ab_cov[gi],
+                *model::of_condition_mut(g.condition, &mut cf) = Some(ConditionFit {
+                    a: ab.map(|[a, _]| a),
+                    b: ab.map(|[_, b]| b),
+                    cov: *cov,
                 });
             }
         }
@@ -530,7 +532,7 @@ pub fn parameters(e: Effect, f: &Fit, data: &Data) -> BTreeMap<String, serde_jso
             m.insert("k3".into(), uvw(p.k3, u.k3));
         }
         Effect::Saturation => {
-            let r = p.rails.unwrap_or([f64::NEG_INFINITY, f64::INFINITY]);
+            let [low, high] = p.rails.unwrap_or([f64::NEG_INFINITY, f64::INFINITY]);
             let side = |x: f64| {
                 if x.is_finite() {
                     serde_json::json!(x)
@@ -538,30 +540,32 @@ pub fn parameters(e: Effect, f: &Fit, data: &Data) -> BTreeMap<String, serde_jso
                     serde_json::Value::Null
                 }
             };
-            m.insert("rails".into(), serde_json::json!([side(r[0]), side(r[1])]));
+            m.insert("rails".into(), serde_json::json!([side(low), side(high)]));
         }
         Effect::Centripetal => {
             let s = p.sensitivity(data);
             if let (Some(b), Some(ub)) = (p.centripetal, u.centripetal) {
                 // Per condition: the centripetal acceleration per ω² is r·d̂ seen through
                 // S, so |b_c/s| is the radius (axes near orthogonal).
-                let mut radii = Vec::new();
-                for c in 0..3 {
-                    let v: Vec<f64> = (0..3).map(|j| b[c][j] / s[j]).collect();
+                let [x, y, z] = Condition::ALL.map(|c| {
+                    let (bc, ubc) = (model::of_condition(c, &b), model::of_condition(c, &ub));
+                    let v: Vec<f64> = bc.iter().zip(&s).map(|(b, s)| b / s).collect();
                     let r = v.iter().map(|x| x * x).sum::<f64>().sqrt();
                     let ur = if r > 0.0 {
-                        ((0..3)
-                            .map(|j| (v[j] / r * ub[c][j] / s[j]).powi(2))
+                        (v.iter()
+                            .zip(ubc)
+                            .zip(&s)
+                            .map(|((v, ub), s)| (v / r * ub / s).powi(2))
                             .sum::<f64>())
                         .sqrt()
                     } else {
                         0.0
                     };
-                    radii.push(q(r, ur));
-                }
+                    q(r, ur)
+                });
                 m.insert(
                     "radius_m".into(),
-                    serde_json::json!({"x": radii[0], "y": radii[1], "z": radii[2]}),
+                    serde_json::json!({"x": x, "y": y, "z": z}),
                 );
             }
         }

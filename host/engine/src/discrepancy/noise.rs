@@ -10,6 +10,8 @@
 //! The models are estimated once, before any physical model is fitted, and held fixed
 //! through the baseline and every step, so nested tests compare like with like.
 
+#![deny(clippy::indexing_slicing)]
+
 use super::model::{Data, GroupData};
 use crate::fit::noise::{self, NoiseError, NoiseModel};
 use nalgebra::{DMatrix, DVector};
@@ -77,14 +79,15 @@ const HARMONICS: usize = 4;
 /// k = 1 … [`HARMONICS`], (τ/span)·sin ωτ and (τ/span)·cos ωτ (a rate error's growing
 /// quadrature), and the temperature when `temp` is given; rows flagged in `skip` are zero.
 fn design(tau: &[f64], omega: f64, temp: Option<&[f64]>, skip: &[bool]) -> DMatrix<f64> {
-    let n = tau.len();
     let span = tau.last().copied().unwrap_or(1.0).max(f64::MIN_POSITIVE);
     let cols = 4 + 2 * HARMONICS + usize::from(temp.is_some());
-    DMatrix::from_fn(n, cols, |r, c| {
-        if skip.get(r).copied().unwrap_or(false) {
-            return 0.0;
+    let mut x = DMatrix::zeros(tau.len(), cols);
+    let mut temps = temp.map(<[f64]>::iter);
+    for ((mut row, &t), &skipped) in x.row_iter_mut().zip(tau).zip(skip) {
+        let temp_t = temps.as_mut().and_then(Iterator::next).copied();
+        if skipped {
+            continue;
         }
-        let t = tau.get(r).copied().unwrap_or(0.0);
         let harmonic = |k: f64, sine: bool| {
             if sine {
                 (k * omega * t).sin()
@@ -92,14 +95,17 @@ fn design(tau: &[f64], omega: f64, temp: Option<&[f64]>, skip: &[bool]) -> DMatr
                 (k * omega * t).cos()
             }
         };
-        match c {
-            0 => 1.0,
-            1 => t / span,
-            c if c < 2 + 2 * HARMONICS => harmonic(((c - 2) / 2 + 1) as f64, c % 2 == 0),
-            c if c < 4 + 2 * HARMONICS => t / span * harmonic(1.0, c % 2 == 0),
-            _ => temp.and_then(|x| x.get(r)).copied().unwrap_or(0.0),
+        let both = |k: f64| [true, false].map(|sine| harmonic(k, sine));
+        let values = [1.0, t / span]
+            .into_iter()
+            .chain((1..=HARMONICS).flat_map(|k| both(k as f64)))
+            .chain(both(1.0).map(|h| t / span * h))
+            .chain(temp_t);
+        for (x, v) in row.iter_mut().zip(values) {
+            *x = v;
         }
-    })
+    }
+    x
 }
 
 /// The innovations' variance as the generic fit made by generalised least squares under
@@ -190,7 +196,7 @@ fn group_models(g: &GroupData) -> Result<[NoiseModel; 3], NoiseEstimateError> {
         });
     let temp = (hi - lo > 0.05).then_some(g.temp.as_slice());
     let model = |channel: Channel| {
-        let y = &g.y[channel.index()];
+        let y = channel.of(&g.y);
         let flagged = noise::clipped(y);
         // Without the temperature if it makes the fit singular (a temperature that is a
         // straight line in time).
