@@ -14,7 +14,10 @@
 //! each corrected reading its standard uncertainty from the calibration (the reading's own
 //! noise is not included: it is the measurement, not the correction).
 
-use nalgebra::{DMatrix, Matrix3};
+#![deny(clippy::indexing_slicing)]
+
+use nalgebra::{DMatrix, Matrix3, Vector3};
+use rotacal_shared::Channel;
 use serde::{Deserialize, Serialize};
 
 /// A Gram matrix as a function of parameters.
@@ -77,10 +80,20 @@ pub enum CorrectionError {
     /// A covariance of the wrong size.
     #[error("the correction's covariance must be 12×12")]
     Covariance,
+    /// An invariant of the engine failed: a bug in rotacal, not a problem of the data.
+    #[error("internal: {0} (a bug in rotacal; please report it)")]
+    Internal(&'static str),
 }
 
 fn to_m3(m: &[[f64; 3]; 3]) -> Matrix3<f64> {
-    Matrix3::from_fn(|i, j| m[i][j])
+    // nalgebra takes the arrays for columns: transposed, they are the rows.
+    Matrix3::from(*m).transpose()
+}
+
+/// Nine values, row-major, as a 3 × 3 matrix (none unless there are nine).
+fn unpack(x: &[f64]) -> Option<[[f64; 3]; 3]> {
+    let [m00, m01, m02, m10, m11, m12, m20, m21, m22] = <[f64; 9]>::try_from(x).ok()?;
+    Some([[m00, m01, m02], [m10, m11, m12], [m20, m21, m22]])
 }
 
 fn from_m3(m: &Matrix3<f64>) -> [[f64; 3]; 3] {
@@ -110,8 +123,8 @@ pub fn jacobian(f: &dyn Fn(&[f64]) -> Option<Vec<f64>>, x: &[f64]) -> Option<DMa
     let y0 = f(x)?;
     let big = x.iter().fold(0.0f64, |a, v| a.max(v.abs())).max(1e-300);
     let mut j = DMatrix::zeros(y0.len(), x.len());
-    for k in 0..x.len() {
-        let h = 1e-6 * x.get(k).map_or(big, |v| v.abs()).max(1e-3 * big);
+    for ((k, xk), mut column) in x.iter().enumerate().zip(j.column_iter_mut()) {
+        let h = 1e-6 * xk.abs().max(1e-3 * big);
         let mut xp = x.to_vec();
         let mut xm = x.to_vec();
         if let (Some(p), Some(m)) = (xp.get_mut(k), xm.get_mut(k)) {
@@ -119,8 +132,8 @@ pub fn jacobian(f: &dyn Fn(&[f64]) -> Option<Vec<f64>>, x: &[f64]) -> Option<DMa
             *m -= h;
         }
         let (yp, ym) = (f(&xp)?, f(&xm)?);
-        for (i, (a, b)) in yp.iter().zip(&ym).enumerate() {
-            j[(i, k)] = (a - b) / (2.0 * h);
+        for (out, (a, b)) in column.iter_mut().zip(yp.iter().zip(&ym)) {
+            *out = (a - b) / (2.0 * h);
         }
     }
     Some(j)
@@ -163,24 +176,25 @@ impl Correction {
     /// The corrected acceleration for reading `y`, m/s², and its standard uncertainty
     /// from the calibration (per component).
     pub fn apply(&self, y: [f64; 3]) -> ([f64; 3], [f64; 3]) {
-        let d = [0, 1, 2].map(|k| y[k] - self.offset[k]);
-        let a = self.matrix.map(|row| (0..3).map(|k| row[k] * d[k]).sum());
+        let d = Channel::ALL.map(|ch| ch.of(&y) - ch.of(&self.offset));
+        let a = self
+            .matrix
+            .map(|row| row.iter().zip(&d).map(|(m, d)| m * d).sum());
         // ∂a_i/∂M_ik = d_k, ∂a_i/∂O_k = −M_ik.
-        let u = [0, 1, 2].map(|i| {
+        let u = Channel::ALL.map(|i| {
+            // (M row-major, O): d in row i's block, zeros in the others', then −M_i.
+            let blocks = Channel::ALL
+                .into_iter()
+                .flat_map(|b| if b == i { d } else { [0.0; 3] });
+            let minus_m = i.of(&self.matrix).map(|m| -m);
             let mut jrow = [0.0; PARAMS];
-            for k in 0..3 {
-                jrow[3 * i + k] = d[k];
-                jrow[9 + k] = -self.matrix[i][k];
+            for (out, v) in jrow.iter_mut().zip(blocks.chain(minus_m)) {
+                *out = v;
             }
+            // The covariance is 12 × 12 (`new`, and checked where a file is read).
             let mut var = 0.0;
-            for (p, jp) in jrow.iter().enumerate() {
-                for (q, jq) in jrow.iter().enumerate() {
-                    let c = self
-                        .covariance
-                        .get(p)
-                        .and_then(|r| r.get(q))
-                        .copied()
-                        .unwrap_or(0.0);
+            for (jp, row) in jrow.iter().zip(&self.covariance) {
+                for (jq, c) in jrow.iter().zip(row) {
                     var += jp * c * jq;
                 }
             }
@@ -202,21 +216,18 @@ pub fn from_matrix(
         return Err(CorrectionError::Covariance);
     }
     let x: Vec<f64> = s.iter().flatten().copied().collect();
-    let unpack = |x: &[f64]| -> [[f64; 3]; 3] {
-        [0, 1, 2].map(|i| [0, 1, 2].map(|j| x.get(3 * i + j).copied().unwrap_or(f64::NAN)))
-    };
     let flat = |m: Option<[[f64; 3]; 3]>| -> Option<Vec<f64>> { Some(m?.concat()) };
-    let dev = |x: &[f64]| flat(device_matrix(&gram_of(&unpack(x))));
-    let pla = |x: &[f64]| flat(platter_matrix(&unpack(x)));
+    // (x and its perturbations have nine values.)
+    let dev = |x: &[f64]| flat(device_matrix(&gram_of(&unpack(x)?)));
+    let pla = |x: &[f64]| flat(platter_matrix(&unpack(x)?));
     let build = |frame, f: &dyn Fn(&[f64]) -> Option<Vec<f64>>| {
         let m = f(&x).ok_or(CorrectionError::Singular)?;
         let jm = jacobian(f, &x).ok_or(CorrectionError::Singular)?;
         let mut j = DMatrix::zeros(PARAMS, PARAMS);
         j.view_mut((0, 0), (9, 9)).copy_from(&jm);
-        for k in 9..PARAMS {
-            j[(k, k)] = 1.0;
-        }
-        Correction::new(frame, unpack(&m), offset, &(&j * cov * j.transpose()))
+        j.view_mut((9, 9), (3, 3)).fill_diagonal(1.0);
+        let m = unpack(&m).ok_or(CorrectionError::Internal("M without nine elements"))?;
+        Correction::new(frame, m, offset, &(&j * cov * j.transpose()))
     };
     Ok((build(Frame::Device, &dev)?, build(Frame::Platter, &pla)?))
 }
@@ -244,10 +255,8 @@ pub fn from_gram(
     let cm = propagate(&f, theta, cov_theta).ok_or(CorrectionError::Singular)?;
     let mut cov = DMatrix::zeros(PARAMS, PARAMS);
     cov.view_mut((0, 0), (9, 9)).copy_from(&cm);
-    for (k, s) in offset_std.iter().enumerate() {
-        cov[(9 + k, 9 + k)] = s * s;
-    }
-    let matrix =
-        [0, 1, 2].map(|i| [0, 1, 2].map(|j| m.get(3 * i + j).copied().unwrap_or(f64::NAN)));
+    cov.view_mut((9, 9), (3, 3))
+        .set_diagonal(&Vector3::from(offset_std.map(|s| s * s)));
+    let matrix = unpack(&m).ok_or(CorrectionError::Internal("M without nine elements"))?;
     Correction::new(Frame::Device, matrix, offset, &cov)
 }
