@@ -18,13 +18,16 @@
 //! Δ and its slope, and the expansion's remainder. When the bound is not far below the
 //! lagged sums' own scatter, the residual pass runs as before.
 
+#![deny(clippy::indexing_slicing)]
+
 use super::CLOCK;
 use crate::fit::moments::{
     self, pair_row, wide_d, wide_row, Moments, PairSums, PAIR, TREND, WIDE, WIDE_HARMONIC,
 };
 use crate::fit::noise::{LaggedSums, LAGS};
+use nalgebra::Matrix2;
 use nalgebra::{SMatrix, SVector};
-use rotacal_shared::{Aperture, PhaseStep, Ticks};
+use rotacal_shared::{Aperture, Channel, PhaseStep, Ticks};
 
 /// Rows of a piece the pilot is fitted to (80 s at 104 Hz).
 pub const PILOT_ROWS: usize = 8192;
@@ -325,14 +328,13 @@ fn shift(tau: f64, omega: f64) -> MatP {
         }
         let (s, c) = (f64::from(*k) * omega * tau).sin_cos();
         // sin k(α − θ) = sin kα cos kθ − cos kα sin kθ; cos k(α − θ) = cos kα cos kθ + sin kα sin kθ
-        r[(i, i)] = c;
-        r[(i, i + 1)] = -s;
-        r[(i + 1, i + 1)] = c;
-        r[(i + 1, i)] = s;
+        r.fixed_view_mut::<2, 2>(i, i)
+            .copy_from(&Matrix2::new(c, -s, s, c));
     }
-    r[(2, 2)] = 1.0;
-    r[(TREND, TREND)] = 1.0;
-    r[(TREND, 2)] = -tau; // u − τ
+    // The constant (column 2) and the trend after it: u − τ.
+    const _: () = assert!(TREND == 3);
+    r.fixed_view_mut::<2, 2>(2, TREND - 1)
+        .copy_from(&Matrix2::new(1.0, 0.0, -tau, 1.0));
     let mut q = MatP::zeros();
     q.fixed_view_mut::<WIDE, WIDE>(0, 0).copy_from(&r);
     q.fixed_view_mut::<WIDE, WIDE>(WIDE, WIDE).copy_from(&r);
@@ -417,15 +419,11 @@ pub(super) fn corrected(piece: &Piece, fit: &Fitted) -> Option<PieceSums> {
         .filter_map(|j| run.tail.get((n + LAGS - 1 - j) % LAGS))
         .collect();
     // The exact residual from the fitted model, as the residual pass takes it.
-    let exact = |(tick, yv): &Row, ch: usize| -> f64 {
+    let exact = |(tick, yv): &Row, ch: Channel| -> f64 {
         let ap = Aperture::point(Ticks(piece.offset.saturating_add(*tick)));
         let (w, _) = moments::wide_regressors(&ap, fit.fitted, (fit.nominal, fit.eps), CLOCK);
-        let m: f64 = w
-            .iter()
-            .zip(fit.wide.get(ch).copied().unwrap_or([0.0; WIDE]))
-            .map(|(a, b)| a * b)
-            .sum();
-        yv.get(ch).copied().unwrap_or(0.0) - m
+        let m: f64 = w.iter().zip(ch.of(fit.wide)).map(|(a, b)| a * b).sum();
+        ch.of(yv) - m
     };
     // The spans' middles (τ) and half-widths (h), s; 0 for a lag no pair reached.
     let lags: Vec<(f64, f64)> = run
@@ -448,16 +446,14 @@ pub(super) fn corrected(piece: &Piece, fit: &Fitted) -> Option<PieceSums> {
     let head_v: Vec<VecP> = run.head.iter().map(row_v).collect();
     let newest_v: Vec<VecP> = newest.iter().map(|r| row_v(r)).collect();
     let mut out = Vec::with_capacity(3);
-    for ch in 0..3 {
-        let (Some(beta0), Some(wide), Some(sf), Some(sn), Some(acc)) = (
-            run.beta.get(ch),
-            fit.wide.get(ch),
-            fit.sine_fitted.get(ch),
-            fit.sine_nominal.get(ch),
-            run.lagged.get(ch),
-        ) else {
-            return None;
-        };
+    for ch in Channel::ALL {
+        let (beta0, wide, sf, sn, acc) = (
+            ch.of(&run.beta),
+            ch.of(fit.wide),
+            ch.of(fit.sine_fitted),
+            ch.of(fit.sine_nominal),
+            ch.of(&run.lagged),
+        );
         let model = moved(wide, fit.fitted, piece.offset);
         let c = difference(&model, beta0, eps_f);
         let sine_f = moved(&widened(sf), fit.fitted, piece.offset);
@@ -466,13 +462,14 @@ pub(super) fn corrected(piece: &Piece, fit: &Fitted) -> Option<PieceSums> {
         let gamma_n = difference(&sine_n, beta0, eps_n);
         // Σ r⁰V = Σ yV − Σ V fᵀ·β₀.
         let b0 = SVector::<f64, WIDE>::from(*beta0);
-        let m = y.column(ch).into_owned() - p.fixed_view::<PAIR, WIDE>(0, 0) * b0;
+        let m = y.column(ch.index()).into_owned() - p.fixed_view::<PAIR, WIDE>(0, 0) * b0;
         let r0 = |r: &Row, vr: &VecP| -> f64 {
             let f: f64 = vr.iter().take(WIDE).zip(beta0).map(|(a, b)| a * b).sum();
-            r.1.get(ch).copied().unwrap_or(0.0) - f
+            ch.of(&r.1) - f
         };
         let (s0, sum0) = acc.products();
-        let s00 = s0.first().copied().unwrap_or(0.0).max(0.0);
+        let [s00, ..] = s0;
+        let s00 = s00.max(0.0);
         let root = (n as f64 * s00).sqrt();
         let (size, slope) = size_and_slope(&c, omega, span);
         let rem = remainder(&model, eps_f, span);
