@@ -1,8 +1,10 @@
 //! The poses from the readings: repeated readings at one orientation averaged into a
 //! pose mean, with its standard error from the readings' own noise.
+#![deny(clippy::indexing_slicing)]
 
 use super::{Pose, PoseError, PoseNoise, StaticCondition, NOISE_MODEL_MIN};
 use crate::recording::Oriented;
+use rotacal_shared::Channel;
 
 /// Each channel's noise model at a pose, when it has enough readings: the mean's variance
 /// is the AR sandwich for a regressor of ones. A channel whose model cannot be made (a
@@ -12,13 +14,13 @@ fn pose_noise(rows: &[[f64; 3]], mean: &[f64; 3]) -> Option<[Option<PoseNoise>; 
         return None;
     }
     let ones = nalgebra::DMatrix::from_element(rows.len(), 1, 1.0);
-    Some([0, 1, 2].map(|j| {
-        let resid: Vec<f64> = rows.iter().map(|r| r[j] - mean[j]).collect();
+    Some(Channel::ALL.map(|j| {
+        let resid: Vec<f64> = rows.iter().map(|r| j.of(r) - j.of(mean)).collect();
         let (m, cov) = crate::fit::noise::NoiseModel::estimate(&resid, &[])
             .ok()?
             .regression_cov(&ones)
             .ok()?;
-        let var = cov[(0, 0)];
+        let var = *cov.get((0, 0))?;
         Some(PoseNoise {
             lag1: m.autocorrelation(1),
             order: m.order(),
@@ -30,10 +32,15 @@ fn pose_noise(rows: &[[f64; 3]], mean: &[f64; 3]) -> Option<[Option<PoseNoise>; 
 
 fn mean_std(rows: &[[f64; 3]]) -> ([f64; 3], Option<[f64; 3]>) {
     let n = rows.len() as f64;
-    let mean = [0, 1, 2].map(|c| rows.iter().map(|r| r[c]).sum::<f64>() / n);
+    let mean = Channel::ALL.map(|c| rows.iter().map(|r| c.of(r)).sum::<f64>() / n);
     let std = (rows.len() >= 2).then(|| {
-        [0, 1, 2].map(|c| {
-            (rows.iter().map(|r| (r[c] - mean[c]).powi(2)).sum::<f64>() / (n - 1.0)).sqrt()
+        Channel::ALL.map(|c| {
+            (rows
+                .iter()
+                .map(|r| (c.of(r) - c.of(&mean)).powi(2))
+                .sum::<f64>()
+                / (n - 1.0))
+                .sqrt()
         })
     });
     (mean, std)
@@ -41,20 +48,23 @@ fn mean_std(rows: &[[f64; 3]]) -> ([f64; 3], Option<[f64; 3]>) {
 
 /// A direction as text: `+x` for an axis, else the vector.
 pub fn direction_name(g: &[f64; 3]) -> String {
-    for (k, axis) in ['x', 'y', 'z'].iter().enumerate() {
-        let others = (0..3).filter(|&i| i != k).all(|i| g[i].abs() < 1e-9);
+    for (k, (axis, &c)) in ['x', 'y', 'z'].iter().zip(g).enumerate() {
+        let others = g
+            .iter()
+            .enumerate()
+            .filter(|&(i, _)| i != k)
+            .all(|(_, v)| v.abs() < 1e-9);
         if others {
-            if let Some(&c) = g.get(k) {
-                if (c - 1.0).abs() < 1e-9 {
-                    return format!("+{axis}");
-                }
-                if (c + 1.0).abs() < 1e-9 {
-                    return format!("-{axis}");
-                }
+            if (c - 1.0).abs() < 1e-9 {
+                return format!("+{axis}");
+            }
+            if (c + 1.0).abs() < 1e-9 {
+                return format!("-{axis}");
             }
         }
     }
-    format!("({:.4}, {:.4}, {:.4})", g[0], g[1], g[2])
+    let [x, y, z] = g;
+    format!("({x:.4}, {y:.4}, {z:.4})")
 }
 
 /// The poses of a file with gravity directions: by the `pose` column, else by direction.

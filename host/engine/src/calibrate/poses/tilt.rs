@@ -1,10 +1,11 @@
 //! The joint fit of the three channels with the pose-tilt random effect: generalised
 //! least squares with a 3×3 covariance per pose mean, the tilt variance found by
 //! bisection of χ² (the bisection also serves the per-channel scatter τ_j).
+#![deny(clippy::indexing_slicing)]
 
 use super::TILT_MAX_RAD;
 use super::{o_index, s_index, Cov12, CovPart, Design, PartSource, Pose, Theta, TiltScale};
-use nalgebra::{Matrix3, Vector3};
+use nalgebra::{Matrix3, RowVector3, Vector3};
 
 /// The poses' design in (S row-major, O): row j of pose p is (g·ĝ_p in S_j's columns, 1
 /// in O_j's).
@@ -13,12 +14,11 @@ fn design(poses: &[Pose], g: f64) -> Vec<Design> {
         .iter()
         .map(|q| {
             let mut x = Design::zeros();
+            let row = RowVector3::from(q.gravity.map(|gk| g * gk));
             for j in 0..3 {
-                for k in 0..3 {
-                    x[(j, s_index(j, k))] = g * q.gravity[k];
-                }
-                x[(j, o_index(j))] = 1.0;
+                x.fixed_view_mut::<1, 3>(j, s_index(j, 0)).copy_from(&row);
             }
+            x.fixed_view_mut::<3, 3>(0, o_index(0)).fill_with_identity();
             x
         })
         .collect()
@@ -121,7 +121,8 @@ pub(super) fn joint_fit(
 ) -> Option<(Gls, Vec<CovPart>, f64, Option<TiltScale>)> {
     let x = design(poses, g);
     let y: Vec<Vector3<f64>> = poses.iter().map(|q| Vector3::from(q.mean)).collect();
-    let s = Matrix3::from_fn(|j, k| s0[j][k]);
+    // Rows of s0 are the matrix's rows; `From` takes arrays as columns.
+    let s = Matrix3::from(*s0).transpose();
     let noise: Vec<Matrix3<f64>> = se2
         .iter()
         .map(|v| Matrix3::from_diagonal(&Vector3::from(*v)))
