@@ -1,6 +1,7 @@
 //! One condition's fit at one rate from its rows: the samples, the IEEE 1057 rate fit and
 //! the choice of rate, the sine fit in f64, the noise model of its residuals and the
 //! fit's covariance under it; and the refit at another rate the budget needs.
+#![deny(clippy::indexing_slicing)]
 
 use super::{err, CalibrateError, CalibrateErrorKind, GroupError, CLOCK};
 use crate::fit::batch;
@@ -8,7 +9,7 @@ use crate::fit::noise::{self, NoiseError, NoiseModel};
 use crate::recording::{Group, Recording};
 use nalgebra::DMatrix;
 use rotacal_shared::intrinsic::ConditionFit;
-use rotacal_shared::Condition;
+use rotacal_shared::{Channel, Condition};
 use rotacal_shared::{FitConfig, FitError, FitResult, Param, PhaseStep, SineFit, Ticks};
 use std::f64::consts::TAU;
 
@@ -135,7 +136,7 @@ fn noise_models(s: &[batch::Sample], step: PhaseStep) -> Result<[NoiseModel; 3],
     // and weighted as `h`'s rows.
     let mut wide = DMatrix::zeros(s.len(), 3 + CLEANING_COLUMNS);
     wide.columns_mut(0, 3).copy_from(&h);
-    for (i, (ap, _)) in s.iter().enumerate() {
+    for ((ap, _), mut row) in s.iter().zip(wide.row_iter_mut()) {
         let extra = batch::mean_over(ap, |t| {
             let mut r = [0.0; CLEANING_COLUMNS];
             r[0] = t.0 as f64 / t_end - 0.5;
@@ -148,8 +149,8 @@ fn noise_models(s: &[batch::Sample], step: PhaseStep) -> Result<[NoiseModel; 3],
             r
         });
         let w = batch::root_weight(ap);
-        for (j, v) in extra.into_iter().enumerate() {
-            wide[(i, 3 + j)] = w * v;
+        for (x, v) in row.iter_mut().skip(3).zip(extra) {
+            *x = w * v;
         }
     }
     // Normal equations: the columns are near-orthogonal (sines, a centred trend), so their
@@ -157,19 +158,23 @@ fn noise_models(s: &[batch::Sample], step: PhaseStep) -> Result<[NoiseModel; 3],
     // not measurements of the model: they are left out of this fit as of the estimate.
     let full = wide.tr_mul(&wide);
     let mut models = Vec::with_capacity(3);
-    for ch in 0..3 {
-        let plain: Vec<f64> = s.iter().map(|(_, y)| y[ch]).collect();
+    for ch in Channel::ALL {
+        let plain: Vec<f64> = s.iter().map(|(_, y)| *ch.of(y)).collect();
         let flags = noise::clipped(&plain);
         let y = nalgebra::DVector::from_iterator(
             s.len(),
-            s.iter().map(|(ap, y)| batch::root_weight(ap) * y[ch]),
+            s.iter().map(|(ap, y)| batch::root_weight(ap) * ch.of(y)),
         );
         let mut normal = full.clone();
         let mut rhs = wide.tr_mul(&y);
-        for (i, _) in flags.iter().enumerate().filter(|(_, f)| **f) {
-            let row = wide.row(i);
+        for ((row, _), yi) in wide
+            .row_iter()
+            .zip(&flags)
+            .zip(y.iter())
+            .filter(|((_, f), _)| **f)
+        {
             normal -= row.transpose() * row;
-            rhs -= row.transpose() * y[i];
+            rhs -= row.transpose() * *yi;
         }
         let beta = normal.cholesky().ok_or(NoiseError::Singular)?.solve(&rhs);
         let resid = &y - &wide * beta;
@@ -188,9 +193,9 @@ fn sine_cov(
     let mut covs = [[[0.0; 3]; 3]; 3];
     for (cov, m) in covs.iter_mut().zip(models) {
         let c = m.sandwich(&h)?;
-        for (a, row) in cov.iter_mut().enumerate() {
-            for (b, x) in row.iter_mut().enumerate() {
-                *x = c[(a, b)];
+        for (row, c_row) in cov.iter_mut().zip(c.row_iter()) {
+            for (x, v) in row.iter_mut().zip(c_row.iter()) {
+                *x = *v;
             }
         }
     }

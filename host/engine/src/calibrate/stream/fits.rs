@@ -1,5 +1,6 @@
 //! A streamed group's fits from its sums: prepared after pass 1 (and a correcting pass),
 //! finished with the residuals' sums (from the pilots or the residual pass).
+#![deny(clippy::indexing_slicing)]
 
 use super::first::GroupState;
 use super::{REACH_FIT, REACH_REFIT};
@@ -184,9 +185,9 @@ pub(super) fn finish(
         let s = m
             .sandwich_for_sinusoids(&gram, &[omega, omega, 0.0])
             .map_err(|e| fail(e.into()))?;
-        for (a, row) in c.iter_mut().enumerate() {
-            for (b, x) in row.iter_mut().enumerate() {
-                *x = s[(a, b)];
+        for (row, s_row) in c.iter_mut().zip(s.row_iter()) {
+            for (x, v) in row.iter_mut().zip(s_row.iter()) {
+                *x = *v;
             }
         }
     }
@@ -208,9 +209,9 @@ fn sine_result(
     let inv = chol.inverse();
     let n = u32::try_from(p.rows).map_err(|_| GroupError::TooManyRows)?;
     let mut unscaled_cov = [[0.0; rotacal_shared::MAX_PARAMS]; rotacal_shared::MAX_PARAMS];
-    for (i, row) in unscaled_cov.iter_mut().enumerate().take(3) {
-        for (j, x) in row.iter_mut().enumerate().take(3) {
-            *x = inv[(i, j)];
+    for (row, inv_row) in unscaled_cov.iter_mut().zip(inv.row_iter()).take(3) {
+        for (x, v) in row.iter_mut().zip(inv_row.iter()).take(3) {
+            *x = *v;
         }
     }
     let mut channels = [rotacal_shared::ChannelFit::<f64> {
@@ -223,11 +224,11 @@ fn sine_result(
     for (ch, (out, rss)) in channels.iter_mut().zip(rss).enumerate() {
         let b = chol.solve(&normal.xh.column(ch).into_owned());
         let var = rss / f64::from(n.saturating_sub(3).max(1));
-        for i in 0..3 {
-            if let (Some(c), Some(se)) = (out.coef.get_mut(i), out.se.get_mut(i)) {
-                *c = rotacal_shared::DoubleWord { hi: b[i], lo: 0.0 };
-                *se = (var * inv[(i, i)].max(0.0)).sqrt();
-            }
+        let inv_diag = inv.diagonal();
+        let coef_se = out.coef.iter_mut().zip(out.se.iter_mut());
+        for ((c, se), (bi, d)) in coef_se.zip(b.iter().zip(inv_diag.iter())).take(3) {
+            *c = rotacal_shared::DoubleWord { hi: *bi, lo: 0.0 };
+            *se = (var * d.max(0.0)).sqrt();
         }
         out.rss = rss;
         out.sigma = var.sqrt();

@@ -19,6 +19,7 @@
 //!   iteration at different iterates, within 10⁻³ of its standard error of each other: the
 //!   fits move by that fraction of what one standard error of the rate moves them (about
 //!   10⁻⁵ relative here), 10⁻⁷ relative at most.
+#![allow(clippy::indexing_slicing)]
 
 use super::{calibrate_file_as, Mode};
 use crate::calibrate::json::CalibrationJson;
