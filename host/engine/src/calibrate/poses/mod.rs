@@ -31,7 +31,7 @@ use crate::calibrate::budget::coverage_factor;
 use fit::axis_pair_var;
 use nalgebra::{Matrix3, SMatrix, SVector};
 use rotacal_shared::intrinsic::Estimate;
-use rotacal_shared::Condition;
+use rotacal_shared::{Channel, Condition};
 
 /// One condition of a static (stepped-angle) record.
 #[derive(Clone, Copy, Debug)]
@@ -100,7 +100,7 @@ impl Pose {
             .map(|s| s.map(|x| x / (self.n as f64).sqrt()))
             .unwrap_or([0.0; 3]);
         match &self.noise {
-            Some(m) => [0, 1, 2].map(|j| m[j].map_or(white[j], |c| c.se)),
+            Some(m) => Channel::ALL.map(|j| j.of(m).as_ref().map_or(*j.of(&white), |c| c.se)),
             None => white,
         }
     }
@@ -361,7 +361,11 @@ impl PoseFit {
     pub fn offset_var(&self, part: &CovPart) -> [f64; 3] {
         match (self.options.offsets, self.axis_poses) {
             (OffsetEstimator::AxisPairs, Some(ix)) => [0, 1, 2].map(|j| axis_pair_var(part, ix, j)),
-            _ => [0, 1, 2].map(|j| part.theta[(o_index(j), o_index(j))].max(0.0)),
+            _ => {
+                // The offsets O_u, O_v, O_w are the last three of (S row-major, O).
+                let [.., u, v, w]: [f64; 12] = part.theta.diagonal().into();
+                [u, v, w].map(|x| x.max(0.0))
+            }
         }
     }
 
@@ -413,6 +417,18 @@ const fn s_index(j: usize, k: usize) -> usize {
 /// Index of O_j in (S row-major, O).
 const fn o_index(j: usize) -> usize {
     9 + j
+}
+
+/// (S row-major, O) from each channel's coefficients (S_j0, S_j1, S_j2, O_j).
+fn join_coefs(channels: [[f64; 4]; 3]) -> [f64; 12] {
+    let [[s0, s1, s2, o0], [s3, s4, s5, o1], [s6, s7, s8, o2]] = channels;
+    [s0, s1, s2, s3, s4, s5, s6, s7, s8, o0, o1, o2]
+}
+
+/// Each channel's coefficients (S_j0, S_j1, S_j2, O_j) from (S row-major, O).
+fn split_coefs(theta: [f64; 12]) -> [[f64; 4]; 3] {
+    let [s0, s1, s2, s3, s4, s5, s6, s7, s8, o0, o1, o2] = theta;
+    [[s0, s1, s2, o0], [s3, s4, s5, o1], [s6, s7, s8, o2]]
 }
 
 /// Index of coefficient a of channel j (S_j0, S_j1, S_j2, O_j) in (S row-major, O).

@@ -2,9 +2,12 @@
 //! gives them, and how the parts weigh into one quantity's variance and degrees of freedom.
 
 use super::tilt::Gls;
-use super::{coef_index, ChannelFit, Cov12, CovPart, PartSource, Scatter, TiltScale};
+use super::{
+    coef_index, join_coefs, split_coefs, ChannelFit, Cov12, CovPart, PartSource, Scatter, TiltScale,
+};
 use crate::calibrate::budget::welch_satterthwaite;
-use nalgebra::Matrix3;
+use nalgebra::{Matrix3, Vector3};
+use rotacal_shared::Channel;
 
 /// How the independent parts of the pose fit's covariance combine into one quantity's
 /// variance and degrees of freedom. The quantity (an element of S or O, an offset, or
@@ -91,8 +94,9 @@ impl Weighing<'_> {
 fn per_channel_parts(channels: &[ChannelFit; 3], se2: &[[f64; 3]]) -> Vec<CovPart> {
     channels
         .iter()
+        .zip(Channel::ALL)
         .enumerate()
-        .map(|(j, c)| {
+        .map(|(j, (c, ch))| {
             let mut theta = Cov12::zeros();
             for a in 0..4 {
                 for b in 0..4 {
@@ -102,9 +106,9 @@ fn per_channel_parts(channels: &[ChannelFit; 3], se2: &[[f64; 3]]) -> Vec<CovPar
             let pose_cov = se2
                 .iter()
                 .map(|v| {
-                    let mut m = Matrix3::zeros();
-                    m[(j, j)] = c.pose_var.unwrap_or(v[j] + c.tau * c.tau);
-                    m
+                    let d = c.pose_var.unwrap_or(ch.of(v) + c.tau * c.tau);
+                    let diag = Channel::ALL.map(|k| if k == ch { d } else { 0.0 });
+                    Matrix3::from_diagonal(&Vector3::from(diag))
                 })
                 .collect();
             CovPart {
@@ -173,12 +177,7 @@ impl Combined {
     /// From each channel's own fit (`se2`: each pose mean's noise variance per channel).
     pub(super) fn per_channel(channels: &[ChannelFit; 3], se2: &[[f64; 3]]) -> Combined {
         let parts = per_channel_parts(channels, se2);
-        let mut theta = [0.0; 12];
-        for (j, c) in channels.iter().enumerate() {
-            for (a, v) in c.coef.iter().enumerate() {
-                theta[coef_index(j, a)] = *v;
-            }
-        }
+        let theta = join_coefs(channels.each_ref().map(|c| c.coef));
         let scatter = if channels.iter().any(|c| c.tau > 0.0) {
             Scatter::PerChannel
         } else {
@@ -215,9 +214,10 @@ impl Combined {
             Scatter::Tilt { sd_deg } => sd_deg.to_radians().powi(2),
             _ => 0.0,
         };
-        for (j, c) in channels.iter_mut().enumerate() {
+        let coefs = split_coefs(self.theta);
+        for (j, (c, coef)) in channels.iter_mut().zip(coefs).enumerate() {
+            c.coef = coef;
             for a in 0..4 {
-                c.coef[a] = self.theta[coef_index(j, a)];
                 for b in 0..4 {
                     c.cov[a][b] = self.cov[(coef_index(j, a), coef_index(j, b))];
                 }
