@@ -1,6 +1,8 @@
 //! The residuals' lagged sums, gathered one residual at a time and joined across parts
 //! of a series: the streaming engine's autocovariances.
 
+#![deny(clippy::indexing_slicing)]
+
 use super::MAX_ORDER;
 
 /// The sample autocovariances of a series of residuals at lags 0 … [`MAX_ORDER`], gathered
@@ -136,11 +138,15 @@ impl LaggedSums {
     fn centring_from_totals(&self) -> ([f64; LAGS], [f64; LAGS], [f64; LAGS]) {
         let (mut earlier, mut later, mut pairs) = ([0.0; LAGS], [0.0; LAGS], [0.0; LAGS]);
         let (mut last_k, mut first_k) = (0.0, 0.0);
-        let newest = self.win.get(self.pos..self.pos + LAGS).unwrap_or(&[]);
-        for (k, ((a, b), c)) in earlier
+        // win[pos + k] is e_{n−1−k} (pos < LAGS, so LAGS of them are there); a head
+        // shorter than the lags read on as zeros.
+        let newest = self.win.iter().skip(self.pos);
+        let first = self.head.iter().chain(std::iter::repeat(&0.0));
+        for (k, (((a, b), c), (w, h))) in earlier
             .iter_mut()
             .zip(later.iter_mut())
             .zip(pairs.iter_mut())
+            .zip(newest.zip(first))
             .enumerate()
         {
             if k >= self.n {
@@ -149,8 +155,8 @@ impl LaggedSums {
             *a = self.sum - last_k;
             *b = self.sum - first_k;
             *c = (self.n - k) as f64;
-            last_k += newest.get(k).copied().unwrap_or(0.0);
-            first_k += self.head.get(k).copied().unwrap_or(0.0);
+            last_k += w;
+            first_k += h;
         }
         (earlier, later, pairs)
     }
@@ -278,17 +284,18 @@ impl LaggedSums {
         } else {
             self.centring_from_totals()
         };
-        (0..LAGS)
-            .map(|k| {
-                let get = |a: &[f64; LAGS]| a.get(k).copied().unwrap_or(0.0);
-                let (p, f, s, c) = (get(&self.prod), get(&earlier), get(&later), get(&pairs));
-                (p - mean * (f + s) + mean * mean * c) / used
-            })
+        self.prod
+            .iter()
+            .zip(&earlier)
+            .zip(&later)
+            .zip(&pairs)
+            .map(|(((p, f), s), c)| (p - mean * (f + s) + mean * mean * c) / used)
             .collect()
     }
 }
 
 #[cfg(test)]
+#[allow(clippy::indexing_slicing)]
 mod tests {
     use super::{LaggedSums, LAGS};
     use proptest::prelude::*;

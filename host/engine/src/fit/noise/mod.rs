@@ -22,6 +22,8 @@
 //! under it (and the model corrected for what the fit removed), `rails` finds clipped
 //! samples, `lagged` gathers the autocovariances one residual at a time.
 
+#![deny(clippy::indexing_slicing)]
+
 mod lagged;
 mod rails;
 mod regression;
@@ -91,16 +93,24 @@ impl NoiseModel {
         if used < 20 {
             return Err(NoiseError::TooFew(used));
         }
-        let mean = (0..n).filter(|&t| ok(t)).map(|t| e[t]).sum::<f64>() / used as f64;
+        let mean = e
+            .iter()
+            .enumerate()
+            .filter(|&(t, _)| ok(t))
+            .map(|(_, v)| *v)
+            .sum::<f64>()
+            / used as f64;
         let x: Vec<f64> = e.iter().map(|v| v - mean).collect();
         let max_p = MAX_ORDER.min(used / 10);
         // Biased autocovariances (divided by the samples used), pairs with a flagged
         // sample left out.
         let gamma: Vec<f64> = (0..=max_p)
             .map(|k| {
-                (0..n.saturating_sub(k))
-                    .filter(|&t| ok(t) && ok(t + k))
-                    .map(|t| x[t] * x[t + k])
+                x.iter()
+                    .zip(x.iter().skip(k))
+                    .enumerate()
+                    .filter(|&(t, _)| ok(t) && ok(t + k))
+                    .map(|(_, (a, b))| a * b)
                     .sum::<f64>()
                     / used as f64
             })
@@ -117,7 +127,9 @@ impl NoiseModel {
         }
         let max_p = MAX_ORDER.min(used / 10).min(gamma.len().saturating_sub(1));
         let gamma = gamma.get(..=max_p).unwrap_or(gamma);
-        let g0 = gamma.first().copied().unwrap_or(f64::NAN);
+        let Some(&g0) = gamma.first() else {
+            return Err(NoiseError::Constant);
+        };
         if !(g0.is_finite() && g0 > 0.0) {
             return Err(NoiseError::Constant);
         }
@@ -174,18 +186,20 @@ impl NoiseModel {
         if let Some(r) = self.rho.get(lag) {
             return *r;
         }
+        // ρ_k = Σ_i φ_i ρ_{k−1−i}, from k = rho.len() (≤ lag) on.
         let mut rho = self.rho.clone();
-        while rho.len() <= lag {
-            let k = rho.len();
+        loop {
             let next = self
                 .ar
                 .iter()
-                .enumerate()
-                .map(|(i, f)| f * rho[k - 1 - i])
+                .zip(rho.iter().rev())
+                .map(|(f, r)| f * r)
                 .sum();
+            if rho.len() >= lag {
+                return next;
+            }
             rho.push(next);
         }
-        rho[lag]
     }
 
     /// 2π·S(ω)/γ₀ = Σ_k ρ_k cos(kω) at `omega` radians per sample: how many times the
@@ -225,19 +239,17 @@ impl NoiseModel {
 /// below 1 in size (not a stationary process, or the lags run out).
 fn levinson_step(phi: &mut Vec<f64>, gamma: &[f64], v: f64) -> Option<f64> {
     let p = phi.len() + 1;
-    let acc: f64 = phi
-        .iter()
-        .enumerate()
-        .map(|(j, f)| f * gamma.get(p - 1 - j).copied().unwrap_or(f64::NAN))
-        .sum();
-    let kappa = (gamma.get(p)? - acc) / v;
+    // γ_p, and γ_{p−1} … γ_1 against φ_1 … φ_{p−1}.
+    let (gamma_p, lower) = (gamma.get(p)?, gamma.get(1..p)?);
+    let acc: f64 = phi.iter().zip(lower.iter().rev()).map(|(f, g)| f * g).sum();
+    let kappa = (gamma_p - acc) / v;
     if !(kappa.is_finite() && kappa.abs() < 1.0) {
         return None;
     }
     let prev = phi.clone();
     phi.push(kappa);
-    for j in 0..p - 1 {
-        phi[j] = prev[j] - kappa * prev[p - 2 - j];
+    for (f, (a, b)) in phi.iter_mut().zip(prev.iter().zip(prev.iter().rev())) {
+        *f = a - kappa * b;
     }
     Some(v * (1.0 - kappa * kappa))
 }

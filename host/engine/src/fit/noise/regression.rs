@@ -2,6 +2,8 @@
 //! sandwich, through the AR filter), and the model corrected for what the fit took out of
 //! the residuals it was estimated from.
 
+#![deny(clippy::indexing_slicing)]
+
 use super::{levinson_step, NoiseError, NoiseModel};
 use nalgebra::DMatrix;
 
@@ -119,10 +121,16 @@ impl NoiseModel {
         let mut m = self;
         for _ in 0..MAX_STEPS {
             let expected = expected(&m);
-            let next = (expected.first().copied().unwrap_or(0.0) >= 0.5 * m.var)
+            let next = expected
+                .first()
+                .is_some_and(|&e0| e0 >= 0.5 * m.var)
                 .then(|| {
-                    let target: Vec<f64> = (0..=p)
-                        .map(|k| observed[k] + m.var * m.autocorrelation(k) - expected[k])
+                    let target: Vec<f64> = observed
+                        .iter()
+                        .zip(&expected)
+                        .take(p + 1)
+                        .enumerate()
+                        .map(|(k, (o, e))| o + m.var * m.autocorrelation(k) - e)
                         .collect();
                     m.with_autocovariances(&target)
                 })
