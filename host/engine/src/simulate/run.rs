@@ -23,23 +23,22 @@ impl Simulation {
     /// The analog output of channel `ch` (before noise) for specific force `f` (m/s²,
     /// platter frame) at session time `t` and temperature `temp`.
     pub fn analog(&self, ch: Channel, f: [f64; 3], t: f64, temp: f64) -> f64 {
-        let j = ch.index();
-        let (row, sj) = (self.s[j], self.norm[j]);
+        let (row, sj) = (*ch.of(&self.s), *ch.of(&self.norm));
         let e = &self.cfg.effects;
         let a = row.iter().zip(f).map(|(s, f)| s * f).sum::<f64>() / sj;
         let mut resp = a;
         if let Some(n) = &e.nonlinearity_2nd {
-            resp += n.k2[j] * a * a;
+            resp += ch.of(&n.k2) * a * a;
         }
         if let Some(n) = &e.nonlinearity_3rd {
-            resp += n.k3[j] * a * a * a;
+            resp += ch.of(&n.k3) * a * a * a;
         }
-        let mut y = sj * resp + self.cfg.device.offsets[j];
+        let mut y = sj * resp + ch.of(&self.cfg.device.offsets);
         if let Some(d) = &e.offset_drift {
-            y += d.per_s[j] * t;
+            y += ch.of(&d.per_s) * t;
         }
         if let Some(c) = &e.temperature_offset {
-            y += c.per_c[j] * (temp - self.cfg.temperature.t0_c);
+            y += ch.of(&c.per_c) * (temp - self.cfg.temperature.t0_c);
         }
         y
     }
@@ -258,10 +257,7 @@ impl Simulation {
         ch: Channel,
     ) -> [f64; 3] {
         let e = &self.cfg.effects;
-        let tj = tau
-            + e.axis_time_skew
-                .as_ref()
-                .map_or(0.0, |s| s.skew_s[ch.index()]);
+        let tj = tau + e.axis_time_skew.as_ref().map_or(0.0, |s| *ch.of(&s.skew_s));
         let mut alpha = start + omega * tj;
         if let Some(r) = &e.rate_ripple {
             let psi = r.phase_deg.to_radians();
@@ -279,11 +275,8 @@ impl Simulation {
 }
 
 fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ]
+    let ([a0, a1, a2], [b0, b1, b2]) = (a, b);
+    [a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0]
 }
 
 /// `v` turned by `angle` (rad) about the unit `axis` (Rodrigues).
