@@ -15,6 +15,8 @@
 //!
 //! Seeded (ChaCha8), so the same configuration and seed give the same file.
 
+#![deny(clippy::indexing_slicing)]
+
 //!
 //! Here the public types, the truth and the model's preparation; `noise` is the sensor
 //! noise process and its generator, `run` the experiment sample by sample, `write` the
@@ -81,14 +83,14 @@ impl Truth {
 pub fn intrinsic_of(s: &[[f64; 3]; 3]) -> ([f64; 3], [f64; 3]) {
     let dot = |a: &[f64; 3], b: &[f64; 3]| a.iter().zip(b).map(|(x, y)| x * y).sum::<f64>();
     let norm = s.map(|r| dot(&r, &r).sqrt());
-    let angle = |j: usize, k: usize| {
-        (dot(&s[j], &s[k]) / (norm[j] * norm[k]))
-            .clamp(-1.0, 1.0)
-            .acos()
+    let angle = |(sj, nj): (&[f64; 3], f64), (sk, nk): (&[f64; 3], f64)| {
+        (dot(sj, sk) / (nj * nk)).clamp(-1.0, 1.0).acos()
     };
+    let ([s0, s1, s2], [n0, n1, n2]) = (s, norm);
+    let (r0, r1, r2) = ((s0, n0), (s1, n1), (s2, n2));
     (
         norm,
-        [angle(0, 1), angle(1, 2), angle(2, 0)].map(f64::to_degrees),
+        [angle(r0, r1), angle(r1, r2), angle(r2, r0)].map(f64::to_degrees),
     )
 }
 
@@ -182,7 +184,9 @@ impl Simulation {
         let mut outward = [[0.0; 3]; 3];
         for (i, (o, d)) in outward.iter_mut().zip(dirs).enumerate() {
             let mut p = d;
-            p[i] = 0.0;
+            if let Some(pi) = p.get_mut(i) {
+                *pi = 0.0;
+            }
             let n = p.iter().map(|v| v * v).sum::<f64>().sqrt();
             *o = p.map(|v| v / n);
         }

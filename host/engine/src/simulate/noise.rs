@@ -2,6 +2,8 @@
 //! checked stationary, with its autocorrelation and spectrum, and the three channels'
 //! generator that draws it during a run.
 
+#![deny(clippy::indexing_slicing)]
+
 use super::{ConfigError, Noise};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -302,15 +304,11 @@ fn pole_radius(a: &[f64]) -> Option<f64> {
     if p == 0 {
         return Some(0.0);
     }
-    let companion = nalgebra::DMatrix::from_fn(p, p, |i, j| {
-        if i == 0 {
-            -a.get(j).copied().unwrap_or(0.0)
-        } else if i == j + 1 {
-            1.0
-        } else {
-            0.0
-        }
-    });
+    // −a on the first row, ones below the diagonal.
+    let mut companion = nalgebra::DMatrix::from_fn(p, p, |i, j| if i == j + 1 { 1.0 } else { 0.0 });
+    for (m, v) in companion.row_mut(0).iter_mut().zip(a) {
+        *m = -v;
+    }
     let schur = nalgebra::linalg::Schur::try_new(companion, f64::EPSILON, 10_000 * p)?;
     Some(
         schur

@@ -2,6 +2,8 @@
 //! quantisation, the timestamps, for each method (and the free method's path between
 //! poses).
 
+#![deny(clippy::indexing_slicing)]
+
 use super::config;
 use super::noise::NoiseGen;
 use super::{Simulation, Summary};
@@ -117,7 +119,7 @@ impl Simulation {
                         * (1.0 + c.effects.rate_error.as_ref().map_or(0.0, |r| r.relative));
                     for cond in Condition::ALL {
                         let start: f64 = match c.table.start_angle_deg {
-                            Some(a) => a[cond.index()].to_radians(),
+                            Some(a) => of_condition(cond, &a).to_radians(),
                             None => rng.gen::<f64>() * TAU,
                         };
                         for k in 0..n {
@@ -238,7 +240,7 @@ impl Simulation {
                 }
                 end = g;
                 let amp = p.settle_ms2 / c.g_loc * (-tau / 0.1).exp() * (TAU * 12.0 * tau).sin();
-                let g = [0, 1, 2].map(|a| g[a] + amp * ring[a]);
+                let g = zip_map(g, ring, |g, r| g + amp * r);
                 row_at(g, scale, &mut k, rng, sum)?;
             }
             prev = Some(end);
@@ -266,12 +268,28 @@ impl Simulation {
         let mut f = cond.gravity_direction(alpha).map(|v| self.cfg.g_loc * v);
         if let Some(cp) = &e.centripetal {
             let a = omega * omega * cp.radius_m;
-            for (fi, d) in f.iter_mut().zip(self.outward[cond.index()]) {
+            for (fi, d) in f.iter_mut().zip(*of_condition(cond, &self.outward)) {
                 *fi -= a * d;
             }
         }
         f
     }
+}
+
+/// Condition `c`'s element of a per-condition array (x, y, z).
+fn of_condition<T>(c: Condition, per_condition: &[T; 3]) -> &T {
+    let [x, y, z] = per_condition;
+    match c {
+        Condition::X => x,
+        Condition::Y => y,
+        Condition::Z => z,
+    }
+}
+
+/// `f` of `a` and `b` element by element.
+fn zip_map(a: [f64; 3], b: [f64; 3], f: impl Fn(f64, f64) -> f64) -> [f64; 3] {
+    let ([a0, a1, a2], [b0, b1, b2]) = (a, b);
+    [f(a0, b0), f(a1, b1), f(a2, b2)]
 }
 
 fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
@@ -283,13 +301,19 @@ fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
 fn rotate_about(v: [f64; 3], axis: [f64; 3], angle: f64) -> [f64; 3] {
     let (s, c) = angle.sin_cos();
     let k = cross(axis, v);
-    let d: f64 = (0..3).map(|i| axis[i] * v[i]).sum();
-    [0, 1, 2].map(|i| v[i] * c + k[i] * s + axis[i] * d * (1.0 - c))
+    let d: f64 = axis.iter().zip(v).map(|(a, v)| a * v).sum();
+    let turned = zip_map(v, k, |v, k| v * c + k * s);
+    zip_map(turned, axis, |t, a| t + a * d * (1.0 - c))
 }
 
 /// The unit vector a fraction `x` of the way from `a` to `b` along the great circle.
 fn slerp(a: [f64; 3], b: [f64; 3], x: f64) -> [f64; 3] {
-    let d: f64 = (0..3).map(|i| a[i] * b[i]).sum::<f64>().clamp(-1.0, 1.0);
+    let d: f64 = a
+        .iter()
+        .zip(b)
+        .map(|(a, b)| a * b)
+        .sum::<f64>()
+        .clamp(-1.0, 1.0);
     let omega = d.acos();
     if omega < 1e-9 {
         return b;
@@ -298,7 +322,8 @@ fn slerp(a: [f64; 3], b: [f64; 3], x: f64) -> [f64; 3] {
     let n = c.iter().map(|v| v * v).sum::<f64>().sqrt();
     // Opposite directions: any axis across a will do.
     let axis = if n < 1e-12 {
-        let t = if a[0].abs() < 0.9 {
+        let [a0, ..] = a;
+        let t = if a0.abs() < 0.9 {
             [1.0, 0.0, 0.0]
         } else {
             [0.0, 1.0, 0.0]
