@@ -4,6 +4,7 @@
 //! counts (key `effects_ar1`), neither stated in the file. Writes bench/discrepancy.json;
 //! run by scripts/bench-discrepancy. Arguments `white` and/or `ar1` measure only those and
 //! keep the file's other keys.
+#![allow(clippy::indexing_slicing)]
 use rotacal::discrepancy::model::Effect;
 use rotacal::discrepancy::trials::{self, Noise};
 use serde_json::json;

@@ -12,8 +12,6 @@
 //!
 //! The session runs on a paused tokio clock: 13 minutes of device time in seconds.
 
-#![deny(clippy::indexing_slicing)]
-
 use crate::calibrate::json::{CalibrationJson, Quantity, PROPERTY_NAMES};
 use crate::link::simulated::{Faults, SimulatedDevice};
 use crate::record::{self, Options, Outcome, Paths, Plan, Quiet};

@@ -1,8 +1,6 @@
 //! `rotacal`: calibrate triaxial accelerometers by rotation in Earth's gravity.
 //! A thin command-line layer over the `rotacal` library: one file per subcommand in `cli/`.
 
-#![deny(clippy::indexing_slicing)]
-
 use clap::{Parser, Subcommand};
 use std::process::ExitCode;
 

@@ -22,6 +22,9 @@
 //! (BlueZ's default `Cache = always`); a lost link is noticed after the supervision
 //! timeout, failing requests left without an ATT response; notifications need a
 //! subscription and must fit the MTU.
+// A test stand-in, never shipped: it reads and writes D-Bus messages and GATT values of
+// fixed layout, where an index out of range is a bug of the stand-in that its tests show.
+#![allow(clippy::indexing_slicing)]
 
 pub mod bus;
 pub mod gatt;

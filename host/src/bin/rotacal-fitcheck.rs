@@ -3,8 +3,6 @@
 //! optionally merges the QEMU instruction-count benchmark and host throughput, and
 //! writes JSON. Exits 1 if the ratio exceeds the threshold or the runs disagree.
 
-#![deny(clippy::indexing_slicing)]
-
 use anyhow::{Context, Result};
 use clap::Parser;
 use rotacal::verify::emulated;

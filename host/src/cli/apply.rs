@@ -1,7 +1,5 @@
 //! `rotacal apply`: readings corrected to m/s² with a calibration.
 
-#![deny(clippy::indexing_slicing)]
-
 use super::FrameArg;
 use std::path::PathBuf;
 

@@ -1,7 +1,5 @@
 //! `rotacal calibrate`: a recording to its calibration, printed and optionally as JSON.
 
-#![deny(clippy::indexing_slicing)]
-
 use clap::ValueEnum;
 use std::path::PathBuf;
 

@@ -1,7 +1,5 @@
 //! `rotacal crosscheck`: the device's fits against f64 re-fits of the same samples.
 
-#![deny(clippy::indexing_slicing)]
-
 use std::path::PathBuf;
 
 /// `rotacal crosscheck` arguments.

@@ -1,7 +1,5 @@
 //! `rotacal decode`: a recording and its fit log rebuilt from a capture.
 
-#![deny(clippy::indexing_slicing)]
-
 use std::path::PathBuf;
 
 /// `rotacal decode` arguments.

@@ -1,7 +1,5 @@
 //! `rotacal demo`: the main job without hardware (the wiring is `rotacal::demo`).
 
-#![deny(clippy::indexing_slicing)]
-
 use std::path::PathBuf;
 
 /// `rotacal demo` arguments.

@@ -1,7 +1,5 @@
 //! `rotacal discrepancy`: where model and measurement disagree, and which effect explains it.
 
-#![deny(clippy::indexing_slicing)]
-
 use std::path::PathBuf;
 
 /// `rotacal discrepancy` arguments.

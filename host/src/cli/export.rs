@@ -1,7 +1,5 @@
 //! `rotacal export`: the correction as constants to embed.
 
-#![deny(clippy::indexing_slicing)]
-
 use super::FrameArg;
 use clap::ValueEnum;
 use std::path::PathBuf;

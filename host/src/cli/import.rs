@@ -1,7 +1,5 @@
 //! `rotacal import`: the command line of `rotacal::recording::import`.
 
-#![deny(clippy::indexing_slicing)]
-
 use anyhow::Context;
 use rotacal_shared::Condition;
 use std::path::PathBuf;

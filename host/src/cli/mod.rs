@@ -1,8 +1,6 @@
 //! The command line: one file per subcommand, each its arguments (clap) and a `run` that
 //! calls the libraries; the terminal-only parts (progress display) with `record`.
 
-#![deny(clippy::indexing_slicing)]
-
 use clap::ValueEnum;
 
 pub mod apply;

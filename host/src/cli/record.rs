@@ -1,8 +1,6 @@
 //! `rotacal record` and `rotacal decode`: open the link and files, show progress
 //! (indicatif), report the outcome.
 
-#![deny(clippy::indexing_slicing)]
-
 use indicatif::{ProgressBar, ProgressStyle};
 use rotacal::link::ble::{BleLink, Target};
 use rotacal::link::simulated::{Faults, SimulatedDevice};

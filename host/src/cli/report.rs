@@ -1,7 +1,5 @@
 //! `rotacal report`: a Markdown report with plots, calibrated with `calibrate`'s options.
 
-#![deny(clippy::indexing_slicing)]
-
 use std::path::PathBuf;
 
 /// `rotacal report` arguments.

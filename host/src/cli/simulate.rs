@@ -1,7 +1,5 @@
 //! `rotacal simulate`: a recording from the forward model of the experiment.
 
-#![deny(clippy::indexing_slicing)]
-
 use std::path::PathBuf;
 
 /// `rotacal simulate` arguments.

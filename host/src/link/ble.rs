@@ -3,8 +3,6 @@
 //! its vendored source (the `vendored` feature of libdbus-sys), so building needs no
 //! system package, only a running BlueZ when recording.
 
-#![deny(clippy::indexing_slicing)]
-
 use super::{Channel, Link, LinkError};
 use btleplug::api::{
     BDAddr, Central, CentralEvent, Characteristic, Manager as _, Peripheral as _, ScanFilter,

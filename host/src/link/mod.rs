@@ -4,8 +4,6 @@
 //! with faults on demand), so the recorder's handling of drops, reconnects and garbage is
 //! tested without a radio.
 
-#![deny(clippy::indexing_slicing)]
-
 pub mod ble;
 pub mod simulated;
 

@@ -3,8 +3,6 @@
 //! tokio's clock: under a paused runtime (the demo, the tests) a 15-minute session takes
 //! seconds of CPU. Faults on demand ([`Faults`]), for the recorder's tests and dry runs.
 
-#![deny(clippy::indexing_slicing)]
-
 use super::{Channel, Link, LinkError};
 use crate::simulate::emulated::EmulatedDevice;
 pub use crate::simulate::emulated::{Faults, FIRMWARE};

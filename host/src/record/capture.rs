@@ -14,8 +14,6 @@
 //!
 //! A last line without its newline (the host was killed while writing it) is ignored.
 
-#![deny(clippy::indexing_slicing)]
-
 use crate::link::Channel;
 use crate::recording::from_device::{RecordSummary, Recorder, COLUMNS};
 use crate::recording::{self, Metadata, Writer};

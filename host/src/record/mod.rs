@@ -9,8 +9,6 @@
 //! `reconnect_for`. Files are flushed, and with `sync` synced, every second. Then stop,
 //! wait for the final fit report and any tail gap, and finish.
 
-#![deny(clippy::indexing_slicing)]
-
 pub mod capture;
 
 use crate::link::{Channel, Link, LinkError};

@@ -1,8 +1,6 @@
 //! The discrepancy workflow's terminal summary and its report folder (Markdown and SVG:
 //! residuals and their spectrum at k·ω before and after the named effects).
 
-#![deny(clippy::indexing_slicing)]
-
 use crate::discrepancy::{Analysis, Criterion, RateIntrinsic};
 use crate::report::{self, ReportError, Series};
 use rotacal_shared::Channel;

@@ -1,8 +1,6 @@
 //! Method free in the report: the still intervals over the readings' magnitude, the fitted
 //! gravity directions on the sphere, each pose's residual, and their tables.
 
-#![deny(clippy::indexing_slicing)]
-
 use super::{chart, err, legend, range, Envelope, ReportError, COLOURS};
 use crate::calibrate::free::Residual;
 use crate::calibrate::json::{DetectionJson, FreeJson, IntervalJson};

@@ -1,7 +1,12 @@
 //! The host's integration tests, one binary (`cargo test --release -p rotacal --test suite`;
 //! one module: `... --test suite -- coverage::`). One binary links once: nineteen linked
 //! separately took most of a fresh clone's test time.
-#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
+#![allow(
+    clippy::unwrap_used,
+    clippy::expect_used,
+    clippy::panic,
+    clippy::indexing_slicing
+)]
 
 mod apply;
 mod averaging;

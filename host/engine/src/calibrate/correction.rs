@@ -14,8 +14,6 @@
 //! each corrected reading its standard uncertainty from the calibration (the reading's own
 //! noise is not included: it is the measurement, not the correction).
 
-#![deny(clippy::indexing_slicing)]
-
 use nalgebra::{DMatrix, Matrix3, Vector3};
 use rotacal_shared::Channel;
 use serde::{Deserialize, Serialize};

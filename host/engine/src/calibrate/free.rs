@@ -19,8 +19,6 @@
 //! the `levenberg-marquardt` crate (MINPACK's trust region); weights and biases are
 //! refreshed between its runs. The covariance of (L, O) is (JᵀWJ)⁻¹ at the solution.
 
-#![deny(clippy::indexing_slicing)]
-
 use crate::calibrate::budget::coverage_factor;
 use crate::calibrate::still::{median, Interval, Verdict};
 use levenberg_marquardt::{LeastSquaresProblem, LevenbergMarquardt};

@@ -1,7 +1,6 @@
 //! One condition's fit at one rate from its rows: the samples, the IEEE 1057 rate fit and
 //! the choice of rate, the sine fit in f64, the noise model of its residuals and the
 //! fit's covariance under it; and the refit at another rate the budget needs.
-#![deny(clippy::indexing_slicing)]
 
 use super::{err, CalibrateError, CalibrateErrorKind, GroupError, CLOCK};
 use crate::fit::batch;

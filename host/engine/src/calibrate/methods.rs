@@ -5,8 +5,6 @@
 //! properties and the phase-difference angles with their uncertainties
 //! (`rotacal_shared::intrinsic`); and the static stepped method (seed 001).
 
-#![deny(clippy::indexing_slicing)]
-
 use crate::calibrate::poses::{self, PoseError, PoseFit, StaticCondition};
 use crate::fit::batch::{self, BatchError};
 use nalgebra::{DMatrix, DVector};

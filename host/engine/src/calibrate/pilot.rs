@@ -18,8 +18,6 @@
 //! Δ and its slope, and the expansion's remainder. When the bound is not far below the
 //! lagged sums' own scatter, the residual pass runs as before.
 
-#![deny(clippy::indexing_slicing)]
-
 use super::CLOCK;
 use crate::fit::moments::{
     self, pair_row, wide_d, wide_row, Moments, PairSums, PAIR, TREND, WIDE, WIDE_HARMONIC,

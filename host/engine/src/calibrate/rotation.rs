@@ -2,8 +2,6 @@
 //! its rows ([`super::group`]) or from a streamed file's sums ([`super::stream`]), and one
 //! assembly of the entries for both: budgets, corrections, offsets at rest.
 
-#![deny(clippy::indexing_slicing)]
-
 use super::budget::{Budget, Kind};
 use super::group::{fit_group, samples, GroupFit, Refit};
 use super::json::{self, CalibrationJson, CorrectionJson, FitJson, NoiseJson};

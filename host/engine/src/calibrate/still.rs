@@ -12,8 +12,6 @@
 //!
 //! Every candidate is reported with its span, mean, scatter and verdict.
 
-#![deny(clippy::indexing_slicing)]
-
 use crate::fit::noise::NoiseModel;
 use nalgebra::DMatrix;
 use rotacal_shared::Channel;

@@ -6,8 +6,6 @@
 //! columns `u_unc, v_unc, w_unc`: each value's standard uncertainty from the calibration.
 //! So `rotacal calibrate OUT.csv` checks the result: sensitivities 1 and angles 90°.
 
-#![deny(clippy::indexing_slicing)]
-
 use crate::calibrate::correction::{Correction, Frame};
 use crate::calibrate::json::CorrectionJson;
 use crate::recording::{Columns, Metadata, Recording, RecordingError, Row, Scanned, Writer};

@@ -6,8 +6,6 @@
 //! digits; as `f32` (the default, for the Cortex-M4F's FPU) they are rounded to about
 //! 6e-8 relative, far below any calibration uncertainty seen here (≥ 1e-6).
 
-#![deny(clippy::indexing_slicing)]
-
 use crate::calibrate::correction::Correction;
 use crate::calibrate::json::CorrectionJson;
 use std::fmt::Write as _;

@@ -2,7 +2,5 @@
 //! its uncertainty), or [`export`] its correction as constants to embed in firmware. Both
 //! read the calibration JSON ([`crate::calibrate::json`]).
 
-#![deny(clippy::indexing_slicing)]
-
 pub mod apply;
 pub mod export;

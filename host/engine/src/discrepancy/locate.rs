@@ -7,8 +7,6 @@
 //! the model's variance factor at the frequency concerned); those beyond 5 are listed,
 //! largest first.
 
-#![deny(clippy::indexing_slicing)]
-
 use super::model::{Data, Fit};
 use super::RateIntrinsic;
 use rotacal_shared::{Channel, Condition};

@@ -10,8 +10,6 @@
 //! 4. Test every applicable effect by a nested F-test; name the most significant one that
 //!    passes, add it, refit, and repeat until none passes.
 
-#![deny(clippy::indexing_slicing)]
-
 pub mod locate;
 pub mod model;
 pub mod noise;

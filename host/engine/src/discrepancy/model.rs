@@ -26,8 +26,6 @@
 //! a reading the model puts at a rail (fixed by the rail: no residual degree of freedom)
 //! are left out, and not counted in the degrees of freedom.
 
-#![deny(clippy::indexing_slicing)]
-
 use crate::fit::batch::BatchError;
 use crate::fit::noise::NoiseModel;
 use nalgebra::{DMatrix, DVector};

@@ -10,8 +10,6 @@
 //! The models are estimated once, before any physical model is fitted, and held fixed
 //! through the baseline and every step, so nested tests compare like with like.
 
-#![deny(clippy::indexing_slicing)]
-
 use super::model::{Data, GroupData};
 use crate::fit::noise::{self, NoiseError, NoiseModel};
 use nalgebra::{DMatrix, DVector};

@@ -2,8 +2,6 @@
 //! detection-limit benchmark (`scripts/bench-discrepancy`): the data, with one effect of a
 //! given magnitude hidden in it, and the analysis of each seed.
 
-#![deny(clippy::indexing_slicing)]
-
 use super::model::Effect;
 use super::{Analysis, DiscrepancyError, Options};
 use crate::simulate::{Config, ConfigError, ReadBackError, Simulation};

@@ -6,8 +6,6 @@
 //! a given reference tick, so A, B, C mean the same as the streaming fit's re-referenced
 //! values without going through its transformation.
 
-#![deny(clippy::indexing_slicing)]
-
 use nalgebra::{DMatrix, DVector};
 use rotacal_shared::{Aperture, Channel, Model, PhaseStep, TickRate, Ticks};
 use std::f64::consts::TAU;

@@ -1,8 +1,6 @@
 //! Harmonic analysis of fit residuals against the table angle: how much of each harmonic
 //! k·α is left. The report plots it; the discrepancy workflow reads it to name effects.
 
-#![deny(clippy::indexing_slicing)]
-
 use nalgebra::{Matrix3, Vector3};
 
 /// Harmonics of ω whose residual amplitude is reported.

@@ -12,8 +12,6 @@
 //! noise model's widened fit, whose residuals are taken in a second pass at the exact step.
 //! [`Moments::within`] says whether a step is near enough for that.
 
-#![deny(clippy::indexing_slicing)]
-
 use crate::fit::batch::BatchError;
 use nalgebra::{DMatrix, Matrix3, SMatrix, SVector, Vector3};
 use rotacal_shared::{Aperture, PhaseStep, TickRate, Ticks};

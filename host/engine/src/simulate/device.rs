@@ -7,8 +7,6 @@
 //! One condition after another, the device clock at 1 MHz running from the session's
 //! time (its 32-bit counter wraps after 71 min). A temperature every 104 conversions.
 
-#![deny(clippy::indexing_slicing)]
-
 use crate::recording::from_device::{RecordSummary, Recorder};
 use crate::recording::Method;
 use crate::simulate::Simulation;

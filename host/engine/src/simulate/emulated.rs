@@ -9,8 +9,6 @@
 //! a time or in bursts), garbage notifications, a wrong firmware or protocol version, a
 //! different unit after the first outage, and a device that stops answering commands.
 
-#![deny(clippy::indexing_slicing)]
-
 use crate::recording::from_device::{encode, Channel};
 use crate::simulate::device::Conversion;
 use crate::simulate::Simulation;

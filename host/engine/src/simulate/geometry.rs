@@ -1,7 +1,5 @@
 //! Rotations of the device on the platter (mounting misalignment).
 
-#![deny(clippy::indexing_slicing)]
-
 /// The rotation by `deg` degrees about `axis` (any non-zero length), by Rodrigues'
 /// formula.
 pub fn rotation(axis: [f64; 3], deg: f64) -> [[f64; 3]; 3] {

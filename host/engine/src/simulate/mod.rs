@@ -15,8 +15,6 @@
 //!
 //! Seeded (ChaCha8), so the same configuration and seed give the same file.
 
-#![deny(clippy::indexing_slicing)]
-
 //!
 //! Here the public types, the truth and the model's preparation; `noise` is the sensor
 //! noise process and its generator, `run` the experiment sample by sample, `write` the

@@ -2,8 +2,6 @@
 //! checked stationary, with its autocorrelation and spectrum, and the three channels'
 //! generator that draws it during a run.
 
-#![deny(clippy::indexing_slicing)]
-
 use super::{ConfigError, Noise};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;

@@ -2,8 +2,6 @@
 //! quantisation, the timestamps, for each method (and the free method's path between
 //! poses).
 
-#![deny(clippy::indexing_slicing)]
-
 use super::config;
 use super::noise::NoiseGen;
 use super::{Simulation, Summary};

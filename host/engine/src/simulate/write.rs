@@ -1,8 +1,6 @@
 //! A run's outputs: the recording written to a file or to memory and read back (directly
 //! or through the device's logic), and the summary for the terminal.
 
-#![deny(clippy::indexing_slicing)]
-
 use super::device;
 use super::{ReadBackError, Simulation, Summary};
 use crate::recording::{self, Recording, Writer};

@@ -6,8 +6,6 @@
 //! compared. The host also runs the f32 streaming fit itself: its bits must equal the
 //! device's, which shows that the device's numbers are reproducible off the device.
 
-#![deny(clippy::indexing_slicing)]
-
 use crate::fit::batch;
 use crate::verify::sigma_crlb;
 use rotacal_shared::synth::{crosscheck, Checksum, Synth, SynthSpec};

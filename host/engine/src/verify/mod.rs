@@ -6,8 +6,6 @@
 //! - [`emulated`]: the emulated Cortex-M4F's f32 fits of synthetic records (QEMU);
 //! - [`session`]: the emulated device logic's packets for a whole simulated session.
 
-#![deny(clippy::indexing_slicing)]
-
 pub mod emulated;
 pub mod recorded;
 pub mod session;

@@ -7,8 +7,6 @@
 //! standard deviation), and every window complete. The default threshold, 0.01, is the
 //! accuracy issue 2 requires of the device's f32 fit.
 
-#![deny(clippy::indexing_slicing)]
-
 use crate::recording::from_device::{FitLine, LogLine};
 use crate::recording::Recording;
 use crate::verify::{compare, VerifyError};

@@ -4,8 +4,6 @@
 //! equal an f64 batch fit (nalgebra QR, independent of the streaming fit) of exactly the
 //! samples of its window; the quick-look must equal the Gram form on those f64 fits.
 
-#![deny(clippy::indexing_slicing)]
-
 use crate::fit::batch::{BatchChannel, BatchFit};
 use crate::recording::from_device::FitLine;
 use rotacal_shared::device::simulated::SessionSpec;
@@ -166,7 +164,8 @@ pub fn check(device: &[Vec<u8>]) -> Result<SessionReport, SessionError> {
         .or((device.len() != host.len()).then_some(device.len().min(host.len())));
     let mut packets = Vec::with_capacity(device.len());
     for (i, bytes) in device.iter().enumerate() {
-        packets.push(Packet::decode(bytes).map_err(|cause| SessionError::Packet { index: i, cause })?);
+        packets
+            .push(Packet::decode(bytes).map_err(|cause| SessionError::Packet { index: i, cause })?);
     }
     let mut samples: Vec<(u32, Aperture, [f64; 3])> = Vec::new();
     for p in &packets {

@@ -3,7 +3,12 @@
 //! public API, so they build without the application and its device crates (tokio,
 //! btleplug, dbus, plotters, clap, indicatif): `scripts/test-all` checks that with
 //! `cargo tree`. One binary links once.
-#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
+#![allow(
+    clippy::unwrap_used,
+    clippy::expect_used,
+    clippy::panic,
+    clippy::indexing_slicing
+)]
 
 mod budget;
 mod config;

@@ -2,6 +2,8 @@
 //! squares, τ_j by Paule–Mandel), then jointly where the poses allow ([`super::tilt`]),
 //! with the design's conditioning, the residuals, the poses not still and imucal's
 //! axis-pair offsets.
+// Not yet free of unchecked indexing (docs/architecture.md, "Not yet").
+#![allow(clippy::indexing_slicing)]
 
 use super::gather::direction_name;
 use super::tilt::{bracket, joint_fit};

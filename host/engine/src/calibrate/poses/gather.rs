@@ -1,6 +1,5 @@
 //! The poses from the readings: repeated readings at one orientation averaged into a
 //! pose mean, with its standard error from the readings' own noise.
-#![deny(clippy::indexing_slicing)]
 
 use super::{Pose, PoseError, PoseNoise, StaticCondition, NOISE_MODEL_MIN};
 use crate::recording::Oriented;

@@ -16,6 +16,8 @@
 //! poses from the readings, `fit` fits them (each channel alone, then jointly where it
 //! can), `tilt` is the joint fit with the pose-tilt random effect, and `weigh` holds the
 //! covariance's parts and how they weigh into one quantity's variance.
+// Not yet free of unchecked indexing (docs/architecture.md, "Not yet").
+#![allow(clippy::indexing_slicing)]
 
 mod fit;
 mod gather;

@@ -1,7 +1,6 @@
 //! The joint fit of the three channels with the pose-tilt random effect: generalised
 //! least squares with a 3×3 covariance per pose mean, the tilt variance found by
 //! bisection of χ² (the bisection also serves the per-channel scatter τ_j).
-#![deny(clippy::indexing_slicing)]
 
 use super::TILT_MAX_RAD;
 use super::{o_index, s_index, Cov12, CovPart, Design, PartSource, Pose, Theta, TiltScale};

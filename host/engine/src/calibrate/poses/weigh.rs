@@ -1,5 +1,7 @@
 //! The covariance of (S, O) in independent parts, as the joint or the per-channel fit
 //! gives them, and how the parts weigh into one quantity's variance and degrees of freedom.
+// Not yet free of unchecked indexing (docs/architecture.md, "Not yet").
+#![allow(clippy::indexing_slicing)]
 
 use super::tilt::Gls;
 use super::{

@@ -1,6 +1,5 @@
 //! A streamed group's fits from its sums: prepared after pass 1 (and a correcting pass),
 //! finished with the residuals' sums (from the pilots or the residual pass).
-#![deny(clippy::indexing_slicing)]
 
 use super::first::GroupState;
 use super::{REACH_FIT, REACH_REFIT};

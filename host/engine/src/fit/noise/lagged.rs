@@ -1,8 +1,6 @@
 //! The residuals' lagged sums, gathered one residual at a time and joined across parts
 //! of a series: the streaming engine's autocovariances.
 
-#![deny(clippy::indexing_slicing)]
-
 use super::MAX_ORDER;
 
 /// The sample autocovariances of a series of residuals at lags 0 … [`MAX_ORDER`], gathered

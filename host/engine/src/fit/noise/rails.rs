@@ -1,8 +1,6 @@
 //! Clipped samples: the readings piled up at a channel's rails, found in a whole series
 //! or gathered one reading at a time.
 
-#![deny(clippy::indexing_slicing)]
-
 /// Readings at a channel's rails: the smallest (largest) value, when at least three
 /// readings sit exactly on it and more than on the next value inward, as a clipping sensor
 /// piles them up.

@@ -2,8 +2,6 @@
 //! sandwich, through the AR filter), and the model corrected for what the fit took out of
 //! the residuals it was estimated from.
 
-#![deny(clippy::indexing_slicing)]
-
 use super::{levinson_step, NoiseError, NoiseModel};
 use nalgebra::DMatrix;
 

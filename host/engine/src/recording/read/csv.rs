@@ -1,8 +1,6 @@
 //! The csv crate's reader: any file formats.md allows, quotes included, with every check;
 //! the one that names a problem.
 
-#![deny(clippy::indexing_slicing)]
-
 use std::io::{self, BufReader, Read};
 
 use super::head::{ColumnIndex, Parser, Res};

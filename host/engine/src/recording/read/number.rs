@@ -1,8 +1,6 @@
 //! Decimal numbers from bytes, read exactly as `str::parse::<f64>` reads them: plain
 //! decimals by a fast path, anything else by fast-float2.
 
-#![deny(clippy::indexing_slicing)]
-
 /// A decimal number as `str::parse::<f64>` reads it (correctly rounded): plain decimals
 /// by [`plain_decimal`], anything else by fast-float2.
 pub(super) fn parse_number(f: &[u8]) -> Option<f64> {

@@ -1,7 +1,5 @@
 //! What is wrong with a configuration, naming the key, the file or the preset.
 
-#![deny(clippy::indexing_slicing)]
-
 use super::PRESETS;
 use crate::simulate::FilterError;
 

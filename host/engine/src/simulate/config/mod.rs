@@ -7,8 +7,6 @@
 //! Here the configuration's types, presets and loading; `validate` checks every key's
 //! range and combination, `error` says what is wrong and where.
 
-#![deny(clippy::indexing_slicing)]
-
 mod error;
 mod validate;
 

@@ -1,8 +1,6 @@
 //! Every key's range and the combinations allowed, section by section in a fixed order,
 //! so the first error reported is always the same one.
 
-#![deny(clippy::indexing_slicing)]
-
 use super::{
     Centripetal, Config, ConfigError, Device, Effects, FreePoses, Mounting, Table, Temperature,
     Timing,
