@@ -3,6 +3,8 @@
 // Not yet free of unchecked indexing (docs/architecture.md, "Not yet").
 #![allow(clippy::indexing_slicing)]
 
+#![deny(clippy::indexing_slicing)]
+
 use super::first::{find_group, key_of, over_parts, read_pass, Key};
 use super::fits::{on_rails, sine_pair, Prepared, Residuals};
 use super::{Engine, FileError, REACH_FIT};
@@ -11,7 +13,7 @@ use crate::calibrate::{err, CalibrateErrorKind, GroupError, CLOCK};
 use crate::fit::moments::{self, Moments};
 use crate::fit::noise::Rails;
 use crate::recording::{self, Parse, PartRow, Scanned};
-use rotacal_shared::{Aperture, PhaseStep};
+use rotacal_shared::{Aperture, Channel, PhaseStep};
 
 impl Engine<'_> {
     /// A pass over the file handing the rows of the groups in `wanted` (with their
@@ -268,9 +270,10 @@ impl Engine<'_> {
             a.into_iter()
                 .zip(b)
                 .map(|(a, b)| Residuals {
-                    lagged: [0, 1, 2].map(|ch| a.lagged[ch].followed_by(&b.lagged[ch])),
-                    rss_fitted: [0, 1, 2].map(|ch| a.rss_fitted[ch] + b.rss_fitted[ch]),
-                    rss_nominal: [0, 1, 2].map(|ch| a.rss_nominal[ch] + b.rss_nominal[ch]),
+                    lagged: Channel::ALL.map(|ch| ch.of(&a.lagged).followed_by(ch.of(&b.lagged))),
+                    rss_fitted: Channel::ALL.map(|ch| ch.of(&a.rss_fitted) + ch.of(&b.rss_fitted)),
+                    rss_nominal: Channel::ALL
+                        .map(|ch| ch.of(&a.rss_nominal) + ch.of(&b.rss_nominal)),
                 })
                 .collect()
         };
