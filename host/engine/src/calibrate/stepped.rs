@@ -3,6 +3,8 @@
 // Not yet free of unchecked indexing (docs/architecture.md, "Not yet").
 #![allow(clippy::indexing_slicing)]
 
+#![deny(clippy::indexing_slicing)]
+
 use super::budget::{Budget, Kind};
 use super::json::{self, CorrectionJson};
 use super::poses::{self, StaticCondition};
@@ -11,7 +13,7 @@ use super::{
     correction, err, methods, CalibrateError, CalibrateErrorKind, Options, Preflight, TypeB,
 };
 use crate::recording::Recording;
-use nalgebra::DMatrix;
+use nalgebra::{DMatrix, SMatrix, Vector3};
 use rotacal_shared::intrinsic::{self, IntrinsicError};
 
 /// The pose fit's options with the stated table-angle uncertainty.
@@ -109,20 +111,16 @@ fn static_json(
 pub fn static_correction(
     cal: &methods::StaticCalibration,
 ) -> Result<(correction::Correction, correction::Correction), correction::CorrectionError> {
-    let mut cov = DMatrix::zeros(correction::PARAMS, correction::PARAMS);
     let joint = cal.pose_fit.options.offsets == poses::OffsetEstimator::Joint;
     let full = &cal.pose_fit.cov;
-    for a in 0..12 {
-        for b in 0..12 {
-            if joint || (a < 9 && b < 9) {
-                cov[(a, b)] = full[(a, b)];
-            }
-        }
-    }
+    let (rows, cols) = full.shape();
+    let mut cov = DMatrix::from_iterator(rows, cols, full.iter().copied());
     if !joint {
-        for j in 0..3 {
-            cov[(9 + j, 9 + j)] = cal.offsets[j].std_unc.powi(2);
-        }
+        // imucal's offsets: S's block kept, the offsets' rows and columns their variances.
+        cov.view_mut((9, 0), (3, 12)).fill(0.0);
+        cov.view_mut((0, 9), (12, 3)).fill(0.0);
+        cov.view_mut((9, 9), (3, 3))
+            .set_diagonal(&Vector3::from(cal.offsets.map(|o| o.std_unc.powi(2))));
     }
     correction::from_matrix(&cal.s, cal.offsets.map(|o| o.value), &cov)
 }
@@ -144,8 +142,10 @@ pub fn static_budget(
         let s_part = poses::s_block(&part.theta);
         let prop = intrinsic::from_matrix_cov(&cal.s, &s_part)?;
         let mut var = [0.0; 9];
-        for (q, v) in var.iter_mut().take(6).enumerate() {
-            *v = prop.cov[q][q];
+        // (The diagonal of the transpose nalgebra makes of the rows.)
+        let diagonal = SMatrix::<f64, 6, 6>::from(prop.cov).diagonal();
+        for (v, d) in var.iter_mut().zip(diagonal.iter()) {
+            *v = *d;
         }
         for (v, o) in var.iter_mut().skip(6).zip(fit.offset_var(part)) {
             *v = o;
@@ -160,15 +160,13 @@ pub fn static_budget(
         .chain(unit)
         .map(|c| Ok((c, forms(c)?)))
         .collect::<Result<Vec<_>, IntrinsicError>>()?;
-    let of = |q: usize| {
-        let cache = &cache;
-        move |c: &poses::CovPart| {
-            cache
-                .iter()
-                .find(|(p, _)| std::ptr::eq(*p, c))
-                .map_or(0.0, |(_, v)| v[q])
+    // Per quantity, each part's variance.
+    let mut by_quantity: [Vec<(&poses::CovPart, f64)>; 9] = Default::default();
+    for (part, var) in &cache {
+        for (list, v) in by_quantity.iter_mut().zip(var) {
+            list.push((*part, *v));
         }
-    };
+    }
     for (part, var) in &cache {
         if part.source == poses::PartSource::TableAngle {
             let u = inputs.u_angle_deg.unwrap_or(f64::NAN);
@@ -186,9 +184,15 @@ pub fn static_budget(
         }
     }
     let weigh = fit.weighing();
-    let (contribution, dof): (Vec<f64>, Vec<Option<f64>>) = (0..9)
-        .map(|q| {
-            let (var, nu) = weigh.poses(of(q));
+    let (contribution, dof): (Vec<f64>, Vec<Option<f64>>) = by_quantity
+        .iter()
+        .map(|list| {
+            let of = |c: &poses::CovPart| {
+                list.iter()
+                    .find(|(p, _)| std::ptr::eq(*p, c))
+                    .map_or(0.0, |(_, v)| *v)
+            };
+            let (var, nu) = weigh.poses(of);
             (var.max(0.0).sqrt(), nu.is_finite().then_some(nu))
         })
         .unzip();
