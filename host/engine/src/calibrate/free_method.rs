@@ -3,6 +3,8 @@
 // Not yet free of unchecked indexing (docs/architecture.md, "Not yet").
 #![allow(clippy::indexing_slicing)]
 
+#![deny(clippy::indexing_slicing)]
+
 use super::budget::Kind;
 use super::json::{self, CorrectionJson};
 use super::sources::{gravity_source, new_budget, values6};
@@ -10,7 +12,7 @@ use super::{
     correction, err, free, poses, still, CalibrateError, CalibrateErrorKind, Options, Preflight,
 };
 use crate::recording::Recording;
-use nalgebra::DMatrix;
+use nalgebra::{DMatrix, SMatrix};
 use rotacal_shared::intrinsic;
 use std::borrow::Cow;
 
@@ -78,9 +80,12 @@ pub fn segments(rec: &Recording) -> Result<Vec<Segment<'_>>, CalibrateError> {
         out.push(Segment {
             label: format!("condition {}{rate}", g.condition.letter()),
             t_s: clock(rec, n, t, g.first_line)?,
+            // (A group's three columns have a value in every row.)
             y: Cow::Owned(
-                (0..n)
-                    .map(|i| [&g.u, &g.v, &g.w].map(|c| c.get(i).copied().unwrap_or(f64::NAN)))
+                g.u.iter()
+                    .zip(&g.v)
+                    .zip(&g.w)
+                    .map(|((u, v), w)| [*u, *v, *w])
                     .collect(),
             ),
             // Rows of a group are consecutive lines unless the file interleaves them.
@@ -166,13 +171,22 @@ pub(super) fn entry(
     let s_cov = poses::s_block(&fit.cov);
     let intr = intrinsic::from_matrix_cov(&fit.l, &s_cov)
         .map_err(|e| err(rec, None, CalibrateErrorKind::Intrinsic(e)))?;
-    let offsets = [0, 1, 2].map(|j| intrinsic::Estimate {
-        value: fit.offsets[j],
-        std_unc: fit.cov[(9 + j, 9 + j)].max(0.0).sqrt(),
-    });
+    // (S row-major, O): O's variances are the last three of the diagonal.
+    let [.., var_u, var_v, var_w]: [f64; 12] = fit.cov.diagonal().into();
+    let [o_u, o_v, o_w] = fit.offsets;
+    let offsets =
+        [(o_u, var_u), (o_v, var_v), (o_w, var_w)].map(|(value, var)| intrinsic::Estimate {
+            value,
+            std_unc: var.max(0.0).sqrt(),
+        });
     // The budget: the poses (noise, and τ when estimated) and g_loc.
     let mut b = new_budget(units, true);
-    let mut contribution: Vec<f64> = (0..6).map(|q| intr.cov[q][q].max(0.0).sqrt()).collect();
+    // (The diagonal of the transpose nalgebra makes of the rows.)
+    let mut contribution: Vec<f64> = SMatrix::<f64, 6, 6>::from(intr.cov)
+        .diagonal()
+        .iter()
+        .map(|v| v.max(0.0).sqrt())
+        .collect();
     contribution.extend(offsets.iter().map(|o| o.std_unc));
     let nu = fit.nu.is_finite().then_some(fit.nu);
     let description = if fit.tau_ms2 > 0.0 {
@@ -211,7 +225,7 @@ pub(super) fn entry(
     }
     b.combine();
     let mut entry = json::free_entry(&intr, &offsets, &b, &fit, &detections);
-    let cov12 = DMatrix::from_fn(12, 12, |i, j| fit.cov[(i, j)]);
+    let cov12 = DMatrix::from_iterator(12, 12, fit.cov.iter().copied());
     let (device, _) =
         correction::from_matrix(&fit.l, fit.offsets, &cov12).map_err(|e| err(rec, None, e))?;
     entry.correction = Some(CorrectionJson::new(
