@@ -5,6 +5,8 @@
 // Not yet free of unchecked indexing (docs/architecture.md, "Not yet").
 #![allow(clippy::indexing_slicing)]
 
+#![deny(clippy::indexing_slicing)]
+
 use super::budget::{Budget, Kind};
 use super::json::{self, CalibrationJson, FreeJson, NoiseJson, PosesJson, RateJson};
 use super::methods::McSummary;
@@ -332,11 +334,11 @@ fn render_correction(cj: &json::CorrectionJson) -> String {
         o,
         "  correction a = M·(y − O) to m/s² (device frame; JSON 'correction'; rotacal apply/export):"
     );
-    for (i, row) in d.matrix.iter().enumerate() {
+    for (i, (row, offset)) in d.matrix.iter().zip(&d.offset).enumerate() {
         let _ = writeln!(
             o,
             "    M[{i}] = [{:+.8} {:+.8} {:+.8}]  O[{i}] = {:+.6} {}",
-            row[0], row[1], row[2], d.offset[i], cj.units_in
+            row[0], row[1], row[2], offset, cj.units_in
         );
     }
     o
@@ -358,14 +360,15 @@ fn render_monte_carlo(r: &RateJson, mc: &BTreeMap<String, McSummary>) -> String 
             .iter()
             .find(|x| x.kind == Kind::A && (x.source == "fits" || x.source == "poses"))
     });
-    for (i, (key, q)) in json::MC_KEYS
+    // The type-A source's contribution to each property in turn.
+    let mut type_a = type_a
+        .into_iter()
+        .flat_map(|x| x.contribution.iter().copied());
+    for (key, q) in json::MC_KEYS
         .iter()
         .zip([&s.u, &s.v, &s.w, &a.uv, &a.vw, &a.wu])
-        .enumerate()
     {
-        let linear = type_a
-            .and_then(|x| x.contribution.get(i).copied())
-            .unwrap_or(q.std_unc);
+        let linear = type_a.next().unwrap_or(q.std_unc);
         if let Some(m) = mc.get(*key) {
             let _ = writeln!(
                 o,
