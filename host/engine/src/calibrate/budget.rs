@@ -4,6 +4,8 @@
 //! quadrature (they are independent), the effective degrees of freedom by Welch–
 //! Satterthwaite, and a coverage factor per property (docs/uncertainty.md).
 
+#![deny(clippy::indexing_slicing)]
+
 use serde::Serialize;
 
 /// Type A (evaluated from the data) or type B (from other knowledge).
@@ -130,19 +132,24 @@ impl Budget {
 
     /// Combine: u_c² = Σ u_i², ν_eff = u_c⁴ / Σ(u_i⁴/ν_i), k = t₉₇.₅(ν_eff) (at least 2).
     pub fn combine(&mut self) {
-        self.combined = (0..self.quantities.len())
-            .map(|i| {
-                let terms: Vec<(f64, Option<f64>, &str)> = self
-                    .sources
-                    .iter()
-                    .map(|s| {
-                        (
-                            s.contribution.get(i).copied().unwrap_or(0.0),
-                            s.dof.get(i).copied().flatten(),
-                            s.source.as_str(),
-                        )
-                    })
-                    .collect();
+        // Per property, each source's (contribution, degrees of freedom, name): a source
+        // counts for the properties its lists cover (every source here covers them all).
+        let mut per_quantity: Vec<Vec<(f64, Option<f64>, &str)>> = self
+            .quantities
+            .iter()
+            .map(|_| Vec::with_capacity(self.sources.len()))
+            .collect();
+        for s in &self.sources {
+            let terms = s.contribution.iter().zip(&s.dof);
+            for (list, (u, nu)) in per_quantity.iter_mut().zip(terms) {
+                list.push((*u, *nu, s.source.as_str()));
+            }
+        }
+        self.combined = self
+            .quantities
+            .iter()
+            .zip(per_quantity)
+            .map(|(quantity, terms)| {
                 let var: f64 = terms.iter().map(|t| t.0 * t.0).sum();
                 let denom: f64 = terms
                     .iter()
@@ -164,7 +171,7 @@ impl Budget {
                     .to_string();
                 let std_unc = var.sqrt();
                 Combined {
-                    quantity: self.quantities.get(i).cloned().unwrap_or_default(),
+                    quantity: quantity.clone(),
                     std_unc,
                     nu_eff,
                     k,
