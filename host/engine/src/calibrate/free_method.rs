@@ -224,7 +224,13 @@ pub(super) fn entry(
         );
     }
     b.combine();
-    let mut entry = json::free_entry(&intr, &offsets, &b, &fit, &detections);
+    let mut entry = json::free_entry(&intr, &offsets, &b, &fit, &detections).ok_or_else(|| {
+        err(
+            rec,
+            None,
+            CalibrateErrorKind::Internal("a budget without a line per property"),
+        )
+    })?;
     let cov12 = DMatrix::from_iterator(12, 12, fit.cov.iter().copied());
     let (device, _) =
         correction::from_matrix(&fit.l, fit.offsets, &cov12).map_err(|e| err(rec, None, e))?;

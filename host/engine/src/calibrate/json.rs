@@ -4,6 +4,8 @@
 // Not yet free of unchecked indexing (docs/architecture.md, "Not yet").
 #![allow(clippy::indexing_slicing)]
 
+#![deny(clippy::indexing_slicing)]
+
 use crate::calibrate::correction::Correction;
 use crate::calibrate::methods::{RotationCalibration, StaticCalibration};
 use crate::calibrate::poses::{self, OffsetEstimator, Weights};
@@ -211,7 +213,7 @@ fn poses_json(f: &poses::PoseFit) -> PosesJson {
         offsets_axis_pairs: f.offsets_axis_pairs.map(|o| uvw_k(o, f.k)),
         offsets_difference: f
             .offsets_axis_pairs
-            .map(|o| [0, 1, 2].map(|j| f.offsets_joint[j].value - o[j].value)),
+            .map(|o| Channel::ALL.map(|ch| ch.of(&f.offsets_joint).value - ch.of(&o).value)),
         list: f
             .poses
             .iter()
@@ -422,58 +424,58 @@ pub struct CalibrationJson {
     pub by_rate: Vec<RateJson>,
 }
 
-/// Property `i` of a budget as a [`Quantity`] with `value` and its combined uncertainty.
-fn budget_quantity(b: &crate::calibrate::budget::Budget, i: usize, value: f64) -> Quantity {
-    match b.combined.get(i) {
-        Some(c) => Quantity {
-            value,
-            std_unc: c.std_unc,
-            expanded_unc: c.expanded_unc,
-            k: c.k,
-        },
-        None => Quantity::from(Estimate {
-            value,
-            std_unc: f64::NAN,
-        }),
-    }
+/// Property `i` of a budget as a [`Quantity`] with `value` and its combined uncertainty
+/// (none when the budget has no line `i`).
+fn budget_quantity(b: &crate::calibrate::budget::Budget, i: usize, value: f64) -> Option<Quantity> {
+    b.combined.get(i).map(|c| Quantity {
+        value,
+        std_unc: c.std_unc,
+        expanded_unc: c.expanded_unc,
+        k: c.k,
+    })
 }
 
 /// `intrinsic`: the values, each with the uncertainty of its combined line in the budget
-/// (in the order s_u … φ_wu, then the offsets).
+/// (in the order s_u … φ_wu, then the offsets); none when the budget lacks one of them.
 fn intrinsic_json(
     i: &rotacal_shared::intrinsic::Intrinsic,
     offsets: Option<&[Estimate; 3]>,
     budget: &crate::calibrate::budget::Budget,
-) -> IntrinsicJson {
+) -> Option<IntrinsicJson> {
     let q = |k: usize, e: &Estimate| budget_quantity(budget, k, e.value);
-    let uvw = |e: &[Estimate; 3], at: usize| Uvw {
-        u: q(at, &e[0]),
-        v: q(at + 1, &e[1]),
-        w: q(at + 2, &e[2]),
+    let uvw = |[u, v, w]: &[Estimate; 3], at: usize| -> Option<Uvw> {
+        Some(Uvw {
+            u: q(at, u)?,
+            v: q(at + 1, v)?,
+            w: q(at + 2, w)?,
+        })
     };
     let [uv, vw, wu] = &i.angle_deg;
-    IntrinsicJson {
-        sensitivity: uvw(&i.sensitivity, 0),
+    Some(IntrinsicJson {
+        sensitivity: uvw(&i.sensitivity, 0)?,
         angle_deg: Pairs {
-            uv: q(3, uv),
-            vw: q(4, vw),
-            wu: q(5, wu),
+            uv: q(3, uv)?,
+            vw: q(4, vw)?,
+            wu: q(5, wu)?,
         },
-        offset: offsets.map(|o| uvw(o, 6)),
-    }
+        offset: match offsets {
+            Some(o) => Some(uvw(o, 6)?),
+            None => None,
+        },
+    })
 }
 
 /// The `by_rate` entry of a rotation calibration: the values, with the uncertainties of
-/// the budget.
+/// the budget (none when the budget lacks a property).
 pub fn rotation_entry(
     rate_hz: f64,
     cal: &RotationCalibration,
     budget: &crate::calibrate::budget::Budget,
     fits: Vec<FitJson>,
-) -> RateJson {
-    RateJson {
+) -> Option<RateJson> {
+    Some(RateJson {
         rate_hz: Some(rate_hz),
-        intrinsic: intrinsic_json(&cal.intrinsic, None, budget),
+        intrinsic: intrinsic_json(&cal.intrinsic, None, budget)?,
         angle_deg_phase_method: Some(pairs(cal.phase_angles_deg)),
         sensitivity_matrix: None,
         fits,
@@ -483,15 +485,15 @@ pub fn rotation_entry(
         free: None,
         noise: None,
         uncertainty_budget: None,
-    }
+    })
 }
 
 /// The `by_rate` entry of a static calibration: the values, with the uncertainties of the
-/// budget (properties s_u … φ_wu, O_u, O_v, O_w).
+/// budget (properties s_u … φ_wu, O_u, O_v, O_w; none when the budget lacks one).
 pub fn static_entry(
     cal: &StaticCalibration,
     budget: &crate::calibrate::budget::Budget,
-) -> RateJson {
+) -> Option<RateJson> {
     let mut fits = Vec::new();
     for (condition, per_ch) in Condition::ALL.into_iter().zip(cal.fits.iter().flatten()) {
         for (channel, f) in Channel::ALL.into_iter().zip(per_ch) {
@@ -510,9 +512,9 @@ pub fn static_entry(
             });
         }
     }
-    RateJson {
+    Some(RateJson {
         rate_hz: None,
-        intrinsic: intrinsic_json(&cal.intrinsic, Some(&cal.offsets), budget),
+        intrinsic: intrinsic_json(&cal.intrinsic, Some(&cal.offsets), budget)?,
         angle_deg_phase_method: None,
         sensitivity_matrix: Some(MatrixJson {
             value: cal.s,
@@ -525,7 +527,7 @@ pub fn static_entry(
         free: None,
         noise: None,
         uncertainty_budget: None,
-    }
+    })
 }
 
 /// One candidate interval in `free.detection[].intervals`.
@@ -572,7 +574,8 @@ pub struct FreeJson {
     pub suggestion: Option<String>,
 }
 
-/// The `by_rate` entry of a free calibration (properties s_u … φ_wu, O_u, O_v, O_w).
+/// The `by_rate` entry of a free calibration (properties s_u … φ_wu, O_u, O_v, O_w; none
+/// when the budget lacks one).
 pub fn free_entry(
     intr: &rotacal_shared::intrinsic::Intrinsic,
     offsets: &[Estimate; 3],
@@ -583,7 +586,7 @@ pub fn free_entry(
         Option<crate::calibrate::still::Detection>,
         Vec<crate::calibrate::still::Interval>,
     )],
-) -> RateJson {
+) -> Option<RateJson> {
     let detection = detections
         .iter()
         .map(|(label, d, iv)| {
@@ -604,9 +607,9 @@ pub fn free_entry(
             }
         })
         .collect();
-    RateJson {
+    Some(RateJson {
         rate_hz: None,
-        intrinsic: intrinsic_json(intr, Some(offsets), budget),
+        intrinsic: intrinsic_json(intr, Some(offsets), budget)?,
         angle_deg_phase_method: None,
         sensitivity_matrix: None,
         fits: Vec::new(),
@@ -626,5 +629,5 @@ pub fn free_entry(
         }),
         noise: None,
         uncertainty_budget: None,
-    }
+    })
 }

@@ -196,7 +196,13 @@ fn rotation_entry(
     let cal = methods::rotation(&cf, g).map_err(|e| at_rate(e.into()))?;
     let budget = rotation_budget(fits, refits, &cal, g, set.inputs, set.units).map_err(at_rate)?;
     let json_fits = fits.iter().flat_map(fit_json).collect();
-    let mut entry = json::rotation_entry(nominal, &cal, &budget, json_fits);
+    let mut entry = json::rotation_entry(nominal, &cal, &budget, json_fits).ok_or_else(|| {
+        err(
+            rec,
+            None,
+            CalibrateErrorKind::Internal("a budget without a line per property"),
+        )
+    })?;
     entry.noise = Some(fits.iter().flat_map(noise_json).collect());
     entry.uncertainty_budget = Some(budget);
     let device = rotation_correction(fits, g).map_err(|e| at_rate(e.into()))?;

@@ -73,7 +73,13 @@ fn static_json(
     let units = pre.units.as_str();
     let budget = static_budget(cal, pre.g_loc, &pre.inputs, units)
         .map_err(|e| err(rec, None, CalibrateErrorKind::StaticBudget(e)))?;
-    let mut entry = json::static_entry(cal, &budget);
+    let mut entry = json::static_entry(cal, &budget).ok_or_else(|| {
+        err(
+            rec,
+            None,
+            CalibrateErrorKind::Internal("a budget without a line per property"),
+        )
+    })?;
     entry.uncertainty_budget = Some(budget);
     if let Some(trials) = opts.monte_carlo {
         let mc = methods::monte_carlo_static(cal, trials, 1).map_err(|cause| {
