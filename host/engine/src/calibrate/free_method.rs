@@ -7,12 +7,12 @@
 
 use super::budget::Kind;
 use super::json::{self, CorrectionJson};
-use super::sources::{gravity_source, new_budget, values6};
+use super::sources::{gravity_source, new_budget, values6, variances6};
 use super::{
     correction, err, free, poses, still, CalibrateError, CalibrateErrorKind, Options, Preflight,
 };
 use crate::recording::Recording;
-use nalgebra::{DMatrix, SMatrix};
+use nalgebra::DMatrix;
 use rotacal_shared::intrinsic;
 use std::borrow::Cow;
 
@@ -181,9 +181,7 @@ pub(super) fn entry(
         });
     // The budget: the poses (noise, and τ when estimated) and g_loc.
     let mut b = new_budget(units, true);
-    // (The diagonal of the transpose nalgebra makes of the rows.)
-    let mut contribution: Vec<f64> = SMatrix::<f64, 6, 6>::from(intr.cov)
-        .diagonal()
+    let mut contribution: Vec<f64> = variances6(&intr.cov)
         .iter()
         .map(|v| v.max(0.0).sqrt())
         .collect();

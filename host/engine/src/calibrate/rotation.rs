@@ -5,13 +5,13 @@
 use super::budget::{Budget, Kind};
 use super::group::{fit_group, samples, GroupFit, Refit};
 use super::json::{self, CalibrationJson, CorrectionJson, FitJson, NoiseJson};
-use super::sources::{gravity_source, new_budget, values6};
+use super::sources::{gravity_source, new_budget, values6, variances6};
 use super::{
     correction, err, methods, nominal_rate, CalibrateError, CalibrateErrorKind, Options, Preflight,
     RateError, TypeB, CLOCK,
 };
 use crate::recording::{same_rate, Group, Recording};
-use nalgebra::{DMatrix, SMatrix};
+use nalgebra::DMatrix;
 use rotacal_shared::intrinsic::{self, ConditionFit};
 use rotacal_shared::{Channel, Condition, Param};
 use std::f64::consts::TAU;
@@ -405,13 +405,7 @@ fn rotation_budget(
     let mut b = new_budget(units, false);
     let cf = fits.clone().map(|f| f.condition_fit());
     let values = values6(&cal.intrinsic);
-    // (The diagonal of the transpose nalgebra makes of the rows.)
-    let diag = |c: &[[f64; 6]; 6]| -> [f64; 6] {
-        SMatrix::<f64, 6, 6>::from(*c)
-            .diagonal()
-            .map(|x| x.max(0.0))
-            .into()
-    };
+    let diag = |c: &[[f64; 6]; 6]| variances6(c).map(|x| x.max(0.0));
     // Type A. The nine channel fits are independent, so each one's share of the variance
     // is the propagation with the others' covariance set to zero; their degrees of freedom
     // combine by Welch–Satterthwaite.

@@ -1,8 +1,17 @@
 //! The budget lines and helpers every method shares.
 
+#![deny(clippy::indexing_slicing)]
+
 use super::budget::{Budget, Kind};
 use super::json;
+use nalgebra::SMatrix;
 use rotacal_shared::intrinsic;
+
+/// The diagonal of the six properties' covariance (`Intrinsic::cov`): their variances.
+pub(super) fn variances6(cov: &[[f64; 6]; 6]) -> [f64; 6] {
+    // nalgebra takes the arrays for columns: the transpose, whose diagonal is the same.
+    SMatrix::<f64, 6, 6>::from(*cov).diagonal().into()
+}
 
 /// The six properties' values.
 pub(super) fn values6(i: &intrinsic::Intrinsic) -> [f64; 6] {

@@ -8,12 +8,12 @@
 use super::budget::{Budget, Kind};
 use super::json::{self, CorrectionJson};
 use super::poses::{self, StaticCondition};
-use super::sources::{gravity_source, new_budget, values6};
+use super::sources::{gravity_source, new_budget, values6, variances6};
 use super::{
     correction, err, methods, CalibrateError, CalibrateErrorKind, Options, Preflight, TypeB,
 };
 use crate::recording::Recording;
-use nalgebra::{DMatrix, SMatrix, Vector3};
+use nalgebra::{DMatrix, Vector3};
 use rotacal_shared::intrinsic::{self, IntrinsicError};
 
 /// The pose fit's options with the stated table-angle uncertainty.
@@ -148,10 +148,8 @@ pub fn static_budget(
         let s_part = poses::s_block(&part.theta);
         let prop = intrinsic::from_matrix_cov(&cal.s, &s_part)?;
         let mut var = [0.0; 9];
-        // (The diagonal of the transpose nalgebra makes of the rows.)
-        let diagonal = SMatrix::<f64, 6, 6>::from(prop.cov).diagonal();
-        for (v, d) in var.iter_mut().zip(diagonal.iter()) {
-            *v = *d;
+        for (v, d) in var.iter_mut().zip(variances6(&prop.cov)) {
+            *v = d;
         }
         for (v, o) in var.iter_mut().skip(6).zip(fit.offset_var(part)) {
             *v = o;
