@@ -21,6 +21,9 @@
 //!   10⁻⁵ relative here), 10⁻⁷ relative at most.
 #![allow(clippy::indexing_slicing)]
 
+// Tests may index: a panic there is a failure.
+#![allow(clippy::indexing_slicing)]
+
 use super::{calibrate_file_as, Mode};
 use crate::calibrate::json::CalibrationJson;
 use crate::calibrate::Options;
