@@ -4,8 +4,6 @@
 //! quadrature (they are independent), the effective degrees of freedom by Welch–
 //! Satterthwaite, and a coverage factor per property (docs/uncertainty.md).
 
-#![deny(clippy::indexing_slicing)]
-
 use serde::Serialize;
 
 /// Type A (evaluated from the data) or type B (from other knowledge).

@@ -3,8 +3,6 @@
 //! fields. A broken invariant of the engine is an [`CalibrateErrorKind::Internal`], not a
 //! problem of the user's data.
 
-#![deny(clippy::indexing_slicing)]
-
 use crate::calibrate::correction::CorrectionError;
 use crate::calibrate::free::FreeError;
 use crate::calibrate::methods::StaticError;

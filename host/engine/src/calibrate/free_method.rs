@@ -1,9 +1,5 @@
 //! Method free: still intervals found in a continuous recording (or named by its `pose`
 //! column), then G and O from |a| = g ([`super::free`]); the entry and its budget.
-// Not yet free of unchecked indexing (docs/architecture.md, "Not yet").
-#![allow(clippy::indexing_slicing)]
-
-#![deny(clippy::indexing_slicing)]
 
 use super::budget::Kind;
 use super::json::{self, CorrectionJson};

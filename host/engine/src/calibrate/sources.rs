@@ -1,7 +1,5 @@
 //! The budget lines and helpers every method shares.
 
-#![deny(clippy::indexing_slicing)]
-
 use super::budget::{Budget, Kind};
 use super::json;
 use nalgebra::SMatrix;

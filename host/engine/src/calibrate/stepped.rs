@@ -1,9 +1,5 @@
 //! The static methods (seed 001): angle steps about the three axes, or poses of known
 //! orientation; their entry, budget and corrections.
-// Not yet free of unchecked indexing (docs/architecture.md, "Not yet").
-#![allow(clippy::indexing_slicing)]
-
-#![deny(clippy::indexing_slicing)]
 
 use super::budget::{Budget, Kind};
 use super::json::{self, CorrectionJson};

@@ -2,10 +2,6 @@
 //! intrinsic properties with their expanded uncertainties, the correction, the noise model
 //! per channel, the pose fit's scatter and the uncertainty budget, all from the
 //! calibration JSON it summarises, so the table and the file cannot disagree.
-// Not yet free of unchecked indexing (docs/architecture.md, "Not yet").
-#![allow(clippy::indexing_slicing)]
-
-#![deny(clippy::indexing_slicing)]
 
 use super::budget::{Budget, Kind};
 use super::json::{self, CalibrationJson, FreeJson, NoiseJson, PosesJson, RateJson};

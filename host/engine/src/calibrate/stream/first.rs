@@ -1,8 +1,6 @@
 //! Pass 1: every row read and checked, in two parts on two threads or by the csv reader
 //! on one; each group held (at most the hold limit of rows) or summed.
 
-#![deny(clippy::indexing_slicing)]
-
 use super::BLOCK;
 use crate::calibrate::pilot::Pilots;
 use crate::calibrate::{nominal_rate, Options, CLOCK};

@@ -1,9 +1,5 @@
 //! The passes after the first: a correcting pass about the fitted rate when the data
 //! demand it, and the residual pass for the groups whose pilots cannot stand in for it.
-// Not yet free of unchecked indexing (docs/architecture.md, "Not yet").
-#![allow(clippy::indexing_slicing)]
-
-#![deny(clippy::indexing_slicing)]
 
 use super::first::{find_group, key_of, over_parts, read_pass, Key};
 use super::fits::{on_rails, sine_pair, Prepared, Residuals};

@@ -19,8 +19,6 @@
 //!   iteration at different iterates, within 10⁻³ of its standard error of each other: the
 //!   fits move by that fraction of what one standard error of the rate moves them (about
 //!   10⁻⁵ relative here), 10⁻⁷ relative at most.
-#![allow(clippy::indexing_slicing)]
-
 // Tests may index: a panic there is a failure.
 #![allow(clippy::indexing_slicing)]
 
