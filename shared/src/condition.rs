@@ -45,6 +45,26 @@ impl Condition {
         }
     }
 
+    /// This condition's element of a per-condition array (no index to check).
+    pub const fn of<T>(self, per_condition: &[T; 3]) -> &T {
+        let [x, y, z] = per_condition;
+        match self {
+            Condition::X => x,
+            Condition::Y => y,
+            Condition::Z => z,
+        }
+    }
+
+    /// This condition's element of a per-condition array, to change.
+    pub fn of_mut<T>(self, per_condition: &mut [T; 3]) -> &mut T {
+        let [x, y, z] = per_condition;
+        match self {
+            Condition::X => x,
+            Condition::Y => y,
+            Condition::Z => z,
+        }
+    }
+
     /// The letter used in files: `x`, `y` or `z`.
     pub const fn letter(self) -> char {
         match self {

@@ -469,7 +469,7 @@ pub fn intrinsic_per_rate(data: &Data, fit: &Fit) -> Vec<RateIntrinsic> {
         let fitted = fit.params.ab.iter().zip(&fit.ab_cov);
         for (g, (ab, cov)) in data.groups.iter().zip(fitted) {
             if g.rate_hz == rate {
-                *model::of_condition_mut(g.condition, &mut cf) = Some(ConditionFit {
+                *g.condition.of_mut(&mut cf) = Some(ConditionFit {
                     a: ab.map(|[a, _]| a),
                     b: ab.map(|[_, b]| b),
                     cov: *cov,
@@ -546,7 +546,7 @@ pub fn parameters(e: Effect, f: &Fit, data: &Data) -> BTreeMap<String, serde_jso
                 // Per condition: the centripetal acceleration per ω² is r·d̂ seen through
                 // S, so |b_c/s| is the radius (axes near orthogonal).
                 let [x, y, z] = Condition::ALL.map(|c| {
-                    let (bc, ubc) = (model::of_condition(c, &b), model::of_condition(c, &ub));
+                    let (bc, ubc) = (c.of(&b), c.of(&ub));
                     let v: Vec<f64> = bc.iter().zip(&s).map(|(b, s)| b / s).collect();
                     let r = v.iter().map(|x| x * x).sum::<f64>().sqrt();
                     let ur = if r > 0.0 {

@@ -154,26 +154,6 @@ struct Row {
     y: f64,
 }
 
-/// Condition `c`'s element of a per-condition array (x, y, z).
-pub(super) fn of_condition<T>(c: Condition, per_condition: &[T; 3]) -> &T {
-    let [x, y, z] = per_condition;
-    match c {
-        Condition::X => x,
-        Condition::Y => y,
-        Condition::Z => z,
-    }
-}
-
-/// [`of_condition`], to change it.
-pub(super) fn of_condition_mut<T>(c: Condition, per_condition: &mut [T; 3]) -> &mut T {
-    let [x, y, z] = per_condition;
-    match c {
-        Condition::X => x,
-        Condition::Y => y,
-        Condition::Z => z,
-    }
-}
-
 /// Channel `ch`'s element of a per-channel array, to change it ([`Channel::of`]).
 fn of_channel_mut<T>(ch: Channel, per_channel: &mut [T; 3]) -> &mut T {
     let [u, v, w] = per_channel;
@@ -363,8 +343,8 @@ impl Params {
                 let [a, b] = of_channel_mut(ch, self.ab.get_mut(group)?);
                 return Some(if cos { b } else { a });
             }
-            Param::Offset(c) => of_condition_mut(c, &mut self.offset),
-            Param::Centripetal(c) => of_condition_mut(c, self.centripetal.as_mut()?),
+            Param::Offset(c) => c.of_mut(&mut self.offset),
+            Param::Centripetal(c) => c.of_mut(self.centripetal.as_mut()?),
             Param::K2 => self.k2.as_mut()?,
             Param::K3 => self.k3.as_mut()?,
             Param::Drift => self.drift.as_mut()?,
@@ -395,11 +375,11 @@ fn eval(p: &Params, s: f64, ab: [f64; 2], g: &GroupData, ch: Channel, row: &Row)
     let c = g.condition;
     let a0 = p
         .centripetal
-        .map_or(0.0, |b| *ch.of(of_condition(c, &b)) * omega * omega / s);
+        .map_or(0.0, |b| *ch.of(c.of(&b)) * omega * omega / s);
     let a = (a_amp * sin + b_amp * cos) / s + a0;
     let k2 = p.k2.map_or(0.0, |k| *ch.of(&k));
     let k3 = p.k3.map_or(0.0, |k| *ch.of(&k));
-    let mut y = s * (a + k2 * a * a + k3 * a * a * a) + *ch.of(of_condition(c, &p.offset));
+    let mut y = s * (a + k2 * a * a + k3 * a * a * a) + *ch.of(c.of(&p.offset));
     y += p.drift.map_or(0.0, |d| *ch.of(&d) * row.t);
     y += p.temp.map_or(0.0, |t| *ch.of(&t) * row.temp);
     let mut clipped = false;

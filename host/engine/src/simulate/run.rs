@@ -117,7 +117,7 @@ impl Simulation {
                         * (1.0 + c.effects.rate_error.as_ref().map_or(0.0, |r| r.relative));
                     for cond in Condition::ALL {
                         let start: f64 = match c.table.start_angle_deg {
-                            Some(a) => of_condition(cond, &a).to_radians(),
+                            Some(a) => cond.of(&a).to_radians(),
                             None => rng.gen::<f64>() * TAU,
                         };
                         for k in 0..n {
@@ -266,21 +266,11 @@ impl Simulation {
         let mut f = cond.gravity_direction(alpha).map(|v| self.cfg.g_loc * v);
         if let Some(cp) = &e.centripetal {
             let a = omega * omega * cp.radius_m;
-            for (fi, d) in f.iter_mut().zip(*of_condition(cond, &self.outward)) {
+            for (fi, d) in f.iter_mut().zip(*cond.of(&self.outward)) {
                 *fi -= a * d;
             }
         }
         f
-    }
-}
-
-/// Condition `c`'s element of a per-condition array (x, y, z).
-fn of_condition<T>(c: Condition, per_condition: &[T; 3]) -> &T {
-    let [x, y, z] = per_condition;
-    match c {
-        Condition::X => x,
-        Condition::Y => y,
-        Condition::Z => z,
     }
 }
 
