@@ -157,6 +157,8 @@ fn through_the_device(case: &str, ar: Option<Vec<f64>>, crb: bool) -> Vec<String
             ar: ar.clone(),
             lowpass_hz: None,
             state: false,
+            flicker_floor_ug: None,
+            random_walk_ug_per_sqrt_s: None,
         });
         cfg
     };

@@ -10,14 +10,15 @@
 //! 4. along each sensitive axis a_j = Ŝ_j·f, output s_j·(a_j + K2·a_j² + K3·a_j³) + O_j
 //!    + drift + temperature term, with S the device's matrix turned by the mounting;
 //! 5. plus sensor noise (white, or per `[sensor.noise]` an autoregressive or low-passed
-//!    process per channel), then saturation rails, quantisation and the register range;
+//!    process per channel, and flicker and bias random walk in session time), then
+//!    saturation rails, quantisation and the register range;
 //! 6. the timestamp the device would write: (1 + ε)·t plus jitter, in whole ticks.
 //!
 //! Seeded (ChaCha8), so the same configuration and seed give the same file.
 
 //!
 //! Here the public types, the truth and the model's preparation; `noise` is the sensor
-//! noise process and its generator, `run` the experiment sample by sample, `write` the
+//! noise process and its generator, `slow` the flicker and random walk, `run` the experiment sample by sample, `write` the
 //! file, the recording read back and the summary for the terminal.
 
 pub mod config;
@@ -26,10 +27,12 @@ pub mod emulated;
 pub mod geometry;
 mod noise;
 mod run;
+pub mod slow;
 mod write;
 
 pub use config::{Config, ConfigError, Noise, NoiseSd, StepError, PRESETS};
 pub use noise::{FilterError, NoiseProcess, MAX_NOISE_BURN_IN};
+pub use slow::SlowNoise;
 pub use write::render;
 
 use crate::recording::{Columns, Metadata, Method, RecordingError};
@@ -60,6 +63,8 @@ pub struct Truth {
     pub noise_sd: [f64; 3],
     /// The noise process's shape, common to the channels (white without `[sensor.noise]`).
     pub noise_process: NoiseProcess,
+    /// Flicker and bias random walk, output units (none without them).
+    pub slow: SlowNoise,
 }
 
 impl Truth {
@@ -74,6 +79,25 @@ impl Truth {
     /// channels share the process's shape).
     pub fn noise_autocorrelation(&self, _channel: Channel, lag: u64) -> f64 {
         self.noise_process.autocorrelation(lag)
+    }
+
+    /// The structure function of channel `ch`'s noise (before quantisation) at lag `k`
+    /// samples, E[(e_{t+k} − e_t)²], output units²: the filtered noise's 2σ²(1 − ρ_k) plus
+    /// the slow terms' (the samples of one stretch of the session, 1/fs apart).
+    pub fn noise_structure(&self, ch: Channel, k: u64) -> f64 {
+        let sd = *ch.of(&self.noise_sd);
+        let fast = if k == 0 {
+            0.0
+        } else {
+            2.0 * sd * sd * (1.0 - self.noise_process.autocorrelation(k))
+        };
+        fast + self.slow.structure(ch, k)
+    }
+
+    /// The expected Allan variance of channel `ch`'s noise (before quantisation) averaged
+    /// over `m` samples, output units² ([`slow::allan_variance`] of the structure function).
+    pub fn noise_allan_variance(&self, ch: Channel, m: u64) -> f64 {
+        slow::allan_variance(m, |k| self.noise_structure(ch, k))
     }
 }
 
@@ -188,6 +212,19 @@ impl Simulation {
             let n = p.iter().map(|v| v * v).sum::<f64>().sqrt();
             *o = p.map(|v| v / n);
         }
+        let slow = match &cfg.sensor.noise {
+            Some(n) => SlowNoise::from_physical(
+                n.flicker_floor_ug
+                    .as_ref()
+                    .map_or([0.0; 3], |l| l.per_channel()),
+                n.random_walk_ug_per_sqrt_s
+                    .as_ref()
+                    .map_or([0.0; 3], |l| l.per_channel()),
+                sensitivity,
+                cfg.timing.sample_rate_hz,
+            ),
+            None => SlowNoise::default(),
+        };
         let truth = Truth {
             sensitivity,
             angles_deg,
@@ -197,6 +234,7 @@ impl Simulation {
             noise_sigma,
             noise_sd,
             noise_process,
+            slow,
         };
         Ok(Simulation {
             cfg,
@@ -234,6 +272,7 @@ impl Simulation {
         let [su, sv, sw] = self.truth.noise_sd;
         self.cfg.sensor.noise.as_ref().is_none_or(|n| n.state)
             && self.truth.noise_process.is_white()
+            && self.truth.slow.is_none()
             && su == sv
             && sv == sw
     }

@@ -2,7 +2,7 @@
 //! checked stationary, with its autocorrelation and spectrum, and the three channels'
 //! generator that draws it during a run.
 
-use super::{ConfigError, Noise};
+use super::{ConfigError, Noise, SlowNoise};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::StandardNormal;
@@ -324,6 +324,10 @@ pub(super) struct NoiseGen<'a> {
     /// sd / √(Σ h_k²): the innovation level giving each channel its marginal sd.
     scale: [f64; 3],
     state: [FilterState; 3],
+    /// The slow noise (flicker, random walk) on a grid at `fs` over the session (empty
+    /// without it).
+    slow: [Vec<f64>; 3],
+    fs: f64,
 }
 
 /// The noise burn-in's random stream (ChaCha8 stream 1 of the seed; the main draws are
@@ -350,7 +354,26 @@ impl<'a> NoiseGen<'a> {
             sd,
             scale: sd.map(|s| s / v.sqrt()),
             state,
+            slow: [Vec::new(), Vec::new(), Vec::new()],
+            fs: 1.0,
         }
+    }
+
+    /// With slow noise `slow`, drawn on a grid at `fs` Hz of `len` points.
+    pub(super) fn with_slow(mut self, slow: &SlowNoise, len: usize, fs: f64, seed: u64) -> Self {
+        if !slow.is_none() {
+            self.slow = slow.draw(len, seed);
+            self.fs = fs;
+        }
+        self
+    }
+
+    /// The slow noise on u, v, w at true session time `t` (s): the grid point nearest t
+    /// (zero without slow noise).
+    pub(super) fn slow_at(&self, t: f64) -> [f64; 3] {
+        let i = (t * self.fs).round().max(0.0) as usize;
+        let [u, v, w] = &self.slow;
+        [u, v, w].map(|series| series.get(i).or(series.last()).copied().unwrap_or(0.0))
     }
 
     /// One sample's noise on u, v, w: one standard normal per channel from `rng`, in that

@@ -87,10 +87,29 @@ impl Simulation {
     }
 
     /// Run the experiment, handing every row to `sink` in file order.
-    pub fn run(&self, mut sink: impl FnMut(&Row) -> io::Result<()>) -> io::Result<Summary> {
+    pub fn run(&self, sink: impl FnMut(&Row) -> io::Result<()>) -> io::Result<Summary> {
+        let c = &self.cfg;
+        let noise = NoiseGen::new(&self.truth.noise_process, self.truth.noise_sd, c.seed);
+        if self.truth.slow.is_none() {
+            return self.run_with(noise, sink);
+        }
+        // The slow noise spans the session, gaps included: a first run without it gives
+        // the session's length (the free method's depends on its draws).
+        let blank = NoiseGen::new(&self.truth.noise_process, self.truth.noise_sd, c.seed);
+        let duration = self.run_with(blank, |_| Ok(()))?.duration_s;
+        let fs = c.timing.sample_rate_hz;
+        let len = (duration * fs).ceil().max(0.0) as usize + 2;
+        self.run_with(noise.with_slow(&self.truth.slow, len, fs, c.seed), sink)
+    }
+
+    /// [`Simulation::run`] with the noise generator `noise`.
+    fn run_with(
+        &self,
+        mut noise: NoiseGen<'_>,
+        mut sink: impl FnMut(&Row) -> io::Result<()>,
+    ) -> io::Result<Summary> {
         let c = &self.cfg;
         let mut rng = ChaCha8Rng::seed_from_u64(c.seed);
-        let mut noise = NoiseGen::new(&self.truth.noise_process, self.truth.noise_sd, c.seed);
         let mut sum = Summary::default();
         let fs = c.timing.sample_rate_hz;
         let mut seq: u64 = 0;
@@ -125,10 +144,12 @@ impl Simulation {
                             let t = t0 + tau;
                             let temp = self.temperature(t);
                             let mut y = noise.draw(&mut rng);
+                            let slow = noise.slow_at(t);
                             for (ch, yj) in Channel::ALL.into_iter().zip(&mut y) {
                                 let f = self.specific_force(cond, omega, start, tau, ch);
-                                *yj = self
-                                    .output(self.analog(ch, f, t, temp) + *yj, &mut sum.clipped);
+                                let e = *yj + ch.of(&slow);
+                                *yj =
+                                    self.output(self.analog(ch, f, t, temp) + e, &mut sum.clipped);
                             }
                             let mut row = Row::new(cond, y[0], y[1], y[2]);
                             row.rate_hz = multi.then_some(rate);
@@ -160,9 +181,11 @@ impl Simulation {
                             let t = t0 + k as f64 * dwell + f64::from(r) / fs;
                             let temp = self.temperature(t);
                             let mut y = noise.draw(&mut rng);
+                            let slow = noise.slow_at(t);
                             for (ch, yj) in Channel::ALL.into_iter().zip(&mut y) {
-                                *yj = self
-                                    .output(self.analog(ch, f, t, temp) + *yj, &mut sum.clipped);
+                                let e = *yj + ch.of(&slow);
+                                *yj =
+                                    self.output(self.analog(ch, f, t, temp) + e, &mut sum.clipped);
                             }
                             let mut row = Row::new(cond, y[0], y[1], y[2]);
                             row.angle_deg = Some(*deg);
@@ -211,8 +234,11 @@ impl Simulation {
                 let temp = self.temperature(t);
                 let f = g.map(|v| c.g_loc * v);
                 let mut y = noise.draw(rng);
+                // The pose's spread scales the fast noise; the bias wanders regardless.
+                let slow = noise.slow_at(t);
                 for (ch, yj) in Channel::ALL.into_iter().zip(&mut y) {
-                    *yj = self.output(self.analog(ch, f, t, temp) + scale * *yj, &mut sum.clipped);
+                    let e = scale * *yj + ch.of(&slow);
+                    *yj = self.output(self.analog(ch, f, t, temp) + e, &mut sum.clipped);
                 }
                 let mut row = Row::new(Condition::X, y[0], y[1], y[2]);
                 emit(&mut row, t, rng, sum)

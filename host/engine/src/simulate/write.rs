@@ -87,5 +87,16 @@ pub fn render(sim: &Simulation, sum: &Summary, out: &Path) -> String {
         p.autocorrelation(1),
         if sim.states_noise_sigma() { "stated" } else { "not stated" }
     );
+    if let Some(n) = c.sensor.noise.as_ref().filter(|_| !t.slow.is_none()) {
+        let level = |l: &Option<crate::simulate::NoiseSd>| {
+            let [a, b, c] = l.as_ref().map_or([0.0; 3], |l| l.per_channel());
+            format!("{a}, {b}, {c}")
+        };
+        o += &format!(
+            "slow noise in session time: flicker with an Allan floor of u, v, w = {} µg, bias random walk {} µg/√s\n",
+            level(&n.flicker_floor_ug),
+            level(&n.random_walk_ug_per_sqrt_s)
+        );
+    }
     o
 }

@@ -93,6 +93,21 @@ const REFUSED: &[(&str, &str, &str)] = &[
     (ROT, "[sensor.noise]\nar = [1.2]", "sensor.noise.ar"),
     (
         ROT,
+        "[sensor.noise]\nflicker_floor_ug = -1.0",
+        "sensor.noise.flicker_floor_ug",
+    ),
+    (
+        ROT,
+        "[sensor.noise]\nflicker_floor_ug = [1.0, inf, 1.0]",
+        "sensor.noise.flicker_floor_ug",
+    ),
+    (
+        ROT,
+        "[sensor.noise]\nrandom_walk_ug_per_sqrt_s = [1.0, 2.0, -0.1]",
+        "sensor.noise.random_walk_ug_per_sqrt_s",
+    ),
+    (
+        ROT,
         "[sensor.noise]\nlowpass_hz = 8.0",
         "sensor.noise.lowpass_hz",
     ),
@@ -407,6 +422,10 @@ const REFUSED: &[(&str, &str, &str)] = &[
 
 /// (base, what the case adds): values at or just inside each limit.
 const ACCEPTED: &[(&str, &str)] = &[
+    (
+        ROT,
+        "[sensor.noise]\nflicker_floor_ug = 0.0\nrandom_walk_ug_per_sqrt_s = [0.0, 5.0, 10.0]",
+    ),
     (ROT, ""),
     (ROT, "g_loc = 1e-3"),
     (ROT, "[device]\nangles_deg = [0.001, 90.0, 179.999]"),

@@ -14,3 +14,4 @@ mod budget;
 mod config;
 mod poses;
 mod reader;
+mod slow_noise;

@@ -25,6 +25,8 @@ pub fn unstated(ar: Option<Vec<f64>>, lowpass_hz: Option<f64>) -> Option<Noise> 
         ar,
         lowpass_hz,
         state: false,
+        flicker_floor_ug: None,
+        random_walk_ug_per_sqrt_s: None,
     })
 }
 

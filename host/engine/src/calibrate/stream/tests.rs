@@ -45,6 +45,8 @@ fn config(seed: u64, rows: u64, ar: Option<Vec<f64>>, lowpass_hz: Option<f64>) -
         ar,
         lowpass_hz,
         state: false,
+        flicker_floor_ug: None,
+        random_walk_ug_per_sqrt_s: None,
     });
     cfg
 }

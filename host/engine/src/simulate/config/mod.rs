@@ -254,13 +254,31 @@ pub struct Noise {
     /// level for all channels).
     #[serde(default = "default_true")]
     pub state: bool,
+    /// Flicker (1/f) noise: the floor of its Allan deviation, µg (bias instability
+    /// B = floor/0.6643), one for all channels or u, v, w.
+    #[serde(default)]
+    pub flicker_floor_ug: Option<NoiseSd>,
+    /// Bias random walk K, µg/√s (σ_A(τ) = K·√(τ/3)), one for all channels or u, v, w.
+    #[serde(default)]
+    pub random_walk_ug_per_sqrt_s: Option<NoiseSd>,
+}
+
+impl NoiseSd {
+    /// The level of each channel (u, v, w).
+    pub fn per_channel(&self) -> [f64; 3] {
+        match self {
+            NoiseSd::All(s) => [*s; 3],
+            NoiseSd::PerChannel(s) => *s,
+        }
+    }
 }
 
 fn default_true() -> bool {
     true
 }
 
-/// `sensor.noise.sd`: one level, or u, v, w.
+/// A level of `[sensor.noise]` (`sd`, `flicker_floor_ug`, `random_walk_ug_per_sqrt_s`):
+/// one for all channels, or u, v, w.
 #[derive(Clone, Debug, Deserialize, PartialEq)]
 #[serde(untagged, expecting = "expected one number, or three (u, v, w)")]
 pub enum NoiseSd {
@@ -696,8 +714,7 @@ impl Config {
     /// before quantisation: `sensor.noise.sd`, else `noise_sigma()` for all three.
     pub fn noise_sd(&self) -> Result<[f64; 3], ConfigError> {
         match self.sensor.noise.as_ref().and_then(|n| n.sd.as_ref()) {
-            Some(NoiseSd::All(s)) => Ok([*s; 3]),
-            Some(NoiseSd::PerChannel(s)) => Ok(*s),
+            Some(sd) => Ok(sd.per_channel()),
             None => self.noise_sigma().map(|s| [s; 3]),
         }
     }

@@ -63,6 +63,22 @@ impl Config {
         {
             return bad("sensor.noise.sd", "must be ≥ 0");
         }
+        for (key, level) in [
+            ("sensor.noise.flicker_floor_ug", &nz.flicker_floor_ug),
+            (
+                "sensor.noise.random_walk_ug_per_sqrt_s",
+                &nz.random_walk_ug_per_sqrt_s,
+            ),
+        ] {
+            let bad_level = level.as_ref().is_some_and(|l| {
+                l.per_channel()
+                    .iter()
+                    .any(|x| !(x.is_finite() && *x >= 0.0))
+            });
+            if bad_level {
+                return bad(key, "must be ≥ 0 µg");
+            }
+        }
         crate::simulate::NoiseProcess::new(nz, self.timing.sample_rate_hz)?;
         Ok(())
     }
