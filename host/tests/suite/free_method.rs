@@ -174,6 +174,26 @@ fn coverage_60_poses() {
     coverage(60, 1000);
 }
 
+/// Nine poses fit the nine unknowns exactly: the output says that nothing is left to check
+/// the noise model (in the budget's notes, which the terminal and the JSON carry); twelve
+/// poses leave three degrees of freedom and no such note.
+#[test]
+fn nine_poses_say_no_degree_of_freedom_is_left() {
+    let note = |poses: usize| {
+        let rec = session(poses, 77).recording().unwrap();
+        let cal = calibrate(&rec, &Options::default()).unwrap();
+        let e = entry(&cal);
+        let f = e.free.as_ref().unwrap();
+        let notes = serde_json::to_string(&e.uncertainty_budget).unwrap();
+        (
+            f.poses.len(),
+            notes.contains("no degree of freedom is left"),
+        )
+    };
+    assert_eq!(note(9), (9, true));
+    assert_eq!(note(12), (12, false));
+}
+
 #[test]
 fn intrinsic_properties_do_not_depend_on_the_mounting() {
     // The same fixture directions, no noise, no quantisation; the device turned at random.

@@ -192,6 +192,13 @@ pub(super) fn entry(
             fit.tau_ms2,
             fit.dof
         )
+    } else if fit.dof == 0 {
+        format!(
+            "the fit of G and O to the {} still poses' means (JSON free.poses), each pose's \
+             noise from an AR model of its readings about a line, unchecked: no degree of \
+             freedom is left",
+            fit.poses.len()
+        )
     } else {
         format!(
             "the fit of G and O to the {} still poses' means (JSON free.poses), each pose's \
@@ -203,6 +210,17 @@ pub(super) fn entry(
         )
     };
     b.vector("poses", Kind::A, description, &contribution, &[nu; 9]);
+    if fit.dof == 0 {
+        // Nine poses fit the nine unknowns exactly: nothing tests the readings' noise model
+        // against how the poses scatter (hand placements drift between poses), so U may be
+        // too small and nothing here could tell.
+        b.notes.push(format!(
+            "{} poses for 9 unknowns: no degree of freedom is left to check the noise model \
+             against the poses' scatter, so U rests on each pose's own noise alone and is \
+             unchecked; with 12 or more poses χ² tests it",
+            fit.poses.len()
+        ));
+    }
     b.notes.extend(fit.notes.iter().cloned());
     let values = values6(&intr);
     let mut cg = vec![0.0; 9];
