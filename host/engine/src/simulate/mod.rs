@@ -18,8 +18,9 @@
 
 //!
 //! Here the public types, the truth and the model's preparation; `noise` is the sensor
-//! noise process and its generator, `slow` the flicker and random walk, `run` the experiment sample by sample, `write` the
-//! file, the recording read back and the summary for the terminal.
+//! noise process and its generator, `slow` the flicker and random walk, `run` the
+//! experiment sample by sample, `write` the file, the recording read back and the summary
+//! for the terminal.
 
 pub mod config;
 pub mod device;
