@@ -286,12 +286,13 @@ fn static_coverage_through_the_simulator() {
 }
 
 /// Coverage of the nine static properties over 2000 stepped sessions of `metrologia-static`
-/// turned in `step_deg` steps with `readings` a step and `step_error`, calibrated with
-/// `inputs`.
+/// turned in `step_deg` steps with `readings` a step (at 1 Hz, `dwell_s` apart) and
+/// `step_error`, with AR noise of coefficients `ar` (white if empty; never stated),
+/// calibrated with `inputs`.
 fn stepped_coverage(
     case: &str,
-    step_deg: f64,
-    readings: u32,
+    (step_deg, readings, dwell_s): (f64, u32, Option<f64>),
+    ar: &[f64],
     error: StepError,
     inputs: TypeB,
 ) -> Vec<String> {
@@ -300,9 +301,10 @@ fn stepped_coverage(
         cfg.seed = 0x57E9_0000 + trial as u64;
         cfg.mounting.axis = [1.0, 1.0, 0.0];
         cfg.mounting.angle_deg = 5.0;
-        cfg.sensor.noise = unstated(None, None);
+        cfg.sensor.noise = unstated((!ar.is_empty()).then(|| ar.to_vec()), None);
         cfg.table.angle_step_deg = Some(step_deg);
         cfg.table.readings_per_angle = Some(readings);
+        cfg.table.dwell_s = dwell_s;
         cfg.effects.step_error = Some(error.clone());
         cfg
     };
@@ -340,8 +342,8 @@ fn stepped_coverage_with_stated_angle_errors() {
     // stated.
     let failures = stepped_coverage(
         "stepped, angle errors 0.01° stated",
-        30.0,
-        20,
+        (30.0, 20, None),
+        &[],
         StepError {
             angle_sd_deg: 0.01,
             tilt_sd_deg: 0.0,
@@ -360,8 +362,8 @@ fn stepped_coverage_with_unstated_tilt_errors() {
     // the tilt is estimated from the poses' scatter.
     let failures = stepped_coverage(
         "stepped, tilt errors 0.01° unstated",
-        30.0,
-        20,
+        (30.0, 20, None),
+        &[],
         StepError {
             angle_sd_deg: 0.0,
             tilt_sd_deg: 0.01,
@@ -498,4 +500,23 @@ fn rotation_coverage_at_four_rates_in_one_file() {
         cfg
     });
     assert!(f.is_empty(), "{f:?}");
+}
+
+#[test]
+fn stepped_coverage_with_correlated_readings() {
+    // 20 readings a step of AR(1) noise with ρ = 0.6 (the mean of 20 has about 3.4 times
+    // the variance std²/20 says), no angle or tilt error, nothing stated: each pose's mean
+    // takes its variance from one AR model pooled over the poses. The table takes 10 s
+    // to the next angle (30 s from step to step), during which the noise runs on.
+    let failures = stepped_coverage(
+        "stepped, 20 readings of AR(1) ρ = 0.6",
+        (30.0, 20, Some(30.0)),
+        &[0.6],
+        StepError {
+            angle_sd_deg: 0.0,
+            tilt_sd_deg: 0.0,
+        },
+        TypeB::default(),
+    );
+    assert!(failures.is_empty(), "{failures:?}");
 }

@@ -328,11 +328,18 @@ pub(super) struct NoiseGen<'a> {
     /// without it).
     slow: [Vec<f64>; 3],
     fs: f64,
+    /// The seed, and the dwell stream once a static dwell has used it.
+    seed: u64,
+    dwell: Option<ChaCha8Rng>,
 }
 
 /// The noise burn-in's random stream (ChaCha8 stream 1 of the seed; the main draws are
 /// stream 0), so that it shifts no other draw.
 const NOISE_STREAM: u64 = 1;
+
+/// The innovations of the time between a static angle's readings and the next angle's
+/// (stream 3; stream 2 is the slow noise's).
+const DWELL_STREAM: u64 = 3;
 
 impl<'a> NoiseGen<'a> {
     /// Start each channel in its stationary distribution: from rest, u then v then w run
@@ -356,6 +363,28 @@ impl<'a> NoiseGen<'a> {
             state,
             slow: [Vec::new(), Vec::new(), Vec::new()],
             fs: 1.0,
+            seed,
+            dwell: None,
+        }
+    }
+
+    /// Let `steps` samples' time pass unread (a static table moving to its next angle):
+    /// each channel's filter runs on, u then v then w, with innovations from the dwell
+    /// stream, so that the next angle's readings are as correlated with these as that
+    /// time allows. White noise has no memory: nothing is drawn.
+    pub(super) fn idle(&mut self, steps: u64) {
+        if self.process.is_white() || steps == 0 {
+            return;
+        }
+        let rng = self.dwell.get_or_insert_with(|| {
+            let mut r = ChaCha8Rng::seed_from_u64(self.seed);
+            r.set_stream(DWELL_STREAM);
+            r
+        });
+        for st in &mut self.state {
+            for _ in 0..steps {
+                self.process.step(st, rng.sample(StandardNormal));
+            }
         }
     }
 

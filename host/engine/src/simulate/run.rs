@@ -191,6 +191,9 @@ impl Simulation {
                             row.angle_deg = Some(*deg);
                             emit(&mut row, t, &mut rng, &mut sum)?;
                         }
+                        // The table takes the rest of the dwell to the next angle.
+                        let dwell_samples = (dwell * fs).round() as u64;
+                        noise.idle(dwell_samples.saturating_sub(u64::from(readings)));
                     }
                     t0 += angles.len() as f64 * dwell + c.timing.gap_s;
                 }

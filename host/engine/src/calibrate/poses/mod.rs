@@ -66,8 +66,9 @@ pub struct Pose {
     /// row; 0: not from a file).
     pub first_line: u64,
     /// The readings' noise per channel, estimated from them (at least
-    /// [`NOISE_MODEL_MIN`] readings): successive readings of a filtering sensor are
-    /// correlated, and the mean's standard error is then not std/√n.
+    /// [`NOISE_MODEL_MIN`] readings) or pooled over the file's shorter poses (2 readings or
+    /// more): successive readings of a filtering sensor are correlated, and the mean's
+    /// standard error is then not std/√n.
     pub noise: Option<[Option<PoseNoise>; 3]>,
     /// ∂ĝ/∂α, the direction ĝ moves in when the table angle α is off (stepped records;
     /// `None` for poses whose orientation is given directly).
@@ -89,8 +90,9 @@ pub struct PoseNoise {
     pub n_eff: f64,
 }
 
-/// Readings a pose needs for its noise to be modelled; fewer use std/√n. (The model's
-/// correction for the mean taken out needs N well above the noise's correlation time.)
+/// Readings a pose needs for a noise model of its own; shorter poses share one pooled over
+/// them. (A model's correction for the mean taken out needs N well above the noise's
+/// correlation time.)
 pub const NOISE_MODEL_MIN: usize = 100;
 
 impl Pose {

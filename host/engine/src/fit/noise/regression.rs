@@ -4,6 +4,7 @@
 
 use super::{levinson_step, NoiseError, NoiseModel};
 use nalgebra::DMatrix;
+use std::borrow::Cow;
 
 impl NoiseModel {
     /// Z = A⁻ᵀH, A the AR filter as a lower-triangular matrix ((Ae)_t = e_t − Σφ_k e_{t−k}
@@ -168,6 +169,61 @@ impl NoiseModel {
         })
     }
 
+    /// One model for several short records of the same noise, each with its own mean
+    /// taken out (the readings of the poses of one file): the residuals' biased
+    /// autocovariances pooled over the records (pairs within a record only), the order by
+    /// BIC over all readings, and the model corrected for what each record's mean took out
+    /// (the expected pooled autocovariances matched to the observed ones, as
+    /// [`NoiseModel::rescaled`] does for one record; white noise gives RSS/(N − P)).
+    /// `records` are residuals about each record's mean; each needs 2 readings or more.
+    pub fn pooled_about_means(records: &[&[f64]]) -> Result<NoiseModel, NoiseError> {
+        let used: usize = records.iter().map(|r| r.len()).sum();
+        if used < 20 || records.iter().any(|r| r.len() < 2) {
+            return Err(NoiseError::TooFew(used));
+        }
+        let longest = records.iter().map(|r| r.len()).max().unwrap_or(0);
+        let max_p = super::MAX_ORDER.min(used / 10).min(longest - 1);
+        let gamma: Vec<f64> = (0..=max_p)
+            .map(|k| {
+                let lagged = records.iter().map(|r| {
+                    r.iter()
+                        .zip(r.iter().skip(k))
+                        .map(|(a, b)| a * b)
+                        .sum::<f64>()
+                });
+                lagged.sum::<f64>() / used as f64
+            })
+            .collect();
+        let model = NoiseModel::from_autocovariances(&gamma, used, used)?;
+        // Records of one length share their expectation: one regressor set per length.
+        let mut lengths: Vec<(usize, usize)> = Vec::new();
+        for r in records {
+            match lengths.iter_mut().find(|(len, _)| *len == r.len()) {
+                Some((_, count)) => *count += 1,
+                None => lengths.push((r.len(), 1)),
+            }
+        }
+        let regressors = lengths
+            .iter()
+            .map(|&(len, count)| Ok((Regressors::ones(len)?, (count * len) as f64)))
+            .collect::<Result<Vec<_>, NoiseError>>()?;
+        model.fixed_point(used, records.len(), |m| {
+            let mut sum = vec![0.0; m.order() + 1];
+            for (r, weight) in &regressors {
+                for (s, e) in sum.iter_mut().zip(m.expected_residual_autocov(r)) {
+                    *s += weight * e / used as f64;
+                }
+            }
+            sum
+        })
+    }
+
+    /// The variance of the mean of `n` successive readings under this model.
+    pub fn mean_variance(&self, n: usize) -> Result<f64, NoiseError> {
+        let cov = self.sandwich_with(&Regressors::ones(n)?);
+        cov.get((0, 0)).copied().ok_or(NoiseError::Singular)
+    }
+
     /// [`NoiseModel::sandwich`] from the regressors' Gram matrix HᵀH alone, for a long
     /// record whose columns are sinusoids (or constants) at `freqs` radians per sample:
     /// HᵀΣH ≈ γ₀·[HᵀH]_ij·(f(ω_i) + f(ω_j))/2 (sinusoids are nearly eigenvectors of Σ).
@@ -222,7 +278,7 @@ impl NoiseModel {
     /// Σ_t [Σ − PΣ − ΣP + PΣP]_{t,t+k} = (N−k)γ_k − Σ_t h_tᵀb_{t+k} − Σ_t h_{t+k}ᵀb_t
     /// + Σ_t h_tᵀC h_{t+k}.
     fn expected_residual_autocov(&self, r: &Regressors) -> Vec<f64> {
-        let (h, inv) = (r.h, &r.inv);
+        let (h, inv) = (r.h.as_ref(), &r.inv);
         let (n, q) = h.shape();
         // ΣH = σ_ε²·A⁻¹A⁻ᵀH: the backward recursion (Z, shared with the meat), then the
         // forward one.
@@ -255,7 +311,7 @@ impl NoiseModel {
 
     fn sandwich_with(&self, r: &Regressors) -> DMatrix<f64> {
         let meat = if self.ar.is_empty() {
-            r.h.tr_mul(r.h) * self.innovation_var
+            r.h.tr_mul(&r.h) * self.innovation_var
         } else {
             self.meat_of(&self.filter_back(&r.ht))
         };
@@ -271,7 +327,7 @@ impl NoiseModel {
 
 /// Regressors H (N × q) with Hᵀ and (HᵀH)⁻¹, which a rescaling needs at every step.
 struct Regressors<'a> {
-    h: &'a DMatrix<f64>,
+    h: Cow<'a, DMatrix<f64>>,
     ht: DMatrix<f64>,
     inv: DMatrix<f64>,
 }
@@ -286,9 +342,22 @@ impl<'a> Regressors<'a> {
             return Err(NoiseError::Singular);
         }
         Ok(Regressors {
-            h,
+            h: Cow::Borrowed(h),
             ht: h.transpose(),
             inv,
+        })
+    }
+
+    /// A column of `n` ones: the regressor of a mean.
+    fn ones(n: usize) -> Result<Regressors<'static>, NoiseError> {
+        if n == 0 {
+            return Err(NoiseError::TooFew(0));
+        }
+        let h = DMatrix::from_element(n, 1, 1.0);
+        Ok(Regressors {
+            ht: h.transpose(),
+            inv: DMatrix::from_element(1, 1, 1.0 / n as f64),
+            h: Cow::Owned(h),
         })
     }
 }
