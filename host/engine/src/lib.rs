@@ -11,7 +11,10 @@
 //! - [`correct`]: applying and exporting a calibration;
 //! - [`simulate`]: the model of the experiment, which writes recordings; [`reference`]:
 //!   the paper values it and the tests take as truth;
-//! - [`discrepancy`]: where model and measurement disagree, and which effect is missing.
+//! - [`discrepancy`]: where model and measurement disagree, and which effect is missing;
+//! - [`allan`]: the overlapping Allan deviation of a still record, its intervals and the
+//!   IEEE noise terms (docs/allan.md).
+pub mod allan;
 pub mod calibrate;
 pub mod correct;
 pub mod discrepancy;

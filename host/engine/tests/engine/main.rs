@@ -10,6 +10,7 @@
     clippy::indexing_slicing
 )]
 
+mod allan;
 mod budget;
 mod config;
 mod poses;
