@@ -6,12 +6,12 @@
 //! - [`record`]: driving a device through a session and writing its recording, with gap
 //!   backfill, reconnection and the raw capture;
 //! - the engine: [`recording`], [`fit`], [`verify`], [`calibrate`], [`correct`],
-//!   [`simulate`], [`discrepancy`];
+//!   [`simulate`], [`discrepancy`], [`allan`];
 //! - [`report`]: the report folders with plots (calibration and discrepancy);
 //! - [`demo`]: the main job without hardware, wiring the rest together;
 //! - [`output`]: writing to the terminal.
 pub use rotacal_engine::{
-    calibrate, correct, discrepancy, fit, recording, reference, simulate, verify,
+    allan, calibrate, correct, discrepancy, fit, recording, reference, simulate, verify,
 };
 
 pub mod demo;

@@ -42,6 +42,9 @@ enum Command {
     Decode(cli::decode::Args),
     /// Simulate the experiment and write a recording (docs/simulator.md).
     Simulate(cli::simulate::Args),
+    /// Overlapping Allan deviation of each still record and channel, with 1σ intervals
+    /// and the fitted noise terms N, B, K (docs/allan.md).
+    Allan(cli::allan::Args),
     /// The main job without hardware: simulate seed 000's 10 mHz session, run it through
     /// the firmware's logic, record its packets, calibrate, cross-check, report; exits
     /// with status 1 if any of its checks fails.
@@ -60,6 +63,7 @@ fn main() -> ExitCode {
         Command::Discrepancy(a) => cli::discrepancy::run(a),
         Command::Decode(a) => cli::decode::run(a),
         Command::Simulate(a) => cli::simulate::run(a),
+        Command::Allan(a) => cli::allan::run(a),
         Command::Demo(a) => cli::demo::run(a),
     };
     match result {

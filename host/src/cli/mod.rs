@@ -3,6 +3,7 @@
 
 use clap::ValueEnum;
 
+pub mod allan;
 pub mod apply;
 pub mod calibrate;
 pub mod crosscheck;

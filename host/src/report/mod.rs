@@ -13,6 +13,7 @@
 //!
 //! SVG needs no fonts at build or run time; the viewer renders the text.
 
+pub mod allan;
 pub mod discrepancy;
 mod free;
 

@@ -8,6 +8,7 @@
     clippy::indexing_slicing
 )]
 
+mod allan_cli;
 mod apply;
 mod averaging;
 mod bluez;

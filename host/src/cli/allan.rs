@@ -1,0 +1,235 @@
+//! `rotacal allan`: the overlapping Allan deviation of each still record and channel, its
+//! 1σ intervals and the fitted IEEE noise terms (docs/allan.md).
+
+use std::fmt::Write as _;
+use std::path::PathBuf;
+
+use anyhow::Context;
+use rotacal::allan::{self, Fit, Point, Scale, TermKind};
+
+/// `rotacal allan` arguments.
+#[derive(clap::Args)]
+pub struct Args {
+    /// The recording CSV (docs/formats.md); each condition, pose or free series is one
+    /// record, sampled uniformly (a gap is an error).
+    pub file: PathBuf,
+    /// Write the numbers as JSON (docs/formats.md, "Allan JSON") here.
+    #[arg(long)]
+    pub json: Option<PathBuf>,
+    /// Write a log-log plot (SVG) here.
+    #[arg(long)]
+    pub plot: Option<PathBuf>,
+    /// Use only samples at t_s ≥ this, seconds (device time; without t_s, from the start).
+    #[arg(long)]
+    pub from: Option<f64>,
+    /// Use only samples at t_s ≤ this, seconds.
+    #[arg(long)]
+    pub to: Option<f64>,
+}
+
+/// One channel's results.
+#[derive(serde::Serialize)]
+struct ChannelOut {
+    channel: &'static str,
+    mean: f64,
+    points: Vec<Point>,
+    terms: Option<Fit>,
+    /// √h0: the one-sided noise density (= √2·N), units/√Hz.
+    noise_density_one_sided: Option<f64>,
+    terms_error: Option<String>,
+}
+
+/// One record's results.
+#[derive(serde::Serialize)]
+struct GroupOut {
+    name: String,
+    rate_hz: f64,
+    samples: usize,
+    t_first_s: Option<f64>,
+    t_last_s: Option<f64>,
+    channels: Vec<ChannelOut>,
+}
+
+#[derive(serde::Serialize)]
+struct Out {
+    file: String,
+    #[serde(flatten)]
+    scale: Scale,
+    groups: Vec<GroupOut>,
+}
+
+/// Run it.
+pub fn run(a: Args) -> anyhow::Result<()> {
+    let name = a.file.display().to_string();
+    if let (Some(f), Some(t)) = (a.from, a.to) {
+        if f > t {
+            anyhow::bail!("{name}: --from {f} is after --to {t}");
+        }
+    }
+    let rec = rotacal::recording::read(&a.file)?;
+    let stills = allan::series_of(&rec, a.from, a.to).with_context(|| name.clone())?;
+    if stills.is_empty() {
+        anyhow::bail!("{name}: no samples (in the --from/--to window)");
+    }
+    let scale = allan::to_micro_g(rec.meta.units.as_deref());
+    let factor = scale.micro_g_per_unit.unwrap_or(1.0);
+    let mut groups = Vec::with_capacity(stills.len());
+    for s in &stills {
+        let mut channels = Vec::with_capacity(3);
+        for ch in &s.channels {
+            let y: Vec<f64> = ch.y.iter().map(|v| v * factor).collect();
+            let points = allan::oadev(&y, s.rate_hz, None, true)
+                .with_context(|| format!("{name}: {}, channel {}", s.name, ch.name))?;
+            let (terms, terms_error) = match allan::fit_terms(&points, y.len(), s.rate_hz) {
+                Ok(f) => (Some(f), None),
+                Err(e) => (None, Some(e.to_string())),
+            };
+            let noise_density_one_sided = terms.as_ref().and_then(|f| {
+                f.terms
+                    .iter()
+                    .find(|t| t.kind == TermKind::White)
+                    .map(|t| t.h.sqrt())
+            });
+            channels.push(ChannelOut {
+                channel: ch.name,
+                mean: y.iter().sum::<f64>() / y.len() as f64,
+                points,
+                terms,
+                noise_density_one_sided,
+                terms_error,
+            });
+        }
+        groups.push(GroupOut {
+            name: s.name.clone(),
+            rate_hz: s.rate_hz,
+            samples: s.t_s.len(),
+            t_first_s: s.t_s.first().copied(),
+            t_last_s: s.t_s.last().copied(),
+            channels,
+        });
+    }
+    let out = Out {
+        file: name.clone(),
+        scale,
+        groups,
+    };
+    rotacal::output::emit(&render(&out))?;
+    if let Some(path) = &a.json {
+        std::fs::write(path, serde_json::to_string_pretty(&out)? + "\n")
+            .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+    }
+    if let Some(path) = &a.plot {
+        let panels: Vec<rotacal::report::allan::Panel<'_>> = out
+            .groups
+            .iter()
+            .flat_map(|g| {
+                g.channels.iter().map(|c| rotacal::report::allan::Panel {
+                    title: format!("{}, {}", g.name, c.channel),
+                    points: &c.points,
+                    fit: c.terms.as_ref(),
+                    rate_hz: g.rate_hz,
+                })
+            })
+            .collect();
+        rotacal::report::allan::write(&panels, path, &out.scale.units)?;
+    }
+    Ok(())
+}
+
+/// The tables and terms as text.
+fn render(out: &Out) -> String {
+    let u = &out.scale.units;
+    let mut s = String::new();
+    let _ = match out.scale.micro_g_per_unit {
+        Some(f) => writeln!(s, "{}: results in µg ({f} µg per file unit)", out.file),
+        None => writeln!(
+            s,
+            "{}: results in {u} (the file's units; it gives no sensitivity to convert to µg)",
+            out.file
+        ),
+    };
+    for g in &out.groups {
+        for c in &g.channels {
+            let _ = writeln!(
+                s,
+                "\n{}, channel {}: {} samples at {:.6} Hz, mean {:.6e} {u}",
+                g.name, c.channel, g.samples, g.rate_hz, c.mean
+            );
+            let _ = writeln!(
+                s,
+                "  {:>12} {:>8} {:>8} {:>12} {:>12} {:>12} {:>3} {:>9}",
+                "τ s", "m", "n", "ADEV", "1σ lo", "1σ hi", "α", "edf"
+            );
+            for p in &c.points {
+                let _ = match p.interval {
+                    Some(i) => writeln!(
+                        s,
+                        "  {:>12.6} {:>8} {:>8} {:>12.5e} {:>12.5e} {:>12.5e} {:>3} {:>9.1}",
+                        p.tau_s, p.m, p.n, p.adev, i.lo, i.hi, i.alpha, i.edf
+                    ),
+                    None => writeln!(
+                        s,
+                        "  {:>12.6} {:>8} {:>8} {:>12.5e} {:>12} {:>12} {:>3} {:>9}",
+                        p.tau_s, p.m, p.n, p.adev, "-", "-", "-", "-"
+                    ),
+                };
+            }
+            match (&c.terms, &c.terms_error) {
+                (Some(f), _) => render_terms(&mut s, f, c.noise_density_one_sided, u),
+                (None, Some(e)) => {
+                    let _ = writeln!(s, "  terms: not fitted: {e}");
+                }
+                (None, None) => {}
+            }
+        }
+    }
+    s
+}
+
+fn render_terms(s: &mut String, f: &Fit, nd: Option<f64>, u: &str) {
+    let _ = writeln!(
+        s,
+        "  terms (weighted least squares on {} octave points, {} iterations, reduced χ² {:.2}):",
+        f.points, f.iterations, f.reduced_chi2
+    );
+    let pm = |v: f64, se: Option<f64>| match se {
+        Some(e) => format!("{v:.4e} ± {e:.2e}"),
+        None => format!("{v:.4e}"),
+    };
+    for t in &f.terms {
+        if !t.resolved {
+            let _ = writeln!(
+                s,
+                "    {:<12} not resolved: its unconstrained estimate was negative, set to 0",
+                match t.kind {
+                    TermKind::White => "white",
+                    TermKind::Flicker => "flicker",
+                    TermKind::RandomWalk => "random walk",
+                }
+            );
+            continue;
+        }
+        let _ = match t.kind {
+            TermKind::White => writeln!(
+                s,
+                "    white        N = {} {u}/√Hz (two-sided, = σ(1 s)); one-sided density √h0 = {} {u}/√Hz; h0 = {} {u}²/Hz",
+                pm(t.ieee, t.ieee_se),
+                nd.map_or("-".to_string(), |v| format!("{v:.4e}")),
+                pm(t.h, t.h_se)
+            ),
+            TermKind::Flicker => writeln!(
+                s,
+                "    flicker      B = {} {u} (floor 0.6643·B = {:.4e} {u}); h-1 = {} {u}²",
+                pm(t.ieee, t.ieee_se),
+                f.flicker_floor,
+                pm(t.h, t.h_se)
+            ),
+            TermKind::RandomWalk => writeln!(
+                s,
+                "    random walk  K = {} {u}/√s; h-2 = {} {u}²·Hz",
+                pm(t.ieee, t.ieee_se),
+                pm(t.h, t.h_se)
+            ),
+        };
+    }
+}
