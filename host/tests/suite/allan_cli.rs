@@ -95,6 +95,41 @@ fn allan_cli_json_and_plot() {
 }
 
 #[test]
+fn allan_cli_window() {
+    let d = dir();
+    let (csv, json) = (d.join("window.csv"), d.join("window.json"));
+    std::fs::write(&csv, still("g", 2000, 0..0)).unwrap();
+    let (ok, _, err) = run(&[
+        "allan".as_ref(),
+        csv.as_os_str(),
+        "--from".as_ref(),
+        "5".as_ref(),
+        "--to".as_ref(),
+        "15".as_ref(),
+        "--json".as_ref(),
+        json.as_os_str(),
+    ]);
+    assert!(ok, "{err}");
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    // Samples i/104 in [5, 15]: i = 520 … 1560.
+    assert_eq!(v["groups"][0]["samples"], 1041);
+    assert_eq!(v["micro_g_per_unit"], 1e6);
+    let (ok, _, err) = run(&[
+        "allan".as_ref(),
+        csv.as_os_str(),
+        "--from".as_ref(),
+        "9".as_ref(),
+        "--to".as_ref(),
+        "3".as_ref(),
+    ]);
+    assert!(
+        !ok && err.contains("window.csv") && err.contains("--from 9 is after --to 3"),
+        "{err}"
+    );
+}
+
+#[test]
 fn allan_cli_gap_is_an_error_naming_line_and_time() {
     let d = dir();
     let csv = d.join("gap.csv");

@@ -57,6 +57,20 @@ fn allan_golden_matches_allantools() {
                 (got, want) => panic!("{name} m={}: interval {got:?}, allantools {want:?}", p.m),
             }
         }
+        // An explicit list of factors (allantools: taus = m/rate).
+        let explicit = set["explicit"].as_array().unwrap();
+        let ms: Vec<usize> = explicit
+            .iter()
+            .map(|r| r["m"].as_u64().unwrap() as usize)
+            .collect();
+        let pts = allan::oadev(&y, rate, Some(&ms), false).unwrap();
+        assert_eq!(pts.len(), explicit.len(), "{name}: explicit factors");
+        for (p, r) in pts.iter().zip(explicit) {
+            assert_eq!(p.n as u64, r["n"].as_u64().unwrap(), "{name} m={}", p.m);
+            let e = rel(p.adev, r["adev"].as_f64().unwrap());
+            assert!(e < 1e-12, "{name} m={}: adev rel err {e:e}", p.m);
+            worst_dev = worst_dev.max(e);
+        }
     }
     eprintln!("worst rel err: adev {worst_dev:e}, edf {worst_edf:e}, interval {worst_ci:e}");
 }
@@ -112,51 +126,87 @@ fn allan_flicker_expected_avar() {
     );
 }
 
-/// White + Kasdin–Walter flicker + random walk with known parameters: the fit recovers
-/// each within 4 standard errors (fixed seed).
-#[test]
-fn allan_terms_recover_known_noise() {
-    const N: usize = 16384;
-    let rate_hz = 100.0;
-    let (white_var, q_fl, q_rw): (f64, f64, f64) = (100.0, 100.0, 0.1);
-    let mut rng = ChaCha8Rng::seed_from_u64(30);
+/// White + Kasdin–Walter flicker + random walk, θ = (σ_s², Q, q), seeded.
+fn known_noise(n_samples: usize, theta: [f64; 3], seed: u64) -> Vec<f64> {
+    let [white_var, q_fl, q_rw] = theta;
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let std = Normal::new(0.0, 1.0).unwrap();
     let mut draw = |n: usize| -> Vec<f64> { (0..n).map(|_| std.sample(&mut rng)).collect() };
     // Flicker: y = (1 − B)^(−1/2) w, Kasdin & Walter 1992's filter h_k = h_{k−1}(k − ½)/k,
-    // convolved directly (allantools noise_kasdin does the same by FFT).
-    let w = draw(N);
-    let mut h = vec![1.0f64; N];
-    for k in 1..N {
+    // convolved directly (allantools noise_kasdin does the same by FFT). It starts at
+    // rest, which lowers the largest-τ AVAR by ~1 % (design notes §2): well inside the SEs.
+    let w = draw(n_samples);
+    let mut h = vec![1.0f64; n_samples];
+    for k in 1..n_samples {
         h[k] = h[k - 1] * (k as f64 - 0.5) / k as f64;
     }
     let sq = q_fl.sqrt();
-    let flicker: Vec<f64> = (0..N)
+    let flicker: Vec<f64> = (0..n_samples)
         .map(|n| sq * (0..=n).map(|k| h[k] * w[n - k]).sum::<f64>())
         .collect();
-    let white = draw(N);
-    let steps = draw(N);
+    let white = draw(n_samples);
+    let steps = draw(n_samples);
     let mut walk = 0.0;
-    let y: Vec<f64> = (0..N)
+    (0..n_samples)
         .map(|i| {
             walk += q_rw.sqrt() * steps[i];
             white_var.sqrt() * white[i] + flicker[i] + walk
         })
-        .collect();
+        .collect()
+}
+
+/// White + flicker + random walk with known parameters: the fit recovers each within 4
+/// standard errors (fixed seed), and the IEEE forms follow from θ.
+#[test]
+fn allan_terms_recover_known_noise() {
+    const N: usize = 16384;
+    let rate_hz = 100.0;
+    let theta = [100.0, 100.0, 0.1];
+    let y = known_noise(N, theta, 30);
     let pts = allan::oadev(&y, rate_hz, None, true).unwrap();
     let fit = allan::fit_terms(&pts, N, rate_hz).unwrap();
-    for (t, truth) in fit.terms.iter().zip([white_var, q_fl, q_rw]) {
+    for (t, truth) in fit.terms.iter().zip(theta) {
         let se = t.theta_se_u2.expect("every term resolved");
         let z = (t.theta_u2 - truth) / se;
         eprintln!(
-            "{:?}: {} ± {} (truth {truth}, z = {z:.2})",
-            t.kind, t.theta_u2, se
+            "{:?}: {} ± {se} (truth {truth}, z = {z:.2})",
+            t.kind, t.theta_u2
         );
         assert!(z.abs() < 4.0, "{:?}: z = {z}", t.kind);
         // Each term is resolved: its SE is below its true value.
         assert!(se < truth, "{:?}: SE {se} not informative", t.kind);
     }
-    // IEEE forms: N = √(σ²/fs), B = √Q, K = √(q·fs).
-    let n = &fit.terms[0];
+    // IEEE forms: N = √(σ²/fs), B = √Q, K = √(q·fs), floor = 0.6643·B.
+    let [n, b, k] = [&fit.terms[0], &fit.terms[1], &fit.terms[2]];
     assert!(rel(n.ieee, (n.theta_u2 / rate_hz).sqrt()) < 1e-14);
-    assert!(rel(fit.flicker_floor, 0.664_282_154_3 * fit.terms[1].ieee) < 1e-9);
+    assert!(rel(b.ieee, b.theta_u2.sqrt()) < 1e-14);
+    assert!(rel(k.ieee, (k.theta_u2 * rate_hz).sqrt()) < 1e-14);
+    assert!(rel(fit.flicker_floor, 0.664_282_154_3 * b.ieee) < 1e-9);
+}
+
+/// Probe (not a check; `... allan_terms_z_over_seeds -- --ignored`): the spread of
+/// z = (θ̂ − θ)/SE over 40 seeds. Measured: mean −0.12, 0.21, −0.15; sd 1.31, 1.48, 1.79
+/// (white, flicker, RW; RW resolved in 32 of 40): unbiased, but the SEs are optimistic by
+/// 30–80 % because the octave points are correlated (docs/allan.md).
+#[test]
+#[ignore]
+fn allan_terms_z_over_seeds() {
+    const N: usize = 8192;
+    let theta = [100.0, 100.0, 0.2];
+    let mut zs = vec![vec![]; 3];
+    for seed in 0..40 {
+        let y = known_noise(N, theta, 1000 + seed);
+        let pts = allan::oadev(&y, 100.0, None, true).unwrap();
+        let fit = allan::fit_terms(&pts, N, 100.0).unwrap();
+        for ((t, truth), z) in fit.terms.iter().zip(theta).zip(&mut zs) {
+            if let Some(se) = t.theta_se_u2 {
+                z.push((t.theta_u2 - truth) / se);
+            }
+        }
+    }
+    for z in &zs {
+        let m = z.iter().sum::<f64>() / z.len() as f64;
+        let sd = (z.iter().map(|v| (v - m).powi(2)).sum::<f64>() / (z.len() - 1) as f64).sqrt();
+        eprintln!("n {} mean z {m:.2} sd z {sd:.2}", z.len());
+    }
 }

@@ -56,7 +56,14 @@ def main():
             except (NotImplementedError, AssertionError):
                 row.update({"alpha": None, "edf": None, "lo": None, "hi": None})
             rows.append(row)
-        out["sets"].append({"name": name, "rate_hz": rate, "len": len(y), "rows": rows})
+        # An explicit tau list (allantools rounds tau·rate to m, half to even).
+        ms = [3, 5, 100, 999]
+        t2, a2, _, n2 = allantools.oadev(y, rate=rate, data_type="freq",
+                                         taus=np.array(ms) / rate)
+        explicit = [{"m": int(round(t * rate)), "adev": d, "n": int(n)}
+                    for t, d, n in zip(t2, a2, n2)]
+        out["sets"].append({"name": name, "rate_hz": rate, "len": len(y), "rows": rows,
+                            "explicit": explicit})
     # scipy's chi-square quantiles, against which statrs' inverse_cdf is checked
     q = []
     edfs = [1.3, 2.0, 7.5, 31.7, 150.2, 1234.5, 98765.4, 1.0e6]
