@@ -134,13 +134,16 @@ pub fn fit_terms(points: &[Point], len: usize, rate_hz: f64) -> Result<Fit, Alla
         .filter(|p| p.adev.is_finite() && p.adev > 0.0)
         .map(|p| (p.m, p.adev * p.adev))
         .collect();
-    let mut active = [true; 3];
+    let mut active: [bool; 3];
     let mut iterations = 0;
     // Start from relative least squares (weights 1/σ̂⁴), then IRLS with model weights.
     let mut weights: Vec<f64> = pts.iter().map(|(_, v)| 1.0 / (v * v)).collect();
     let mut theta = [0.0f64; 3];
     let mut cov: DMatrix<f64>;
     loop {
+        // The active set is chosen afresh at each weighting: a term dropped under the
+        // first, relative weights may be needed under the model's.
+        active = [true; 3];
         let (t, c) = solve_active(&pts, &weights, &mut active)?;
         let change = t
             .iter()

@@ -185,8 +185,8 @@ fn allan_terms_recover_known_noise() {
 }
 
 /// Probe (not a check; `... allan_terms_z_over_seeds -- --ignored`): the spread of
-/// z = (θ̂ − θ)/SE over 40 seeds. Measured: mean −0.12, 0.21, −0.15; sd 1.31, 1.48, 1.79
-/// (white, flicker, RW; RW resolved in 32 of 40): unbiased, but the SEs are optimistic by
+/// z = (θ̂ − θ)/SE over 40 seeds. Measured: mean −0.03, 0.09, −0.33; sd 1.25, 1.40, 1.82
+/// (white, flicker, RW; RW resolved in 37 of 40): unbiased, but the SEs are optimistic by
 /// 30–80 % because the octave points are correlated (docs/allan.md).
 #[test]
 #[ignore]
