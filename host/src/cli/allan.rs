@@ -53,6 +53,7 @@ struct GroupOut {
 #[derive(serde::Serialize)]
 struct Out {
     file: String,
+    method: rotacal::recording::Method,
     #[serde(flatten)]
     scale: Scale,
     groups: Vec<GroupOut>,
@@ -110,6 +111,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     }
     let out = Out {
         file: name.clone(),
+        method: rec.method,
         scale,
         groups,
     };
@@ -148,6 +150,12 @@ fn render(out: &Out) -> String {
             out.file
         ),
     };
+    if out.method == rotacal::recording::Method::Rotation {
+        let _ = writeln!(
+            s,
+            "note: method=rotation: these records turn, so each deviation includes the rotation signal, not only noise"
+        );
+    }
     for g in &out.groups {
         for c in &g.channels {
             let _ = writeln!(

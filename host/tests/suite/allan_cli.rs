@@ -151,3 +151,39 @@ fn allan_cli_counts_stay_counts() {
     assert!(ok, "{err}");
     assert!(out.contains("results in counts (the file's units"), "{out}");
 }
+
+#[test]
+fn allan_cli_stepped_file_one_record_per_angle() {
+    let d = dir();
+    let (csv, json) = (d.join("stepped.csv"), d.join("stepped.json"));
+    let mut rng = ChaCha8Rng::seed_from_u64(1554);
+    let noise = Normal::new(0.0, 3.0).unwrap();
+    let mut s = String::from(
+        "# rotacal recording v1\n# method=static\n# units=counts\n# sample_rate_hz=16\ncondition,angle_deg,u,v,w\n",
+    );
+    for c in ["x", "y", "z"] {
+        for angle in [0.0, 90.0] {
+            for _ in 0..300 {
+                let [u, v, w]: [f64; 3] = std::array::from_fn(|_| noise.sample(&mut rng));
+                writeln!(s, "{c},{angle},{u},{v},{}", 16384.0 + w).unwrap();
+            }
+        }
+    }
+    std::fs::write(&csv, s).unwrap();
+    let (ok, out, err) = run(&[
+        "allan".as_ref(),
+        csv.as_os_str(),
+        "--json".as_ref(),
+        json.as_os_str(),
+    ]);
+    assert!(ok, "{err}");
+    assert!(!out.contains("method=rotation"), "{out}");
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let groups = v["groups"].as_array().unwrap();
+    assert_eq!(groups.len(), 6, "{out}");
+    assert_eq!(groups[0]["name"], "condition x at 0°");
+    assert_eq!(groups[1]["name"], "condition x at 90°");
+    assert_eq!(groups[1]["samples"], 300);
+    assert_eq!(groups[1]["rate_hz"], 16.0);
+}

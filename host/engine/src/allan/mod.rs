@@ -38,8 +38,10 @@ pub enum AllanError {
         /// The rate given.
         rate_hz: f64,
     },
-    /// An averaging factor is 0 or leaves fewer than 2 differences.
-    #[error("averaging factor m = {m} for {len} samples: expected 1 ≤ m ≤ (N − 1)/2")]
+    /// An explicit averaging factor is 0 or beyond the N + 1 phase points (allantools
+    /// drops these silently; a caller who lists one made a mistake). Factors that leave
+    /// n ≤ 1 differences are dropped as allantools does.
+    #[error("averaging factor m = {m} for {len} samples: expected 1 ≤ m ≤ N")]
     BadFactor {
         /// The factor.
         m: usize,

@@ -90,8 +90,9 @@ pub fn to_micro_g(units: Option<&str>) -> Scale {
 
 /// The still records of `rec`, restricted to `from_s ≤ t ≤ to_s` (device time t_s; i/rate
 /// from the group's start without it), with their rates. Groups: each condition (and
-/// rate), each run of one pose in a file with gravity directions, the free series (each
-/// run of one `pose` name, if it has that column).
+/// rate; each run of one table angle in a stepped file), each run of one pose in a file
+/// with gravity directions, the free series (each run of one `pose` name, if it has that
+/// column). A rotation group is taken whole: it is not still (the caller says so).
 pub fn series_of(
     rec: &Recording,
     from_s: Option<f64>,
@@ -107,14 +108,24 @@ pub fn series_of(
             ),
             None => format!("condition {} (from line {})", g.condition, g.first_line),
         };
-        let y =
+        let y: Vec<[f64; 3]> =
             g.u.iter()
                 .zip(&g.v)
                 .zip(&g.w)
                 .map(|((u, v), w)| [*u, *v, *w])
                 .collect();
-        let t = (!g.t_s.is_empty()).then(|| g.t_s.clone());
-        raw.push((name, t, y, None));
+        let t = (!g.t_s.is_empty()).then_some(g.t_s.as_slice());
+        if g.angle_deg.is_empty() {
+            raw.push((name, t.map(<[f64]>::to_vec), y, None));
+        } else {
+            // A stepped group is still only at each table angle: one record per step.
+            let labels: Vec<String> = g
+                .angle_deg
+                .iter()
+                .map(|a| format!("{} at {a}°", g.condition))
+                .collect();
+            push_runs(&mut raw, "condition", &labels, &y, t, None);
+        }
     }
     if let Some(o) = &rec.oriented {
         let labels: Vec<String> = match &o.pose {
@@ -125,11 +136,18 @@ pub fn series_of(
                 .map(|g| format!("({:.3}, {:.3}, {:.3})", g[0], g[1], g[2]))
                 .collect(),
         };
-        push_runs(&mut raw, "pose", &labels, &o.y, o.t_s.as_deref(), &o.line);
+        push_runs(
+            &mut raw,
+            "pose",
+            &labels,
+            &o.y,
+            o.t_s.as_deref(),
+            Some(&o.line),
+        );
     }
     if let Some(s) = &rec.series {
         match &s.pose {
-            Some(p) => push_runs(&mut raw, "pose", p, &s.y, Some(&s.t_s), &s.line),
+            Some(p) => push_runs(&mut raw, "pose", p, &s.y, Some(&s.t_s), Some(&s.line)),
             None => raw.push((
                 "free series".to_string(),
                 Some(s.t_s.clone()),
@@ -150,14 +168,15 @@ pub fn series_of(
 /// A group before its timing is checked: name, t_s, rows u v w, file lines.
 type Raw = (String, Option<Vec<f64>>, Vec<[f64; 3]>, Option<Vec<u64>>);
 
-/// Split rows into runs of equal consecutive labels.
+/// Split rows into runs of equal consecutive labels (`line`: the rows' file lines, when
+/// known).
 fn push_runs(
     raw: &mut Vec<Raw>,
     kind: &str,
     labels: &[String],
     y: &[[f64; 3]],
     t_s: Option<&[f64]>,
-    line: &[u64],
+    line: Option<&[u64]>,
 ) {
     let mut start = 0;
     while start < labels.len() {
@@ -170,14 +189,15 @@ fn push_runs(
             .take_while(|l| *l == label)
             .count();
         let take = |v: &[f64]| v.iter().skip(start).take(len).copied().collect::<Vec<_>>();
+        let name = match line.and_then(|l| l.get(start)) {
+            Some(first) => format!("{kind} {label} (from line {first})"),
+            None => format!("{kind} {label}"),
+        };
         raw.push((
-            format!(
-                "{kind} {label} (from line {})",
-                line.get(start).copied().unwrap_or(0)
-            ),
+            name,
             t_s.map(take),
             y.iter().skip(start).take(len).copied().collect(),
-            Some(line.iter().skip(start).take(len).copied().collect()),
+            line.map(|l| l.iter().skip(start).take(len).copied().collect()),
         ));
         start += len;
     }
