@@ -139,6 +139,7 @@ fn allan_cli_gap_is_an_error_naming_line_and_time() {
     assert!(!ok);
     assert!(err.contains("gap.csv") && err.contains("gap"), "{err}");
     assert!(err.contains("line 1005"), "{err}");
+    assert_eq!(err.matches("a gap").count(), 1, "said once: {err}");
     assert!(err.contains(&format!("t_s = {}", 999.0 / 104.0)), "{err}");
 }
 

@@ -49,8 +49,14 @@ pub enum AllanError {
         len: usize,
     },
     /// A record has a gap (dropped samples) or irregular timing.
-    #[error("{0}")]
+    #[error(transparent)]
     Gap(#[from] Gap),
+    /// A record has neither a t_s spacing nor a `sample_rate_hz` to give its rate.
+    #[error("{group}: no sample interval (no t_s column with two rows, no sample_rate_hz)")]
+    NoRate {
+        /// The record's name.
+        group: String,
+    },
     /// The terms fit had too few points with an EDF.
     #[error("{points} octave points: the terms fit needs at least {needed}")]
     TooFewPoints {

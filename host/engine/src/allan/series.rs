@@ -2,6 +2,7 @@
 //! series, each checked for gaps: a dropped sample would bend every τ above it, so it is an
 //! error naming where, never bridged.
 
+use super::AllanError;
 use crate::recording::Recording;
 
 /// Standard gravity, m/s² (the g of µg; ISO 80000-3).
@@ -10,8 +11,8 @@ pub const STANDARD_GRAVITY: f64 = 9.806_65;
 /// A gap or irregular step in a record's timing.
 #[derive(Debug, thiserror::Error, Clone, PartialEq)]
 #[error(
-    "{group}: {what} between t_s = {before_s} s and {after_s} s ({step_s} s; the sample \
-     interval is {interval_s} s){}",
+    "{group}: {what} between t_s = {before_s} s and {after_s} s (a step of {step_s:.6} s; \
+     the sample interval is {interval_s:.6} s){}",
     line.map_or(String::new(), |l| format!(", at line {l}"))
 )]
 pub struct Gap {
@@ -97,7 +98,7 @@ pub fn series_of(
     rec: &Recording,
     from_s: Option<f64>,
     to_s: Option<f64>,
-) -> Result<Vec<Still>, Gap> {
+) -> Result<Vec<Still>, AllanError> {
     let meta_rate = rec.meta.sample_rate_hz;
     let mut raw: Vec<Raw> = vec![];
     for g in &rec.groups {
@@ -213,7 +214,7 @@ fn uniform(
     meta_rate: Option<f64>,
     from_s: Option<f64>,
     to_s: Option<f64>,
-) -> Result<Option<Still>, Gap> {
+) -> Result<Option<Still>, AllanError> {
     let (t_s, interval_s) = match t {
         Some(t) => {
             let mut steps: Vec<f64> = t.iter().zip(t.iter().skip(1)).map(|(a, b)| b - a).collect();
@@ -231,16 +232,7 @@ fn uniform(
         }
     };
     if !(interval_s.is_finite() && interval_s > 0.0) {
-        let first = t_s.first().copied().unwrap_or(0.0);
-        return Err(Gap {
-            group: name,
-            what: "no sample interval (no t_s spacing and no sample_rate_hz)",
-            before_s: first,
-            after_s: first,
-            step_s: 0.0,
-            interval_s: f64::NAN,
-            line: line.as_ref().and_then(|l| l.first().copied()),
-        });
+        return Err(AllanError::NoRate { group: name });
     }
     let keep: Vec<usize> = t_s
         .iter()
@@ -260,7 +252,7 @@ fn uniform(
             continue;
         };
         let row = keep.get(k + 1).copied().unwrap_or(0);
-        return Err(Gap {
+        return Err(AllanError::Gap(Gap {
             group: name,
             what,
             before_s: *a,
@@ -268,7 +260,7 @@ fn uniform(
             step_s: step,
             interval_s,
             line: line.as_ref().and_then(|l| l.get(row).copied()),
-        });
+        }));
     }
     if keep.is_empty() {
         return Ok(None);

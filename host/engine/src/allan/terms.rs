@@ -158,6 +158,8 @@ pub fn fit_terms(points: &[Point], len: usize, rate_hz: f64) -> Result<Fit, Alla
             .iter()
             .zip(&model)
             .map(|((m, _), (v, alpha))| {
+                // α is 0, −1 or −2 and M = N − 2m ≥ 1 here, for which Greenhall's EDF
+                // always exists (≥ 1); 1, the least it can be, only guards the type.
                 let edf = edf_greenhall(*alpha, *m, len).unwrap_or(1.0);
                 edf / (2.0 * v * v)
             })
