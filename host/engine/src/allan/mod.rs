@@ -7,9 +7,12 @@
 //!   `ci.confidence_interval_noiseID`);
 //! - `terms`: the weighted least-squares fit of white, flicker and random-walk terms to the
 //!   octave points, with the exact discrete expected Allan variance of each;
-//! - `series`: a recording's groups and channels as uniformly sampled series.
+//! - `series`: a recording's groups and channels as uniformly sampled series;
+//! - [`powerlaw`]: the terms' structure functions, the exact expected Allan variance from
+//!   them, and an exact flicker generator (the simulator's too).
 
 mod ci;
+pub mod powerlaw;
 mod series;
 mod terms;
 

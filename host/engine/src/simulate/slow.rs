@@ -19,13 +19,14 @@
 //! expected Allan variance of the sum at every averaging length from the structure
 //! function D(k) = E[(e_{t+k} − e_t)²], which every noise here has.
 
+use crate::allan::powerlaw::{flicker_increments, flicker_structure};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::StandardNormal;
 use rotacal_shared::Channel;
-use rustfft::num_complex::Complex;
-use rustfft::FftPlanner;
 use std::f64::consts::{LN_2, PI};
+
+pub use crate::allan::powerlaw::allan_variance;
 
 /// One µg in m/s² (standard gravity, the unit's definition; not the local g).
 pub const MICRO_G: f64 = 9.806_65e-6;
@@ -77,8 +78,7 @@ impl SlowNoise {
     /// walk k·(K²/fs).
     pub fn structure(&self, ch: Channel, k: u64) -> f64 {
         let (q, w) = (ch.of(&self.flicker_q), ch.of(&self.walk_step_var));
-        let harmonic: f64 = (1..=k).map(|j| 1.0 / (2 * j - 1) as f64).sum();
-        4.0 * q / PI * harmonic + w * k as f64
+        q * flicker_structure(k) + w * k as f64
     }
 
     /// The three channels' slow noise on a grid of `len` samples (grid point i at time
@@ -117,80 +117,9 @@ impl SlowNoise {
     }
 }
 
-/// `n` stationary increments of unit-Q flicker (ARFIMA(0, −½, 0)) by circulant embedding:
-/// the autocovariances up to lag M ≥ n wrapped into a circle of 2M, its eigenvalues λ by
-/// one FFT, then the real part of FFT(√(λ/2M)·(Z₁ + iZ₂)).
-fn flicker_increments(n: usize, rng: &mut ChaCha8Rng) -> Vec<f64> {
-    if n == 0 {
-        return Vec::new();
-    }
-    let m = n.next_power_of_two();
-    let size = 2 * m;
-    let gamma = |j: usize| {
-        let j = j as f64;
-        if j == 0.0 {
-            4.0 / PI
-        } else {
-            -4.0 / (PI * (4.0 * j * j - 1.0))
-        }
-    };
-    let mut c: Vec<Complex<f64>> = (0..size)
-        .map(|i| Complex::new(gamma(if i <= m { i } else { size - i }), 0.0))
-        .collect();
-    let mut planner = FftPlanner::new();
-    let fft = planner.plan_fft_forward(size);
-    fft.process(&mut c);
-    // The eigenvalues are positive in exact arithmetic (the smallest, at frequency 0, is
-    // (4/π)/(2M + 1) − γ(M) > 0); round-off may leave them a few ulps below zero.
-    let scale = 1.0 / size as f64;
-    let mut x: Vec<Complex<f64>> = c
-        .iter()
-        .map(|l| {
-            let a = (l.re.max(0.0) * scale).sqrt();
-            Complex::new(
-                a * rng.sample::<f64, _>(StandardNormal),
-                a * rng.sample::<f64, _>(StandardNormal),
-            )
-        })
-        .collect();
-    fft.process(&mut x);
-    x.iter().take(n).map(|z| z.re).collect()
-}
-
-/// The expected Allan variance at averaging length `m` samples of a noise with structure
-/// function `d` (d(k) = E[(e_{t+k} − e_t)²]): −1/(2m²)·Σ_{k=1}^{2m−1} r(k)·d(k), r the
-/// autocorrelation of the Allan weights (−1 × m, +1 × m), r(k) = 2m − 3k up to k = m and
-/// k − 2m beyond. Exact for any noise with stationary increments: white, AR, flicker and
-/// random walk alike (for white noise of variance σ², σ²/m).
-pub fn allan_variance(m: u64, d: impl Fn(u64) -> f64) -> f64 {
-    if m == 0 {
-        return f64::NAN;
-    }
-    let mf = m as f64;
-    let sum: f64 = (1..2 * m)
-        .map(|k| {
-            let r = if k <= m {
-                2.0 * mf - 3.0 * k as f64
-            } else {
-                k as f64 - 2.0 * mf
-            };
-            r * d(k)
-        })
-        .sum();
-    -sum / (2.0 * mf * mf)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn white_noise_gives_sigma_squared_over_m() {
-        for m in [1, 2, 7, 64] {
-            let a = allan_variance(m, |_| 2.0 * 3.0);
-            assert!((a - 3.0 / m as f64).abs() < 1e-12 * 3.0, "m = {m}: {a}");
-        }
-    }
 
     #[test]
     fn random_walk_and_flicker_match_their_closed_forms() {
@@ -210,35 +139,5 @@ mod tests {
         assert!((long / plateau - 1.0).abs() < 1e-5, "{}", long / plateau);
         let one = allan_variance(1, |k| n.structure(Channel::V, k));
         assert!((one / plateau - std::f64::consts::LOG2_E).abs() < 1e-12);
-    }
-
-    #[test]
-    fn flicker_increments_have_the_arfima_autocovariances() {
-        // 64 draws of 4096 increments: the sample lag-0 and lag-1 autocovariances against
-        // 4/π and −4/(3π), within 5 standard errors of their Monte Carlo mean.
-        let mut rng = ChaCha8Rng::seed_from_u64(7);
-        let (mut g0, mut g1) = (Vec::new(), Vec::new());
-        for _ in 0..64 {
-            let u = flicker_increments(4096, &mut rng);
-            let n = u.len() as f64;
-            g0.push(u.iter().map(|x| x * x).sum::<f64>() / n);
-            g1.push(
-                u.iter()
-                    .zip(u.iter().skip(1))
-                    .map(|(a, b)| a * b)
-                    .sum::<f64>()
-                    / (n - 1.0),
-            );
-        }
-        for (vals, want) in [(g0, 4.0 / PI), (g1, -4.0 / (3.0 * PI))] {
-            let k = vals.len() as f64;
-            let mean = vals.iter().sum::<f64>() / k;
-            let sd = (vals.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (k - 1.0)).sqrt();
-            assert!(
-                (mean - want).abs() < 5.0 * sd / k.sqrt(),
-                "{mean} vs {want} (se {})",
-                sd / k.sqrt()
-            );
-        }
     }
 }
