@@ -633,20 +633,39 @@ fn page_butterworth(fc: f64, fs: f64) -> PageNoise {
 
 /// The page's noise for the first `samples` samples of a file whose only stream-0 draws
 /// are the noise's: n_b burn-in innovations per channel from stream 1 (u's, then v's, then
-/// w's), then three per sample from stream 0, all through the filter from rest.
-fn page_noise(p: &PageNoise, sd: [f64; 3], seed: u64, samples: usize) -> [Vec<f64>; 3] {
+/// w's), then three per sample from stream 0, all through the filter from rest. With
+/// `dwell = Some((readings, idle))` (a static file), after every `readings` samples the
+/// filter runs `idle` unread steps per channel on innovations from stream 3 (u's, then
+/// v's, then w's).
+fn page_noise(
+    p: &PageNoise,
+    sd: [f64; 3],
+    seed: u64,
+    samples: usize,
+    dwell: Option<(usize, usize)>,
+) -> [Vec<f64>; 3] {
     let mut s1 = ChaCha8Rng::seed_from_u64(seed);
     s1.set_stream(1);
-    let mut w: [Vec<f64>; 3] = Default::default();
+    // Each channel's innovations, and whether the step's output is a sample of the file.
+    let mut w: [Vec<(f64, bool)>; 3] = Default::default();
     for wj in w.iter_mut() {
         for _ in 0..p.burn {
-            wj.push(s1.sample(StandardNormal));
+            wj.push((s1.sample(StandardNormal), false));
         }
     }
     let mut s0 = ChaCha8Rng::seed_from_u64(seed);
-    for _ in 0..samples {
+    let mut s3 = ChaCha8Rng::seed_from_u64(seed);
+    s3.set_stream(3);
+    for i in 0..samples {
         for wj in w.iter_mut() {
-            wj.push(s0.sample(StandardNormal));
+            wj.push((s0.sample(StandardNormal), true));
+        }
+        if let Some((_, idle)) = dwell.filter(|(readings, _)| (i + 1) % readings == 0) {
+            for wj in w.iter_mut() {
+                for _ in 0..idle {
+                    wj.push((s3.sample(StandardNormal), false));
+                }
+            }
         }
     }
     let mut out: [Vec<f64>; 3] = Default::default();
@@ -657,7 +676,7 @@ fn page_noise(p: &PageNoise, sd: [f64; 3], seed: u64, samples: usize) -> [Vec<f6
             let mut x = 0.0;
             for (i, bi) in p.b.iter().enumerate() {
                 if t >= i {
-                    x += bi * w[j][t - i];
+                    x += bi * w[j][t - i].0;
                 }
             }
             for (i, ai) in p.a.iter().enumerate() {
@@ -667,7 +686,12 @@ fn page_noise(p: &PageNoise, sd: [f64; 3], seed: u64, samples: usize) -> [Vec<f6
             }
             y[t] = x;
         }
-        out[j] = y[p.burn..].iter().map(|y| sd[j] / p.v.sqrt() * y).collect();
+        out[j] = y
+            .iter()
+            .zip(&w[j])
+            .filter(|(_, (_, read))| *read)
+            .map(|(y, _)| sd[j] / p.v.sqrt() * y)
+            .collect();
     }
     out
 }
@@ -718,6 +742,7 @@ fn correlated_noise_matches_an_independent_model() {
             ),
             page_ar2(1.5, -0.7),
             [3.0, 4.0, 5.0],
+            None,
         ),
         (
             "Butterworth, static",
@@ -728,9 +753,11 @@ fn correlated_noise_matches_an_independent_model() {
             ),
             page_butterworth(11.6, 104.0),
             [2.5; 3],
+            // 50 readings a second-long dwell at 104 Hz: 54 unread steps after each.
+            Some((50, 54)),
         ),
     ];
-    for (name, toml, page, sd) in cases {
+    for (name, toml, page, sd, dwell) in cases {
         let s = sim(&toml);
         let t = s.truth();
         let p = &t.noise_process;
@@ -769,7 +796,7 @@ fn correlated_noise_matches_an_independent_model() {
         );
 
         let e = noise_of(&s);
-        let want = page_noise(&page, sd, 11, e[0].len());
+        let want = page_noise(&page, sd, 11, e[0].len(), dwell);
         let mut worst = 0.0f64;
         for j in 0..3 {
             for (x, y) in e[j].iter().zip(&want[j]) {
