@@ -8,6 +8,10 @@ use crate::recording::Recording;
 /// Standard gravity, m/s² (the g of µg; ISO 80000-3).
 pub const STANDARD_GRAVITY: f64 = 9.806_65;
 
+/// One µg in m/s² (10⁻⁶ standard gravity, written out so the simulator's levels keep their
+/// bits).
+pub const MICRO_G: f64 = 9.806_65e-6;
+
 /// A gap or irregular step in a record's timing.
 #[derive(Debug, thiserror::Error, Clone, PartialEq)]
 #[error(

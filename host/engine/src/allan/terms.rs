@@ -132,14 +132,9 @@ const BOOTSTRAP_SEED: u64 = 0xA11A_0952;
 /// octave points as independent, and they are not (neighbouring factors share the data):
 /// over 40 records it understated the spread by 25–80 %.
 pub fn fit_terms(points: &[Point], len: usize, rate_hz: f64) -> Result<Fit, AllanError> {
-    let pts: Vec<(usize, f64)> = points
-        .iter()
-        .filter(|p| p.adev.is_finite() && p.adev > 0.0)
-        .map(|p| (p.m, p.adev * p.adev))
-        .collect();
+    let pts = fit_points(points, &[]);
     let est = estimate(&pts, len)?;
-    let factors: Vec<usize> = pts.iter().map(|(m, _)| *m).collect();
-    let se = bootstrap_se(&est, &factors, len, rate_hz)?;
+    let se = bootstrap_se(&est, &pts, len, rate_hz)?;
     let terms: Vec<Term> = TermKind::ALL
         .iter()
         .zip(est.theta)
@@ -160,6 +155,33 @@ pub fn fit_terms(points: &[Point], len: usize, rate_hz: f64) -> Result<Fit, Alla
     })
 }
 
+/// One octave point as the fit uses it: its factor, σ̂², and each term's expected Allan
+/// variance per unit parameter there (white, flicker, random walk).
+#[derive(Clone, Copy)]
+struct Pt {
+    m: usize,
+    var: f64,
+    shape: [f64; 3],
+}
+
+/// The usable points of `points`, the term shapes taken from `known` (points of the same
+/// factors, already computed) where they are there: the flicker's costs O(m), and the
+/// bootstrap refits the same factors many times.
+fn fit_points(points: &[Point], known: &[Pt]) -> Vec<Pt> {
+    points
+        .iter()
+        .filter(|p| p.adev.is_finite() && p.adev > 0.0)
+        .map(|p| Pt {
+            m: p.m,
+            var: p.adev * p.adev,
+            shape: known
+                .iter()
+                .find(|k| k.m == p.m)
+                .map_or_else(|| TermKind::ALL.map(|k| expected_avar(k, p.m)), |k| k.shape),
+        })
+        .collect()
+}
+
 /// The fit's estimate before its standard errors.
 struct Estimate {
     theta: [f64; 3],
@@ -169,11 +191,11 @@ struct Estimate {
 }
 
 /// Iterated weighted least squares on (m, σ̂²) points of a series of `len` samples.
-fn estimate(pts: &[(usize, f64)], len: usize) -> Result<Estimate, AllanError> {
+fn estimate(pts: &[Pt], len: usize) -> Result<Estimate, AllanError> {
     let mut active: [bool; 3];
     let mut iterations = 0;
     // Start from relative least squares (weights 1/σ̂⁴), then IRLS with model weights.
-    let mut weights: Vec<f64> = pts.iter().map(|(_, v)| 1.0 / (v * v)).collect();
+    let mut weights: Vec<f64> = pts.iter().map(|p| 1.0 / (p.var * p.var)).collect();
     let mut theta = [0.0f64; 3];
     loop {
         // The active set is chosen afresh at each weighting: a term dropped under the
@@ -187,11 +209,11 @@ fn estimate(pts: &[(usize, f64)], len: usize) -> Result<Estimate, AllanError> {
             .fold(0.0f64, f64::max);
         theta = t;
         iterations += 1;
-        let model: Vec<(f64, i32)> = pts.iter().map(|(m, _)| model_at(&theta, *m)).collect();
+        let model: Vec<(f64, i32)> = pts.iter().map(|p| model_at(&theta, p)).collect();
         weights = pts
             .iter()
             .zip(&model)
-            .map(|((m, _), (v, alpha))| {
+            .map(|(Pt { m, .. }, (v, alpha))| {
                 // α is 0, −1 or −2 and M = N − 2m ≥ 1 here, for which Greenhall's EDF
                 // always exists (≥ 1); 1, the least it can be, only guards the type.
                 let edf = edf_greenhall(*alpha, *m, len).unwrap_or(1.0);
@@ -206,7 +228,7 @@ fn estimate(pts: &[(usize, f64)], len: usize) -> Result<Estimate, AllanError> {
     let rss: f64 = pts
         .iter()
         .zip(&weights)
-        .map(|((m, v), w)| w * (v - model_at(&theta, *m).0).powi(2))
+        .map(|(p, w)| w * (p.var - model_at(&theta, p).0).powi(2))
         .sum();
     let dof = pts.len().saturating_sub(n_active).max(1) as f64;
     Ok(Estimate {
@@ -221,10 +243,11 @@ fn estimate(pts: &[(usize, f64)], len: usize) -> Result<Estimate, AllanError> {
 /// term the fit left out, or when fewer than half the replicates could be fitted).
 fn bootstrap_se(
     est: &Estimate,
-    factors: &[usize],
+    pts: &[Pt],
     len: usize,
     rate_hz: f64,
 ) -> Result<[Option<f64>; 3], AllanError> {
+    let factors: Vec<usize> = pts.iter().map(|p| p.m).collect();
     let mut rng = ChaCha8Rng::seed_from_u64(BOOTSTRAP_SEED);
     let flicker = FlickerIncrements::new(len.saturating_sub(1));
     let [white, q_flicker, q_walk] = est.theta.map(|t| t.max(0.0).sqrt());
@@ -248,12 +271,8 @@ fn bootstrap_se(
                 white * n + q_flicker * level_f + q_walk * level_w
             })
             .collect();
-        let pts: Vec<(usize, f64)> = super::oadev(&y, rate_hz, Some(factors), false)?
-            .iter()
-            .filter(|p| p.adev.is_finite() && p.adev > 0.0)
-            .map(|p| (p.m, p.adev * p.adev))
-            .collect();
-        if let Ok(e) = estimate(&pts, len) {
+        let replicate = fit_points(&super::oadev(&y, rate_hz, Some(&factors), false)?, pts);
+        if let Ok(e) = estimate(&replicate, len) {
             draws.push(e.theta);
         }
     }
@@ -270,11 +289,10 @@ fn bootstrap_se(
 }
 
 /// The model variance at m and the α of its largest term (for that point's EDF).
-fn model_at(theta: &[f64; 3], m: usize) -> (f64, i32) {
-    let parts = TermKind::ALL.map(|k| expected_avar(k, m));
+fn model_at(theta: &[f64; 3], p: &Pt) -> (f64, i32) {
     let mut best = (f64::NEG_INFINITY, 0);
     let mut total = 0.0;
-    for ((kind, g), th) in TermKind::ALL.iter().zip(parts).zip(theta) {
+    for ((kind, g), th) in TermKind::ALL.iter().zip(p.shape).zip(theta) {
         let v = th * g;
         total += v;
         if v > best.0 {
@@ -287,16 +305,15 @@ fn model_at(theta: &[f64; 3], m: usize) -> (f64, i32) {
 /// Weighted least squares on the active terms, dropping the most negative term and
 /// refitting until all are ≥ 0. Returns θ (0 for inactive).
 fn solve_active(
-    pts: &[(usize, f64)],
+    pts: &[Pt],
     weights: &[f64],
     active: &mut [bool; 3],
 ) -> Result<[f64; 3], AllanError> {
     loop {
-        let kinds: Vec<TermKind> = TermKind::ALL
+        let columns: Vec<usize> = (0..3).filter(|i| active.get(*i) == Some(&true)).collect();
+        let kinds: Vec<TermKind> = columns
             .iter()
-            .zip(active.iter())
-            .filter(|(_, a)| **a)
-            .map(|(k, _)| *k)
+            .filter_map(|i| TermKind::ALL.get(*i).copied())
             .collect();
         let p = kinds.len();
         if p == 0 {
@@ -308,12 +325,14 @@ fn solve_active(
                 needed: p + 1,
             });
         }
-        let g = DMatrix::from_fn(pts.len(), p, |i, j| match (pts.get(i), kinds.get(j)) {
-            (Some((m, _)), Some(k)) => expected_avar(*k, *m),
-            _ => 0.0,
+        let g = DMatrix::from_fn(pts.len(), p, |i, j| {
+            let column = columns.get(j).copied().unwrap_or(0);
+            pts.get(i)
+                .and_then(|pt| pt.shape.get(column).copied())
+                .unwrap_or(0.0)
         });
         let w = DVector::from_iterator(weights.len(), weights.iter().copied());
-        let y = DVector::from_iterator(pts.len(), pts.iter().map(|(_, v)| *v));
+        let y = DVector::from_iterator(pts.len(), pts.iter().map(|p| p.var));
         let gw = DMatrix::from_fn(pts.len(), p, |i, j| {
             g.get((i, j)).copied().unwrap_or(0.0) * w.get(i).copied().unwrap_or(0.0)
         });

@@ -20,6 +20,7 @@
 //! function D(k) = E[(e_{t+k} − e_t)²], which every noise here has.
 
 use crate::allan::powerlaw::{flicker_increments, flicker_structure};
+use crate::allan::MICRO_G;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::StandardNormal;
@@ -27,9 +28,6 @@ use rotacal_shared::Channel;
 use std::f64::consts::{LN_2, PI};
 
 pub use crate::allan::powerlaw::allan_variance;
-
-/// One µg in m/s² (standard gravity, the unit's definition; not the local g).
-pub const MICRO_G: f64 = 9.806_65e-6;
 
 /// The slow noise of the three channels, in output units.
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -58,6 +56,7 @@ impl SlowNoise {
         let levels = floor_ug.iter().zip(&walk_ug_per_sqrt_s).zip(&sensitivity);
         let terms = n.flicker_q.iter_mut().zip(&mut n.walk_step_var);
         for ((q, w), ((floor, walk), s)) in terms.zip(levels) {
+            // µg of standard gravity (the unit's definition; not the local g).
             let out = |ug: f64| ug * MICRO_G * s;
             *q = PI * out(*floor).powi(2) / (2.0 * LN_2);
             *w = out(*walk).powi(2) / fs;
