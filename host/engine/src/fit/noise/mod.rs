@@ -25,9 +25,11 @@
 mod lagged;
 mod rails;
 mod regression;
+mod slow;
 
 pub use lagged::{LaggedSums, LAGS};
 pub use rails::{clipped, Rails};
+pub use slow::{estimate_pooled, SlowDesign, SlowFit, SlowPart};
 
 /// The largest AR order tried.
 pub const MAX_ORDER: usize = 32;

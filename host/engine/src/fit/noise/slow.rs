@@ -1,0 +1,997 @@
+//! Noise slower than the AR model reaches: flicker (1/f) and a bias random walk (1/f²), the
+//! bias instability and acceleration random walk of IEEE Std 952 / 1554, on top of the
+//! AR(p) model of [`super`]; estimated from one fit's residuals and propagated exactly into
+//! a fit's coefficients (docs/uncertainty.md, "Slow noise").
+//!
+//! The model of one channel's noise in a group, in output units at one sample per row:
+//! e = θ₀·(the AR model as estimated) + flicker (Kasdin's process, innovation variance
+//! θ₁ = Q) + random walk (step variance θ₂ = q).
+//!
+//! - **Exact without a cutoff.** Flicker and the walk have no stationary covariance. Their
+//!   generalised covariance −½·D(|s − t|) (D the structure function) gives the exact
+//!   covariance of every contrast (weights summing to zero), and a least-squares fit with an
+//!   offset makes contrasts of its residuals and of every coefficient but the offset. The
+//!   offset then measures the bias plus the slow noise's mean over the group.
+//! - **Estimated from the residuals alone.** The overlapping Allan variances of the
+//!   residuals at m = 1, 2, 4, … samples have expectations linear in θ, computed exactly
+//!   for the fit that made the residuals: E[ρᵀAρ] = tr(A(I − P)K(I − P)). θ comes from
+//!   their weighted least squares, flicker and walk non-negative (without either, the AR
+//!   model stands as before). A positive estimate is kept however small: a record too
+//!   short to tell a slow term from none must not be read as proof that there is none.
+//! - **Its uncertainty** is a parametric bootstrap of the same estimator: the degrees of
+//!   freedom of a coefficient's variance come from it (Welch–Satterthwaite with the
+//!   covariances of θ̂), so a record with few slow periods gets a larger k.
+//!
+//! Rows that average several conversions are weighted by √n in the fit. The slow noise is
+//! then w_t·b(t) in the weighted residuals, which the expectations follow exactly; the AR
+//! term's diagonal uses the mean of 1/w² (exact when every row holds the same number of
+//! conversions).
+
+use super::{NoiseError, NoiseModel};
+use crate::allan::powerlaw::{allan_variance, flicker_structure, FlickerIncrements};
+use nalgebra::{DMatrix, DVector};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use rand_distr::StandardNormal;
+use rustfft::num_complex::Complex;
+use rustfft::{Fft, FftPlanner};
+use std::sync::Arc;
+
+/// The parametric bootstrap's replicates.
+const REPLICATES: usize = 40;
+
+/// The bootstrap's seed (mixed with the channel), so that a calibration is reproducible.
+const SEED: u64 = 0x5107_0000;
+
+/// The three terms of the model.
+const TERMS: usize = 3;
+
+/// A symmetric Toeplitz matrix T_st = κ(|s − t|) of order n, applied by circulant embedding.
+struct Toeplitz {
+    n: usize,
+    /// The circulant's eigenvalues divided by its size (real: the circulant is symmetric).
+    lambda: Vec<f64>,
+    fwd: Arc<dyn Fft<f64>>,
+    inv: Arc<dyn Fft<f64>>,
+}
+
+impl Toeplitz {
+    fn new(kappa: &[f64], planner: &mut FftPlanner<f64>) -> Toeplitz {
+        let n = kappa.len();
+        let size = (2 * n).next_power_of_two().max(2);
+        let mut c = vec![Complex::new(0.0, 0.0); size];
+        for (x, k) in c.iter_mut().zip(kappa) {
+            x.re = *k;
+        }
+        for (x, k) in c.iter_mut().rev().zip(kappa.iter().skip(1)) {
+            x.re = *k;
+        }
+        let fwd = planner.plan_fft_forward(size);
+        let inv = planner.plan_fft_inverse(size);
+        fwd.process(&mut c);
+        let lambda = c.iter().map(|z| z.re / size as f64).collect();
+        Toeplitz {
+            n,
+            lambda,
+            fwd,
+            inv,
+        }
+    }
+
+    /// T·x for every column of `x` (n rows), two columns per complex transform.
+    fn mul(&self, x: &DMatrix<f64>) -> DMatrix<f64> {
+        let mut out = DMatrix::zeros(x.nrows(), x.ncols());
+        let mut buf = vec![Complex::new(0.0, 0.0); self.lambda.len()];
+        let cols: Vec<usize> = (0..x.ncols()).collect();
+        for pair in cols.chunks(2) {
+            buf.iter_mut().for_each(|z| *z = Complex::new(0.0, 0.0));
+            let (a, b) = (pair.first().copied(), pair.get(1).copied());
+            if let Some(a) = a {
+                for (z, v) in buf.iter_mut().zip(x.column(a).iter()) {
+                    z.re = *v;
+                }
+            }
+            if let Some(b) = b {
+                for (z, v) in buf.iter_mut().zip(x.column(b).iter()) {
+                    z.im = *v;
+                }
+            }
+            self.fwd.process(&mut buf);
+            for (z, l) in buf.iter_mut().zip(&self.lambda) {
+                *z *= *l;
+            }
+            self.inv.process(&mut buf);
+            if let Some(a) = a {
+                for (o, z) in out.column_mut(a).iter_mut().zip(&buf) {
+                    *o = z.re;
+                }
+            }
+            if let Some(b) = b {
+                for (o, z) in out.column_mut(b).iter_mut().zip(&buf) {
+                    *o = z.im;
+                }
+            }
+        }
+        debug_assert_eq!(out.nrows(), self.n);
+        out
+    }
+}
+
+/// The averaging lengths of the Allan variances: 1, 2, 4, … samples while at least a
+/// quarter of the record's differences remain (N − 2m + 1 ≥ N/4).
+fn octaves(n: usize) -> Vec<usize> {
+    std::iter::successors(Some(1usize), |m| Some(m * 2))
+        .take_while(|m| 4 * (n + 1).saturating_sub(2 * m) >= n && 2 * m < n)
+        .collect()
+}
+
+/// Prefix sums S_0 = 0, S_{t+1} = S_t + x_t.
+fn prefix(x: impl Iterator<Item = f64>) -> Vec<f64> {
+    let mut s = vec![0.0];
+    let mut acc = 0.0;
+    for v in x {
+        acc += v;
+        s.push(acc);
+    }
+    s
+}
+
+/// The Allan differences at m of a series from its prefix sums: c_i = S_{i+2m} − 2S_{i+m}
+/// + S_i, i = 0 … N − 2m (the sum of the second block of m minus the first).
+fn differences(s: &[f64], m: usize) -> impl Iterator<Item = f64> + '_ {
+    s.iter()
+        .zip(s.iter().skip(m))
+        .zip(s.iter().skip(2 * m))
+        .map(|((a, b), c)| c - 2.0 * b + a)
+}
+
+/// The overlapping Allan variance at m from prefix sums: Σc²/(2·n·m²).
+fn allan_from_prefix(s: &[f64], m: usize) -> f64 {
+    let (mut sum, mut n) = (0.0, 0usize);
+    for c in differences(s, m) {
+        sum += c * c;
+        n += 1;
+    }
+    sum / (2.0 * n.max(1) as f64 * (m * m) as f64)
+}
+
+/// A group's design as the slow-noise estimate and the propagation need it, shared by its
+/// channels: the weighted regressors of the fit that made the residuals, and the slow
+/// terms' expected Allan variances for that fit.
+pub struct SlowDesign {
+    /// √(conversions) of each row.
+    weights: Vec<f64>,
+    /// The weighted regressors H_w (N × q) and (H_wᵀH_w)⁻¹.
+    hw: DMatrix<f64>,
+    gram_inv: DMatrix<f64>,
+    /// The raw regressors' (H₀ = W⁻¹H_w) prefix sums per column (N + 1 each).
+    h0_prefix: Vec<Vec<f64>>,
+    /// Per averaging length: H₀ᵀAH₀.
+    octaves: Vec<Octave>,
+    /// The mean of 1/w².
+    mean_inv_w2: f64,
+    /// Unit flicker and unit walk as Toeplitz operators, and their expected Allan
+    /// variances for this fit.
+    flicker: Toeplitz,
+    walk: Toeplitz,
+    expected_slow: [Vec<f64>; 2],
+    /// The slow terms' expected residual autocovariances at lags 0 … [`super::MAX_ORDER`].
+    lagged_slow: [Vec<f64>; 2],
+    planner_n: usize,
+}
+
+impl std::fmt::Debug for SlowDesign {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("SlowDesign")
+            .field("rows", &self.hw.nrows())
+            .field("columns", &self.hw.ncols())
+            .finish_non_exhaustive()
+    }
+}
+
+/// One averaging length's share of the expectations.
+struct Octave {
+    m: usize,
+    /// n·2m²: the statistic's normaliser.
+    norm: f64,
+    /// H₀ᵀAH₀ (q × q).
+    hah: DMatrix<f64>,
+}
+
+impl SlowDesign {
+    /// For a fit of weighted regressors `hw` (N × q, with an offset column w) to rows
+    /// of weights `weights`.
+    pub fn new(hw: &DMatrix<f64>, weights: &[f64]) -> Result<SlowDesign, NoiseError> {
+        let n = hw.nrows();
+        if weights.len() != n {
+            return Err(NoiseError::Length(weights.len(), n));
+        }
+        if n < 64 {
+            return Err(NoiseError::TooFew(n));
+        }
+        let gram_inv = hw.tr_mul(hw).try_inverse().ok_or(NoiseError::Singular)?;
+        let q = hw.ncols();
+        let h0 = DMatrix::from_fn(n, q, |t, j| {
+            hw[(t, j)] / weights.get(t).copied().unwrap_or(1.0)
+        });
+        let h0_prefix: Vec<Vec<f64>> = (0..q)
+            .map(|j| prefix(h0.column(j).iter().copied()))
+            .collect();
+        let octaves = octaves(n)
+            .into_iter()
+            .map(|m| {
+                let mut hah = DMatrix::zeros(q, q);
+                let mut count = 0usize;
+                let rows = column_differences(&h0_prefix, m);
+                for c in &rows {
+                    hah += c * c.transpose();
+                    count += 1;
+                }
+                let norm = 2.0 * count.max(1) as f64 * (m * m) as f64;
+                Octave {
+                    m,
+                    norm,
+                    hah: hah / norm,
+                }
+            })
+            .collect();
+        let mean_inv_w2 = weights.iter().map(|w| 1.0 / (w * w)).sum::<f64>() / n as f64;
+        let mut planner = FftPlanner::new();
+        let fl: Vec<f64> = (0..n as u64).map(|k| -0.5 * flicker_structure(k)).collect();
+        let rw: Vec<f64> = (0..n).map(|k| -0.5 * k as f64).collect();
+        let flicker = Toeplitz::new(&fl, &mut planner);
+        let walk = Toeplitz::new(&rw, &mut planner);
+        let mut d = SlowDesign {
+            weights: weights.to_vec(),
+            hw: hw.clone(),
+            gram_inv,
+            h0_prefix,
+            octaves,
+            mean_inv_w2,
+            flicker,
+            walk,
+            expected_slow: [Vec::new(), Vec::new()],
+            lagged_slow: [Vec::new(), Vec::new()],
+            planner_n: n,
+        };
+        // The slow terms act on the rows as W·T·W (the walk's b(t) scaled by each row's
+        // weight); W⁻¹KH_w = T·(W H_w).
+        let whw = d.weighted_rows(&d.hw);
+        let kx_fl = d.flicker.mul(&whw);
+        let kx_rw = d.walk.mul(&whw);
+        let fl_exp = d.expected(&kx_fl, &whw.tr_mul(&kx_fl), |m| {
+            allan_variance(m as u64, flicker_structure)
+        });
+        let rw_exp = d.expected(&kx_rw, &whw.tr_mul(&kx_rw), |m| {
+            allan_variance(m as u64, |k| k as f64)
+        });
+        let lags = super::MAX_ORDER.min(n - 1);
+        let fl_lag = d.expected_lagged(&kx_fl, &whw.tr_mul(&kx_fl), lags, |k| {
+            -0.5 * flicker_structure(k as u64)
+        });
+        let rw_lag = d.expected_lagged(&kx_rw, &whw.tr_mul(&kx_rw), lags, |k| -0.5 * k as f64);
+        d.expected_slow = [fl_exp, rw_exp];
+        d.lagged_slow = [fl_lag, rw_lag];
+        Ok(d)
+    }
+
+    /// The expected biased autocovariances (1/N)·Σ_t r_t r_{t+k} of the weighted residuals
+    /// at lags 0 … `lags` for one slow term, from kx = T·(WH_w), M = H_wᵀK_wH_w and κ:
+    /// (tr(L_kK_w) − 2·tr(L_kPK_w) + tr(L_kPK_wP))/N, L_k the symmetrised lag-k sum.
+    fn expected_lagged(
+        &self,
+        kx: &DMatrix<f64>,
+        mw: &DMatrix<f64>,
+        lags: usize,
+        kappa: impl Fn(usize) -> f64,
+    ) -> Vec<f64> {
+        let n = self.hw.nrows();
+        let wkxg = self.weighted_rows(kx) * &self.gram_inv;
+        let y = &self.hw * (&self.gram_inv * mw * &self.gram_inv);
+        let lagged_dot = |a: &DMatrix<f64>, b: &DMatrix<f64>, k: usize| -> f64 {
+            let (mut sum, mut back) = (0.0, 0.0);
+            for (ra, rb) in a.row_iter().zip(b.row_iter().skip(k)) {
+                sum += ra.dot(&rb);
+            }
+            for (rb, ra) in b.row_iter().zip(a.row_iter().skip(k)) {
+                back += ra.dot(&rb);
+            }
+            (sum + back) / 2.0
+        };
+        (0..=lags)
+            .map(|k| {
+                let ww: f64 = self
+                    .weights
+                    .iter()
+                    .zip(self.weights.iter().skip(k))
+                    .map(|(a, b)| a * b)
+                    .sum();
+                let t1 = kappa(k) * ww;
+                let t2 = lagged_dot(&wkxg, &self.hw, k);
+                let t3 = lagged_dot(&y, &self.hw, k);
+                (t1 - 2.0 * t2 + t3) / n as f64
+            })
+            .collect()
+    }
+
+    /// The rows of `x` times their weights.
+    fn weighted_rows(&self, x: &DMatrix<f64>) -> DMatrix<f64> {
+        let mut out = x.clone();
+        for (mut row, w) in out.row_iter_mut().zip(&self.weights) {
+            row *= *w;
+        }
+        out
+    }
+
+    /// The expected Allan variances of the raw residuals at each octave for one term, from
+    /// kx = W⁻¹K_wH_w (N × q), M = H_wᵀK_wH_w and tr(A·K) per m:
+    /// tr(AK) − 2·tr(G·Σc(kx)ᵀc(H₀))/norm + tr(G·H₀ᵀAH₀·G·M).
+    fn expected(
+        &self,
+        kx: &DMatrix<f64>,
+        mw: &DMatrix<f64>,
+        tr_ak: impl Fn(usize) -> f64,
+    ) -> Vec<f64> {
+        let q = kx.ncols();
+        let kx_prefix: Vec<Vec<f64>> = (0..q)
+            .map(|j| prefix(kx.column(j).iter().copied()))
+            .collect();
+        let gm = &self.gram_inv * mw * &self.gram_inv;
+        self.octaves
+            .iter()
+            .map(|o| {
+                let hs = column_differences(&self.h0_prefix, o.m);
+                let ks = column_differences(&kx_prefix, o.m);
+                let cross: f64 = hs
+                    .iter()
+                    .zip(&ks)
+                    .map(|(h, k)| (k.transpose() * &self.gram_inv * h).to_scalar())
+                    .sum::<f64>()
+                    / o.norm;
+                let last = (&o.hah * &gm).trace();
+                tr_ak(o.m) - 2.0 * cross + last
+            })
+            .collect()
+    }
+
+    /// The raw residuals' Allan variances at each octave.
+    fn statistics(&self, weighted_resid: &[f64]) -> Vec<f64> {
+        let s = prefix(weighted_resid.iter().zip(&self.weights).map(|(r, w)| r / w));
+        self.octaves
+            .iter()
+            .map(|o| allan_from_prefix(&s, o.m))
+            .collect()
+    }
+
+    /// The AR term's expectations: its autocovariances γ₀ … γ_{N−1} as a Toeplitz Γ on the
+    /// weighted rows, so W⁻¹ΓH_w and H_wᵀΓH_w; tr(AΓ) as mean(1/w²)·AVAR.
+    fn expected_ar(&self, ar: &NoiseModel, gamma: &[f64]) -> Vec<f64> {
+        let mut planner = FftPlanner::new();
+        let t = Toeplitz::new(gamma, &mut planner);
+        let gh = t.mul(&self.hw);
+        let mut kx = gh.clone();
+        for (mut row, w) in kx.row_iter_mut().zip(&self.weights) {
+            row /= *w;
+        }
+        let mw = self.hw.tr_mul(&gh);
+        let g0 = ar.var;
+        let d = |k: u64| 2.0 * (g0 - gamma.get(k as usize).copied().unwrap_or(0.0));
+        let scale = self.mean_inv_w2;
+        self.expected(&kx, &mw, |m| scale * allan_variance(m as u64, d))
+    }
+
+    /// One bootstrap draw of the weighted residuals' statistics under AR model `ar` at
+    /// `scale` times its variance, flicker `fq` and walk `wq`.
+    fn draw_statistics(
+        &self,
+        (ar, scale): (&NoiseModel, f64),
+        (fq, wq): (f64, f64),
+        flicker_gen: &FlickerIncrements,
+        rng: &mut ChaCha8Rng,
+    ) -> Vec<f64> {
+        let n = self.hw.nrows();
+        let mut e = draw_ar(ar, scale, n, rng);
+        if fq > 0.0 {
+            let inc = flicker_gen.draw(rng);
+            let mut level = 0.0;
+            for (x, (d, w)) in e
+                .iter_mut()
+                .skip(1)
+                .zip(inc.iter().zip(self.weights.iter().skip(1)))
+            {
+                level += d;
+                *x += w * fq.sqrt() * level;
+            }
+        }
+        if wq > 0.0 {
+            let mut level = 0.0;
+            for (x, w) in e.iter_mut().zip(&self.weights).skip(1) {
+                level += wq.sqrt() * rng.sample::<f64, _>(StandardNormal);
+                *x += w * level;
+            }
+        }
+        let ev = DVector::from_vec(e);
+        let beta = &self.gram_inv * self.hw.tr_mul(&ev);
+        let r = ev - &self.hw * beta;
+        self.statistics(r.as_slice())
+    }
+
+    /// The covariance of the coefficients of weighted regressors `hs` (N × p, an offset
+    /// column among them) under unit flicker and unit walk: W̃ᵀ(WTW)W̃ with W̃ the
+    /// estimator's weights made contrasts (the offset's measurand is the bias plus the slow
+    /// noise's weighted mean over the group).
+    pub fn slow_covariances(&self, hs: &DMatrix<f64>) -> Result<[DMatrix<f64>; 2], NoiseError> {
+        if hs.nrows() != self.planner_n {
+            return Err(NoiseError::Length(hs.nrows(), self.planner_n));
+        }
+        let inv = hs.tr_mul(hs).try_inverse().ok_or(NoiseError::Singular)?;
+        let est = hs * inv;
+        let w = DVector::from_column_slice(&self.weights);
+        let v = est.tr_mul(&w);
+        let wtw = w.dot(&w);
+        let contrast = &est - &w * v.transpose() / wtw;
+        let scaled = self.weighted_rows(&contrast);
+        let fl = scaled.tr_mul(&self.flicker.mul(&scaled));
+        let rw = scaled.tr_mul(&self.walk.mul(&scaled));
+        Ok([fl, rw])
+    }
+}
+
+impl SlowDesign {
+    /// xᵀ(WTW)x under unit flicker and unit walk, for a contrast x of the weighted rows
+    /// (xᵀw = 0): the variance a fit coefficient with estimator weights x takes from them.
+    pub fn slow_quadratic(&self, x: &DVector<f64>) -> [f64; 2] {
+        let scaled = self.weighted_rows(&DMatrix::from_column_slice(x.len(), 1, x.as_slice()));
+        let fl = scaled.tr_mul(&self.flicker.mul(&scaled));
+        let rw = scaled.tr_mul(&self.walk.mul(&scaled));
+        [fl.get((0, 0)), rw.get((0, 0))].map(|v| v.copied().unwrap_or(0.0))
+    }
+}
+
+/// The Allan differences at m of every column, as one vector per difference.
+fn column_differences(prefixes: &[Vec<f64>], m: usize) -> Vec<DVector<f64>> {
+    let cols: Vec<Vec<f64>> = prefixes
+        .iter()
+        .map(|s| differences(s, m).collect())
+        .collect();
+    let n = cols.first().map_or(0, Vec::len);
+    (0..n)
+        .map(|i| {
+            DVector::from_iterator(
+                cols.len(),
+                cols.iter().map(|c| c.get(i).copied().unwrap_or(0.0)),
+            )
+        })
+        .collect()
+}
+
+/// `n` samples of the AR model at `scale` times its variance, after a burn-in.
+fn draw_ar(m: &NoiseModel, scale: f64, n: usize, rng: &mut ChaCha8Rng) -> Vec<f64> {
+    const BURN_IN: usize = 2000;
+    let sd = (m.innovation_var * scale.max(0.0)).sqrt();
+    let p = m.order();
+    let mut hist: Vec<f64> = vec![0.0; p];
+    let mut out = Vec::with_capacity(n);
+    for t in 0..BURN_IN + n {
+        let e =
+            m.ar.iter()
+                .zip(hist.iter().rev())
+                .map(|(f, x)| f * x)
+                .sum::<f64>()
+                + sd * rng.sample::<f64, _>(StandardNormal);
+        if p > 0 {
+            hist.remove(0);
+            hist.push(e);
+        }
+        if t >= BURN_IN {
+            out.push(e);
+        }
+    }
+    out
+}
+
+/// One group's share of a pooled estimate: its design, its weighted residuals of the fit
+/// the design describes, and the AR model estimated from them (rescaled for that fit).
+pub struct SlowPart<'a> {
+    /// The group's design.
+    pub design: &'a SlowDesign,
+    /// Its weighted residuals.
+    pub resid: &'a [f64],
+    /// Its AR model.
+    pub ar: &'a NoiseModel,
+}
+
+/// The slow terms' indices among the pooled parameters: flicker Q, walk q; then two
+/// short-range nuisance levels per group.
+const SLOW: usize = 2;
+
+/// The smallest averaging length the slow levels are fitted from, in units of the
+/// short-range model's correlation length (its variance factor at ω = 0), and at least 8.
+const LENGTHS_PER_CORRELATION: f64 = 4.0;
+
+/// Estimate one channel's slow terms from several groups of the same recording: one
+/// flicker Q and one walk q (a property of the sensor's channel), each group its own AR
+/// model. `None` when there are too few averaging lengths to fit them; else per group its
+/// [`SlowFit`] and its AR model re-estimated without the slow share. `channel` seeds the
+/// bootstrap.
+///
+/// - The slow levels come from the averaging lengths m ≥ m₀ beyond the short-range noise's
+///   correlation, where that noise's Allan variance is a/m + b/m² (a, b free per group; the
+///   a/m column exact for the fit, the b/m² one plain): a 32-lag AR model would read part
+///   of the slow power as correlation, and its shape at long m carry it twice.
+/// - Then each group's AR model again, from its residuals' autocovariances less the slow
+///   terms' exact expected share; m₀ from that model; and the levels once more.
+/// - The estimates keep their sign: a negative Q or q is the unbiased estimate of a level
+///   the record cannot tell from zero, so that the variance they add is unbiased too (a
+///   truncated one overstated U by 9 % on white noise).
+pub fn estimate_pooled(
+    parts: &[SlowPart<'_>],
+    channel: u64,
+) -> Result<Option<Vec<(SlowFit, NoiseModel)>>, NoiseError> {
+    let groups = parts.len();
+    let params = SLOW + 2 * groups;
+    for p in parts {
+        if p.resid.len() != p.design.hw.nrows() {
+            return Err(NoiseError::Length(p.resid.len(), p.design.hw.nrows()));
+        }
+    }
+    let stats: Vec<Vec<f64>> = parts.iter().map(|p| p.design.statistics(p.resid)).collect();
+    let observed: Vec<Vec<f64>> = parts
+        .iter()
+        .map(|p| {
+            let n = p.resid.len();
+            (0..=super::MAX_ORDER.min(n / 10))
+                .map(|k| {
+                    let lagged = p.resid.iter().zip(p.resid.iter().skip(k));
+                    lagged.map(|(a, b)| a * b).sum::<f64>() / n as f64
+                })
+                .collect()
+        })
+        .collect();
+    let white: Vec<Vec<f64>> = parts
+        .iter()
+        .map(|p| {
+            let n = p.design.hw.nrows();
+            let gamma: Vec<f64> = std::iter::once(1.0)
+                .chain(std::iter::repeat_n(0.0, n - 1))
+                .collect();
+            p.design.expected_ar(&NoiseModel::white(1.0, n), &gamma)
+        })
+        .collect();
+    let mut m0 = vec![8usize; groups];
+    let mut models: Vec<NoiseModel> = parts.iter().map(|p| p.ar.clone()).collect();
+    let mut fit = None;
+    for round in 0..2 {
+        let Some(sys) = LevelSystem::new(parts, &stats, &white, &m0) else {
+            return Ok(None);
+        };
+        let est = sys.fit().ok_or(NoiseError::Singular)?;
+        let levels = [est.theta(0), est.theta(1)];
+        // Each group's AR model without the slow terms' expected share.
+        for (((model, p), obs), m0) in models.iter_mut().zip(parts).zip(&observed).zip(&mut m0) {
+            let n = p.resid.len();
+            let adjusted: Vec<f64> = obs
+                .iter()
+                .enumerate()
+                .map(|(k, gk)| {
+                    let share = |i: usize, level: f64| {
+                        let unit = p.design.lagged_slow.get(i).and_then(|l| l.get(k));
+                        level * unit.copied().unwrap_or(0.0)
+                    };
+                    gk - share(0, levels[0]) - share(1, levels[1])
+                })
+                .collect();
+            *model = match NoiseModel::from_autocovariances(&adjusted, n, n)
+                .and_then(|m| m.rescaled(&p.design.hw))
+            {
+                Ok(m) => m,
+                // Levels too large for these autocovariances: the model as first estimated.
+                Err(_) => p.ar.clone(),
+            };
+            if round == 0 {
+                let corr = model.variance_factor(0.0).clamp(1.0, 1e6);
+                let want = (LENGTHS_PER_CORRELATION * corr).ceil() as usize;
+                *m0 = want.max(8).next_power_of_two();
+            }
+        }
+        fit = Some((sys, est));
+    }
+    let Some((sys, est)) = fit else {
+        return Ok(None);
+    };
+    // The covariance of (Q, q): a parametric bootstrap of the same linear estimator, the
+    // noise drawn from the AR models and the levels (a negative one drawn as zero).
+    let mut rng = ChaCha8Rng::seed_from_u64(SEED ^ channel);
+    let gens: Vec<FlickerIncrements> = parts
+        .iter()
+        .map(|p| FlickerIncrements::new(p.resid.len().saturating_sub(1)))
+        .collect();
+    let (fq, wq) = (est.theta(0).max(0.0), est.theta(1).max(0.0));
+    let mut draws: Vec<Vec<f64>> = Vec::with_capacity(REPLICATES);
+    for _ in 0..REPLICATES {
+        let drawn: Vec<Vec<f64>> = parts
+            .iter()
+            .zip(&models)
+            .zip(&gens)
+            .map(|((p, m), gen)| p.design.draw_statistics((m, 1.0), (fq, wq), gen, &mut rng))
+            .collect();
+        let s = sys.stack(&drawn);
+        draws.push(est.apply(&s).into_iter().take(SLOW).collect());
+    }
+    let cov = sample_covariance(&draws, SLOW);
+    let c = |i: usize, j: usize| cov.get((i, j)).copied().unwrap_or(0.0);
+    let out = parts
+        .iter()
+        .zip(models)
+        .map(|(p, model)| {
+            // The AR model's own scale estimate: relative variance 2/ν.
+            let ar_var = 2.0 / model.dof(3);
+            let fit = SlowFit {
+                theta: [1.0, est.theta(0), est.theta(1)],
+                cov: [
+                    [ar_var, 0.0, 0.0],
+                    [0.0, c(0, 0), c(0, 1)],
+                    [0.0, c(1, 0), c(1, 1)],
+                ],
+                kept: [true, true, true],
+                n: p.resid.len(),
+            };
+            (fit, model)
+        })
+        .collect();
+    let _ = params;
+    Ok(Some(out))
+}
+
+/// The stacked statistics of the slow levels' fit and their expectation columns: per
+/// group the rows m ≥ m₀; columns Q, q, then a/m (exact white) and b/m² per group.
+struct LevelSystem {
+    /// Per group, the first row (octave index) used.
+    first: Vec<usize>,
+    columns: Vec<Vec<f64>>,
+    stats: Vec<f64>,
+    ms: Vec<f64>,
+}
+
+impl LevelSystem {
+    fn new(
+        parts: &[SlowPart<'_>],
+        stats: &[Vec<f64>],
+        white: &[Vec<f64>],
+        m0: &[usize],
+    ) -> Option<LevelSystem> {
+        let groups = parts.len();
+        let params = SLOW + 2 * groups;
+        let mut first = Vec::with_capacity(groups);
+        let mut columns = vec![Vec::new(); params];
+        let (mut st, mut ms) = (Vec::new(), Vec::new());
+        for (j, ((p, s), w)) in parts.iter().zip(stats).zip(white).enumerate() {
+            let m_lo = m0.get(j).copied().unwrap_or(8);
+            let f = p.design.octaves.iter().position(|o| o.m >= m_lo)?;
+            first.push(f);
+            for (r, o) in p.design.octaves.iter().enumerate().skip(f) {
+                st.push(s.get(r).copied().unwrap_or(0.0));
+                ms.push(o.m as f64);
+                for (i, col) in columns.iter_mut().enumerate() {
+                    let v = match i {
+                        0 | 1 => p
+                            .design
+                            .expected_slow
+                            .get(i)
+                            .and_then(|c| c.get(r))
+                            .copied(),
+                        _ if i == SLOW + 2 * j => w.get(r).copied(),
+                        _ if i == SLOW + 2 * j + 1 => Some(1.0 / (o.m * o.m) as f64),
+                        _ => Some(0.0),
+                    };
+                    col.push(v.unwrap_or(0.0));
+                }
+            }
+        }
+        // At least one more statistic than parameters.
+        (st.len() > params).then_some(LevelSystem {
+            first,
+            columns,
+            stats: st,
+            ms,
+        })
+    }
+
+    /// The same rows of other statistics (a bootstrap draw's).
+    fn stack(&self, stats: &[Vec<f64>]) -> Vec<f64> {
+        let mut out = Vec::with_capacity(self.stats.len());
+        for (s, f) in stats.iter().zip(&self.first) {
+            out.extend(s.iter().skip(*f));
+        }
+        out
+    }
+
+    fn fit(&self) -> Option<Wls> {
+        wls(&self.columns, &self.stats, &self.ms)
+    }
+}
+
+/// The sample covariance of bootstrap draws of `k` parameters.
+fn sample_covariance(draws: &[Vec<f64>], k: usize) -> DMatrix<f64> {
+    let n = draws.len().max(2) as f64;
+    let mut mean = vec![0.0; k];
+    for d in draws {
+        for (m, v) in mean.iter_mut().zip(d) {
+            *m += v / n;
+        }
+    }
+    let mut cov = DMatrix::zeros(k, k);
+    for d in draws {
+        let c = DVector::from_iterator(k, d.iter().zip(&mean).map(|(v, m)| v - m));
+        cov += &c * c.transpose() / (n - 1.0);
+    }
+    cov
+}
+
+/// A weighted least-squares fit of the statistics to the terms' expectations, as the linear
+/// map it is for fixed weights.
+struct Wls {
+    theta: Vec<f64>,
+    /// θ̂ = L·s.
+    map: DMatrix<f64>,
+}
+
+impl Wls {
+    fn theta(&self, i: usize) -> f64 {
+        self.theta.get(i).copied().unwrap_or(0.0)
+    }
+
+    fn apply(&self, s: &[f64]) -> Vec<f64> {
+        let sv = DVector::from_column_slice(s);
+        (&self.map * sv).iter().copied().collect()
+    }
+}
+
+/// θ by weighted least squares, weights ∝ (N/m)/E_m² (the Allan variance's degrees of
+/// freedom over its expected square; `ms` the m of each row), iterated on the fitted E.
+fn wls(columns: &[Vec<f64>], stats: &[f64], ms: &[f64]) -> Option<Wls> {
+    let rows = stats.len();
+    let params = columns.len();
+    let g = DMatrix::from_fn(rows, params, |r, c| {
+        columns
+            .get(c)
+            .and_then(|col| col.get(r))
+            .copied()
+            .unwrap_or(0.0)
+    });
+    let mut fitted: Vec<f64> = stats.to_vec();
+    let mut best = None;
+    for _ in 0..4 {
+        let mut gw = g.clone();
+        for ((mut row, e), m) in gw.row_iter_mut().zip(&fitted).zip(ms) {
+            let e = e.abs().max(1e-300);
+            row /= m * e * e;
+        }
+        let map = gw.tr_mul(&g).try_inverse()? * gw.transpose();
+        let theta = &map * DVector::from_column_slice(stats);
+        fitted = (&g * &theta).iter().copied().collect();
+        best = Some(Wls {
+            theta: theta.iter().copied().collect(),
+            map,
+        });
+    }
+    best
+}
+
+/// The slow terms of one channel's noise: θ = (AR scale, flicker Q, walk q), output units²
+/// for Q and q, with the covariance of their estimates.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SlowFit {
+    /// (θ₀, Q, q).
+    pub theta: [f64; TERMS],
+    /// Covariance of θ̂ (parametric bootstrap).
+    pub cov: [[f64; TERMS]; TERMS],
+    /// Which terms the model keeps.
+    pub kept: [bool; TERMS],
+    /// Samples in the record.
+    pub n: usize,
+}
+
+impl SlowFit {
+    /// True when the record shows flicker or a random walk.
+    pub fn is_slow(&self) -> bool {
+        self.kept.iter().skip(1).any(|k| *k)
+    }
+
+    /// The degrees of freedom of a variance V = Σ θ_i a_i: 2V²/(aᵀ Cov(θ̂) a).
+    pub fn dof(&self, a: &[f64; TERMS]) -> f64 {
+        let v: f64 = self.theta.iter().zip(a).map(|(t, x)| t * x).sum();
+        let mut var = 0.0;
+        for (row, ai) in self.cov.iter().zip(a) {
+            for (c, aj) in row.iter().zip(a) {
+                var += ai * c * aj;
+            }
+        }
+        if var > 0.0 {
+            2.0 * v * v / var
+        } else {
+            f64::INFINITY
+        }
+    }
+}
+
+/// A 10 mHz sine at 16 Hz over `n` samples, with an offset, a trend and harmonics 2–4:
+/// the widened fit of a rotation group.
+#[cfg(test)]
+fn tests_wide(n: usize) -> DMatrix<f64> {
+    DMatrix::from_fn(n, 10, |t, j| {
+        let a = std::f64::consts::TAU * 0.01 * t as f64 / 16.0;
+        match j {
+            0 => a.sin(),
+            1 => a.cos(),
+            2 => 1.0,
+            3 => t as f64 / n as f64 - 0.5,
+            _ => {
+                let k = ((j - 4) / 2 + 2) as f64;
+                if j % 2 == 0 {
+                    (k * a).sin()
+                } else {
+                    (k * a).cos()
+                }
+            }
+        }
+    })
+}
+
+#[cfg(test)]
+#[allow(clippy::indexing_slicing)]
+mod tests {
+    use super::*;
+
+    /// Mean and standard error of the mean.
+    fn mean_se(v: &[f64]) -> (f64, f64) {
+        let n = v.len() as f64;
+        let mean = v.iter().sum::<f64>() / n;
+        let var = v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1.0);
+        (mean, (var / n).sqrt())
+    }
+
+    /// White noise plus a walk (or flicker) through the widened fit: the residuals.
+    fn residuals(
+        d: &SlowDesign,
+        (white_var, flicker_q, walk_q): (f64, f64, f64),
+        gen: &FlickerIncrements,
+        rng: &mut ChaCha8Rng,
+    ) -> Vec<f64> {
+        let n = d.hw.nrows();
+        let white = NoiseModel::white(white_var, n);
+        let mut e = draw_ar(&white, 1.0, n, rng);
+        let inc = gen.draw(rng);
+        let (mut fl, mut rw) = (0.0, 0.0);
+        for (x, dq) in e.iter_mut().skip(1).zip(&inc) {
+            fl += flicker_q.sqrt() * dq;
+            rw += walk_q.sqrt() * rng.sample::<f64, _>(StandardNormal);
+            *x += fl + rw;
+        }
+        let ev = DVector::from_vec(e);
+        let beta = &d.gram_inv * d.hw.tr_mul(&ev);
+        (ev - &d.hw * beta).as_slice().to_vec()
+    }
+
+    /// The exact expectations of the statistics against the mean of simulated ones, term by
+    /// term: white, flicker, walk (4 standard errors of the mean, per averaging length).
+    #[test]
+    fn expected_statistics_match_simulated_ones() {
+        let n = 2000;
+        let d = SlowDesign::new(&tests_wide(n), &vec![1.0; n]).unwrap();
+        let white = NoiseModel::white(4.0, n);
+        let gamma: Vec<f64> = std::iter::once(4.0)
+            .chain(std::iter::repeat_n(0.0, n - 1))
+            .collect();
+        let gen = FlickerIncrements::new(n - 1);
+        let mut rng = ChaCha8Rng::seed_from_u64(7);
+        let walk: Vec<f64> = d.expected_slow[1].iter().map(|v| v * 0.01).collect();
+        let cases: [(&str, f64, f64, f64, Vec<f64>); 3] = [
+            ("white", 1.0, 0.0, 0.0, d.expected_ar(&white, &gamma)),
+            ("flicker", 1e-9, 1.0, 0.0, d.expected_slow[0].clone()),
+            ("walk", 1e-9, 0.0, 0.01, walk),
+        ];
+        for (name, scale, fq, wq, expected) in cases {
+            let draws: Vec<Vec<f64>> = (0..400)
+                .map(|_| d.draw_statistics((&white, scale), (fq, wq), &gen, &mut rng))
+                .collect();
+            for (i, e) in expected.iter().enumerate() {
+                let v: Vec<f64> = draws.iter().map(|s| s[i]).collect();
+                let (mean, se) = mean_se(&v);
+                let z = (mean - e) / se;
+                assert!(
+                    z.abs() < 4.0,
+                    "{name} m = {}: simulated {mean:e}, expected {e:e}, z = {z:.1}",
+                    d.octaves[i].m
+                );
+            }
+        }
+    }
+
+    /// The sine amplitude's variance under unit flicker and unit walk, W̃ᵀ(WTW)W̃, against
+    /// 3000 simulated records (the variance's relative standard error √(2/3000) = 2.6 %;
+    /// bound 4 of them).
+    #[test]
+    fn slow_covariances_match_simulated_fits() {
+        let n = 4200;
+        let wide = tests_wide(n);
+        let d = SlowDesign::new(&wide, &vec![1.0; n]).unwrap();
+        let h = wide.columns(0, 3).into_owned();
+        let [fl, rw] = d.slow_covariances(&h).unwrap();
+        let inv = h.tr_mul(&h).try_inverse().unwrap();
+        let gen = FlickerIncrements::new(n - 1);
+        let mut rng = ChaCha8Rng::seed_from_u64(11);
+        let reps = 3000;
+        let (mut a_fl, mut a_rw) = (Vec::new(), Vec::new());
+        for _ in 0..reps {
+            let inc = gen.draw(&mut rng);
+            let (mut e_fl, mut e_rw) = (vec![0.0; n], vec![0.0; n]);
+            let (mut x, mut y) = (0.0, 0.0);
+            for ((f, w), dq) in e_fl.iter_mut().zip(e_rw.iter_mut()).skip(1).zip(&inc) {
+                x += dq;
+                y += rng.sample::<f64, _>(StandardNormal);
+                *f = x;
+                *w = y;
+            }
+            a_fl.push((&inv * h.tr_mul(&DVector::from_vec(e_fl)))[0]);
+            a_rw.push((&inv * h.tr_mul(&DVector::from_vec(e_rw)))[0]);
+        }
+        for (name, v, predicted) in [("flicker", a_fl, fl[(0, 0)]), ("walk", a_rw, rw[(0, 0)])] {
+            let (mean, _) = mean_se(&v);
+            let var = v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (reps - 1) as f64;
+            let rel = var / predicted - 1.0;
+            assert!(
+                rel.abs() < 4.0 * (2.0 / reps as f64).sqrt(),
+                "{name}: simulated var A {var:e}, predicted {predicted:e}"
+            );
+        }
+    }
+
+    /// The pooled estimate over three groups is unbiased for the walk and for flicker
+    /// (mean over 60 records of three groups each within 4 standard errors of the truth),
+    /// the short-range noise's AR model estimated from the same residuals as `calibrate`
+    /// does.
+    #[test]
+    fn pooled_levels_are_unbiased() {
+        let n = 4200;
+        let d = SlowDesign::new(&tests_wide(n), &vec![1.0; n]).unwrap();
+        let gen = FlickerIncrements::new(n - 1);
+        let mut rng = ChaCha8Rng::seed_from_u64(9);
+        for (name, truth) in [("walk", (16.0, 0.0, 0.0017)), ("flicker", (16.0, 1.0, 0.0))] {
+            let mut est = (Vec::new(), Vec::new());
+            for _ in 0..60 {
+                let resids: Vec<Vec<f64>> = (0..3)
+                    .map(|_| residuals(&d, truth, &gen, &mut rng))
+                    .collect();
+                let models: Vec<NoiseModel> = resids
+                    .iter()
+                    .map(|r| {
+                        NoiseModel::estimate(r, &[])
+                            .unwrap()
+                            .rescaled(&d.hw)
+                            .unwrap()
+                    })
+                    .collect();
+                let parts: Vec<SlowPart> = resids
+                    .iter()
+                    .zip(&models)
+                    .map(|(r, m)| SlowPart {
+                        design: &d,
+                        resid: r,
+                        ar: m,
+                    })
+                    .collect();
+                let fit = &estimate_pooled(&parts, 0).unwrap().unwrap()[0].0;
+                est.0.push(fit.theta[1]);
+                est.1.push(fit.theta[2]);
+            }
+            for (what, v, t) in [("Q", &est.0, truth.1), ("q", &est.1, truth.2)] {
+                let (mean, se) = mean_se(v);
+                assert!(
+                    (mean - t).abs() < 4.0 * se,
+                    "{name}: {what} mean {mean:e} ± {se:e}, truth {t:e}"
+                );
+            }
+        }
+    }
+}
