@@ -79,6 +79,10 @@ pub struct Options {
     /// Method free: shortest still interval kept, s.
     #[arg(long, default_value_t = 1.0, value_name = "S")]
     pub min_still_s: f64,
+    /// Rotation: also model flicker and a bias random walk, pooled per channel over the
+    /// recording (under validation: docs/uncertainty.md, "Slow noise").
+    #[arg(long)]
+    pub slow_noise: bool,
 }
 
 impl From<Options> for rotacal::calibrate::Options {
@@ -97,6 +101,7 @@ impl From<Options> for rotacal::calibrate::Options {
             rate_hz: a.rate_hz,
             g_loc: a.g_loc,
             monte_carlo: a.monte_carlo,
+            slow_noise: a.slow_noise,
             inputs: rotacal::calibrate::TypeB {
                 u_g_loc: a.u_g_loc,
                 u_time_s: a.u_time_s,

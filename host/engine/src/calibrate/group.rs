@@ -4,7 +4,7 @@
 
 use super::{err, CalibrateError, CalibrateErrorKind, GroupError, CLOCK};
 use crate::fit::batch;
-use crate::fit::noise::{self, NoiseError, NoiseModel};
+use crate::fit::noise::{self, NoiseError, NoiseModel, SlowDesign, SlowFit};
 use crate::recording::{Group, Recording};
 use nalgebra::DMatrix;
 use rotacal_shared::intrinsic::ConditionFit;
@@ -54,6 +54,12 @@ pub struct GroupFit {
     pub cov: [[[f64; 3]; 3]; 3],
     /// The noise model per channel.
     pub noise: [NoiseModel; 3],
+    /// The slow noise (flicker, random walk) per channel, where the record shows it.
+    pub slow: [Option<SlowNoise>; 3],
+    /// Whether slow noise was looked for.
+    pub slow_status: SlowStatus,
+    /// A held group's inputs to the slow-noise estimate, until [`pool_slow`] uses them.
+    pub(crate) pending: Option<std::sync::Arc<PendingSlow>>,
     /// The rotation's angle per sample, rad (mean over the group).
     pub omega_per_sample: f64,
 }
@@ -65,9 +71,9 @@ impl GroupFit {
         condition: Condition,
         fit: FitResult<f64>,
         rate: RateChoice,
-        cov: [[[f64; 3]; 3]; 3],
-        noise: [NoiseModel; 3],
+        (cov, noise, slow): Covariance,
         omega_per_sample: f64,
+        slow_status: SlowStatus,
     ) -> GroupFit {
         GroupFit {
             condition,
@@ -77,7 +83,19 @@ impl GroupFit {
             u_rate_hz: rate.u_rate_hz,
             cov,
             noise,
+            slow,
+            slow_status,
+            pending: None,
             omega_per_sample,
+        }
+    }
+
+    /// The degrees of freedom of channel `ch`'s (A, B) variance: from the slow noise's
+    /// estimate where there is one, else the AR model's.
+    pub fn dof(&self, ch: usize) -> f64 {
+        match self.slow.get(ch).and_then(Option::as_ref) {
+            Some(slow) => slow.amplitude_dof(),
+            None => self.noise.get(ch).map_or(1.0, |m| m.dof(3)),
         }
     }
 
@@ -127,8 +145,13 @@ const CLEANING_COLUMNS: usize =
     1 + 2 * (*CLEANING_HARMONICS.end() - *CLEANING_HARMONICS.start() + 1) as usize;
 
 /// The noise model of each channel, from the residuals of the sine fit at `step` widened by
-/// [`CLEANING_HARMONICS`] and a trend, its level corrected for that wider fit.
-fn noise_models(s: &[batch::Sample], step: PhaseStep) -> Result<[NoiseModel; 3], NoiseError> {
+/// [`CLEANING_HARMONICS`] and a trend, its level corrected for that wider fit; and when
+/// `slow`, its flicker and random walk ([`SlowDesign`]).
+fn noise_models(
+    s: &[batch::Sample],
+    step: PhaseStep,
+    slow: bool,
+) -> Result<GroupNoise, NoiseError> {
     let h = batch::design(s, step, CLOCK, rotacal_shared::Model::SINE, Ticks(0));
     let t_end = s.last().map_or(1.0, |x| x.0.last().0.max(1) as f64);
     // A trend and the harmonics' sines and cosines, averaged over each sample's conversions
@@ -156,8 +179,15 @@ fn noise_models(s: &[batch::Sample], step: PhaseStep) -> Result<[NoiseModel; 3],
     // Cholesky solve is as good as QR here and needs no N × q factor. Readings on a rail are
     // not measurements of the model: they are left out of this fit as of the estimate.
     let full = wide.tr_mul(&wide);
+    let weights: Vec<f64> = s.iter().map(|(ap, _)| batch::root_weight(ap)).collect();
+    let design = match slow.then(|| SlowDesign::new(&wide, &weights)) {
+        Some(Ok(d)) => Some(d),
+        None | Some(Err(NoiseError::TooFew(_))) => None,
+        Some(Err(e)) => return Err(e),
+    };
     let mut models = Vec::with_capacity(3);
-    for ch in Channel::ALL {
+    let mut resid_of = [None, None, None];
+    for (ch, slot) in Channel::ALL.into_iter().zip(&mut resid_of) {
         let plain: Vec<f64> = s.iter().map(|(_, y)| *ch.of(y)).collect();
         let flags = noise::clipped(&plain);
         let y = nalgebra::DVector::from_iterator(
@@ -177,28 +207,281 @@ fn noise_models(s: &[batch::Sample], step: PhaseStep) -> Result<[NoiseModel; 3],
         }
         let beta = normal.cholesky().ok_or(NoiseError::Singular)?.solve(&rhs);
         let resid = &y - &wide * beta;
-        models.push(NoiseModel::estimate(resid.as_slice(), &flags)?.rescaled(&wide)?);
+        let model = NoiseModel::estimate(resid.as_slice(), &flags)?.rescaled(&wide)?;
+        // Readings on a rail leave the fit, which the slow terms' expectations do not
+        // follow: such a channel keeps the AR model alone.
+        if design.is_some() && !flags.iter().any(|f| *f) {
+            *slot = Some(resid.as_slice().to_vec());
+        }
+        models.push(model);
     }
-    models.try_into().map_err(|_| NoiseError::TooFew(0))
+    let models = models.try_into().map_err(|_| NoiseError::TooFew(0))?;
+    Ok(GroupNoise {
+        models,
+        resid: resid_of,
+        design,
+    })
 }
 
-/// The sandwich covariance of (A, B, C) per channel at `step` under `models`.
-fn sine_cov(
-    s: &[batch::Sample],
-    step: PhaseStep,
-    models: &[NoiseModel; 3],
-) -> Result<[[[f64; 3]; 3]; 3], NoiseError> {
-    let h = batch::design(s, step, CLOCK, rotacal_shared::Model::SINE, Ticks(0));
+/// Whether a group's slow noise was looked for.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SlowStatus {
+    /// Estimated from the residuals (and found or not).
+    Modelled,
+    /// Not asked for (no `--slow-noise`).
+    NotAsked,
+    /// The group was calibrated from sums (longer than the rows held in memory).
+    FromSums,
+    /// Too few rows (under 64).
+    TooShort,
+}
+
+/// A group's noise: the AR model of each channel, its slow terms where the record shows
+/// them, and the design they were estimated for.
+struct GroupNoise {
+    models: [NoiseModel; 3],
+    /// Each channel's weighted residuals of the widened fit (none for a channel with
+    /// readings on a rail).
+    resid: [Option<Vec<f64>>; 3],
+    design: Option<SlowDesign>,
+}
+
+/// What the slow-noise estimate needs of a group held in memory, kept until every group of
+/// the recording is fitted ([`pool_slow`]).
+#[derive(Debug)]
+pub struct PendingSlow {
+    design: SlowDesign,
+    resid: [Option<Vec<f64>>; 3],
+    /// The sine fit's weighted regressors.
+    h: DMatrix<f64>,
+    row_interval_s: f64,
+    /// The rate choice's inputs, made again once the slow noise is known.
+    rate: RateInputs,
+    /// The fit and regressors of the other choice (nominal or fitted rate).
+    other: (FitResult<f64>, DMatrix<f64>),
+    /// Each row's time from the first, s.
+    times: Vec<f64>,
+}
+
+/// What [`rate_choice`] takes: the IEEE 1057 fit's (rate, standard error) in Hz and
+/// coefficients (A, B, C per channel), the rotation's angle per sample and the nominal
+/// rate.
+#[derive(Clone, Debug)]
+pub(crate) struct RateInputs {
+    pub(crate) fit: (f64, f64),
+    pub(crate) coef: [[f64; 3]; 3],
+    pub(crate) omega_per_sample: f64,
+    pub(crate) nominal_hz: f64,
+}
+
+/// A fit's covariance of (A, B, C) per channel, the noise models, and the slow noise.
+pub(crate) type Covariance = ([[[f64; 3]; 3]; 3], [NoiseModel; 3], [Option<SlowNoise>; 3]);
+
+/// One channel's slow noise in a group: the estimate, and the covariance of (A, B, C)
+/// per unit of each term (AR scale, flicker Q, walk q), so that cov = Σ θ_i·unit_i.
+#[derive(Clone, Debug)]
+pub struct SlowNoise {
+    /// The terms and their estimates' covariance.
+    pub fit: SlowFit,
+    /// Covariance of (A, B, C) per unit of each term.
+    pub unit_cov: [[[f64; 3]; 3]; 3],
+    /// Seconds between rows.
+    pub row_interval_s: f64,
+    /// The levels the covariance used: θ, or with negative levels taken as zero where
+    /// signed ones would not give a positive definite covariance.
+    pub theta_used: [f64; 3],
+}
+
+impl SlowNoise {
+    /// The degrees of freedom of the amplitude variance var A + var B.
+    pub fn amplitude_dof(&self) -> f64 {
+        let a = self.unit_cov.map(|c| c[0][0] + c[1][1]);
+        self.fit.dof(&a)
+    }
+}
+
+/// A fit's covariance matrix as an array.
+fn to_array(c: &DMatrix<f64>) -> [[f64; 3]; 3] {
+    let mut out = [[0.0; 3]; 3];
+    for (row, c_row) in out.iter_mut().zip(c.row_iter()) {
+        for (x, v) in row.iter_mut().zip(c_row.iter()) {
+            *x = *v;
+        }
+    }
+    out
+}
+
+/// The sandwich covariance of (A, B, C) per channel for the sine fit's weighted regressors
+/// `h` under `models`.
+fn sine_cov(h: &DMatrix<f64>, models: &[NoiseModel; 3]) -> Result<[[[f64; 3]; 3]; 3], NoiseError> {
     let mut covs = [[[0.0; 3]; 3]; 3];
     for (cov, m) in covs.iter_mut().zip(models) {
-        let c = m.sandwich(&h)?;
-        for (row, c_row) in cov.iter_mut().zip(c.row_iter()) {
-            for (x, v) in row.iter_mut().zip(c_row.iter()) {
-                *x = *v;
+        *cov = to_array(&m.sandwich(h)?);
+    }
+    Ok(covs)
+}
+
+/// Σ θ_i·unit_i; where signed levels would leave it not positive definite (a negative
+/// estimate larger than the AR part allows), the negative levels are taken as zero.
+fn combined(unit: &[[[f64; 3]; 3]; 3], theta: &[f64; 3]) -> ([[f64; 3]; 3], [f64; 3]) {
+    let sum = |theta: &[f64; 3]| {
+        let mut c = [[0.0; 3]; 3];
+        for (u, t) in unit.iter().zip(theta) {
+            for (row, u_row) in c.iter_mut().zip(u) {
+                for (x, v) in row.iter_mut().zip(u_row) {
+                    *x += t * v;
+                }
+            }
+        }
+        c
+    };
+    let c = sum(theta);
+    let m =
+        nalgebra::Matrix3::from_fn(|i, j| c.get(i).and_then(|r| r.get(j)).copied().unwrap_or(0.0));
+    if m.cholesky().is_some() {
+        (c, *theta)
+    } else {
+        let clamped = theta.map(|t| t.max(0.0));
+        (sum(&clamped), clamped)
+    }
+}
+
+/// The slow noise of every held group of a recording, pooled per channel (one flicker and
+/// one walk per channel, each group its own AR model: [`noise::estimate_pooled`]), and
+/// each group's covariance of (A, B, C) under it: θ₀ times the AR sandwich plus the
+/// flicker's and the walk's exact covariances ([`SlowDesign::slow_covariances`]).
+pub(crate) fn pool_slow(fits: &mut [&mut GroupFit]) -> Result<(), (Condition, NoiseError)> {
+    // Per group and channel, the pooled estimate.
+    let mut found: Vec<[Option<(SlowFit, NoiseModel)>; 3]> =
+        fits.iter().map(|_| [None, None, None]).collect();
+    for ch in Channel::ALL {
+        let mut members = Vec::new();
+        let mut parts = Vec::new();
+        for (i, f) in fits.iter().enumerate() {
+            if let Some(p) = &f.pending {
+                if let Some(resid) = ch.of(&p.resid) {
+                    members.push(i);
+                    parts.push(noise::SlowPart {
+                        design: &p.design,
+                        resid,
+                        ar: ch.of(&f.noise),
+                    });
+                }
+            }
+        }
+        let first = members
+            .first()
+            .and_then(|&i| fits.get(i))
+            .map_or(Condition::X, |f| f.condition);
+        let estimates =
+            noise::estimate_pooled(&parts, ch.index() as u64).map_err(|e| (first, e))?;
+        for (&i, est) in members.iter().zip(estimates.into_iter().flatten()) {
+            if let Some(slot) = found.get_mut(i).and_then(|g| g.get_mut(ch.index())) {
+                *slot = Some(est);
             }
         }
     }
-    Ok(covs)
+    for (f, est) in fits.iter_mut().zip(found) {
+        if est.iter().all(Option::is_none) {
+            f.pending = None;
+            continue;
+        }
+        update_group(f, est).map_err(|e| (f.condition, e))?;
+        f.pending = None;
+    }
+    Ok(())
+}
+
+/// One group under its slow noise: the rate chosen again with the rate's standard error
+/// under it, then the covariance of (A, B, C) per channel: θ₀ times the AR sandwich plus
+/// the flicker's and the walk's exact covariances ([`SlowDesign::slow_covariances`]).
+fn update_group(
+    f: &mut GroupFit,
+    est: [Option<(SlowFit, NoiseModel)>; 3],
+) -> Result<(), NoiseError> {
+    let Some(p) = f.pending.take() else {
+        return Ok(());
+    };
+    // The rate information of each channel: the derivative of its sine with respect to
+    // the rate, t·(A cos − B sin), less what the sine fit takes; its variance under the
+    // full model against the AR model's.
+    let h = &p.h;
+    let gram = h.tr_mul(h).try_inverse().ok_or(NoiseError::Singular)?;
+    let mut ratio = [1.0; 3];
+    for ((r, c), (e, first_model)) in ratio
+        .iter_mut()
+        .zip(&p.rate.coef)
+        .zip(est.iter().zip(&f.noise))
+    {
+        let Some((fit, model)) = e else { continue };
+        let d = nalgebra::DVector::from_iterator(
+            h.nrows(),
+            h.row_iter().zip(&p.times).map(|(row, t)| {
+                let (s, co) = (
+                    row.get(0).copied().unwrap_or(0.0),
+                    row.get(1).copied().unwrap_or(0.0),
+                );
+                t * (c[0] * co - c[1] * s)
+            }),
+        );
+        let d = &d - h * (&gram * h.tr_mul(&d));
+        let dd = d.dot(&d);
+        let col = DMatrix::from_column_slice(d.len(), 1, d.as_slice());
+        let quad = |m: &NoiseModel| -> Result<f64, NoiseError> {
+            Ok(m.sandwich(&col)?.get((0, 0)).copied().unwrap_or(0.0) * dd * dd)
+        };
+        let [fl, rw] = p.design.slow_quadratic(&d);
+        let [theta0, q_fl, q_rw] = fit.theta;
+        let full = theta0 * quad(model)? + q_fl * fl + q_rw * rw;
+        let before = quad(first_model)?;
+        if before > 0.0 && full > 0.0 {
+            *r = full / before;
+        }
+    }
+    let choice = rate_choice(&p.rate, &f.noise, ratio);
+    let was_fitted = f.rate_fitted.is_some();
+    let (fit_other, h_other) = &p.other;
+    let h = if choice.fitted != was_fitted {
+        f.fit = *fit_other;
+        h_other
+    } else {
+        &p.h
+    };
+    f.rate_hz = choice.rate_hz;
+    f.rate_fitted = choice.rate_fitted;
+    f.u_rate_hz = choice.u_rate_hz;
+    let [fl, rw] = p.design.slow_covariances(h)?;
+    let (fl, rw) = (to_array(&fl), to_array(&rw));
+    for (ch, e) in Channel::ALL.into_iter().zip(est) {
+        let i = ch.index();
+        match e {
+            Some((slow_fit, model)) => {
+                let unit_cov = [to_array(&model.sandwich(h)?), fl, rw];
+                let (cov, theta_used) = combined(&unit_cov, &slow_fit.theta);
+                if let Some(c) = f.cov.get_mut(i) {
+                    *c = cov;
+                }
+                if let Some(m) = f.noise.get_mut(i) {
+                    *m = model;
+                }
+                if let Some(slot) = f.slow.get_mut(i) {
+                    *slot = Some(SlowNoise {
+                        fit: slow_fit,
+                        unit_cov,
+                        row_interval_s: p.row_interval_s,
+                        theta_used,
+                    });
+                }
+            }
+            None => {
+                // A channel with readings on a rail: its AR model alone, at the rate chosen.
+                if let (Some(c), Some(m)) = (f.cov.get_mut(i), f.noise.get(i)) {
+                    *c = to_array(&m.sandwich(h)?);
+                }
+            }
+        }
+    }
+    Ok(())
 }
 
 /// The rate a condition's fit uses ([`rate_choice`]).
@@ -222,18 +505,24 @@ pub(crate) struct RateChoice {
 /// The rate's standard error is that of one unweighted joint fit with a pooled σ̂² (the
 /// mean of the channels' variances). Under the channels' own noise its variance is
 /// Σ f_j γ₀_j A_j² / (Σ A_j²)² against σ̄²/Σ A_j²: f_j the variance factor at ω, γ₀_j
-/// the level, A_j² the channel's share of the rate information.
+/// the level, A_j² the channel's share of the rate information. `slow` multiplies each
+/// channel's share: the variance of its rate information under the slow noise against
+/// the AR model's (1 without; [`pool_slow`]).
 pub(crate) fn rate_choice(
-    (rate_hz, se_rate_hz): (f64, f64),
-    coef: &[[f64; 3]; 3],
+    inputs: &RateInputs,
     noise: &[NoiseModel; 3],
-    omega_per_sample: f64,
-    nominal_hz: f64,
+    slow: [f64; 3],
 ) -> RateChoice {
+    let RateInputs {
+        fit: (rate_hz, se_rate_hz),
+        coef,
+        omega_per_sample,
+        nominal_hz,
+    } = *inputs;
     let (mut num, mut den) = (0.0, 0.0);
-    for (m, c) in noise.iter().zip(coef) {
+    for ((m, c), r) in noise.iter().zip(&coef).zip(slow) {
         let amp2 = c[0] * c[0] + c[1] * c[1];
-        num += m.variance_factor(omega_per_sample) * m.var * amp2;
+        num += m.variance_factor(omega_per_sample) * m.var * amp2 * r;
         den += amp2;
     }
     let pooled = noise.iter().map(|m| m.var).sum::<f64>() / 3.0;
@@ -265,6 +554,7 @@ pub(crate) fn fit_group(
     g: &Group,
     s: &[batch::Sample],
     nominal_hz: f64,
+    slow: bool,
 ) -> Result<GroupFit, CalibrateError> {
     let fail = |e: GroupError| e.of(rec, Some(g.first_line), g.condition);
     let nominal = PhaseStep::from_hz(nominal_hz, CLOCK).ok_or_else(|| {
@@ -306,29 +596,62 @@ pub(crate) fn fit_group(
     let four_coef = coef_of(&four.fit);
     // The noise is modelled once, about the fitted rate (the best description of the
     // data): at the nominal rate a rate error's growing quadrature would read as noise.
-    let noise = noise_models(s, fitted_step).map_err(|e| fail(e.into()))?;
-    let rate = rate_choice(
-        (four.rate_hz, four.se_rate_hz),
-        &four_coef,
-        &noise,
+    let noise = noise_models(s, fitted_step, slow).map_err(|e| fail(e.into()))?;
+    let inputs = RateInputs {
+        fit: (four.rate_hz, four.se_rate_hz),
+        coef: four_coef,
         omega_per_sample,
         nominal_hz,
-    );
-    let (step, fit) = if rate.fitted {
-        let fit = fit_at(s, fitted_step).map_err(|e| fail(e.into()))?;
-        (fitted_step, fit)
-    } else {
-        (nominal, at_nominal)
     };
-    let cov = sine_cov(s, step, &noise).map_err(|e| fail(e.into()))?;
-    Ok(GroupFit::new(
+    let rate = rate_choice(&inputs, &noise.models, [1.0; 3]);
+    let at_fitted = if rate.fitted || noise.design.is_some() {
+        Some(fit_at(s, fitted_step).map_err(|e| fail(e.into()))?)
+    } else {
+        None
+    };
+    let (step, fit, other) = match (rate.fitted, at_fitted) {
+        (true, Some(f)) => (fitted_step, f, Some((at_nominal, nominal))),
+        (false, Some(f)) => (nominal, at_nominal, Some((f, fitted_step))),
+        (_, None) => (nominal, at_nominal, None),
+    };
+    let status = match (slow, noise.design.is_some()) {
+        (false, _) => SlowStatus::NotAsked,
+        (true, true) => SlowStatus::Modelled,
+        (true, false) => SlowStatus::TooShort,
+    };
+    let h = batch::design(s, step, CLOCK, rotacal_shared::Model::SINE, Ticks(0));
+    let cov = sine_cov(&h, &noise.models).map_err(|e| fail(e.into()))?;
+    let pending = match (noise.design, other) {
+        (Some(design), Some((other_fit, other_step))) => {
+            let t0 = s.first().map_or(Ticks(0), |x| x.0.first());
+            Some(PendingSlow {
+                design,
+                resid: noise.resid,
+                h: h.clone(),
+                row_interval_s: span_s / (s.len().max(2) - 1) as f64,
+                rate: inputs,
+                other: (
+                    other_fit,
+                    batch::design(s, other_step, CLOCK, rotacal_shared::Model::SINE, Ticks(0)),
+                ),
+                times: s
+                    .iter()
+                    .map(|(ap, _)| batch::seconds_between(ap.first(), t0, CLOCK))
+                    .collect(),
+            })
+        }
+        _ => None,
+    };
+    let mut f = GroupFit::new(
         g.condition,
         fit,
         rate,
-        cov,
-        noise,
+        (cov, noise.models, [None, None, None]),
         omega_per_sample,
-    ))
+        status,
+    );
+    f.pending = pending.map(std::sync::Arc::new);
+    Ok(f)
 }
 
 /// The sine fit of a condition refitted at another rate (the budget's sensitivity to the

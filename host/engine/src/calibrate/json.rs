@@ -366,6 +366,89 @@ pub struct NoiseJson {
     pub n_eff: f64,
     /// Degrees of freedom of the variance.
     pub dof: f64,
+    /// Flicker and bias random walk, present when the residuals show either
+    /// (docs/uncertainty.md, "Slow noise").
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub slow: Option<SlowJson>,
+}
+
+/// A channel's slow noise in one condition: flicker and a bias random walk beyond the AR
+/// model, each with its standard uncertainty (parametric bootstrap), in output units and
+/// in µg. The levels are pooled over the recording's groups held in memory.
+#[derive(Clone, Debug, Serialize)]
+pub struct SlowJson {
+    /// The model and how it was estimated.
+    pub model: String,
+    /// The flicker's Allan variance 2 ln 2·Q/π (the floor squared), output units²; signed:
+    /// a record that cannot tell a level from zero gives an estimate of either sign.
+    pub flicker_allan_variance: SlowTerm,
+    /// The walk's K² = q·f_s (σ_A(τ)² = K²·τ/3), output units² per s; signed.
+    pub random_walk_k2: SlowTerm,
+    /// The flicker floor √(2 ln 2·Q/π), output units, when its estimate is positive.
+    pub flicker_floor: Option<SlowTerm>,
+    /// The walk K, output units per √s, when its estimate is positive.
+    pub random_walk_per_sqrt_s: Option<SlowTerm>,
+    /// Degrees of freedom of the channel's sine-amplitude variance under the whole model
+    /// (Welch–Satterthwaite with the terms' covariances).
+    pub dof_amplitude: f64,
+}
+
+/// One slow term: value and standard uncertainty, in output units and in µg (through the
+/// channel's sensitivity at this rate; µg of standard gravity), squared for a variance.
+#[derive(Clone, Debug, Serialize)]
+pub struct SlowTerm {
+    /// Output units (squared, per s or per √s as the key says).
+    pub value: f64,
+    /// Its standard uncertainty.
+    pub u: f64,
+    /// In µg (µg², µg²/s or µg/√s).
+    pub value_ug: Option<f64>,
+    /// Its standard uncertainty in the same unit.
+    pub u_ug: Option<f64>,
+}
+
+impl SlowJson {
+    /// From a group's slow noise; `sensitivity` is the channel's output units per m/s².
+    pub fn new(s: &crate::calibrate::group::SlowNoise, sensitivity: Option<f64>) -> Self {
+        let fit = &s.fit;
+        let [_, q, w] = fit.theta;
+        let sd = |i: usize| {
+            fit.cov
+                .get(i)
+                .and_then(|r| r.get(i))
+                .map_or(0.0, |v| v.max(0.0).sqrt())
+        };
+        let per_ug = sensitivity
+            .filter(|s| *s > 0.0)
+            .map(|s| 1.0 / (s * crate::allan::MICRO_G));
+        let linear = |value: f64, u: f64, power: i32| SlowTerm {
+            value,
+            u,
+            value_ug: per_ug.map(|f| value * f.powi(power)),
+            u_ug: per_ug.map(|f| u * f.powi(power)),
+        };
+        // The square root of a positive level c²θ: u = c·u_θ/(2√θ).
+        let root = |theta: f64, u_theta: f64, c: f64| {
+            (theta > 0.0).then(|| {
+                let value = c * theta.sqrt();
+                linear(value, c * u_theta / (2.0 * theta.sqrt()), 1)
+            })
+        };
+        let floor2 = 2.0 * std::f64::consts::LN_2 / std::f64::consts::PI;
+        let per_s = 1.0 / s.row_interval_s.max(f64::MIN_POSITIVE);
+        SlowJson {
+            model: "white/AR + flicker (Kasdin 1/f) + bias random walk; the levels fitted to \
+                    the residuals' overlapping Allan variances beyond the short-range \
+                    correlation, with their exact expectations for the fit, pooled over \
+                    the groups; uncertainties by parametric bootstrap"
+                .into(),
+            flicker_allan_variance: linear(floor2 * q, floor2 * sd(1), 2),
+            random_walk_k2: linear(w * per_s, sd(2) * per_s, 2),
+            flicker_floor: root(q, sd(1), floor2.sqrt()),
+            random_walk_per_sqrt_s: root(w, sd(2), per_s.sqrt()),
+            dof_amplitude: s.amplitude_dof(),
+        }
+    }
 }
 
 impl NoiseJson {
@@ -393,6 +476,7 @@ impl NoiseJson {
             n_excluded: m.excluded,
             n_eff: m.n_eff(omega),
             dof: m.dof(3),
+            slow: None,
         }
     }
 }

@@ -64,6 +64,9 @@ pub struct Options {
     pub still: still::Options,
     /// Standard uncertainties of the type-B inputs (override the file's `u_*` keys).
     pub inputs: TypeB,
+    /// Rotation: also model flicker and a bias random walk (`--slow-noise`; under
+    /// validation, docs/uncertainty.md, "Slow noise").
+    pub slow_noise: bool,
 }
 
 /// Standard uncertainties of the inputs that are not in the data (type B).

@@ -3,12 +3,12 @@
 //! assembly of the entries for both: budgets, corrections, offsets at rest.
 
 use super::budget::{Budget, Kind};
-use super::group::{fit_group, samples, GroupFit, Refit};
+use super::group::{fit_group, pool_slow, samples, GroupFit, Refit, SlowStatus};
 use super::json::{self, CalibrationJson, CorrectionJson, FitJson, NoiseJson};
 use super::sources::{gravity_source, new_budget, values6, variances6};
 use super::{
-    correction, err, methods, nominal_rate, CalibrateError, CalibrateErrorKind, Options, Preflight,
-    RateError, TypeB, CLOCK,
+    correction, err, methods, nominal_rate, CalibrateError, CalibrateErrorKind, GroupError,
+    Options, Preflight, RateError, TypeB, CLOCK,
 };
 use crate::recording::{same_rate, Group, Recording};
 use nalgebra::DMatrix;
@@ -73,17 +73,19 @@ pub(super) struct FittedGroup<'a> {
     pub refit: Box<dyn Refit + 'a>,
 }
 
-/// The fit of a group held in memory, at `nominal_hz` or the rate its data show.
+/// The fit of a group held in memory, at `nominal_hz` or the rate its data show; its slow
+/// noise modelled when `slow`.
 pub(super) fn held(
     rec: &Recording,
     group: &Group,
     nominal_hz: f64,
+    slow: bool,
 ) -> Result<FittedGroup<'static>, CalibrateError> {
     if group.t_s.len() != group.u.len() {
         return Err(err(rec, Some(group.first_line), CalibrateErrorKind::NoTime));
     }
     let s = samples(rec, group)?;
-    let fit = fit_group(rec, group, &s, nominal_hz)?;
+    let fit = fit_group(rec, group, &s, nominal_hz, slow)?;
     Ok(FittedGroup {
         fit,
         refit: Box::new(s),
@@ -108,11 +110,11 @@ pub(super) fn calibrate_held(
     for rate in &plan {
         for &i in &rate.groups {
             if let (Some(group), Some(slot)) = (rec.groups.get(i), fitted.get_mut(i)) {
-                *slot = Some(held(rec, group, rate.nominal_hz)?);
+                *slot = Some(held(rec, group, rate.nominal_hz, opts.slow_noise)?);
             }
         }
     }
-    assemble(rec, pre, opts.monte_carlo, &plan, fitted)
+    assemble(rec, pre, opts, &plan, fitted)
 }
 
 /// The calibration from every planned group's fit (`fitted`, by group index): an entry per
@@ -120,7 +122,7 @@ pub(super) fn calibrate_held(
 pub(super) fn assemble(
     rec: &Recording,
     pre: Preflight,
-    monte_carlo: Option<usize>,
+    opts: &Options,
     plan: &[RatePlan],
     mut fitted: Vec<Option<FittedGroup<'_>>>,
 ) -> Result<CalibrationJson, CalibrateError> {
@@ -128,8 +130,12 @@ pub(super) fn assemble(
         g: pre.g_loc,
         inputs: &pre.inputs,
         units: &pre.units,
-        monte_carlo,
+        monte_carlo: opts.monte_carlo,
+        slow_noise: opts.slow_noise,
     };
+    // Slow noise is a property of each channel: pooled over every group held in memory.
+    let mut held: Vec<&mut GroupFit> = fitted.iter_mut().flatten().map(|f| &mut f.fit).collect();
+    pool_slow(&mut held).map_err(|(condition, e)| GroupError::Noise(e).of(rec, None, condition))?;
     let mut by_rate = Vec::with_capacity(plan.len());
     let mut all_fits = Vec::with_capacity(plan.len());
     for rate in plan {
@@ -171,6 +177,8 @@ struct Setting<'a> {
     pub units: &'a str,
     /// Monte Carlo trials, if asked for.
     pub monte_carlo: Option<usize>,
+    /// Whether slow noise was asked for (`--slow-noise`).
+    pub slow_noise: bool,
 }
 
 /// One rate's entry of a rotation calibration from its three conditions' fits.
@@ -194,7 +202,15 @@ fn rotation_entry(
         )
     };
     let cal = methods::rotation(&cf, g).map_err(|e| at_rate(e.into()))?;
-    let budget = rotation_budget(fits, refits, &cal, g, set.inputs, set.units).map_err(at_rate)?;
+    let budget = rotation_budget(
+        fits,
+        refits,
+        &cal,
+        (g, set.slow_noise),
+        set.inputs,
+        set.units,
+    )
+    .map_err(at_rate)?;
     let json_fits = fits.iter().flat_map(fit_json).collect();
     let mut entry = json::rotation_entry(nominal, &cal, &budget, json_fits).ok_or_else(|| {
         err(
@@ -203,7 +219,12 @@ fn rotation_entry(
             CalibrateErrorKind::Internal("a budget without a line per property"),
         )
     })?;
-    entry.noise = Some(fits.iter().flat_map(noise_json).collect());
+    let [s_u, s_v, s_w, ..] = values6(&cal.intrinsic);
+    entry.noise = Some(
+        fits.iter()
+            .flat_map(|f| noise_json(f, [s_u, s_v, s_w]))
+            .collect(),
+    );
     entry.uncertainty_budget = Some(budget);
     let device = rotation_correction(fits, g).map_err(|e| at_rate(e.into()))?;
     entry.correction = Some(CorrectionJson::new(
@@ -254,15 +275,20 @@ fn fit_json(f: &GroupFit) -> Vec<FitJson> {
 }
 
 /// The JSON `noise` of a condition: its three channels' noise models.
-fn noise_json(f: &GroupFit) -> Vec<NoiseJson> {
+fn noise_json(f: &GroupFit, sensitivity: [f64; 3]) -> Vec<NoiseJson> {
     Channel::ALL
         .map(|channel| {
-            NoiseJson::new(
+            let mut n = NoiseJson::new(
                 f.condition,
                 channel,
                 channel.of(&f.noise),
                 f.omega_per_sample,
-            )
+            );
+            n.slow = channel
+                .of(&f.slow)
+                .as_ref()
+                .map(|s| json::SlowJson::new(s, Some(*channel.of(&sensitivity))));
+            n
         })
         .into()
 }
@@ -398,7 +424,7 @@ fn rotation_budget(
     fits: &[GroupFit; 3],
     refits: [&dyn Refit; 3],
     cal: &methods::RotationCalibration,
-    g: f64,
+    (g, slow_noise): (f64, bool),
     inputs: &TypeB,
     units: &str,
 ) -> Result<Budget, RateError> {
@@ -410,22 +436,65 @@ fn rotation_budget(
     // is the propagation with the others' covariance set to zero; their degrees of freedom
     // combine by Welch–Satterthwaite.
     let total = diag(&cal.intrinsic.cov);
+    // Var(V̂)/2 per property (so that ν = V²/per_dof): Σ over channel fits of V²/ν, and
+    // with slow noise per channel the slow terms' share, whose levels the three conditions
+    // share (pooled): their contributions add before the covariance of (Q̂, q̂) applies.
     let mut per_dof = [0.0; 6];
+    let propagated = |c: usize, j: usize, m: [[f64; 2]; 2]| -> Result<[f64; 6], RateError> {
+        let mut only = cf;
+        for (oc, f) in only.iter_mut().enumerate() {
+            for (oj, cov) in f.cov.iter_mut().enumerate() {
+                *cov = if (oc, oj) == (c, j) { m } else { [[0.0; 2]; 2] };
+            }
+        }
+        Ok(diag(&intrinsic::from_gram(&only, g, 0.0)?.cov))
+    };
+    let ab = |m: &[[f64; 3]; 3], scale: f64| {
+        [
+            [m[0][0] * scale, m[0][1] * scale],
+            [m[1][0] * scale, m[1][1] * scale],
+        ]
+    };
+    let mut shared = [([0.0; 6], [0.0; 6], None); 3];
     for (c, fit) in fits.iter().enumerate() {
-        for (j, noise) in fit.noise.iter().enumerate() {
-            let mut only = cf;
-            for (oc, f) in only.iter_mut().enumerate() {
-                for (oj, m) in f.cov.iter_mut().enumerate() {
-                    if (oc, oj) != (c, j) {
-                        *m = [[0.0; 2]; 2];
+        for (j, (shared_fl, shared_rw, slow_cov)) in shared.iter_mut().enumerate() {
+            match fit.slow.get(j).and_then(Option::as_ref) {
+                Some(sl) => {
+                    let [ar_unit, fl_unit, rw_unit] = &sl.unit_cov;
+                    let [t0, tq, tw] = sl.theta_used;
+                    let ar = propagated(c, j, ab(ar_unit, t0))?;
+                    let nu_ar = fit.noise.get(j).map_or(1.0, |m| m.dof(3));
+                    for (d, x) in per_dof.iter_mut().zip(ar) {
+                        *d += x * x / nu_ar;
+                    }
+                    // A level taken as zero adds no variance, nor any of its own.
+                    let on = |t: f64| f64::from(u8::from(t != 0.0));
+                    let fl = propagated(c, j, ab(fl_unit, on(tq)))?;
+                    let rw = propagated(c, j, ab(rw_unit, on(tw)))?;
+                    for (s, f) in shared_fl.iter_mut().zip(fl) {
+                        *s += f;
+                    }
+                    for (s, r) in shared_rw.iter_mut().zip(rw) {
+                        *s += r;
+                    }
+                    *slow_cov = Some(sl.fit.cov);
+                }
+                None => {
+                    let m = fit.cov.get(j).copied().unwrap_or([[0.0; 3]; 3]);
+                    let part = propagated(c, j, ab(&m, 1.0))?;
+                    let nu = fit.dof(j);
+                    for (d, x) in per_dof.iter_mut().zip(part) {
+                        *d += x * x / nu;
                     }
                 }
             }
-            let part = diag(&intrinsic::from_gram(&only, g, 0.0)?.cov);
-            let nu = noise.dof(3);
-            for (d, x) in per_dof.iter_mut().zip(part) {
-                *d += x * x / nu;
-            }
+        }
+    }
+    for (shared_fl, shared_rw, slow_cov) in &shared {
+        let Some(cov) = slow_cov else { continue };
+        for (d, (f, r)) in per_dof.iter_mut().zip(shared_fl.iter().zip(shared_rw)) {
+            let var = f * f * cov[1][1] + 2.0 * f * r * cov[1][2] + r * r * cov[2][2];
+            *d += var / 2.0;
         }
     }
     let dof: Vec<Option<f64>> = per_dof
@@ -535,6 +604,21 @@ fn rotation_budget(
         &ct,
         None,
     );
+    for f in fits.iter().filter(|_| slow_noise) {
+        let why = match f.slow_status {
+            SlowStatus::FromSums => {
+                "its rows were calibrated from sums (a group longer than \
+                                     the rows held in memory)"
+            }
+            SlowStatus::TooShort => "it has fewer than 64 rows",
+            SlowStatus::Modelled | SlowStatus::NotAsked => continue,
+        };
+        b.notes.push(format!(
+            "condition {}: flicker and random walk are not modelled, as {why}; the fits' \
+             uncertainty counts the short-range (AR) noise only (docs/uncertainty.md)",
+            f.condition.letter()
+        ));
+    }
     b.combine();
     Ok(b)
 }

@@ -157,6 +157,20 @@ fn render_noise(n: &[NoiseJson]) -> String {
                 String::new()
             }
         );
+        if let Some(s) = &x.slow {
+            let level =
+                |t: &crate::calibrate::json::SlowTerm, unit: &str| match (t.value_ug, t.u_ug) {
+                    (Some(v), Some(u)) => format!("{v:.3e} ± {u:.1e} µg{unit}"),
+                    _ => format!("{:.3e} ± {:.1e}", t.value, t.u),
+                };
+            let _ = writeln!(
+                o,
+                "      slow: flicker Allan variance {}, random walk K² {}, ν {:.0} for the amplitudes",
+                level(&s.flicker_allan_variance, "²"),
+                level(&s.random_walk_k2, "²/s"),
+                s.dof_amplitude
+            );
+        }
     }
     o
 }

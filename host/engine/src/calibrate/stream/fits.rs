@@ -3,7 +3,7 @@
 
 use super::first::GroupState;
 use super::{REACH_FIT, REACH_REFIT};
-use crate::calibrate::group::{rate_choice, GroupFit, Refit};
+use crate::calibrate::group::{rate_choice, GroupFit, RateInputs, Refit};
 use crate::calibrate::pilot::{self, Fitted, Piece};
 use crate::calibrate::{err, CalibrateError, CalibrateErrorKind, GroupError, CLOCK};
 use crate::fit::batch::BatchError;
@@ -164,13 +164,13 @@ pub(super) fn finish(
             CalibrateErrorKind::Internal("three channels' noise models expected"),
         ));
     };
-    let rate = rate_choice(
-        (p.four.rate_hz, p.four.se_rate_hz),
-        &p.four.coef,
-        &noise,
-        omega,
-        p.nominal_hz,
-    );
+    let inputs = RateInputs {
+        fit: (p.four.rate_hz, p.four.se_rate_hz),
+        coef: p.four.coef,
+        omega_per_sample: omega,
+        nominal_hz: p.nominal_hz,
+    };
+    let rate = rate_choice(&inputs, &noise, [1.0; 3]);
     let (step, rss) = if rate.fitted {
         (p.fitted, r.rss_fitted)
     } else {
@@ -190,7 +190,15 @@ pub(super) fn finish(
             }
         }
     }
-    Ok(GroupFit::new(gs.condition, fit, rate, cov, noise, omega))
+    // A streamed group keeps sums only: its slow noise is not modelled (docs/uncertainty.md).
+    Ok(GroupFit::new(
+        gs.condition,
+        fit,
+        rate,
+        (cov, noise, [None, None, None]),
+        omega,
+        super::super::group::SlowStatus::FromSums,
+    ))
 }
 
 /// The sine fit as the streaming fit reports it ([`rotacal_shared::SineFit::solve`]),

@@ -205,7 +205,12 @@ impl Engine<'_> {
                 };
                 if let Some(kept) = gs.kept.take() {
                     if let Some(slot) = fitted.get_mut(i) {
-                        *slot = Some(rotation::held(rec, &kept, rate.nominal_hz)?);
+                        *slot = Some(rotation::held(
+                            rec,
+                            &kept,
+                            rate.nominal_hz,
+                            self.opts.slow_noise,
+                        )?);
                     }
                 } else {
                     prepared.push(prepare(rec, i, gs, rate.nominal_hz)?);
@@ -262,13 +267,7 @@ impl Engine<'_> {
                 });
             }
         }
-        Ok(rotation::assemble(
-            rec,
-            pre,
-            self.opts.monte_carlo,
-            &plan,
-            fitted,
-        )?)
+        Ok(rotation::assemble(rec, pre, self.opts, &plan, fitted)?)
     }
 }
 
