@@ -33,5 +33,6 @@ mod recording;
 mod report;
 mod session_check;
 mod simulator;
+mod slow_noise;
 mod static_method;
 mod streaming;
