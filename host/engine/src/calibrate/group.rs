@@ -348,8 +348,8 @@ fn combined(unit: &[[[f64; 3]; 3]; 3], theta: &[f64; 3]) -> ([[f64; 3]; 3], [f64
 
 /// The slow noise of every held group of a recording, pooled per channel (one flicker and
 /// one walk per channel, each group its own AR model: [`noise::estimate_pooled`]), and
-/// each group's covariance of (A, B, C) under it: θ₀ times the AR sandwich plus the
-/// flicker's and the walk's exact covariances ([`SlowDesign::slow_covariances`]).
+/// each group's covariance of (A, B, C) under it: the re-estimated AR model's sandwich plus
+/// the flicker's and the walk's exact covariances ([`SlowDesign::slow_covariances`]).
 pub(crate) fn pool_slow(fits: &mut [&mut GroupFit]) -> Result<(), (Condition, NoiseError)> {
     // Per group and channel, the pooled estimate.
     let mut found: Vec<[Option<(SlowFit, NoiseModel)>; 3]> =
@@ -393,8 +393,8 @@ pub(crate) fn pool_slow(fits: &mut [&mut GroupFit]) -> Result<(), (Condition, No
 }
 
 /// One group under its slow noise: the rate chosen again with the rate's standard error
-/// under it, then the covariance of (A, B, C) per channel: θ₀ times the AR sandwich plus
-/// the flicker's and the walk's exact covariances ([`SlowDesign::slow_covariances`]).
+/// under it, then the covariance of (A, B, C) per channel: the re-estimated AR model's
+/// sandwich plus the flicker's and the walk's exact covariances.
 fn update_group(
     f: &mut GroupFit,
     est: [Option<(SlowFit, NoiseModel)>; 3],

@@ -4,8 +4,8 @@
 //! a fit's coefficients (docs/uncertainty.md, "Slow noise").
 //!
 //! The model of one channel's noise in a group, in output units at one sample per row:
-//! e = θ₀·(the AR model as estimated) + flicker (Kasdin's process, innovation variance
-//! θ₁ = Q) + random walk (step variance θ₂ = q).
+//! e = (an AR model) + flicker (Kasdin's process, innovation variance Q) + random walk
+//! (step variance q); [`SlowFit`] holds θ = (1, Q, q), the AR model's scale first.
 //!
 //! - **Exact without a cutoff.** Flicker and the walk have no stationary covariance. Their
 //!   generalised covariance −½·D(|s − t|) (D the structure function) gives the exact
@@ -13,14 +13,14 @@
 //!   offset makes contrasts of its residuals and of every coefficient but the offset. The
 //!   offset then measures the bias plus the slow noise's mean over the group.
 //! - **Estimated from the residuals alone.** The overlapping Allan variances of the
-//!   residuals at m = 1, 2, 4, … samples have expectations linear in θ, computed exactly
-//!   for the fit that made the residuals: E[ρᵀAρ] = tr(A(I − P)K(I − P)). θ comes from
-//!   their weighted least squares, flicker and walk non-negative (without either, the AR
-//!   model stands as before). A positive estimate is kept however small: a record too
-//!   short to tell a slow term from none must not be read as proof that there is none.
-//! - **Its uncertainty** is a parametric bootstrap of the same estimator: the degrees of
-//!   freedom of a coefficient's variance come from it (Welch–Satterthwaite with the
-//!   covariances of θ̂), so a record with few slow periods gets a larger k.
+//!   residuals at m = 1, 2, 4, … samples have expectations linear in the levels, computed
+//!   exactly for the fit that made the residuals: E[ρᵀAρ] = tr(A(I − P)K(I − P)). Q and q
+//!   come from their weighted least squares beyond the short-range correlation, pooled over
+//!   groups ([`estimate_pooled`]); they keep their sign, so the variance they add is
+//!   unbiased.
+//! - **Their uncertainty** is a parametric bootstrap of the same estimator: the degrees of
+//!   freedom of a coefficient's variance come from it, so a record with few slow periods
+//!   gets a larger k.
 //!
 //! Rows that average several conversions are weighted by √n in the fit. The slow noise is
 //! then w_t·b(t) in the weighted residuals, which the expectations follow exactly; the AR
