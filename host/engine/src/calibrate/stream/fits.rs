@@ -3,7 +3,7 @@
 
 use super::first::GroupState;
 use super::{REACH_FIT, REACH_REFIT};
-use crate::calibrate::group::{rate_choice, GroupFit, RateInputs, Refit};
+use crate::calibrate::group::{rate_choice, GroupFit, RateInputs, Refit, SlowStatus};
 use crate::calibrate::pilot::{self, Fitted, Piece};
 use crate::calibrate::{err, CalibrateError, CalibrateErrorKind, GroupError, CLOCK};
 use crate::fit::batch::BatchError;
@@ -197,7 +197,7 @@ pub(super) fn finish(
         rate,
         (cov, noise, [None, None, None]),
         omega,
-        super::super::group::SlowStatus::FromSums,
+        SlowStatus::FromSums,
     ))
 }
 

@@ -29,6 +29,7 @@
 
 use super::{NoiseError, NoiseModel};
 use crate::allan::powerlaw::{allan_variance, flicker_structure, FlickerIncrements};
+use crate::allan::{expected_avar, TermKind};
 use nalgebra::{DMatrix, DVector};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -177,7 +178,8 @@ pub struct SlowDesign {
     expected_slow: [Vec<f64>; 2],
     /// The slow terms' expected residual autocovariances at lags 0 … [`super::MAX_ORDER`].
     lagged_slow: [Vec<f64>; 2],
-    planner_n: usize,
+    /// Unit white noise's expected Allan variances for this fit (the short-range a/m).
+    expected_white: Vec<f64>,
 }
 
 impl std::fmt::Debug for SlowDesign {
@@ -252,7 +254,7 @@ impl SlowDesign {
             walk,
             expected_slow: [Vec::new(), Vec::new()],
             lagged_slow: [Vec::new(), Vec::new()],
-            planner_n: n,
+            expected_white: Vec::new(),
         };
         // The slow terms act on the rows as W·T·W (the walk's b(t) scaled by each row's
         // weight); W⁻¹KH_w = T·(W H_w).
@@ -260,10 +262,10 @@ impl SlowDesign {
         let kx_fl = d.flicker.mul(&whw);
         let kx_rw = d.walk.mul(&whw);
         let fl_exp = d.expected(&kx_fl, &whw.tr_mul(&kx_fl), |m| {
-            allan_variance(m as u64, flicker_structure)
+            expected_avar(TermKind::Flicker, m)
         });
         let rw_exp = d.expected(&kx_rw, &whw.tr_mul(&kx_rw), |m| {
-            allan_variance(m as u64, |k| k as f64)
+            expected_avar(TermKind::RandomWalk, m)
         });
         let lags = super::MAX_ORDER.min(n - 1);
         let fl_lag = d.expected_lagged(&kx_fl, &whw.tr_mul(&kx_fl), lags, |k| {
@@ -272,6 +274,11 @@ impl SlowDesign {
         let rw_lag = d.expected_lagged(&kx_rw, &whw.tr_mul(&kx_rw), lags, |k| -0.5 * k as f64);
         d.expected_slow = [fl_exp, rw_exp];
         d.lagged_slow = [fl_lag, rw_lag];
+        // Channel-independent: once per design, not per channel.
+        let white_gamma: Vec<f64> = std::iter::once(1.0)
+            .chain(std::iter::repeat_n(0.0, n - 1))
+            .collect();
+        d.expected_white = d.expected_ar(&NoiseModel::white(1.0, n), &white_gamma);
         Ok(d)
     }
 
@@ -421,8 +428,8 @@ impl SlowDesign {
     /// estimator's weights made contrasts (the offset's measurand is the bias plus the slow
     /// noise's weighted mean over the group).
     pub fn slow_covariances(&self, hs: &DMatrix<f64>) -> Result<[DMatrix<f64>; 2], NoiseError> {
-        if hs.nrows() != self.planner_n {
-            return Err(NoiseError::Length(hs.nrows(), self.planner_n));
+        if hs.nrows() != self.hw.nrows() {
+            return Err(NoiseError::Length(hs.nrows(), self.hw.nrows()));
         }
         let inv = hs.tr_mul(hs).try_inverse().ok_or(NoiseError::Singular)?;
         let est = hs * inv;
@@ -529,7 +536,6 @@ pub fn estimate_pooled(
     channel: u64,
 ) -> Result<Option<Vec<(SlowFit, NoiseModel)>>, NoiseError> {
     let groups = parts.len();
-    let params = SLOW + 2 * groups;
     for p in parts {
         if p.resid.len() != p.design.hw.nrows() {
             return Err(NoiseError::Length(p.resid.len(), p.design.hw.nrows()));
@@ -548,21 +554,11 @@ pub fn estimate_pooled(
                 .collect()
         })
         .collect();
-    let white: Vec<Vec<f64>> = parts
-        .iter()
-        .map(|p| {
-            let n = p.design.hw.nrows();
-            let gamma: Vec<f64> = std::iter::once(1.0)
-                .chain(std::iter::repeat_n(0.0, n - 1))
-                .collect();
-            p.design.expected_ar(&NoiseModel::white(1.0, n), &gamma)
-        })
-        .collect();
     let mut m0 = vec![8usize; groups];
     let mut models: Vec<NoiseModel> = parts.iter().map(|p| p.ar.clone()).collect();
     let mut fit = None;
     for round in 0..2 {
-        let Some(sys) = LevelSystem::new(parts, &stats, &white, &m0) else {
+        let Some(sys) = LevelSystem::new(parts, &stats, &m0) else {
             return Ok(None);
         };
         let est = sys.fit().ok_or(NoiseError::Singular)?;
@@ -620,10 +616,9 @@ pub fn estimate_pooled(
     }
     let cov = sample_covariance(&draws, SLOW);
     let c = |i: usize, j: usize| cov.get((i, j)).copied().unwrap_or(0.0);
-    let out = parts
-        .iter()
-        .zip(models)
-        .map(|(p, model)| {
+    let out = models
+        .into_iter()
+        .map(|model| {
             // The AR model's own scale estimate: relative variance 2/ν.
             let ar_var = 2.0 / model.dof(3);
             let fit = SlowFit {
@@ -633,13 +628,10 @@ pub fn estimate_pooled(
                     [0.0, c(0, 0), c(0, 1)],
                     [0.0, c(1, 0), c(1, 1)],
                 ],
-                kept: [true, true, true],
-                n: p.resid.len(),
             };
             (fit, model)
         })
         .collect();
-    let _ = params;
     Ok(Some(out))
 }
 
@@ -654,18 +646,13 @@ struct LevelSystem {
 }
 
 impl LevelSystem {
-    fn new(
-        parts: &[SlowPart<'_>],
-        stats: &[Vec<f64>],
-        white: &[Vec<f64>],
-        m0: &[usize],
-    ) -> Option<LevelSystem> {
+    fn new(parts: &[SlowPart<'_>], stats: &[Vec<f64>], m0: &[usize]) -> Option<LevelSystem> {
         let groups = parts.len();
         let params = SLOW + 2 * groups;
         let mut first = Vec::with_capacity(groups);
         let mut columns = vec![Vec::new(); params];
         let (mut st, mut ms) = (Vec::new(), Vec::new());
-        for (j, ((p, s), w)) in parts.iter().zip(stats).zip(white).enumerate() {
+        for (j, (p, s)) in parts.iter().zip(stats).enumerate() {
             let m_lo = m0.get(j).copied().unwrap_or(8);
             let f = p.design.octaves.iter().position(|o| o.m >= m_lo)?;
             first.push(f);
@@ -680,7 +667,7 @@ impl LevelSystem {
                             .get(i)
                             .and_then(|c| c.get(r))
                             .copied(),
-                        _ if i == SLOW + 2 * j => w.get(r).copied(),
+                        _ if i == SLOW + 2 * j => p.design.expected_white.get(r).copied(),
                         _ if i == SLOW + 2 * j + 1 => Some(1.0 / (o.m * o.m) as f64),
                         _ => Some(0.0),
                     };
@@ -786,18 +773,9 @@ pub struct SlowFit {
     pub theta: [f64; TERMS],
     /// Covariance of θ̂ (parametric bootstrap).
     pub cov: [[f64; TERMS]; TERMS],
-    /// Which terms the model keeps.
-    pub kept: [bool; TERMS],
-    /// Samples in the record.
-    pub n: usize,
 }
 
 impl SlowFit {
-    /// True when the record shows flicker or a random walk.
-    pub fn is_slow(&self) -> bool {
-        self.kept.iter().skip(1).any(|k| *k)
-    }
-
     /// The degrees of freedom of a variance V = Σ θ_i a_i: 2V²/(aᵀ Cov(θ̂) a).
     pub fn dof(&self, a: &[f64; TERMS]) -> f64 {
         let v: f64 = self.theta.iter().zip(a).map(|(t, x)| t * x).sum();
