@@ -1,19 +1,24 @@
-//! Coverage of the six intrinsic properties on slow noise (docs/uncertainty.md, "Slow
+//! Coverage of the intrinsic properties on slow noise (docs/uncertainty.md, "Slow
 //! noise"): two-sided coverage of U and the mean of (1.96·z/k)² over sessions of the
 //! `paper-10mhz` preset (or the rate given) with 4 counts of white noise, AR(1) noise of
 //! coefficient RHO if given, plus flicker and/or a bias random walk (docs/simulator.md),
-//! the noise never stated. (1.96·z/k)² has mean ≈ 1 (within 3 % for any ν ≥ 5) when z
+//! the noise never stated. With `--stepped`, the same device turned in 30° steps
+//! instead, 20 readings a step at its 16 Hz, 30 s from step to step (the nine properties;
+//! RATE is then ignored), calibrated as they come. (1.96·z/k)² has mean ≈ 1 (within 3 % for any ν ≥ 5) when z
 //! follows Student's t with the ν that gave k; its band is χ²-based.
 //!
-//!     cargo run --release --example slow_noise_coverage -- FLOOR_UG WALK_UG_PER_SQRT_S SESSIONS [RHO] [RATE_HZ]
+//!     cargo run --release --example slow_noise_coverage -- [--stepped] FLOOR_UG WALK_UG_PER_SQRT_S SESSIONS [RHO] [RATE_HZ]
 //!
-//! Prints one JSON line: overall, then per property (s_u, s_v, s_w, φ_uv, φ_vw, φ_wu) its
-//! coverage, mean scaled z² and mean k.
+//! Prints one JSON line: overall (and how many sessions warned of drift between poses,
+//! and the coverage of those that did not), then per property (s_u, s_v, s_w, φ_uv, φ_vw, φ_wu, and
+//! for stepped sessions O_u, O_v, O_w) its coverage, mean scaled z² and mean k.
 use rotacal::calibrate::{calibrate, Options};
+use rotacal::recording::Method;
 use rotacal::simulate::{Config, Noise, NoiseSd, Simulation};
 use std::process::ExitCode;
 
 fn main() -> ExitCode {
+    let stepped = std::env::args().any(|a| a == "--stepped");
     let args: Vec<f64> = std::env::args()
         .skip(1)
         .filter_map(|a| a.parse().ok())
@@ -24,13 +29,14 @@ fn main() -> ExitCode {
         [f, w, s, r, hz] => (f, w, s, r, hz),
         _ => {
             eprintln!(
-                "usage: slow_noise_coverage FLOOR_UG WALK_UG_PER_SQRT_S SESSIONS [RHO] [RATE_HZ]"
+                "usage: slow_noise_coverage [--stepped] FLOOR_UG WALK_UG_PER_SQRT_S SESSIONS [RHO] [RATE_HZ]"
             );
             return ExitCode::from(2);
         }
     };
     let (mut covered, mut total, mut z2) = (0u32, 0u32, 0.0);
-    let mut per = [(0u32, 0.0f64, 0.0f64, 0.0f64); 6];
+    let (mut sessions_warned, mut quiet) = (0u32, (0u32, 0u32));
+    let mut per = [(0u32, 0.0f64, 0.0f64, 0.0f64); 9];
     for t in 0..sessions as u64 {
         let mut cfg = match Config::preset("paper-10mhz") {
             Ok(c) => c,
@@ -40,7 +46,17 @@ fn main() -> ExitCode {
             }
         };
         cfg.seed = 0xF11C_0000 + t;
-        cfg.table.rates_hz = Some(vec![rate]);
+        if stepped {
+            cfg.method = Method::Static;
+            cfg.table.rates_hz = None;
+            cfg.table.samples_per_condition = None;
+            cfg.table.duration_s = None;
+            cfg.table.angle_step_deg = Some(30.0);
+            cfg.table.readings_per_angle = Some(20);
+            cfg.table.dwell_s = Some(30.0);
+        } else {
+            cfg.table.rates_hz = Some(vec![rate]);
+        }
         cfg.sensor.noise = Some(Noise {
             sd: Some(NoiseSd::All(4.0)),
             ar: (rho != 0.0).then(|| vec![rho]),
@@ -54,7 +70,7 @@ fn main() -> ExitCode {
             .and_then(|sim| {
                 let rec = sim.recording().map_err(|e| e.to_string())?;
                 let opts = Options {
-                    slow_noise: true,
+                    slow_noise: !stepped,
                     ..Options::default()
                 };
                 let cal = calibrate(&rec, &opts).map_err(|e| e.to_string())?;
@@ -68,13 +84,22 @@ fn main() -> ExitCode {
             }
         };
         let truth = sim.truth();
-        let values = truth.sensitivity.iter().chain(&truth.angles_deg);
+        let values = truth.properties();
+        // A session that warns of drift between poses: its intervals are also counted apart.
+        let warned = cal.by_rate.iter().any(|r| {
+            r.uncertainty_budget.as_ref().is_some_and(|b| {
+                b.notes
+                    .iter()
+                    .any(|n| n.contains("from one pose to the next"))
+            })
+        });
+        sessions_warned += u32::from(warned);
         for rate in &cal.by_rate {
             for ((q, tr), p) in rate
                 .intrinsic
                 .quantities()
                 .iter()
-                .zip(values.clone())
+                .zip(values)
                 .zip(per.iter_mut())
             {
                 p.0 += u32::from((q.value - tr).abs() <= q.expanded_unc);
@@ -84,11 +109,16 @@ fn main() -> ExitCode {
                 total += 1;
                 z2 += (1.96 * (q.value - tr) / q.std_unc / q.k).powi(2);
                 covered += u32::from((q.value - tr).abs() <= q.expanded_unc);
+                if !warned {
+                    quiet.0 += u32::from((q.value - tr).abs() <= q.expanded_unc);
+                    quiet.1 += 1;
+                }
             }
         }
     }
     let per_quantity: Vec<String> = per
         .iter()
+        .filter(|p| p.3 > 0.0)
         .map(|p| {
             format!(
                 "[{:.4}, {:.4}, {:.3}]",
@@ -99,9 +129,11 @@ fn main() -> ExitCode {
         })
         .collect();
     println!(
-        "{{\"flicker_floor_ug\": {floor}, \"random_walk_ug_per_sqrt_s\": {walk}, \"ar1\": {rho}, \"rate_hz\": {rate}, \"sessions\": {sessions}, \"intervals\": {total}, \"coverage\": {:.4}, \"mean_scaled_z2\": {:.4}, \"per_quantity_coverage_z2_k\": [{}]}}",
+        "{{\"method\": \"{}\", \"flicker_floor_ug\": {floor}, \"random_walk_ug_per_sqrt_s\": {walk}, \"ar1\": {rho}, \"rate_hz\": {rate}, \"sessions\": {sessions}, \"intervals\": {total}, \"coverage\": {:.4}, \"mean_scaled_z2\": {:.4}, \"sessions_warned\": {sessions_warned}, \"coverage_unwarned\": {:.4}, \"per_quantity_coverage_z2_k\": [{}]}}",
+        if stepped { "stepped" } else { "rotation" },
         f64::from(covered) / f64::from(total),
         z2 / f64::from(total),
+        f64::from(quiet.0) / f64::from(quiet.1),
         per_quantity.join(", ")
     );
     ExitCode::SUCCESS

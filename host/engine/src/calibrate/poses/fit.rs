@@ -6,15 +6,18 @@
 #![allow(clippy::indexing_slicing)]
 
 use super::gather::direction_name;
+use super::serial;
 use super::tilt::{bracket, joint_fit};
 use super::weigh::Combined;
 use super::{
     o_index, ChannelFit, Conditioning, CovPart, OffsetEstimator, Options, PartSource, Pose,
-    PoseError, PoseFit, Weights, NOT_STILL_FACTOR, SINGULAR, TILT_MAX_RAD, WELL_CONDITIONED,
+    PoseError, PoseFit, Serial, Weights, NOT_STILL_FACTOR, SINGULAR, TILT_MAX_RAD,
+    WELL_CONDITIONED, Z_ALARM,
 };
 use crate::calibrate::budget::coverage_factor;
 use nalgebra::{DMatrix, DVector, Matrix4, Vector4};
 use rotacal_shared::intrinsic::Estimate;
+use rotacal_shared::Channel;
 
 /// Condition number of the unit design and, if poor, the axis orientation that helps most.
 fn conditioning(poses: &[Pose]) -> (f64, String) {
@@ -159,6 +162,21 @@ impl Problem<'_> {
         })
     }
 
+    /// Each channel's serial test, on its residuals under the weights it was fitted with.
+    fn serial(&self, channels: &[ChannelFit; 3]) -> [Option<Serial>; 3] {
+        [0, 1, 2].map(|j| {
+            let y: Vec<f64> = self.poses.iter().map(|q| q.mean[j]).collect();
+            let var: Vec<f64> = match self.opts.weights {
+                Weights::Equal => vec![1.0; y.len()],
+                Weights::RandomEffects => {
+                    let tau2 = channels[j].tau.powi(2);
+                    self.se2.iter().map(|v| v[j] + tau2).collect()
+                }
+            };
+            serial::lag1(&self.x, &y, &var)
+        })
+    }
+
     /// One channel's fit to the pose means `y` under the weights 1/(se² + τ²), from its
     /// ordinary least-squares fit `ols`: τ² = 0 when the means agree within their noise,
     /// else the τ² that brings χ² down to its degrees of freedom. Gives the coefficients,
@@ -289,6 +307,25 @@ fn residuals(poses: &[Pose], x: &[[f64; 4]], channels: &[ChannelFit; 3]) -> Vec<
         .collect()
 }
 
+/// A warning for each channel whose residuals are correlated from pose to pose.
+fn serial_notes(serial: &[Option<Serial>; 3]) -> Vec<String> {
+    Channel::ALL
+        .iter()
+        .zip(serial)
+        .filter_map(|(c, s)| s.filter(|s| s.z > Z_ALARM).map(|s| (c, s)))
+        .map(|(c, s)| {
+            format!(
+                "the pose residuals of channel {c} are correlated from one pose to the next \
+                 (lag-1 autocorrelation {:.2}, independent poses give {:.2}; z = {:.1} > {Z_ALARM}): \
+                 slow drift between poses (flicker, bias wander) or an effect that varies \
+                 smoothly with the angle, which this uncertainty does not include; an offset \
+                 also carries the drift's mean over the session, which no residual shows",
+                s.lag1, s.expected, s.z
+            )
+        })
+        .collect()
+}
+
 /// The poses whose std in some channel exceeds [`NOT_STILL_FACTOR`] times the median
 /// pose's, in order of first appearance.
 fn not_still(poses: &[Pose]) -> Vec<String> {
@@ -349,6 +386,8 @@ pub fn fit(poses: Vec<Pose>, g: f64, opts: Options) -> Result<PoseFit, PoseError
         fitted.set_joint_channels(&mut channels, p);
     }
     let residuals = residuals(&poses, &problem.x, &channels);
+    let serial = problem.serial(&channels);
+    notes.extend(serial_notes(&serial));
     let offsets_joint = [0, 1, 2].map(|j| Estimate {
         value: fitted.theta[o_index(j)],
         std_unc: fitted.var_nu(o_index(j)).0.max(0.0).sqrt(),
@@ -383,6 +422,7 @@ pub fn fit(poses: Vec<Pose>, g: f64, opts: Options) -> Result<PoseFit, PoseError
         dof,
         k,
         residuals,
+        serial,
         conditioning: Conditioning {
             condition_number: cond,
             suggestion: (cond > WELL_CONDITIONED).then_some(suggestion),

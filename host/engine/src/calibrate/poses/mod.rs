@@ -21,12 +21,14 @@
 
 mod fit;
 mod gather;
+mod serial;
 mod tilt;
 mod weigh;
 
 pub use fit::fit;
 pub(crate) use fit::weakest;
 pub use gather::{direction_name, poses_from_conditions, poses_from_oriented};
+pub use serial::{Serial, Z_ALARM};
 pub use weigh::Weighing;
 
 use crate::calibrate::budget::coverage_factor;
@@ -309,6 +311,9 @@ pub struct PoseFit {
     pub k: f64,
     /// Pose mean minus the fitted model, per pose and channel (output units).
     pub residuals: Vec<[f64; 3]>,
+    /// Per channel, the lag-1 correlation of its residuals in the order the poses were
+    /// read, against independent poses (`None` with too few poses).
+    pub serial: [Option<Serial>; 3],
     /// Conditioning of the design.
     pub conditioning: Conditioning,
     /// Offsets of the joint fit.
