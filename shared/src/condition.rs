@@ -144,6 +144,16 @@ impl Channel {
             Channel::W => &per_channel[2],
         }
     }
+
+    /// This channel's element of a per-channel array, to change it.
+    pub fn of_mut<T>(self, per_channel: &mut [T; 3]) -> &mut T {
+        let [u, v, w] = per_channel;
+        match self {
+            Channel::U => u,
+            Channel::V => v,
+            Channel::W => w,
+        }
+    }
 }
 
 impl core::fmt::Display for Condition {

@@ -80,7 +80,8 @@ pub struct Options {
     #[arg(long, default_value_t = 1.0, value_name = "S")]
     pub min_still_s: f64,
     /// Rotation: also model flicker and a bias random walk, pooled per channel over the
-    /// recording (under validation: docs/uncertainty.md, "Slow noise").
+    /// recording; free: allow for the flicker the still intervals' changes show in the
+    /// moved test (under validation: docs/uncertainty.md, "Slow noise").
     #[arg(long)]
     pub slow_noise: bool,
 }

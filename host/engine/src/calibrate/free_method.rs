@@ -2,6 +2,7 @@
 //! column), then G and O from |a| = g ([`super::free`]); the entry and its budget.
 
 use super::budget::Kind;
+use super::drift;
 use super::json::{self, CorrectionJson};
 use super::sources::{gravity_source, new_budget, values6, variances6};
 use super::{
@@ -9,7 +10,7 @@ use super::{
 };
 use crate::recording::Recording;
 use nalgebra::DMatrix;
-use rotacal_shared::intrinsic;
+use rotacal_shared::{intrinsic, Channel};
 use std::borrow::Cow;
 
 /// One continuous stretch of readings searched for still intervals: borrowed from the
@@ -103,6 +104,7 @@ pub(super) fn entry(
         return Err(err(rec, None, CalibrateErrorKind::MonteCarloFree));
     }
     let mut detections: Vec<(String, Option<still::Detection>, Vec<still::Interval>)> = Vec::new();
+    let mut drift_notes = Vec::new();
     for seg in segments(rec)? {
         let found = match seg.names {
             Some(names) => (None, still::named(&seg.t_s, &seg.y, &seg.line, names)),
@@ -114,21 +116,30 @@ pub(super) fn entry(
                 Err(e) => (None, Err(e)),
             },
         };
-        let (det, intervals) = (
+        // Errors of this segment name it first.
+        let at = if seg.label.is_empty() {
+            String::new()
+        } else {
+            format!("{}: ", seg.label)
+        };
+        let first_line = seg.line.first().copied();
+        let (det, mut intervals) = (
             found.0,
-            found.1.map_err(|e| {
-                let at = if seg.label.is_empty() {
-                    String::new()
-                } else {
-                    format!("{}: ", seg.label)
-                };
-                err(
-                    rec,
-                    seg.line.first().copied(),
-                    CalibrateErrorKind::Still { at, source: e },
-                )
+            found.1.map_err(|source| {
+                let at = at.clone();
+                err(rec, first_line, CalibrateErrorKind::Still { at, source })
             })?,
         );
+        if opts.slow_noise {
+            let levels = drift::retest(&seg.t_s, &seg.y, &mut intervals).map_err(|source| {
+                err(
+                    rec,
+                    first_line,
+                    CalibrateErrorKind::StillSlowNoise { at, source },
+                )
+            })?;
+            drift_notes.push(drift_note(&seg.label, &levels, units));
+        }
         let intervals = intervals
             .into_iter()
             .map(|mut i| {
@@ -222,6 +233,7 @@ pub(super) fn entry(
         ));
     }
     b.notes.extend(fit.notes.iter().cloned());
+    b.notes.extend(drift_notes);
     let values = values6(&intr);
     let mut cg = vec![0.0; 9];
     for (c, v) in cg.iter_mut().zip(values.iter().take(3)) {
@@ -255,6 +267,41 @@ pub(super) fn entry(
     ));
     entry.uncertainty_budget = Some(b);
     Ok(entry)
+}
+
+/// What the moved test allowed for in a segment (`label`): each channel's flicker level,
+/// as the Allan-deviation floor √(2 ln 2·λ/π) in output units.
+fn drift_note(label: &str, levels: &[Option<f64>; 3], units: &str) -> String {
+    let at = if label.is_empty() {
+        String::new()
+    } else {
+        format!(" ({label})")
+    };
+    let each: Vec<String> = Channel::ALL
+        .iter()
+        .zip(levels)
+        .map(|(c, l)| match l {
+            Some(l) => format!(
+                "{c} {:.3e} {units}",
+                (2.0 * std::f64::consts::LN_2 * l / std::f64::consts::PI).sqrt()
+            ),
+            None => format!("{c} not estimated"),
+        })
+        .collect();
+    let few = if levels.iter().all(Option::is_none) {
+        format!(
+            " (fewer than {} intervals to estimate it from)",
+            drift::MIN_INTERVALS
+        )
+    } else {
+        String::new()
+    };
+    format!(
+        "--slow-noise: the moved test allows for flicker at the level the still intervals' \
+         changes show{at}{few}, as an Allan-deviation floor: {}; the poses' uncertainties \
+         do not include it yet",
+        each.join(", ")
+    )
 }
 
 /// The detection in a few lines: what was found, at which threshold, and why each

@@ -21,6 +21,7 @@
 
 pub mod budget;
 pub mod correction;
+mod drift;
 mod error;
 pub mod free;
 mod free_method;
@@ -64,8 +65,8 @@ pub struct Options {
     pub still: still::Options,
     /// Standard uncertainties of the type-B inputs (override the file's `u_*` keys).
     pub inputs: TypeB,
-    /// Rotation: also model flicker and a bias random walk (`--slow-noise`; under
-    /// validation, docs/uncertainty.md, "Slow noise").
+    /// Rotation: also model flicker and a bias random walk; free: allow for them in the
+    /// moved test (`--slow-noise`; under validation, docs/uncertainty.md, "Slow noise").
     pub slow_noise: bool,
 }
 

@@ -29,6 +29,7 @@ pub use fit::fit;
 pub(crate) use fit::weakest;
 pub use gather::{direction_name, poses_from_conditions, poses_from_oriented};
 pub use serial::{Serial, Z_ALARM};
+pub(crate) use tilt::bracket;
 pub use weigh::Weighing;
 
 use crate::calibrate::budget::coverage_factor;

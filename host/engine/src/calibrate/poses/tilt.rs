@@ -87,7 +87,7 @@ fn bisect(f: &impl Fn(f64) -> f64, target: f64, lo: f64, hi: f64) -> f64 {
 /// Bisection of the decreasing `f(x) = target` from the bracket `(lo, hi)` (f(lo) > target
 /// ≥ f(hi)): the last bracket, after at most `steps` halvings, once it no longer narrows,
 /// or once `hi` is below `floor`.
-pub(super) fn bracket(
+pub(crate) fn bracket(
     f: &impl Fn(f64) -> f64,
     target: f64,
     (mut lo, mut hi): (f64, f64),
