@@ -4,23 +4,38 @@
 //! coefficient RHO if given, plus flicker and/or a bias random walk (docs/simulator.md),
 //! the noise never stated. With `--stepped`, the same device turned in 30° steps
 //! instead, 20 readings a step at its 16 Hz, 30 s from step to step (the nine properties;
-//! RATE is then ignored), calibrated as they come. (1.96·z/k)² has mean ≈ 1 (within 3 % for any ν ≥ 5) when z
+//! RATE is then ignored), calibrated as they come. With `--free POSES`, the same device
+//! put down by hand in POSES unknown orientations at 104 Hz (still 3 s, turned in 1.5 s,
+//! each pose's noise ×1.5 either way, a 0.5 m/s² ring-down), calibrated by the free method. (1.96·z/k)² has mean ≈ 1 (within 3 % for any ν ≥ 5) when z
 //! follows Student's t with the ν that gave k; its band is χ²-based.
 //!
-//!     cargo run --release --example slow_noise_coverage -- [--stepped] FLOOR_UG WALK_UG_PER_SQRT_S SESSIONS [RHO] [RATE_HZ]
+//!     cargo run --release --example slow_noise_coverage -- [--stepped | --free POSES] FLOOR_UG WALK_UG_PER_SQRT_S SESSIONS [RHO] [RATE_HZ]
+//!
+//! `--without-slow-noise` calibrates rotation and free sessions without the option.
 //!
 //! Prints one JSON line: overall (and how many sessions warned of drift between poses,
 //! and the coverage of those that did not), then per property (s_u, s_v, s_w, φ_uv, φ_vw, φ_wu, and
 //! for stepped sessions O_u, O_v, O_w) its coverage, mean scaled z² and mean k.
 use rotacal::calibrate::{calibrate, Options};
 use rotacal::recording::Method;
+use rotacal::simulate::config::FreePoses;
 use rotacal::simulate::{Config, Noise, NoiseSd, Simulation};
 use std::process::ExitCode;
 
 fn main() -> ExitCode {
-    let stepped = std::env::args().any(|a| a == "--stepped");
-    let args: Vec<f64> = std::env::args()
-        .skip(1)
+    let all: Vec<String> = std::env::args().skip(1).collect();
+    let stepped = all.iter().any(|a| a == "--stepped");
+    // Rotation and free calibrate with `--slow-noise` unless told not to.
+    let slow = !all.iter().any(|a| a == "--without-slow-noise");
+    let free: Option<usize> = all
+        .iter()
+        .position(|a| a == "--free")
+        .and_then(|i| all.get(i + 1))
+        .and_then(|n| n.parse().ok());
+    let args: Vec<f64> = all
+        .iter()
+        .filter(|a| !a.starts_with("--"))
+        .skip(usize::from(free.is_some()))
         .filter_map(|a| a.parse().ok())
         .collect();
     let (floor, walk, sessions, rho, rate) = match args[..] {
@@ -29,7 +44,7 @@ fn main() -> ExitCode {
         [f, w, s, r, hz] => (f, w, s, r, hz),
         _ => {
             eprintln!(
-                "usage: slow_noise_coverage [--stepped] FLOOR_UG WALK_UG_PER_SQRT_S SESSIONS [RHO] [RATE_HZ]"
+                "usage: slow_noise_coverage [--stepped | --free POSES] FLOOR_UG WALK_UG_PER_SQRT_S SESSIONS [RHO] [RATE_HZ]"
             );
             return ExitCode::from(2);
         }
@@ -46,7 +61,22 @@ fn main() -> ExitCode {
             }
         };
         cfg.seed = 0xF11C_0000 + t;
-        if stepped {
+        if let Some(count) = free {
+            cfg.method = Method::Free;
+            cfg.table.rates_hz = None;
+            cfg.table.samples_per_condition = None;
+            cfg.table.duration_s = None;
+            cfg.timing.sample_rate_hz = 104.0;
+            cfg.poses = Some(FreePoses {
+                count,
+                directions: None,
+                still_s: 3.0,
+                move_s: 1.5,
+                noise_spread: 1.5,
+                settle_ms2: 0.5,
+                moved: None,
+            });
+        } else if stepped {
             cfg.method = Method::Static;
             cfg.table.rates_hz = None;
             cfg.table.samples_per_condition = None;
@@ -70,7 +100,7 @@ fn main() -> ExitCode {
             .and_then(|sim| {
                 let rec = sim.recording().map_err(|e| e.to_string())?;
                 let opts = Options {
-                    slow_noise: !stepped,
+                    slow_noise: !stepped && slow,
                     ..Options::default()
                 };
                 let cal = calibrate(&rec, &opts).map_err(|e| e.to_string())?;
@@ -130,7 +160,13 @@ fn main() -> ExitCode {
         .collect();
     println!(
         "{{\"method\": \"{}\", \"flicker_floor_ug\": {floor}, \"random_walk_ug_per_sqrt_s\": {walk}, \"ar1\": {rho}, \"rate_hz\": {rate}, \"sessions\": {sessions}, \"intervals\": {total}, \"coverage\": {:.4}, \"mean_scaled_z2\": {:.4}, \"sessions_warned\": {sessions_warned}, \"coverage_unwarned\": {:.4}, \"per_quantity_coverage_z2_k\": [{}]}}",
-        if stepped { "stepped" } else { "rotation" },
+        match (free, stepped, slow) {
+            (Some(_), _, true) => "free, --slow-noise",
+            (Some(_), _, false) => "free",
+            (None, true, _) => "stepped",
+            (None, false, true) => "rotation, --slow-noise",
+            (None, false, false) => "rotation",
+        },
         f64::from(covered) / f64::from(total),
         z2 / f64::from(total),
         f64::from(quiet.0) / f64::from(quiet.1),

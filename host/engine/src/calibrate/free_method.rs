@@ -299,7 +299,9 @@ fn drift_note(label: &str, levels: &[Option<f64>; 3], units: &str) -> String {
     format!(
         "--slow-noise: the moved test allows for flicker at the level the still intervals' \
          changes show{at}{few}, as an Allan-deviation floor: {}; the poses' uncertainties \
-         do not include it yet",
+         do not include it yet, and the offsets, which carry the bias averaged over the \
+         session, may be off from the bias at any one time by about that much more than U \
+         says",
         each.join(", ")
     )
 }
