@@ -114,6 +114,12 @@ fn entry(c: &CalibrationJson) -> &rotacal::calibrate::json::RateJson {
 }
 
 fn coverage(poses: usize, trials: usize) {
+    coverage_with(poses, trials, &Options::default());
+}
+
+/// Two-sided coverage of the nine properties over `trials` sessions of `poses` poses,
+/// calibrated with `opts`.
+fn coverage_with(poses: usize, trials: usize, opts: &Options) {
     let names = vec![
         "s_u", "s_v", "s_w", "φ_uv", "φ_vw", "φ_wu", "O_u", "O_v", "O_w",
     ];
@@ -122,7 +128,7 @@ fn coverage(poses: usize, trials: usize) {
         let s = session(poses, 1000 * poses as u64 + i as u64);
         assert_eq!(s.truth().properties().to_vec(), truth);
         let rec = s.recording().unwrap();
-        let cal = calibrate(&rec, &Options::default()).unwrap();
+        let cal = calibrate(&rec, opts).unwrap();
         let e = entry(&cal);
         let f = e.free.as_ref().unwrap();
         let kept = f.poses.len();
@@ -134,12 +140,18 @@ fn coverage(poses: usize, trials: usize) {
             .filter(|i| i.interval.verdict != Verdict::Kept)
             .map(|i| i.reason.split(':').next().unwrap_or("").to_string())
             .collect();
-        (q, kept, f.tau_ms2 > 0.0, why)
+        let wander = e.uncertainty_budget.as_ref().is_some_and(|b| {
+            b.sources
+                .iter()
+                .any(|s| s.source == "bias_wander" && s.contribution.iter().any(|c| *c > 0.0))
+        });
+        (q, kept, f.tau_ms2 > 0.0, why, wander)
     });
     let mut tally = Tally::new(names, truth);
     let (mut lost, mut scatter) = (0usize, 0usize);
     let mut reasons: std::collections::BTreeMap<String, usize> = Default::default();
-    for (q, kept, tau, why) in &results {
+    let wandered = results.iter().filter(|r| r.4).count();
+    for (q, kept, tau, why, _) in &results {
         tally.add(&q.iter().collect::<Vec<_>>());
         lost += poses - kept;
         scatter += usize::from(*tau);
@@ -149,7 +161,7 @@ fn coverage(poses: usize, trials: usize) {
     }
     println!(
         "{poses} poses, {trials} sessions: {lost} poses lost in all ({reasons:?}), τ added in \
-         {scatter} sessions"
+         {scatter} sessions, a bias_wander line in {wandered}"
     );
     let failures = tally.check();
     assert!(failures.is_empty(), "{poses} poses: {failures:?}");
@@ -167,6 +179,18 @@ fn coverage_12_poses() {
 #[test]
 fn coverage_24_poses() {
     coverage(24, 1000);
+}
+
+/// `--slow-noise` on sessions without slow noise (AR noise of 7–14 counts): the offsets'
+/// `bias_wander` line must not overstate U where the changes demand no level (without
+/// that test the offsets covered 0.974–0.985; docs/uncertainty.md).
+#[test]
+fn coverage_24_poses_with_the_slow_noise_option_and_none() {
+    let slow = Options {
+        slow_noise: true,
+        ..Options::default()
+    };
+    coverage_with(24, 1000, &slow);
 }
 
 #[test]

@@ -105,6 +105,8 @@ pub(super) fn entry(
     }
     let mut detections: Vec<(String, Option<still::Detection>, Vec<still::Interval>)> = Vec::new();
     let mut drift_notes = Vec::new();
+    // Per segment with --slow-noise: its flicker levels and its rows.
+    let mut wander: Vec<([Option<drift::Level>; 3], usize)> = Vec::new();
     for seg in segments(rec)? {
         let found = match seg.names {
             Some(names) => (None, still::named(&seg.t_s, &seg.y, &seg.line, names)),
@@ -139,6 +141,7 @@ pub(super) fn entry(
                 )
             })?;
             drift_notes.push(drift_note(&seg.label, &levels, units));
+            wander.push((levels, seg.t_s.len()));
         }
         let intervals = intervals
             .into_iter()
@@ -221,6 +224,9 @@ pub(super) fn entry(
         )
     };
     b.vector("poses", Kind::A, description, &contribution, &[nu; 9]);
+    if let ([(levels, rows)], [(_, _, intervals)]) = (wander.as_slice(), detections.as_slice()) {
+        bias_wander(&mut b, levels, *rows, intervals, units);
+    }
     if fit.dof == 0 {
         // Nine poses fit the nine unknowns exactly: nothing tests the readings' noise model
         // against how the poses scatter (hand placements drift between poses), so U may be
@@ -269,9 +275,57 @@ pub(super) fn entry(
     Ok(entry)
 }
 
+/// The offsets' term for the bias's wander over a one-segment recording of `rows` rows:
+/// each channel's flicker level λ from the moved test, where the changes demand it, times
+/// the variance unit flicker gives the bias at a time of the session about the kept poses'
+/// mean (the offset the fit measures), with λ's degrees of freedom.
+fn bias_wander(
+    b: &mut crate::calibrate::budget::Budget,
+    levels: &[Option<drift::Level>; 3],
+    rows: usize,
+    intervals: &[still::Interval],
+    units: &str,
+) {
+    let mids: Vec<f64> = intervals
+        .iter()
+        .filter(|i| i.verdict == still::Verdict::Kept)
+        .map(|i| 0.5 * (i.rows.0 + i.rows.1) as f64)
+        .collect();
+    let unit = drift::session_wander(&mids, (0.0, rows.saturating_sub(1) as f64));
+    if !(unit.is_finite() && unit > 0.0) {
+        return;
+    }
+    let mut contribution = vec![0.0; 9];
+    let mut dof = vec![None; 9];
+    for ((c, d), l) in contribution
+        .iter_mut()
+        .skip(6)
+        .zip(dof.iter_mut().skip(6))
+        .zip(levels)
+    {
+        if let Some(l) = l.filter(|l| l.demanded) {
+            *c = (l.lambda * unit).max(0.0).sqrt();
+            *d = Some(drift::level_dof(l.intervals));
+        }
+    }
+    b.vector(
+        "bias_wander",
+        Kind::A,
+        format!(
+            "--slow-noise: the bias at a time of the session about its mean over the {} kept \
+             poses (what an offset measures), in {units}, under each channel's flicker level \
+             from the moved test where the changes demand one (0 elsewhere); ν from that \
+             level's median estimate (docs/uncertainty.md)",
+            mids.len()
+        ),
+        &contribution,
+        &dof,
+    );
+}
+
 /// What the moved test allowed for in a segment (`label`): each channel's flicker level,
 /// as the Allan-deviation floor √(2 ln 2·λ/π) in output units.
-fn drift_note(label: &str, levels: &[Option<f64>; 3], units: &str) -> String {
+fn drift_note(label: &str, levels: &[Option<drift::Level>; 3], units: &str) -> String {
     let at = if label.is_empty() {
         String::new()
     } else {
@@ -282,8 +336,13 @@ fn drift_note(label: &str, levels: &[Option<f64>; 3], units: &str) -> String {
         .zip(levels)
         .map(|(c, l)| match l {
             Some(l) => format!(
-                "{c} {:.3e} {units}",
-                (2.0 * std::f64::consts::LN_2 * l / std::f64::consts::PI).sqrt()
+                "{c} {:.3e} {units}{}",
+                (2.0 * std::f64::consts::LN_2 * l.lambda / std::f64::consts::PI).sqrt(),
+                if l.demanded {
+                    ""
+                } else {
+                    " (not demanded by the changes)"
+                }
             ),
             None => format!("{c} not estimated"),
         })
@@ -298,10 +357,9 @@ fn drift_note(label: &str, levels: &[Option<f64>; 3], units: &str) -> String {
     };
     format!(
         "--slow-noise: the moved test allows for flicker at the level the still intervals' \
-         changes show{at}{few}, as an Allan-deviation floor: {}; the poses' uncertainties \
-         do not include it yet, and the offsets, which carry the bias averaged over the \
-         session, may be off from the bias at any one time by about that much more than U \
-         says",
+         changes show{at}{few}, as an Allan-deviation floor: {}; the sensitivities' and \
+         angles' uncertainties do not include it yet; in a recording of one piece the offsets' U includes the bias's \
+         wander over the session (the bias_wander line)",
         each.join(", ")
     )
 }
