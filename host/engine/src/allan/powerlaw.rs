@@ -13,6 +13,10 @@ use statrs::function::gamma::digamma;
 use std::f64::consts::{LN_2, PI};
 use std::sync::Arc;
 
+/// The Allan variance of unit-Q Kasdin flicker at long averaging times, 2 ln 2/π: a
+/// flicker level Q has the Allan-deviation floor √(Q·2 ln 2/π).
+pub const FLICKER_ALLAN_PLATEAU: f64 = 2.0 * LN_2 / PI;
+
 /// The structure function of unit-Q Kasdin flicker at lag `k`: (4/π)·Σ_{j=1..k} 1/(2j − 1),
 /// summed up to k = 64 and beyond by Σ = (ψ(k + ½) − ψ(½))/2 (ψ the digamma function,
 /// ψ(½) = −γ − 2 ln 2), so that an Allan variance at factor m costs O(m).

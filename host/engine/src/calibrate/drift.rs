@@ -8,7 +8,7 @@
 //!
 //! Here each change d_i gains, per channel, a flicker term: var d_i = v_i + λ·f_i, with
 //! v_i the AR model's variance and f_i the variance unit flicker gives that interval's
-//! change, exactly for its line ([`SlowDesign::slow_quadratic`]; the shape matters, as
+//! change, exactly for its line ([`unit_flicker_quadratic`]; the shape matters, as
 //! intervals differ in length). λ is estimated from the changes themselves: the smallest
 //! λ ≥ 0 at which the median of d_i²/var d_i over the channel's intervals is the median of
 //! χ²₁. The median, because some intervals did move: up to half of them may, and λ does
@@ -24,11 +24,11 @@
 use super::poses::bracket;
 use super::still::{self, Interval, Verdict};
 use crate::allan::powerlaw::flicker_structure;
-use crate::fit::noise::{NoiseError, NoiseModel, SlowDesign};
-use nalgebra::{DMatrix, DVector};
+use crate::fit::noise::unit_flicker_quadratic;
+use nalgebra::DVector;
 use rotacal_shared::Channel;
 
-/// Fewest readings of an interval for it to enter (the slow design's minimum).
+/// Fewest readings of an interval for it to enter.
 const MIN_ROWS: usize = 64;
 
 /// Fewest intervals for the median to stand on.
@@ -48,21 +48,17 @@ struct Change {
     unit_flicker: f64,
 }
 
-/// The moved test again for `intervals` of a segment (times `t_s`, readings `y`), each
-/// change's variance widened by the flicker level estimated from the changes. Intervals
+/// The moved test again for `intervals` of a segment (times `t_s`), each change (as
+/// `still` measured it) with its variance widened by the flicker level estimated from the changes. Intervals
 /// under [`MIN_ROWS`] readings, or left out for another reason, keep their verdict; so do
 /// all of them with fewer than [`MIN_INTERVALS`] to estimate from. Gives each channel's
 /// level (`None` when not estimated).
-pub fn retest(
-    t_s: &[f64],
-    y: &[[f64; 3]],
-    intervals: &mut [Interval],
-) -> Result<[Option<Level>; 3], NoiseError> {
+pub fn retest(t_s: &[f64], intervals: &mut [Interval]) -> [Option<Level>; 3] {
     let mut changes: [Vec<Change>; 3] = Default::default();
     for (index, iv) in intervals.iter().enumerate() {
         let open = matches!(iv.verdict, Verdict::Kept | Verdict::Moved { .. });
         if open && iv.n >= MIN_ROWS {
-            for (ch, c) in line_changes(index, t_s, y, iv.rows)? {
+            for (ch, c) in line_changes(index, t_s, iv) {
                 ch.of_mut(&mut changes).push(c);
             }
         }
@@ -72,7 +68,7 @@ pub fn retest(
     for ch in Channel::ALL {
         let list = ch.of(&changes);
         if list.len() < MIN_INTERVALS {
-            return Ok([None; 3]);
+            return [None; 3];
         }
         let found = level(list);
         let lambda = found.lambda;
@@ -96,7 +92,7 @@ pub fn retest(
             };
         }
     }
-    Ok(levels)
+    levels
 }
 
 /// A channel's flicker level from its intervals' changes.
@@ -152,52 +148,34 @@ fn level(list: &[Change]) -> Level {
     }
 }
 
-/// Each channel's change over an interval's rows `lo..hi`, through the line `still` fits.
-fn line_changes(
-    index: usize,
-    t_s: &[f64],
-    y: &[[f64; 3]],
-    (lo, hi): (usize, usize),
-) -> Result<Vec<(Channel, Change)>, NoiseError> {
-    let (Some(times), Some(rows)) = (t_s.get(lo..hi), y.get(lo..hi)) else {
-        return Ok(Vec::new());
+/// Each channel's change over an interval (rows `lo..hi` of times `t_s`) as the moved test
+/// measured it, with the variance unit flicker gives it under the same line.
+fn line_changes(index: usize, t_s: &[f64], iv: &Interval) -> Vec<(Channel, Change)> {
+    let Some(times) = t_s.get(iv.rows.0..iv.rows.1) else {
+        return Vec::new();
     };
-    let n = rows.len();
-    let t0 = times.first().copied().unwrap_or(0.0);
-    let t1 = times.last().copied().unwrap_or(t0);
-    let tm = times.iter().sum::<f64>() / n.max(1) as f64;
-    let half = ((t1 - t0) / 2.0).max(1e-300);
-    let h = DMatrix::from_row_iterator(n, 2, times.iter().flat_map(|t| [1.0, (t - tm) / half]));
+    let h = still::line_design(times);
     let Some(inv) = h.tr_mul(&h).try_inverse() else {
-        return Ok(Vec::new());
+        return Vec::new();
     };
-    let est = &h * inv;
-    let weights: DVector<f64> = est.column(1) * 2.0;
-    let [unit_flicker, _] = SlowDesign::new(&h, &vec![1.0; n])?.slow_quadratic(&weights);
-    let mut out = Vec::new();
-    for ch in Channel::ALL {
-        let yj = DVector::from_iterator(n, rows.iter().map(|r| *ch.of(r)));
-        let resid = &yj - &h * est.tr_mul(&yj);
-        // As `still` tests it: the AR model of the residuals, rescaled for the line.
-        let Ok((_, cov)) =
-            NoiseModel::estimate(resid.as_slice(), &[]).and_then(|m| m.regression_cov(&h))
-        else {
-            continue;
-        };
-        let var_ar = 4.0 * cov.get((1, 1)).copied().unwrap_or(f64::NAN);
-        if var_ar.is_finite() && var_ar > 0.0 {
-            out.push((
+    let weights: DVector<f64> = (&h * inv).column(1) * 2.0;
+    let unit_flicker = unit_flicker_quadratic(&weights);
+    Channel::ALL
+        .into_iter()
+        .zip(iv.change)
+        .filter_map(|(ch, tested)| {
+            let t = tested?;
+            (t.var_ar.is_finite() && t.var_ar > 0.0).then_some((
                 ch,
                 Change {
                     index,
-                    d: weights.dot(&yj),
-                    var_ar,
+                    d: t.d,
+                    var_ar: t.var_ar,
                     unit_flicker,
                 },
-            ));
-        }
-    }
-    Ok(out)
+            ))
+        })
+        .collect()
 }
 
 /// How many times of the session the bias's wander about its mean is averaged over.

@@ -149,14 +149,6 @@ pub enum CalibrateErrorKind {
     /// A streamed file's rows changed between two readings.
     #[error("the file changed while it was read")]
     FileChanged,
-    /// The slow noise of a free recording's still intervals (`--slow-noise`).
-    #[error("{at}the slow noise of the still intervals: {source}")]
-    StillSlowNoise {
-        /// The segment (with ": "), or empty.
-        at: String,
-        /// Why.
-        source: NoiseError,
-    },
     /// An invariant of the engine failed: a bug in rotacal, not a problem of the data.
     #[error("internal: {0} (a bug in rotacal; please report it)")]
     Internal(&'static str),

@@ -8,6 +8,7 @@ use super::sources::{gravity_source, new_budget, values6, variances6};
 use super::{
     correction, err, free, poses, still, CalibrateError, CalibrateErrorKind, Options, Preflight,
 };
+use crate::allan::powerlaw::FLICKER_ALLAN_PLATEAU;
 use crate::recording::Recording;
 use nalgebra::DMatrix;
 use rotacal_shared::{intrinsic, Channel};
@@ -118,28 +119,23 @@ pub(super) fn entry(
                 Err(e) => (None, Err(e)),
             },
         };
-        // Errors of this segment name it first.
-        let at = if seg.label.is_empty() {
-            String::new()
-        } else {
-            format!("{}: ", seg.label)
-        };
-        let first_line = seg.line.first().copied();
         let (det, mut intervals) = (
             found.0,
-            found.1.map_err(|source| {
-                let at = at.clone();
-                err(rec, first_line, CalibrateErrorKind::Still { at, source })
+            found.1.map_err(|e| {
+                let at = if seg.label.is_empty() {
+                    String::new()
+                } else {
+                    format!("{}: ", seg.label)
+                };
+                err(
+                    rec,
+                    seg.line.first().copied(),
+                    CalibrateErrorKind::Still { at, source: e },
+                )
             })?,
         );
         if opts.slow_noise {
-            let levels = drift::retest(&seg.t_s, &seg.y, &mut intervals).map_err(|source| {
-                err(
-                    rec,
-                    first_line,
-                    CalibrateErrorKind::StillSlowNoise { at, source },
-                )
-            })?;
+            let levels = drift::retest(&seg.t_s, &mut intervals);
             drift_notes.push(drift_note(&seg.label, &levels, units));
             wander.push((levels, seg.t_s.len()));
         }
@@ -337,7 +333,7 @@ fn drift_note(label: &str, levels: &[Option<drift::Level>; 3], units: &str) -> S
         .map(|(c, l)| match l {
             Some(l) => format!(
                 "{c} {:.3e} {units}{}",
-                (2.0 * std::f64::consts::LN_2 * l.lambda / std::f64::consts::PI).sqrt(),
+                (FLICKER_ALLAN_PLATEAU * l.lambda).sqrt(),
                 if l.demanded {
                     ""
                 } else {

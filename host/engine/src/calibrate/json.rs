@@ -434,7 +434,7 @@ impl SlowJson {
                 linear(value, c * u_theta / (2.0 * theta.sqrt()), 1)
             })
         };
-        let floor2 = 2.0 * std::f64::consts::LN_2 / std::f64::consts::PI;
+        let floor2 = crate::allan::powerlaw::FLICKER_ALLAN_PLATEAU;
         let per_s = 1.0 / s.row_interval_s.max(f64::MIN_POSITIVE);
         SlowJson {
             model: "white/AR + flicker (Kasdin 1/f) + bias random walk; the levels fitted to \

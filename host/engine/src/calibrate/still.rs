@@ -114,6 +114,30 @@ pub struct Interval {
     /// Kept, or why not.
     #[serde(flatten)]
     pub verdict: Verdict,
+    /// Per channel, the moved test's line change and its variance under the AR model
+    /// (`None` where the interval was too short to test, or the model failed); not written.
+    #[serde(skip)]
+    pub change: [Option<Change>; 3],
+}
+
+/// One channel's change over an interval, as the moved test measured it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Change {
+    /// The line's change from the first to the last row, 2 × its slope (output units).
+    pub d: f64,
+    /// Its variance under the AR model of the line's residuals (output units²).
+    pub var_ar: f64,
+}
+
+/// The regressors (1, (t − t̄)/half) of the line through readings at `times`, half being
+/// half their span: its slope is half the change over them.
+pub fn line_design(times: &[f64]) -> DMatrix<f64> {
+    let n = times.len();
+    let t0 = times.first().copied().unwrap_or(0.0);
+    let t1 = times.last().copied().unwrap_or(t0);
+    let tm = times.iter().sum::<f64>() / n.max(1) as f64;
+    let half = ((t1 - t0) / 2.0).max(1e-300);
+    DMatrix::from_row_iterator(n, 2, times.iter().flat_map(|t| [1.0, (t - tm) / half]))
 }
 
 /// The detection's result for one continuous segment.
@@ -351,14 +375,13 @@ fn interval(
     });
     let t0 = times.first().copied().unwrap_or(0.0);
     let t1 = times.last().copied().unwrap_or(t0);
-    let tm = times.iter().sum::<f64>() / m;
-    let half = ((t1 - t0) / 2.0).max(1e-300);
     let mut std_err = std.map(|s| s / m.sqrt());
     let mut verdict = Verdict::Kept;
+    let mut tested = [None; 3];
     if n >= crate::calibrate::poses::NOISE_MODEL_MIN {
         // A line through each channel: its residuals give the noise model, its slope the
         // change over the interval.
-        let h = DMatrix::from_row_iterator(n, 2, times.iter().flat_map(|t| [1.0, (t - tm) / half]));
+        let h = line_design(times);
         let hth = h.tr_mul(&h);
         let inv = hth.try_inverse().ok_or_else(|| {
             StillError::Data(format!(
@@ -368,8 +391,11 @@ fn interval(
         })?;
         let mut change = [0.0; 3];
         let mut z_max: f64 = 0.0;
-        let each = std_err.iter_mut().zip(change.iter_mut());
-        for (ch, (se, change)) in Channel::ALL.into_iter().zip(each) {
+        let each = std_err
+            .iter_mut()
+            .zip(change.iter_mut())
+            .zip(tested.iter_mut());
+        for (ch, ((se, change), tested)) in Channel::ALL.into_iter().zip(each) {
             let yj = nalgebra::DVector::from_iterator(n, rows.iter().map(|r| *ch.of(r)));
             let beta = &inv * h.tr_mul(&yj);
             let resid = &yj - &h * &beta;
@@ -390,6 +416,10 @@ fn interval(
             let d = 2.0 * slope;
             let se_d = (2.0 * var_1.max(0.0).sqrt()).max(1e-10 * ch.of(&mean).abs());
             *change = d;
+            *tested = Some(Change {
+                d,
+                var_ar: 4.0 * var_1,
+            });
             if se_d > 0.0 {
                 z_max = z_max.max(d.abs() / se_d);
             }
@@ -408,5 +438,6 @@ fn interval(
         std,
         std_err,
         verdict,
+        change: tested,
     })
 }

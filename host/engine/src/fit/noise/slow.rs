@@ -455,6 +455,18 @@ impl SlowDesign {
     }
 }
 
+/// xᵀTx under unit flicker for a contrast x of n rows of unit weight (xᵀ1 = 0): the
+/// variance unit flicker gives an estimator with weights x. What
+/// [`SlowDesign::slow_quadratic`] gives for flicker, without building a whole design.
+pub fn unit_flicker_quadratic(x: &DVector<f64>) -> f64 {
+    let kappa: Vec<f64> = (0..x.len() as u64)
+        .map(|k| -0.5 * flicker_structure(k))
+        .collect();
+    let t = Toeplitz::new(&kappa, &mut FftPlanner::new());
+    let col = DMatrix::from_column_slice(x.len(), 1, x.as_slice());
+    col.tr_mul(&t.mul(&col)).get((0, 0)).copied().unwrap_or(0.0)
+}
+
 /// The Allan differences at m of every column, as one vector per difference.
 fn column_differences(prefixes: &[Vec<f64>], m: usize) -> Vec<DVector<f64>> {
     let cols: Vec<Vec<f64>> = prefixes
@@ -889,6 +901,17 @@ mod tests {
     /// The sine amplitude's variance under unit flicker and unit walk, W̃ᵀ(WTW)W̃, against
     /// 3000 simulated records (the variance's relative standard error √(2/3000) = 2.6 %;
     /// bound 4 of them).
+    /// The standalone flicker quadratic is the design's, bit for bit, on a line's change.
+    #[test]
+    fn unit_flicker_quadratic_is_the_designs() {
+        let n = 300;
+        let h = DMatrix::from_fn(n, 2, |t, j| if j == 0 { 1.0 } else { t as f64 / n as f64 });
+        let est = &h * h.tr_mul(&h).try_inverse().unwrap();
+        let x: DVector<f64> = est.column(1).into_owned();
+        let design = SlowDesign::new(&h, &vec![1.0; n]).unwrap();
+        assert_eq!(unit_flicker_quadratic(&x), design.slow_quadratic(&x)[0]);
+    }
+
     #[test]
     fn slow_covariances_match_simulated_fits() {
         let n = 4200;
