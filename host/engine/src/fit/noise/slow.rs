@@ -467,6 +467,20 @@ pub fn unit_flicker_quadratic(x: &DVector<f64>) -> f64 {
     col.tr_mul(&t.mul(&col)).get((0, 0)).copied().unwrap_or(0.0)
 }
 
+/// XᵀTX under unit flicker and under unit walk, for columns X (n rows of unit weight,
+/// one sample apart) that are contrasts (each column sums to zero): the covariance that
+/// estimators with weights X take from them. Rows between two stretches of a record can be
+/// zero, so the stretches' slow noise is one process, as it is in the sensor.
+pub fn unit_slow_forms(x: &DMatrix<f64>) -> [DMatrix<f64>; 2] {
+    let n = x.nrows() as u64;
+    let mut planner = FftPlanner::new();
+    let fl: Vec<f64> = (0..n).map(|k| -0.5 * flicker_structure(k)).collect();
+    let rw: Vec<f64> = (0..n).map(|k| -0.5 * k as f64).collect();
+    let flicker = Toeplitz::new(&fl, &mut planner);
+    let walk = Toeplitz::new(&rw, &mut planner);
+    [x.tr_mul(&flicker.mul(x)), x.tr_mul(&walk.mul(x))]
+}
+
 /// The Allan differences at m of every column, as one vector per difference.
 fn column_differences(prefixes: &[Vec<f64>], m: usize) -> Vec<DVector<f64>> {
     let cols: Vec<Vec<f64>> = prefixes
@@ -910,6 +924,52 @@ mod tests {
         let x: DVector<f64> = est.column(1).into_owned();
         let design = SlowDesign::new(&h, &vec![1.0; n]).unwrap();
         assert_eq!(unit_flicker_quadratic(&x), design.slow_quadratic(&x)[0]);
+    }
+
+    #[test]
+    fn unit_slow_forms_across_a_gap_match_simulated_noise() {
+        // Two stretches of 200 rows with 200 unrecorded between them; the estimator is a
+        // slope within each stretch plus the difference of their means: a contrast whose
+        // variance needs the slow noise across the gap.
+        let n = 600;
+        let x = DMatrix::from_fn(n, 2, |t, j| {
+            let within = (t % 400) as f64 / 200.0 - 0.5;
+            match (t < 200, t >= 400, j) {
+                (true, _, 0) => within + 0.5 / 200.0,
+                (_, true, 0) => within + 0.5 / 200.0,
+                (true, _, _) => -1.0 / 200.0,
+                (_, true, _) => 1.0 / 200.0,
+                _ => 0.0,
+            }
+        });
+        let [fl, rw] = unit_slow_forms(&x);
+        let gen = FlickerIncrements::new(n - 1);
+        let mut rng = ChaCha8Rng::seed_from_u64(5);
+        let reps = 3000;
+        let mut draws = [Vec::new(), Vec::new()];
+        for _ in 0..reps {
+            let inc = gen.draw(&mut rng);
+            let (mut f, mut w) = (DVector::zeros(n), DVector::zeros(n));
+            let (mut a, mut b) = (0.0, 0.0);
+            for t in 1..n {
+                a += inc[t - 1];
+                b += rng.sample::<f64, _>(StandardNormal);
+                f[t] = a;
+                w[t] = b;
+            }
+            draws[0].push(x.tr_mul(&f));
+            draws[1].push(x.tr_mul(&w));
+        }
+        for (exact, d) in [fl, rw].iter().zip(&draws) {
+            for i in 0..2 {
+                let var = d.iter().map(|v| v[i] * v[i]).sum::<f64>() / reps as f64;
+                let rel = var / exact[(i, i)] - 1.0;
+                assert!(rel.abs() < 4.0 * (2.0 / reps as f64).sqrt(), "{i}: {rel}");
+            }
+            let cov = d.iter().map(|v| v[0] * v[1]).sum::<f64>() / reps as f64;
+            let scale = (exact[(0, 0)] * exact[(1, 1)]).sqrt();
+            assert!((cov - exact[(0, 1)]).abs() < 4.0 * scale / (reps as f64).sqrt());
+        }
     }
 
     #[test]
