@@ -32,6 +32,9 @@ use nalgebra::{DMatrix, DVector};
 use rotacal_shared::{Channel, Condition};
 use std::f64::consts::TAU;
 
+mod weights;
+pub use weights::{tested, Tested};
+
 /// Why the model could not be fitted.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum ModelError {
@@ -672,7 +675,7 @@ fn gauss_newton_step(data: &Data, p: &Params, l: &Layout, s: [f64; 3]) -> Result
     let mut zr = 0.0;
     let mut chi2 = 0.0;
     for (ch, sj) in Channel::ALL.into_iter().zip(s) {
-        let System { xs, r, z } = whitened_system(data, p, l, ch, sj)?;
+        let System { xs, r, z, .. } = whitened_system(data, p, l, ch, sj)?;
         chi2 += r.iter().map(|v| v * v).sum::<f64>();
         let x = DMatrix::from_vec(n_rows, l.n(), xs);
         let r = DVector::from_vec(r);
@@ -729,6 +732,8 @@ struct System {
     r: Vec<f64>,
     /// The derivatives in δ.
     z: Vec<f64>,
+    /// Per group, which whitened rows are kept ([`kept`]).
+    keep: Vec<Vec<bool>>,
 }
 
 /// Channel `ch`'s [`System`] at sensitivity `sj`, each group's rows prewhitened by its
@@ -748,6 +753,7 @@ fn whitened_system(
     // The rows of each column, of r and of z below the groups done.
     let mut cols: Vec<&mut [f64]> = xs.chunks_exact_mut(n_rows.max(1)).collect();
     let (mut r_rest, mut z_rest) = (r.as_mut_slice(), z.as_mut_slice());
+    let mut keeps = Vec::with_capacity(data.groups.len());
     for ((gi, g), ab) in data.groups.iter().enumerate().zip(&p.ab) {
         let omega = g.omega();
         let [a_amp, b_amp] = *ch.of(ab);
@@ -786,8 +792,14 @@ fn whitened_system(
             }
             whiten(m, part, &keep);
         }
+        keeps.push(keep);
     }
-    Ok(System { xs, r, z })
+    Ok(System {
+        xs,
+        r,
+        z,
+        keep: keeps,
+    })
 }
 
 /// The first `n` entries of `rest` (all, if it has fewer), leaving it the others.
