@@ -1,12 +1,16 @@
 //! The discrepancy workflow's detection limits (docs/discrepancy.md): for each effect, the
 //! smallest magnitude, on a grid of factors of √2, that it names in at least 90 % of 20
 //! seeds, under white noise (key `effects`) and under AR(1) noise of ρ = 0.5 and sd 4
-//! counts (key `effects_ar1`), neither stated in the file. Writes bench/discrepancy.json;
-//! run by scripts/bench-discrepancy. Arguments `white` and/or `ar1` measure only those and
-//! keep the file's other keys.
+//! counts (key `effects_ar1`), neither stated in the file; and with `--slow-noise` under
+//! white noise (`effects_slow_white`), white noise plus flicker at a 50 µg floor
+//! (`effects_slow_flicker50`) and white noise plus a 10 µg/√s random walk
+//! (`effects_slow_walk10`). Writes bench/discrepancy.json; run by scripts/bench-discrepancy.
+//! Arguments (`white`, `ar1`, `slow-white`, `slow-flicker`, `slow-walk`) measure only those
+//! and keep the file's other keys.
 #![allow(clippy::indexing_slicing)]
 use rotacal::discrepancy::model::Effect;
 use rotacal::discrepancy::trials::{self, Noise};
+use rotacal::discrepancy::Options;
 use serde_json::json;
 
 const SEEDS: u64 = 20;
@@ -25,8 +29,27 @@ fn start(e: Effect) -> f64 {
     }
 }
 
+/// One measured set: its key in the file, its argument, the noise, and whether the
+/// workflow counts slow noise.
+const RUNS: [(&str, &str, Noise, bool); 5] = [
+    ("effects", "white", Noise::White, false),
+    ("effects_ar1", "ar1", Noise::Ar1, false),
+    ("effects_slow_white", "slow-white", Noise::White, true),
+    (
+        "effects_slow_flicker50",
+        "slow-flicker",
+        Noise::Flicker50,
+        true,
+    ),
+    ("effects_slow_walk10", "slow-walk", Noise::Walk10, true),
+];
+
 /// The fraction of seeds in which `e` at `m` is named.
-fn named_fraction(noise: Noise, e: Effect, m: f64) -> f64 {
+fn named_fraction(noise: Noise, slow: bool, e: Effect, m: f64) -> f64 {
+    let opts = Options {
+        slow_noise: slow,
+        ..Options::default()
+    };
     let hits = std::thread::scope(|s| {
         let workers: Vec<_> = (0..2u64)
             .map(|w| {
@@ -34,7 +57,7 @@ fn named_fraction(noise: Noise, e: Effect, m: f64) -> f64 {
                     (1..=SEEDS)
                         .filter(|seed| seed % 2 == w)
                         .filter(|&seed| {
-                            trials::trial_in(noise, &[(e, m)], seed)
+                            trials::trial_with(noise, &[(e, m)], seed, &opts)
                                 .map(|a| a.named_effects.iter().any(|n| n == e.name()))
                                 .unwrap_or(false)
                         })
@@ -50,19 +73,30 @@ fn named_fraction(noise: Noise, e: Effect, m: f64) -> f64 {
     hits as f64 / SEEDS as f64
 }
 
-/// Every effect's grid and limit under `noise`.
-fn limits(noise: Noise) -> Vec<serde_json::Value> {
+/// Every effect's grid and limit under `noise`. With slow noise counted the grid starts 8
+/// times higher and runs up to 8 times further, as the limits are larger; where the start
+/// is named already, it is halved until it is not.
+fn limits(noise: Noise, slow: bool) -> Vec<serde_json::Value> {
+    let (from, steps) = if slow { (8.0, 22) } else { (1.0, 16) };
     let mut out = Vec::new();
     for e in Effect::ALL {
         let (_, parameter, unit) = trials::injection(e, 1.0);
         let mut grid = Vec::new();
         let mut limit = None;
-        let mut m = start(e);
-        for _ in 0..16 {
-            let f = named_fraction(noise, e, m);
+        let mut m = start(e) * from;
+        // The grid must start where the effect is missed: step down until it is.
+        for _ in 0..8 {
+            if named_fraction(noise, slow, e, m) < NEEDED {
+                break;
+            }
+            m /= 2.0;
+        }
+        for _ in 0..steps {
+            let f = named_fraction(noise, slow, e, m);
             eprintln!(
-                "{}: {} {parameter} = {m:.3e} {unit}: named in {:.0} %",
+                "{}{}: {} {parameter} = {m:.3e} {unit}: named in {:.0} %",
                 noise.name(),
+                if slow { " (--slow-noise)" } else { "" },
                 e.name(),
                 f * 100.0
             );
@@ -88,14 +122,9 @@ fn main() {
     let t0 = std::time::Instant::now();
     let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../bench/discrepancy.json");
     let args: Vec<String> = std::env::args().skip(1).collect();
-    let which: Vec<(Noise, &str)> = [(Noise::White, "effects"), (Noise::Ar1, "effects_ar1")]
+    let which: Vec<_> = RUNS
         .into_iter()
-        .filter(|(n, _)| {
-            args.is_empty()
-                || args.iter().any(|a| {
-                    (a == "white" && *n == Noise::White) || (a == "ar1" && *n == Noise::Ar1)
-                })
-        })
+        .filter(|(_, arg, _, _)| args.is_empty() || args.iter().any(|a| a == arg))
         .collect();
     let mut doc = std::fs::read_to_string(&path)
         .ok()
@@ -103,9 +132,9 @@ fn main() {
         .filter(|d| d.is_object())
         .unwrap_or_else(|| json!({}));
     let mut elapsed = serde_json::Map::new();
-    for (noise, key) in which {
+    for (key, _, noise, slow) in which {
         let t = std::time::Instant::now();
-        let found = limits(noise);
+        let found = limits(noise, slow);
         doc[key] = json!(found);
         doc[format!("{key}_noise")] = json!(noise.toml());
         elapsed.insert(key.to_string(), json!(t.elapsed().as_secs_f64()));
@@ -113,7 +142,9 @@ fn main() {
     }
     doc["what"] = json!(
         "smallest magnitude named in >= 90 % of seeds, grid factor sqrt(2); \
-         effects: white noise, effects_ar1: AR(1) rho 0.5 sd 4 counts; noise_sigma not stated"
+         effects: white noise, effects_ar1: AR(1) rho 0.5 sd 4 counts; effects_slow_*: \
+         with --slow-noise, white noise alone, plus flicker at a 50 ug floor, plus a \
+         10 ug/sqrt(s) random walk; noise_sigma not stated"
     );
     doc["seeds"] = json!(SEEDS);
     doc["alpha"] = json!(rotacal::discrepancy::ALPHA);

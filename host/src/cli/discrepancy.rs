@@ -22,6 +22,10 @@ pub struct Args {
     /// Significance of each effect's F-test.
     #[arg(long, default_value_t = rotacal::discrepancy::ALPHA)]
     pub alpha: f64,
+    /// Count flicker (1/f) noise and a bias random walk, estimated from the data, in
+    /// every effect's test (docs/discrepancy.md, "Slow noise").
+    #[arg(long)]
+    pub slow_noise: bool,
 }
 
 /// Run it.
@@ -37,6 +41,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         g_loc: a.g_loc,
         rate_hz: a.rate_hz,
         alpha: a.alpha,
+        slow_noise: a.slow_noise,
     };
     let analysis = rotacal::discrepancy::run(&rec, &opts)?;
     if let Some(path) = &a.json {

@@ -9,11 +9,23 @@ use std::path::{Path, PathBuf};
 
 fn value(v: &serde_json::Value) -> String {
     match (v.get("value"), v.get("expanded_unc")) {
-        (Some(x), Some(u)) => format!(
-            "{:.4e} ± {:.1e}",
-            x.as_f64().unwrap_or(f64::NAN),
-            u.as_f64().unwrap_or(f64::NAN)
-        ),
+        (Some(x), Some(u)) => {
+            // k is 2 unless the slow noise left few degrees of freedom.
+            let k = v
+                .get("k")
+                .and_then(serde_json::Value::as_f64)
+                .unwrap_or(2.0);
+            format!(
+                "{:.4e} ± {:.1e}{}",
+                x.as_f64().unwrap_or(f64::NAN),
+                u.as_f64().unwrap_or(f64::NAN),
+                if (k - 2.0).abs() > 1e-9 {
+                    format!(" (k = {k:.2})")
+                } else {
+                    String::new()
+                }
+            )
+        }
         _ => match v {
             serde_json::Value::Object(m) => m
                 .iter()
@@ -33,8 +45,15 @@ fn params(p: &std::collections::BTreeMap<String, serde_json::Value>) -> String {
 }
 
 fn test(c: &Criterion) -> String {
+    let slow = c.slow_share.map_or(String::new(), |share| {
+        format!(
+            "; {}, slow noise {:.0} % of the variance",
+            c.test,
+            100.0 * share
+        )
+    });
     format!(
-        "F = {:.1} (k = {}, p = {:.1e}, ΔBIC = {:.0})",
+        "F = {:.1} (k = {}, p = {:.1e}, ΔBIC = {:.0}{slow})",
         c.f, c.k, c.p_value, c.delta_bic
     )
 }
@@ -101,6 +120,27 @@ pub fn render(a: &Analysis) -> String {
             }
         );
     }
+    if let Some(slow) = &a.slow_noise {
+        let _ = writeln!(
+            o,
+            "Slow noise (--slow-noise), counted in every test but saturation's: flicker's \
+             Allan variance (floor²) and the walk's K², ± standard uncertainty:"
+        );
+        let term = |t: &Option<crate::discrepancy::slow::Estimate>| {
+            t.map_or("not estimable".to_string(), |e| {
+                format!("{:.4} ± {:.4}", e.value, e.u)
+            })
+        };
+        for c in slow {
+            let _ = writeln!(
+                o,
+                "  {}: flicker {} (output units²), walk {} (output units²/s)",
+                c.channel.letter(),
+                term(&c.flicker_allan_variance),
+                term(&c.random_walk_k2)
+            );
+        }
+    }
     let _ = writeln!(
         o,
         "Baseline (3-parameter sines at the nominal rate, constant offsets): χ²/dof {:.3}, \
@@ -144,20 +184,47 @@ pub fn render(a: &Analysis) -> String {
     for (e, why) in &a.untestable {
         let _ = writeln!(o, "Not testable here: {e}: {why}");
     }
+    let slow = a.slow_noise.is_some();
     for (e, p) in &a.final_parameters {
-        let _ = writeln!(o, "{e} (final model, ± U k = 2): {}", params(p));
+        let _ = writeln!(
+            o,
+            "{e} (final model, ± U{}): {}",
+            if slow {
+                ", slow noise included, k = 2 unless given"
+            } else {
+                " k = 2"
+            },
+            params(p)
+        );
     }
-    let _ = writeln!(
-        o,
-        "Final: χ²/dof {:.3} (expected 1 ± {:.3}), residual RMS {:.3}",
-        a.final_.chi2_dof,
-        3.0 * (2.0 / a.final_.dof).sqrt(),
-        a.final_.rms_residual
-    );
+    if slow {
+        let _ = writeln!(
+            o,
+            "Final: χ²/dof {:.3}, residual RMS {:.3}; the AR whitening leaves the slow noise \
+             in, so χ²/dof is not compared with 1 ± {:.3} under --slow-noise",
+            a.final_.chi2_dof,
+            a.final_.rms_residual,
+            3.0 * (2.0 / a.final_.dof).sqrt()
+        );
+    } else {
+        let _ = writeln!(
+            o,
+            "Final: χ²/dof {:.3} (expected 1 ± {:.3}), residual RMS {:.3}",
+            a.final_.chi2_dof,
+            3.0 * (2.0 / a.final_.dof).sqrt(),
+            a.final_.rms_residual
+        );
+    }
     if !a.steps.is_empty() {
         let _ = writeln!(
             o,
-            "Intrinsic properties, baseline → final model (± U, k = 2):"
+            "Intrinsic properties, baseline → final model (± U, k = 2{}):",
+            if slow {
+                "; from the AR model alone, without the slow noise: \
+                 `rotacal calibrate --slow-noise` gives them with it"
+            } else {
+                ""
+            }
         );
         moved(&a.intrinsic_baseline, &a.intrinsic_final, &mut o);
     }

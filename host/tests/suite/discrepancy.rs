@@ -6,7 +6,7 @@
 //! (scripts/bench-discrepancy): key `effects` for white noise, `effects_ar1` for AR(1).
 use rotacal::discrepancy::model::Effect;
 use rotacal::discrepancy::trials::{self, Noise};
-use rotacal::discrepancy::Analysis;
+use rotacal::discrepancy::{Analysis, Options};
 use rotacal_shared::Channel;
 use std::collections::BTreeMap;
 
@@ -259,7 +259,8 @@ fn the_model_is_the_simulators_physics() {
     for (got, want) in p.k3.unwrap().iter().zip([0.0, 1e-5, 0.0]) {
         close(*got, want, 1e-9);
     }
-    let radius = &rotacal::discrepancy::parameters(Effect::Centripetal, &f, &data)["radius_m"];
+    let radius =
+        &rotacal::discrepancy::parameters(Effect::Centripetal, &f, &data, None)["radius_m"];
     for c in ["x", "y", "z"] {
         close(radius[c]["value"].as_f64().unwrap(), 0.22, 1e-4);
     }
@@ -466,8 +467,23 @@ fn levels_3_4_5_with_a_clipped_channel_name_only_the_clipping() {
 }
 
 /// Each effect at 5 times its limit under `noise` (limits from `key`), `seeds` seeds,
-/// with `extra` hidden too: named (with `extra`) and nothing else in at least 90 %.
-fn effects_at_five_times(noise: Noise, key: &str, seeds: u64, extra: Option<(Effect, f64)>) {
+/// with `extra` hidden too: named (with `extra`) and nothing else in at least 90 %. With
+/// `--slow-noise` in `opts`, χ²/dof is not checked (the AR whitening leaves the slow noise
+/// in) and the injected parameter must lie within its U (k from its degrees of freedom) in
+/// at least 85 % of the runs: 95 % expected, and with 60 estimates P(fewer than 85 %) ≈ 7e-4.
+fn effects_at_five_times(
+    noise: Noise,
+    key: &str,
+    seeds: u64,
+    extra: Option<(Effect, f64)>,
+    opts: &Options,
+) {
+    let slow = opts.slow_noise;
+    let label = format!(
+        "{}{}",
+        noise.name(),
+        if slow { " with --slow-noise" } else { "" }
+    );
     let limits = limits(key);
     let mut tally = (0, 0);
     let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
@@ -487,7 +503,7 @@ fn effects_at_five_times(noise: Noise, key: &str, seeds: u64, extra: Option<(Eff
         want.sort();
         let mut alone = 0;
         for seed in 1..=seeds {
-            let a = trials::trial_in(noise, &effects, seed).unwrap();
+            let a = trials::trial_with(noise, &effects, seed, opts).unwrap();
             assert!(estimated(&a));
             let mut named = a.named_effects.clone();
             named.sort();
@@ -496,19 +512,24 @@ fn effects_at_five_times(noise: Noise, key: &str, seeds: u64, extra: Option<(Eff
             }
             lo = lo.min(a.final_.chi2_dof);
             hi = hi.max(a.final_.chi2_dof);
-            assert!(
-                chi2_ok(&a),
-                "{} {} seed {seed}: χ²/dof {} (ν_eff {})",
-                noise.name(),
-                e.name(),
-                a.final_.chi2_dof,
-                a.final_.dof
-            );
-            within_2_sigma(&a, e, m, &mut tally);
+            if slow {
+                if let Some((v, u)) = trials::estimate_with(&a, e, "expanded_unc") {
+                    tally.1 += 1;
+                    tally.0 += usize::from((v - m).abs() <= u);
+                }
+            } else {
+                assert!(
+                    chi2_ok(&a),
+                    "{label} {} seed {seed}: χ²/dof {} (ν_eff {})",
+                    e.name(),
+                    a.final_.chi2_dof,
+                    a.final_.dof
+                );
+                within_2_sigma(&a, e, m, &mut tally);
+            }
         }
         println!(
-            "{}: {} at {m:.3e}: named{} in {alone}/{seeds}",
-            noise.name(),
+            "{label}: {} at {m:.3e}: named{} in {alone}/{seeds}",
             e.name(),
             if extra.is_some() {
                 " with the clip"
@@ -523,13 +544,14 @@ fn effects_at_five_times(noise: Noise, key: &str, seeds: u64, extra: Option<(Eff
         );
     }
     println!(
-        "{}: estimates within 2σ of the truth: {}/{}; final χ²/dof {lo:.4} … {hi:.4}",
-        noise.name(),
+        "{label}: estimates within {} of the truth: {}/{}; final χ²/dof {lo:.4} … {hi:.4}",
+        if slow { "U" } else { "2σ" },
         tally.0,
         tally.1
     );
     // 95.4 % expected; 90 % is ≥ 3 standard deviations below it for ≥ 100 estimates.
-    assert!(tally.0 as f64 >= 0.9 * tally.1 as f64, "{tally:?}");
+    let least = if slow { 0.85 } else { 0.9 };
+    assert!(tally.0 as f64 >= least * tally.1 as f64, "{tally:?}");
 }
 
 // Named in at least 90 % of 20 seeds: at 5 times the limit an effect is named in nearly
@@ -538,7 +560,7 @@ fn effects_at_five_times(noise: Noise, key: &str, seeds: u64, extra: Option<(Eff
 
 #[test]
 fn ar1_noise_each_effect_at_five_times_its_limit_is_named_alone() {
-    effects_at_five_times(Noise::Ar1, "effects_ar1", 20, None);
+    effects_at_five_times(Noise::Ar1, "effects_ar1", 20, None, &Options::default());
 }
 
 #[test]
@@ -548,5 +570,96 @@ fn levels_3_4_5_each_effect_at_five_times_its_limit_is_named_with_the_clip() {
         "effects",
         10,
         Some((Effect::Saturation, CLIP_DEPTH)),
+        &Options::default(),
     );
+}
+
+// Slow noise (`--slow-noise`, docs/discrepancy.md "Slow noise"): flicker at a 50 µg floor
+// and a 10 µg/√s bias random walk, each on the base's white noise, never stated. The
+// workflow is told only to count slow noise, not its kind or level.
+
+/// `--slow-noise`.
+fn slow() -> Options {
+    Options {
+        slow_noise: true,
+        ..Options::default()
+    }
+}
+
+/// Clean single-rate sessions under `noise` with `--slow-noise`: the runs that name
+/// anything. Prints the slow share of the first step's tests and the χ²/dof range.
+fn slow_clean_sessions(noise: Noise, seeds: u64) -> Vec<(u64, Vec<String>)> {
+    let mut alarms = Vec::new();
+    let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+    for seed in 1..=seeds {
+        let a = trials::trial_with(noise, &[], seed, &slow()).unwrap();
+        assert!(estimated(&a));
+        assert_eq!(a.slow_noise.as_ref().map(Vec::len), Some(3));
+        // Every test but saturation's (no estimated parameter) counts the slow noise.
+        let first = a
+            .steps
+            .first()
+            .map_or(&a.last_candidates, |s| &s.candidates);
+        for c in first.iter().filter(|c| c.effect != "saturation") {
+            assert_eq!(c.test, "Wald test with slow noise");
+            assert!(c.slow_share.is_some_and(|s| s > 0.0 && s < 1.0), "{c:?}");
+        }
+        lo = lo.min(a.final_.chi2_dof);
+        hi = hi.max(a.final_.chi2_dof);
+        if !a.named_effects.is_empty() {
+            alarms.push((seed, a.named_effects.clone()));
+        }
+    }
+    println!(
+        "{} with --slow-noise: {} alarms in {seeds} seeds {alarms:?}; final χ²/dof \
+         {lo:.4} … {hi:.4}",
+        noise.name(),
+        alarms.len()
+    );
+    alarms
+}
+
+// The bound: each test's size is at most α + 10⁻³ (the slow variance's upper bound falls
+// short with probability about 10⁻³), so with at most seven tests a step a clean session
+// names something with probability at most about 1.4 %; over 100 seeds P(X ≥ 6) ≈ 3e-3
+// at that worst case, while a workflow alarming in 10 % of sessions exceeds 5 with
+// probability 0.94.
+
+#[test]
+fn slow_noise_clean_sessions_name_nothing_in_at_least_95_percent() {
+    // Without the option the same sessions name effects (measured: 10 of 10 with flicker).
+    let named = (1..=4)
+        .filter(|&seed| {
+            let a = trials::trial_in(Noise::Flicker50, &[], seed).unwrap();
+            !a.named_effects.is_empty()
+        })
+        .count();
+    assert!(
+        named >= 3,
+        "{named} of 4 flicker sessions name an effect without the option"
+    );
+    for noise in [Noise::Flicker50, Noise::Walk10] {
+        let alarms = slow_clean_sessions(noise, 100);
+        assert!(alarms.len() <= 5, "{}: {alarms:?}", noise.name());
+    }
+}
+
+// Named alone in at least 9 of 10: at 5 times the limit an effect is named in nearly every
+// seed; one named in 99 % fails with probability 0.4 %, one named in 80 % passes with
+// probability 0.38.
+
+#[test]
+fn slow_noise_flicker_each_effect_at_five_times_its_limit_is_named_alone() {
+    effects_at_five_times(
+        Noise::Flicker50,
+        "effects_slow_flicker50",
+        10,
+        None,
+        &slow(),
+    );
+}
+
+#[test]
+fn slow_noise_walk_each_effect_at_five_times_its_limit_is_named_alone() {
+    effects_at_five_times(Noise::Walk10, "effects_slow_walk10", 10, None, &slow());
 }

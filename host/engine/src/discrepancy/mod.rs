@@ -13,6 +13,7 @@
 pub mod locate;
 pub mod model;
 pub mod noise;
+pub mod slow;
 pub mod trials;
 
 use crate::calibrate::json::Quantity;
@@ -38,6 +39,8 @@ pub struct Options {
     pub rate_hz: Option<f64>,
     /// Significance of each test.
     pub alpha: f64,
+    /// Count flicker and a bias random walk in the tests ([`slow`]).
+    pub slow_noise: bool,
 }
 
 impl Default for Options {
@@ -46,6 +49,7 @@ impl Default for Options {
             g_loc: None,
             rate_hz: None,
             alpha: ALPHA,
+            slow_noise: false,
         }
     }
 }
@@ -81,6 +85,9 @@ pub enum DiscrepancyError {
     /// The baseline model's fit.
     #[error(transparent)]
     Fit(#[from] ModelError),
+    /// The slow noise (`--slow-noise`).
+    #[error(transparent)]
+    Slow(#[from] slow::SlowError),
 }
 
 /// The noise level per channel and where it came from (always the estimate from the
@@ -231,7 +238,7 @@ impl Goodness {
 pub struct Criterion {
     /// The effect.
     pub effect: String,
-    /// "nested F-test".
+    /// "nested F-test", or "Wald test with slow noise" under `--slow-noise`.
     pub test: &'static str,
     /// F statistic.
     pub f: f64,
@@ -247,6 +254,10 @@ pub struct Criterion {
     pub delta_bic: f64,
     /// p < α.
     pub passed: bool,
+    /// Under `--slow-noise`: the slow terms' share of the tested parameters' variance
+    /// (the trace of their covariance), 0 … 1.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub slow_share: Option<f64>,
 }
 
 /// Intrinsic properties at one rate.
@@ -289,6 +300,9 @@ pub struct Analysis {
     /// The noise model per group and channel, estimated once from the data and used by
     /// every fit (prewhitening).
     pub noise_model: Vec<NoiseModelJson>,
+    /// Under `--slow-noise`: each channel's flicker and walk levels ([`slow`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub slow_noise: Option<Vec<slow::SlowNoiseJson>>,
     /// The file's `noise_sigma`, if stated, and whether the data contradict it (never used).
     pub noise_sigma_stated: Option<NoiseStatement>,
     /// The significance each test had to beat.
@@ -458,7 +472,43 @@ fn criterion(e: Effect, base: &Fit, with: &Fit, n: f64, alpha: f64) -> Criterion
         alpha,
         delta_bic: d_chi2 - k as f64 * n.ln(),
         passed: p_value < alpha,
+        slow_share: None,
     }
+}
+
+/// [`criterion`] under slow noise: the Wald test of the effect's parameters with the slow
+/// terms in their covariance ([`slow`]). Saturation, which adds no estimated parameter,
+/// keeps the F-test.
+fn slow_criterion(
+    data: &Data,
+    levels: &slow::SlowLevels,
+    (e, base, with): (Effect, &Fit, &Fit),
+    n: f64,
+    alpha: f64,
+) -> Result<Criterion, DiscrepancyError> {
+    let plain = criterion(e, base, with, n, alpha);
+    let Some(tested) = model::tested(data, with, e)? else {
+        return Ok(plain);
+    };
+    let k = tested.values.len();
+    let Some(t) = levels.test(data, &tested, with.chi2_dof(), with.dof) else {
+        return Err(DiscrepancyError::Fit(ModelError::Internal(
+            "the tested parameters' covariance under slow noise is singular",
+        )));
+    };
+    let p_value = FisherSnedecor::new(k as f64, t.dof)
+        .map(|d| d.sf(t.f))
+        .unwrap_or(1.0);
+    Ok(Criterion {
+        test: "Wald test with slow noise",
+        f: t.f,
+        k,
+        dof: t.dof,
+        p_value,
+        passed: p_value < alpha,
+        slow_share: Some(t.slow_share),
+        ..plain
+    })
 }
 
 /// Intrinsic properties per rate from a fit's A, B (all effects taken out).
@@ -489,45 +539,79 @@ pub fn intrinsic_per_rate(data: &Data, fit: &Fit) -> Vec<RateIntrinsic> {
     out
 }
 
-fn q(value: f64, u: f64) -> serde_json::Value {
-    serde_json::to_value(Quantity::from(rotacal_shared::intrinsic::Estimate {
-        value,
-        std_unc: u,
-    }))
-    .unwrap_or(serde_json::Value::Null)
+/// A value with its standard uncertainty, expanded with k for `nu` degrees of freedom
+/// (k = 2 without).
+fn q(value: f64, u: f64, nu: Option<f64>) -> serde_json::Value {
+    let e = rotacal_shared::intrinsic::Estimate { value, std_unc: u };
+    let quantity = match nu {
+        Some(nu) => Quantity::with_k(e, crate::calibrate::budget::coverage_factor(nu)),
+        None => Quantity::from(e),
+    };
+    serde_json::to_value(quantity).unwrap_or(serde_json::Value::Null)
 }
 
-fn uvw(v: Option<[f64; 3]>, u: Option<[f64; 3]>) -> serde_json::Value {
+fn uvw(v: Option<[f64; 3]>, u: Option<[f64; 3]>, nu: Option<[f64; 3]>) -> serde_json::Value {
     match (v, u) {
         (Some(v), Some(u)) => {
-            serde_json::json!({"u": q(v[0], u[0]), "v": q(v[1], u[1]), "w": q(v[2], u[2])})
+            let n = |i: usize| nu.and_then(|n| n.get(i).copied());
+            serde_json::json!({
+                "u": q(v[0], u[0], n(0)),
+                "v": q(v[1], u[1], n(1)),
+                "w": q(v[2], u[2], n(2)),
+            })
         }
         _ => serde_json::Value::Null,
     }
 }
 
-/// An effect's parameters from a fit, named as in the simulator's configuration.
-pub fn parameters(e: Effect, f: &Fit, data: &Data) -> BTreeMap<String, serde_json::Value> {
-    let (p, u) = (&f.params, &f.unc);
+/// A fit's effects' uncertainties with the slow noise in them (`--slow-noise`), in the
+/// fit's shape: the standard uncertainties and the degrees of freedom each U's k comes
+/// from.
+#[derive(Clone, Debug)]
+pub struct SlowUncertainty {
+    /// Standard uncertainties.
+    pub unc: model::Params,
+    /// Degrees of freedom.
+    pub nu: model::Params,
+}
+
+/// An effect's parameters from a fit, named as in the simulator's configuration; with
+/// `slow` (`--slow-noise`), their uncertainties from it.
+pub fn parameters(
+    e: Effect,
+    f: &Fit,
+    data: &Data,
+    slow: Option<&SlowUncertainty>,
+) -> BTreeMap<String, serde_json::Value> {
+    let p = &f.params;
+    let u = slow.map_or(&f.unc, |s| &s.unc);
+    let nu = slow.map(|s| &s.nu);
     let mut m = BTreeMap::new();
     match e {
         Effect::RateError => {
             m.insert(
                 "relative".into(),
-                q(p.delta.unwrap_or(0.0), u.delta.unwrap_or(0.0)),
+                q(
+                    p.delta.unwrap_or(0.0),
+                    u.delta.unwrap_or(0.0),
+                    nu.and_then(|n| n.delta),
+                ),
             );
         }
         Effect::OffsetDrift => {
-            m.insert("per_s".into(), uvw(p.drift, u.drift));
+            m.insert(
+                "per_s".into(),
+                uvw(p.drift, u.drift, nu.and_then(|n| n.drift)),
+            );
         }
         Effect::TemperatureOffset => {
-            m.insert("per_c".into(), uvw(p.temp, u.temp));
+            m.insert("per_c".into(), uvw(p.temp, u.temp, nu.and_then(|n| n.temp)));
         }
         Effect::Nonlinearity2nd => {
-            m.insert("k2".into(), uvw(p.k2, u.k2));
+            m.insert("k2".into(), uvw(p.k2, u.k2, nu.and_then(|n| n.k2)));
         }
         Effect::Nonlinearity3rd => {
-            m.insert("k3".into(), uvw(p.k3, u.k3));
+            m.insert("k3".into(), uvw(p.k3, u.k3, nu.and_then(|n| n.k3)));
         }
         Effect::Saturation => {
             let [low, high] = p.rails.unwrap_or([f64::NEG_INFINITY, f64::INFINITY]);
@@ -545,21 +629,33 @@ pub fn parameters(e: Effect, f: &Fit, data: &Data) -> BTreeMap<String, serde_jso
             if let (Some(b), Some(ub)) = (p.centripetal, u.centripetal) {
                 // Per condition: the centripetal acceleration per ω² is r·d̂ seen through
                 // S, so |b_c/s| is the radius (axes near orthogonal).
+                let nub = nu.and_then(|n| n.centripetal);
                 let [x, y, z] = Condition::ALL.map(|c| {
                     let (bc, ubc) = (c.of(&b), c.of(&ub));
                     let v: Vec<f64> = bc.iter().zip(&s).map(|(b, s)| b / s).collect();
                     let r = v.iter().map(|x| x * x).sum::<f64>().sqrt();
-                    let ur = if r > 0.0 {
-                        (v.iter()
+                    // Each channel's share of u(r)²; with degrees of freedom, theirs
+                    // combine by Welch–Satterthwaite.
+                    let shares: Vec<f64> = if r > 0.0 {
+                        v.iter()
                             .zip(ubc)
                             .zip(&s)
                             .map(|((v, ub), s)| (v / r * ub / s).powi(2))
-                            .sum::<f64>())
-                        .sqrt()
+                            .collect()
                     } else {
-                        0.0
+                        vec![0.0; 3]
                     };
-                    q(r, ur)
+                    let ur2: f64 = shares.iter().sum();
+                    let nu_r = nub.map(|n| {
+                        let denominator: f64 =
+                            shares.iter().zip(c.of(&n)).map(|(w, n)| w * w / n).sum();
+                        if denominator > 0.0 {
+                            (ur2 * ur2 / denominator).max(1.0)
+                        } else {
+                            f64::INFINITY
+                        }
+                    });
+                    q(r, ur2.sqrt(), nu_r)
                 });
                 m.insert(
                     "radius_m".into(),
@@ -571,14 +667,41 @@ pub fn parameters(e: Effect, f: &Fit, data: &Data) -> BTreeMap<String, serde_jso
     m
 }
 
-/// Run the workflow on prepared data.
+/// The uncertainties of a fit's effects with the slow noise in them.
+fn slow_uncertainty(
+    data: &Data,
+    levels: &slow::SlowLevels,
+    f: &Fit,
+) -> Result<SlowUncertainty, DiscrepancyError> {
+    let mut out = SlowUncertainty {
+        unc: f.unc.clone(),
+        nu: f.unc.clone(),
+    };
+    for &e in &f.effects {
+        if let Some(t) = model::tested(data, f, e)? {
+            let (u, nu) = levels.uncertainty(data, &t);
+            t.write(&u, &mut out.unc);
+            t.write(&nu, &mut out.nu);
+        }
+    }
+    Ok(out)
+}
+
+/// Run the workflow on prepared data, at `opts`' significance, counting slow noise if it
+/// asks (its g_loc and rate_hz are [`data_from`]'s).
 pub fn analyse(
     data: Data,
     noise: NoiseSigma,
     stated: Option<f64>,
-    alpha: f64,
+    opts: &Options,
 ) -> Result<Analysis, DiscrepancyError> {
+    let alpha = opts.alpha;
     let n = (data.rows() * 3) as f64;
+    let levels = if opts.slow_noise {
+        Some(slow::estimate(&data)?)
+    } else {
+        None
+    };
     let (candidates, untestable) = applicable(&data);
     let baseline = model::fit(&data, &[], None)?;
     let intrinsic_baseline = intrinsic_per_rate(&data, &baseline);
@@ -598,7 +721,10 @@ pub fn analyse(
             let Ok(with) = model::fit(&data, &effects, Some(&current.params)) else {
                 continue;
             };
-            let c = criterion(e, &current, &with, n, alpha);
+            let c = match &levels {
+                Some(l) => slow_criterion(&data, l, (e, &current, &with), n, alpha)?,
+                None => criterion(e, &current, &with, n, alpha),
+            };
             if c.passed
                 && best
                     .as_ref()
@@ -611,9 +737,13 @@ pub fn analyse(
         let Some((c, with, e)) = best else {
             break tests;
         };
+        let slow_unc = match &levels {
+            Some(l) => Some(slow_uncertainty(&data, l, &with)?),
+            None => None,
+        };
         steps.push(Step {
             effect: e.name().to_string(),
-            parameters: parameters(e, &with, &data),
+            parameters: parameters(e, &with, &data, slow_unc.as_ref()),
             criterion: c,
             chi2_dof: with.chi2_dof(),
             rms_residual: with.rms_all(),
@@ -628,10 +758,17 @@ pub fn analyse(
         fits.push(with.clone());
         current = with;
     };
+    let slow_unc = match &levels {
+        Some(l) => Some(slow_uncertainty(&data, l, &current)?),
+        None => None,
+    };
     let final_parameters = current
         .effects
         .iter()
-        .map(|&e| (e.name().to_string(), parameters(e, &current, &data)))
+        .map(|&e| {
+            let p = parameters(e, &current, &data, slow_unc.as_ref());
+            (e.name().to_string(), p)
+        })
         .collect();
     Ok(Analysis {
         final_parameters,
@@ -640,6 +777,7 @@ pub fn analyse(
         intrinsic_final: intrinsic_now,
         noise_sigma: noise,
         noise_model: noise_model_json(&data),
+        slow_noise: levels.as_ref().map(slow::SlowLevels::json),
         noise_sigma_stated: stated
             .filter(|s| *s > 0.0)
             .map(|s| check_statement(s, &data)),
@@ -658,5 +796,5 @@ pub fn analyse(
 /// Read, prepare and analyse a recording.
 pub fn run(rec: &Recording, opts: &Options) -> Result<Analysis, DiscrepancyError> {
     let (data, noise) = data_from(rec, opts)?;
-    analyse(data, noise, rec.meta.noise_sigma, opts.alpha)
+    analyse(data, noise, rec.meta.noise_sigma, opts)
 }

@@ -175,6 +175,45 @@ pub fn estimate(data: &Data) -> Result<Vec<[NoiseModel; 3]>, NoiseEstimateError>
     data.groups.iter().map(group_models).collect()
 }
 
+/// The group's temperature, where it varies within the group by more than 0.05 °C (only
+/// then is it a regressor).
+fn varying_temperature(g: &GroupData) -> Option<&[f64]> {
+    let (lo, hi) = g
+        .temp
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &x| {
+            (lo.min(x), hi.max(x))
+        });
+    (hi - lo > 0.05).then_some(g.temp.as_slice())
+}
+
+/// A group's channel's generic fit for the slow-noise estimate ([`super::slow`]): its
+/// design and its residuals by ordinary least squares over the rows not at a rail (those
+/// rows are dropped, and the stretches either side joined). Without the temperature where
+/// it leaves the fit nearly singular; `None` if the fit is singular anyway.
+pub(super) fn generic_fit(g: &GroupData, ch: Channel) -> Option<(DMatrix<f64>, Vec<f64>)> {
+    let y = ch.of(&g.y);
+    let flagged = noise::clipped(y);
+    let rows: Vec<usize> = (0..y.len())
+        .filter(|&i| !flagged.get(i).copied().unwrap_or(true))
+        .collect();
+    let fit = |temp: Option<&[f64]>| {
+        let x = design(&g.tau, g.omega(), temp, &flagged).select_rows(rows.iter());
+        let yk = DVector::from_iterator(rows.len(), rows.iter().filter_map(|&i| y.get(i).copied()));
+        let qr = x.clone().qr();
+        let r = qr.r();
+        let diag = r.diagonal().map(f64::abs);
+        if diag.min() <= 1e-10 * diag.max() || yk.len() != x.nrows() {
+            return None;
+        }
+        let q = qr.q();
+        let e = &yk - &q * q.tr_mul(&yk);
+        Some((x, e.as_slice().to_vec()))
+    };
+    let temp = varying_temperature(g);
+    fit(temp).or_else(|| temp.and_then(|_| fit(None)))
+}
+
 /// One group's models, u, v, w.
 fn group_models(g: &GroupData) -> Result<[NoiseModel; 3], NoiseEstimateError> {
     let rows = g.tau.len();
@@ -185,14 +224,7 @@ fn group_models(g: &GroupData) -> Result<[NoiseModel; 3], NoiseEstimateError> {
             rows,
         });
     }
-    // The temperature is a regressor only where it varies within the group.
-    let (lo, hi) = g
-        .temp
-        .iter()
-        .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &x| {
-            (lo.min(x), hi.max(x))
-        });
-    let temp = (hi - lo > 0.05).then_some(g.temp.as_slice());
+    let temp = varying_temperature(g);
     let model = |channel: Channel| {
         let y = channel.of(&g.y);
         let flagged = noise::clipped(y);

@@ -41,6 +41,10 @@ pub enum Noise {
     Ar1,
     /// White, 3, 4 and 5 counts on u, v and w, not stated.
     Levels345,
+    /// The base's white noise plus flicker at a 50 µg Allan floor (docs/simulator.md).
+    Flicker50,
+    /// The base's white noise plus a bias random walk of 10 µg/√s.
+    Walk10,
 }
 
 impl Noise {
@@ -50,6 +54,8 @@ impl Noise {
             Noise::White => "[sensor.noise]\nstate = false\n",
             Noise::Ar1 => "[sensor.noise]\nsd = 4.0\nar = [0.5]\n",
             Noise::Levels345 => "[sensor.noise]\nsd = [3.0, 4.0, 5.0]\nstate = false\n",
+            Noise::Flicker50 => "[sensor.noise]\nstate = false\nflicker_floor_ug = 50.0\n",
+            Noise::Walk10 => "[sensor.noise]\nstate = false\nrandom_walk_ug_per_sqrt_s = 10.0\n",
         }
     }
 
@@ -59,6 +65,8 @@ impl Noise {
             Noise::White => "white",
             Noise::Ar1 => "ar1_rho0.5_sd4",
             Noise::Levels345 => "white_3_4_5",
+            Noise::Flicker50 => "flicker_50ug",
+            Noise::Walk10 => "walk_10ug_per_sqrt_s",
         }
     }
 }
@@ -118,10 +126,15 @@ pub fn base(e: Effect) -> &'static str {
 
 /// Simulate `toml` with `seed` and analyse it.
 pub fn analyse(toml: &str, seed: u64) -> Result<Analysis, TrialError> {
+    analyse_with(toml, seed, &Options::default())
+}
+
+/// Simulate `toml` with `seed` and analyse it with `opts`.
+pub fn analyse_with(toml: &str, seed: u64, opts: &Options) -> Result<Analysis, TrialError> {
     let mut cfg = Config::from_toml(toml)?;
     cfg.seed = seed;
     let rec = Simulation::new(cfg)?.recording()?;
-    Ok(super::run(&rec, &Options::default())?)
+    Ok(super::run(&rec, opts)?)
 }
 
 /// One trial: `effects` at their magnitudes, hidden in their base, white noise not stated.
@@ -134,6 +147,16 @@ pub fn trial_in(
     noise: Noise,
     effects: &[(Effect, f64)],
     seed: u64,
+) -> Result<Analysis, TrialError> {
+    trial_with(noise, effects, seed, &Options::default())
+}
+
+/// [`trial_in`] analysed with `opts`.
+pub fn trial_with(
+    noise: Noise,
+    effects: &[(Effect, f64)],
+    seed: u64,
+    opts: &Options,
 ) -> Result<Analysis, TrialError> {
     let multi = effects.iter().any(|(e, _)| *e == Effect::Centripetal);
     let mut toml = String::from(base(if multi {
@@ -149,14 +172,20 @@ pub fn trial_in(
         toml = toml.replacen("[effects.centripetal]\nradius_m = 0.0\n", "", 1);
     }
     toml.push_str(noise.toml());
-    analyse(&toml, seed)
+    analyse_with(&toml, seed, opts)
 }
 
 /// The injected parameter's estimate and standard uncertainty in the final model.
 pub fn estimate(a: &Analysis, e: Effect) -> Option<(f64, f64)> {
+    estimate_with(a, e, "std_unc")
+}
+
+/// The injected parameter's estimate and its uncertainty `key` ("std_unc" or
+/// "expanded_unc") in the final model.
+pub fn estimate_with(a: &Analysis, e: Effect, key: &str) -> Option<(f64, f64)> {
     let p = a.final_parameters.get(e.name())?;
     let pick = |v: &serde_json::Value| -> Option<(f64, f64)> {
-        Some((v.get("value")?.as_f64()?, v.get("std_unc")?.as_f64()?))
+        Some((v.get("value")?.as_f64()?, v.get(key)?.as_f64()?))
     };
     match e {
         Effect::RateError => pick(p.get("relative")?),
