@@ -126,11 +126,7 @@ pub fn render(a: &Analysis) -> String {
             "Slow noise (--slow-noise), counted in every test but saturation's: flicker's \
              Allan variance (floor²) and the walk's K², ± standard uncertainty:"
         );
-        let term = |t: &Option<crate::discrepancy::slow::Estimate>| {
-            t.map_or("not estimable".to_string(), |e| {
-                format!("{:.4} ± {:.4}", e.value, e.u)
-            })
-        };
+        let term = |e: &crate::discrepancy::slow::Estimate| format!("{:.4} ± {:.4}", e.value, e.u);
         for c in slow {
             let _ = writeln!(
                 o,

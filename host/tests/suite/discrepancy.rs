@@ -663,3 +663,22 @@ fn slow_noise_flicker_each_effect_at_five_times_its_limit_is_named_alone() {
 fn slow_noise_walk_each_effect_at_five_times_its_limit_is_named_alone() {
     effects_at_five_times(Noise::Walk10, "effects_slow_walk10", 10, None, &slow());
 }
+
+#[test]
+fn slow_noise_refuses_a_channel_it_cannot_estimate() {
+    // At a 100 µg floor the AR model can read the flicker as correlation so long that too
+    // few averaging lengths remain beyond it (measured: 32 of 100 sessions refused, none of
+    // the others naming anything): the workflow refuses rather than test v as if it had no
+    // slow noise.
+    let toml = format!(
+        "{}[sensor.noise]\nstate = false\nflicker_floor_ug = 100.0\n",
+        trials::SINGLE_RATE
+    );
+    let err = trials::analyse_with(&toml, 12, &slow())
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("slow noise of channel v: too few averaging lengths"),
+        "{err}"
+    );
+}

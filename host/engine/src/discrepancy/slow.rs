@@ -61,6 +61,17 @@ pub enum SlowError {
         /// Its length in row intervals.
         rows: usize,
     },
+    /// A channel whose residuals leave too few averaging lengths beyond their short-range
+    /// correlation to fit the levels.
+    #[error(
+        "slow noise of channel {channel}: too few averaging lengths beyond the short-range \
+         correlation to estimate it (strong slow noise can read as correlation); \
+         --slow-noise cannot test this file"
+    )]
+    NotEstimable {
+        /// The channel.
+        channel: Channel,
+    },
     /// The estimate itself, for a channel.
     #[error("slow noise of channel {channel}: {cause}")]
     Estimate {
@@ -74,9 +85,8 @@ pub enum SlowError {
 /// The slow noise of a recording, per channel, and the session's grid of rows.
 #[derive(Clone, Debug)]
 pub struct SlowLevels {
-    /// Per channel: θ = (1, Q, q) with their covariance, or `None` where the record has too
-    /// few averaging lengths to fit them (that channel's slow part is then left out).
-    pub channels: [Option<SlowFit>; 3],
+    /// Per channel u, v, w: θ = (1, Q, q) with their covariance.
+    pub channels: [SlowFit; 3],
     /// The row interval, s.
     pub row_interval_s: f64,
     /// Each group's first row on the grid.
@@ -170,38 +180,45 @@ pub fn estimate(data: &Data) -> Result<SlowLevels, SlowError> {
     if end > MAX_GRID {
         return Err(SlowError::TooLong { rows: end });
     }
-    let mut channels: [Option<SlowFit>; 3] = Default::default();
-    for (ch, slot) in Channel::ALL.into_iter().zip(channels.iter_mut()) {
-        let fits: Vec<(SlowDesign, Vec<f64>, usize)> = data
-            .groups
-            .iter()
-            .enumerate()
-            .filter_map(|(gi, g)| {
-                let (x, r) = super::noise::generic_fit(g, ch)?;
-                let design = SlowDesign::new(&x, &vec![1.0; x.nrows()]).ok()?;
-                Some((design, r, gi))
-            })
-            .collect();
-        let parts: Vec<SlowPart<'_>> = fits
-            .iter()
-            .filter_map(|(design, resid, gi)| {
-                Some(SlowPart {
-                    design,
-                    resid,
-                    ar: ch.of(data.noise.get(*gi)?),
-                })
-            })
-            .collect();
-        let est = noise::estimate_pooled(&parts, ch.index() as u64)
-            .map_err(|cause| SlowError::Estimate { channel: ch, cause })?;
-        *slot = est.and_then(|e| e.into_iter().next()).map(|(fit, _)| fit);
-    }
+    let [u, v, w] = Channel::ALL.map(|ch| channel_levels(data, ch));
+    let channels = [u?, v?, w?];
     Ok(SlowLevels {
         channels,
         row_interval_s: dt,
         starts,
         grid: end,
     })
+}
+
+/// One channel's levels, pooled over the groups' generic fits.
+fn channel_levels(data: &Data, ch: Channel) -> Result<SlowFit, SlowError> {
+    let fits: Vec<(SlowDesign, Vec<f64>, usize)> = data
+        .groups
+        .iter()
+        .enumerate()
+        .filter_map(|(gi, g)| {
+            let (x, r) = super::noise::generic_fit(g, ch)?;
+            let design = SlowDesign::new(&x, &vec![1.0; x.nrows()]).ok()?;
+            Some((design, r, gi))
+        })
+        .collect();
+    let parts: Vec<SlowPart<'_>> = fits
+        .iter()
+        .filter_map(|(design, resid, gi)| {
+            Some(SlowPart {
+                design,
+                resid,
+                ar: ch.of(data.noise.get(*gi)?),
+            })
+        })
+        .collect();
+    let est = noise::estimate_pooled(&parts, ch.index() as u64)
+        .map_err(|cause| SlowError::Estimate { channel: ch, cause })?;
+    // A channel without levels would be tested as if it had no slow noise, the false
+    // alarms this option exists to prevent: refuse instead.
+    est.and_then(|e| e.into_iter().next())
+        .map(|(fit, _)| fit)
+        .ok_or(SlowError::NotEstimable { channel: ch })
 }
 
 impl SlowLevels {
@@ -213,9 +230,6 @@ impl SlowLevels {
         let mut cov = DMatrix::zeros(k, k);
         let mut var_of_var = vec![0.0; k];
         for (j, level) in self.channels.iter().enumerate() {
-            let Some(level) = level else {
-                continue;
-            };
             let [fl, rw] = noise::unit_slow_forms(&self.on_grid(data, t, j, k));
             let [_, q_fl, q_rw] = level.theta;
             cov += &fl * q_fl.max(0.0) + &rw * q_rw.max(0.0);
@@ -329,11 +343,10 @@ pub struct SlowNoiseJson {
     /// The channel.
     pub channel: Channel,
     /// The flicker's Allan variance 2 ln 2·Q/π (its floor squared), output units²;
-    /// signed (a record that cannot tell it from zero gives either sign). `null` where the
-    /// record has too few averaging lengths.
-    pub flicker_allan_variance: Option<Estimate>,
+    /// signed (a record that cannot tell it from zero gives either sign).
+    pub flicker_allan_variance: Estimate,
     /// The walk's K² = q/Δt (σ_A(τ)² = K²τ/3), output units² per s; signed.
-    pub random_walk_k2: Option<Estimate>,
+    pub random_walk_k2: Estimate,
 }
 
 impl SlowLevels {
@@ -345,15 +358,14 @@ impl SlowLevels {
             .into_iter()
             .zip(&self.channels)
             .map(|(channel, fit)| {
-                let term = |i: usize, factor: f64| {
-                    fit.as_ref().map(|f| Estimate {
-                        value: f.theta.get(i).copied().unwrap_or(0.0) * factor,
-                        u: f.cov
-                            .get(i)
-                            .and_then(|r| r.get(i))
-                            .map_or(0.0, |v| v.max(0.0).sqrt())
-                            * factor,
-                    })
+                let term = |i: usize, factor: f64| Estimate {
+                    value: fit.theta.get(i).copied().unwrap_or(0.0) * factor,
+                    u: fit
+                        .cov
+                        .get(i)
+                        .and_then(|r| r.get(i))
+                        .map_or(0.0, |v| v.max(0.0).sqrt())
+                        * factor,
                 };
                 SlowNoiseJson {
                     channel,
