@@ -26,7 +26,7 @@
 //!   GLS variance plus the slow share, with Welch–Satterthwaite degrees of freedom.
 
 use super::model::{Data, Tested};
-use crate::fit::noise::{self, NoiseError, SlowDesign, SlowFit, SlowPart};
+use crate::fit::noise::{self, NoiseError, SlowDesign, SlowFit, SlowForms, SlowPart};
 use nalgebra::DMatrix;
 use rotacal_shared::{Channel, Condition};
 use serde::Serialize;
@@ -93,6 +93,8 @@ pub struct SlowLevels {
     starts: Vec<usize>,
     /// The grid's length.
     grid: usize,
+    /// Unit flicker and walk on the grid, built once for every test.
+    forms: std::sync::Arc<SlowForms>,
 }
 
 /// A candidate's test under the slow noise.
@@ -187,6 +189,7 @@ pub fn estimate(data: &Data) -> Result<SlowLevels, SlowError> {
         row_interval_s: dt,
         starts,
         grid: end,
+        forms: std::sync::Arc::new(SlowForms::new(end)),
     })
 }
 
@@ -230,7 +233,7 @@ impl SlowLevels {
         let mut cov = DMatrix::zeros(k, k);
         let mut var_of_var = vec![0.0; k];
         for (j, level) in self.channels.iter().enumerate() {
-            let [fl, rw] = noise::unit_slow_forms(&self.on_grid(data, t, j, k));
+            let [fl, rw] = self.forms.of(&self.on_grid(data, t, j, k));
             let [_, q_fl, q_rw] = level.theta;
             cov += &fl * q_fl.max(0.0) + &rw * q_rw.max(0.0);
             let c = |a: usize, b: usize| {

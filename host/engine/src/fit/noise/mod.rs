@@ -29,9 +29,7 @@ mod slow;
 
 pub use lagged::{LaggedSums, LAGS};
 pub use rails::{clipped, Rails};
-pub use slow::{
-    estimate_pooled, unit_flicker_quadratic, unit_slow_forms, SlowDesign, SlowFit, SlowPart,
-};
+pub use slow::{estimate_pooled, unit_flicker_quadratic, SlowDesign, SlowFit, SlowForms, SlowPart};
 
 /// The largest AR order tried.
 pub const MAX_ORDER: usize = 32;

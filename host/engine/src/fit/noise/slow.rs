@@ -467,18 +467,40 @@ pub fn unit_flicker_quadratic(x: &DVector<f64>) -> f64 {
     col.tr_mul(&t.mul(&col)).get((0, 0)).copied().unwrap_or(0.0)
 }
 
-/// XᵀTX under unit flicker and under unit walk, for columns X (n rows of unit weight,
-/// one sample apart) that are contrasts (each column sums to zero): the covariance that
-/// estimators with weights X take from them. Rows between two stretches of a record can be
-/// zero, so the stretches' slow noise is one process, as it is in the sensor.
-pub fn unit_slow_forms(x: &DMatrix<f64>) -> [DMatrix<f64>; 2] {
-    let n = x.nrows() as u64;
-    let mut planner = FftPlanner::new();
-    let fl: Vec<f64> = (0..n).map(|k| -0.5 * flicker_structure(k)).collect();
-    let rw: Vec<f64> = (0..n).map(|k| -0.5 * k as f64).collect();
-    let flicker = Toeplitz::new(&fl, &mut planner);
-    let walk = Toeplitz::new(&rw, &mut planner);
-    [x.tr_mul(&flicker.mul(x)), x.tr_mul(&walk.mul(x))]
+/// Unit flicker and unit walk as Toeplitz operators on a grid of `n` rows one interval
+/// apart, built once for every set of weights on that grid.
+pub struct SlowForms {
+    flicker: Toeplitz,
+    walk: Toeplitz,
+}
+
+impl std::fmt::Debug for SlowForms {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("SlowForms")
+            .field("rows", &self.flicker.n)
+            .finish_non_exhaustive()
+    }
+}
+
+impl SlowForms {
+    /// The operators for a grid of `n` rows.
+    pub fn new(n: usize) -> Self {
+        let mut planner = FftPlanner::new();
+        let fl: Vec<f64> = (0..n as u64).map(|k| -0.5 * flicker_structure(k)).collect();
+        let rw: Vec<f64> = (0..n).map(|k| -0.5 * k as f64).collect();
+        SlowForms {
+            flicker: Toeplitz::new(&fl, &mut planner),
+            walk: Toeplitz::new(&rw, &mut planner),
+        }
+    }
+
+    /// XᵀTX under unit flicker and under unit walk, for columns X (the grid's rows) that
+    /// are contrasts (each column sums to zero): the covariance that estimators with weights
+    /// X take from them. Rows between two stretches of a record can be zero, so the
+    /// stretches' slow noise is one process, as it is in the sensor.
+    pub fn of(&self, x: &DMatrix<f64>) -> [DMatrix<f64>; 2] {
+        [x.tr_mul(&self.flicker.mul(x)), x.tr_mul(&self.walk.mul(x))]
+    }
 }
 
 /// The Allan differences at m of every column, as one vector per difference.
@@ -927,7 +949,7 @@ mod tests {
     }
 
     #[test]
-    fn unit_slow_forms_across_a_gap_match_simulated_noise() {
+    fn slow_forms_across_a_gap_match_simulated_noise() {
         // Two stretches of 200 rows with 200 unrecorded between them; the estimator is a
         // slope within each stretch plus the difference of their means: a contrast whose
         // variance needs the slow noise across the gap.
@@ -942,7 +964,7 @@ mod tests {
                 _ => 0.0,
             }
         });
-        let [fl, rw] = unit_slow_forms(&x);
+        let [fl, rw] = SlowForms::new(n).of(&x);
         let gen = FlickerIncrements::new(n - 1);
         let mut rng = ChaCha8Rng::seed_from_u64(5);
         let reps = 3000;
