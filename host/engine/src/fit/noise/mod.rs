@@ -29,6 +29,7 @@ mod slow;
 
 pub use lagged::{LaggedSums, LAGS};
 pub use rails::{clipped, Rails};
+pub use regression::Rescaler;
 pub use slow::{estimate_pooled, unit_flicker_quadratic, SlowDesign, SlowFit, SlowForms, SlowPart};
 
 /// The largest AR order tried.

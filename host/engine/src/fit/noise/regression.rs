@@ -83,6 +83,14 @@ impl NoiseModel {
         self.rescaled_with(&r)
     }
 
+    /// [`Self::rescaled`] for regressors prepared once ([`Rescaler`]).
+    pub fn rescaled_by(self, r: &Rescaler) -> Result<NoiseModel, NoiseError> {
+        if r.0.h.nrows() != self.n {
+            return Err(NoiseError::Length(r.0.h.nrows(), self.n));
+        }
+        self.rescaled_with(&r.0)
+    }
+
     fn rescaled_with(self, r: &Regressors) -> Result<NoiseModel, NoiseError> {
         // Each step shrinks the error by about tr(PΣ)/(Nγ₀): 0.045 for the widened sine
         // fit of 4200 samples of AR(1) noise with ρ = 0.9, about 0.003 for white noise.
@@ -322,6 +330,21 @@ impl NoiseModel {
     /// vectorised) rather than q² long dot products.
     fn meat_of(&self, zt: &DMatrix<f64>) -> DMatrix<f64> {
         zt * zt.transpose() * self.innovation_var
+    }
+}
+
+/// Regressors prepared for [`NoiseModel::rescaled_by`], for many models of one fit.
+pub struct Rescaler(Regressors<'static>);
+
+impl Rescaler {
+    /// For weighted regressors `h` (N × q).
+    pub fn new(h: &DMatrix<f64>) -> Result<Rescaler, NoiseError> {
+        let r = Regressors::new(h, h.nrows())?;
+        Ok(Rescaler(Regressors {
+            h: Cow::Owned(h.clone()),
+            ht: r.ht,
+            inv: r.inv,
+        }))
     }
 }
 

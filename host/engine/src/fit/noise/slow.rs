@@ -180,6 +180,8 @@ pub struct SlowDesign {
     lagged_slow: [Vec<f64>; 2],
     /// Unit white noise's expected Allan variances for this fit (the short-range a/m).
     expected_white: Vec<f64>,
+    /// The fit's regressors prepared for rescaling AR models (many per bootstrap).
+    rescaler: super::Rescaler,
 }
 
 impl std::fmt::Debug for SlowDesign {
@@ -255,6 +257,7 @@ impl SlowDesign {
             expected_slow: [Vec::new(), Vec::new()],
             lagged_slow: [Vec::new(), Vec::new()],
             expected_white: Vec::new(),
+            rescaler: super::Rescaler::new(hw)?,
         };
         // The slow terms act on the rows as W·T·W (the walk's b(t) scaled by each row's
         // weight); W⁻¹KH_w = T·(W H_w).
@@ -387,40 +390,51 @@ impl SlowDesign {
         self.expected(&kx, &mw, |m| scale * allan_variance(m as u64, d))
     }
 
-    /// One bootstrap draw of the weighted residuals' statistics under AR model `ar` at
-    /// `scale` times its variance, flicker `fq` and walk `wq`.
-    fn draw_statistics(
+    /// One bootstrap draw of the fit's weighted residuals under AR model `ar` at `scale`
+    /// times its variance plus flicker Q and walk q, for each (Q, q) of `levels`
+    /// from the same random numbers (common random numbers: their differences are the
+    /// levels' effect, not the draws' scatter).
+    fn draw_residuals(
         &self,
         (ar, scale): (&NoiseModel, f64),
-        (fq, wq): (f64, f64),
+        levels: &[(f64, f64)],
         flicker_gen: &FlickerIncrements,
         rng: &mut ChaCha8Rng,
-    ) -> Vec<f64> {
+    ) -> Vec<Vec<f64>> {
         let n = self.hw.nrows();
-        let mut e = draw_ar(ar, scale, n, rng);
-        if fq > 0.0 {
-            let inc = flicker_gen.draw(rng);
-            let mut level = 0.0;
-            for (x, (d, w)) in e
-                .iter_mut()
-                .skip(1)
-                .zip(inc.iter().zip(self.weights.iter().skip(1)))
-            {
-                level += d;
-                *x += w * fq.sqrt() * level;
-            }
+        let e = draw_ar(ar, scale, n, rng);
+        // The unit flicker and walk, weighted as the rows are.
+        let mut fl = vec![0.0; n];
+        let inc = flicker_gen.draw(rng);
+        let mut level = 0.0;
+        for (x, (d, w)) in fl
+            .iter_mut()
+            .skip(1)
+            .zip(inc.iter().zip(self.weights.iter().skip(1)))
+        {
+            level += d;
+            *x = w * level;
         }
-        if wq > 0.0 {
-            let mut level = 0.0;
-            for (x, w) in e.iter_mut().zip(&self.weights).skip(1) {
-                level += wq.sqrt() * rng.sample::<f64, _>(StandardNormal);
-                *x += w * level;
-            }
+        let mut rw = vec![0.0; n];
+        let mut level = 0.0;
+        for (x, w) in rw.iter_mut().zip(&self.weights).skip(1) {
+            level += rng.sample::<f64, _>(StandardNormal);
+            *x = w * level;
         }
-        let ev = DVector::from_vec(e);
-        let beta = &self.gram_inv * self.hw.tr_mul(&ev);
-        let r = ev - &self.hw * beta;
-        self.statistics(r.as_slice())
+        levels
+            .iter()
+            .map(|&(fq, wq)| {
+                let (a, b) = (fq.max(0.0).sqrt(), wq.max(0.0).sqrt());
+                let ev = DVector::from_iterator(
+                    n,
+                    e.iter()
+                        .zip(fl.iter().zip(&rw))
+                        .map(|(x, (f, r))| x + a * f + b * r),
+                );
+                let beta = &self.gram_inv * self.hw.tr_mul(&ev);
+                (ev - &self.hw * beta).as_slice().to_vec()
+            })
+            .collect()
     }
 
     /// The covariance of the coefficients of weighted regressors `hs` (N × p, an offset
@@ -575,7 +589,10 @@ const LENGTHS_PER_CORRELATION: f64 = 4.0;
 ///   a/m column exact for the fit, the b/m² one plain): a 32-lag AR model would read part
 ///   of the slow power as correlation, and its shape at long m carry it twice.
 /// - Then each group's AR model again, from its residuals' autocovariances less the slow
-///   terms' exact expected share; m₀ from that model; and the levels once more.
+///   terms' exact expected share; m₀ from that model (at most the fourth-longest length,
+///   so that a model that took up slow power cannot leave too few: at a 100 µg floor that
+///   refused about a third of the channels); and the levels once more.
+/// - Their covariance by [`bootstrap_covariance`].
 /// - The estimates keep their sign: a negative Q or q is the unbiased estimate of a level
 ///   the record cannot tell from zero, so that the variance they add is unbiased too (a
 ///   truncated one overstated U by 9 % on white noise).
@@ -583,12 +600,45 @@ pub fn estimate_pooled(
     parts: &[SlowPart<'_>],
     channel: u64,
 ) -> Result<Option<Vec<(SlowFit, NoiseModel)>>, NoiseError> {
-    let groups = parts.len();
     for p in parts {
         if p.resid.len() != p.design.hw.nrows() {
             return Err(NoiseError::Length(p.resid.len(), p.design.hw.nrows()));
         }
     }
+    let Some((theta, models)) = fit_levels(parts, true)? else {
+        return Ok(None);
+    };
+    let cov = bootstrap_covariance(parts, &models, theta, channel);
+    let c = |i: usize, j: usize| cov.get((i, j)).copied().unwrap_or(0.0);
+    let out = models
+        .into_iter()
+        .map(|model| {
+            // The AR model's own scale estimate: relative variance 2/ν.
+            let ar_var = 2.0 / model.dof(3);
+            let fit = SlowFit {
+                theta: [1.0, theta[0], theta[1]],
+                cov: [
+                    [ar_var, 0.0, 0.0],
+                    [0.0, c(0, 0), c(0, 1)],
+                    [0.0, c(1, 0), c(1, 1)],
+                ],
+            };
+            (fit, model)
+        })
+        .collect();
+    Ok(Some(out))
+}
+
+/// The slow levels (Q, q) and each group's AR model without their share.
+type Levels = ([f64; SLOW], Vec<NoiseModel>);
+
+/// The [`Levels`] of [`estimate_pooled`]; `None` when there are too few averaging lengths.
+///
+/// `rescale`: whether the AR models are rescaled for the fit (as reported); the bootstrap,
+/// which needs only the levels, uses the models only for the averaging lengths and leaves
+/// it out: a high-order model's rescaling costs some 100 times the rest.
+fn fit_levels(parts: &[SlowPart<'_>], rescale: bool) -> Result<Option<Levels>, NoiseError> {
+    let groups = parts.len();
     let stats: Vec<Vec<f64>> = parts.iter().map(|p| p.design.statistics(p.resid)).collect();
     let observed: Vec<Vec<f64>> = parts
         .iter()
@@ -611,6 +661,10 @@ pub fn estimate_pooled(
         };
         let est = sys.fit().ok_or(NoiseError::Singular)?;
         let levels = [est.theta(0), est.theta(1)];
+        fit = Some(est);
+        if round == 1 && !rescale {
+            break;
+        }
         // Each group's AR model without the slow terms' expected share.
         for (((model, p), obs), m0) in models.iter_mut().zip(parts).zip(&observed).zip(&mut m0) {
             let n = p.resid.len();
@@ -625,9 +679,13 @@ pub fn estimate_pooled(
                     gk - share(0, levels[0]) - share(1, levels[1])
                 })
                 .collect();
-            *model = match NoiseModel::from_autocovariances(&adjusted, n, n)
-                .and_then(|m| m.rescaled(&p.design.hw))
-            {
+            *model = match NoiseModel::from_autocovariances(&adjusted, n, n).and_then(|m| {
+                if rescale {
+                    m.rescaled_by(&p.design.rescaler)
+                } else {
+                    Ok(m)
+                }
+            }) {
                 Ok(m) => m,
                 // Levels too large for these autocovariances: the model as first estimated.
                 Err(_) => p.ar.clone(),
@@ -635,59 +693,108 @@ pub fn estimate_pooled(
             if round == 0 {
                 let corr = model.variance_factor(0.0).clamp(1.0, 1e6);
                 let want = (LENGTHS_PER_CORRELATION * corr).ceil() as usize;
-                *m0 = want.max(8).next_power_of_two();
+                // At most the fourth-longest averaging length: a model that took up slow
+                // power (its own fit failed) would otherwise leave too few to fit.
+                let cap = p.design.octaves.last().map_or(8, |o| (o.m / 8).max(8));
+                *m0 = want.max(8).next_power_of_two().min(cap);
             }
         }
-        fit = Some((sys, est));
     }
-    let Some((sys, est)) = fit else {
-        return Ok(None);
-    };
-    // The covariance of (Q, q): a parametric bootstrap of the same linear estimator, the
-    // noise drawn from the AR models and the levels (a negative one drawn as zero).
+    Ok(fit.map(|est| ([est.theta(0), est.theta(1)], models)))
+}
+
+/// The covariance of (Q̂, q̂) by a parametric bootstrap of the whole estimate: residuals
+/// drawn from the groups' AR models plus the slow terms through each group's fit, and
+/// [`fit_levels`] run on them.
+///
+/// - The whole estimate, not its linearisation: the averaging lengths used, the weights
+///   and the AR models all follow the data, which a fixed linear map of the statistics
+///   did not see (the flicker's standard error 17 % short on white noise).
+/// - The estimator's covariance grows with the levels. Drawn at the estimates with a
+///   negative one taken as zero (plug-in), it is biased up where a level is near zero: half
+///   the records draw at a positive level, none below. So it is taken at the signed
+///   estimates: from the same draws at (0, 0), (|Q̂|, 0), (0, |q̂|) and (|Q̂|, |q̂|), the
+///   bilinear form in the levels through them evaluated at (Q̂, q̂) (the plug-in itself when
+///   both are positive). Each variance is kept at least half of the plug-in's, the
+///   correlation that of C(0, 0) where the form would lose it.
+fn bootstrap_covariance(
+    parts: &[SlowPart<'_>],
+    models: &[NoiseModel],
+    theta: [f64; SLOW],
+    channel: u64,
+) -> DMatrix<f64> {
     let mut rng = ChaCha8Rng::seed_from_u64(SEED ^ channel);
     let gens: Vec<FlickerIncrements> = parts
         .iter()
         .map(|p| FlickerIncrements::new(p.resid.len().saturating_sub(1)))
         .collect();
-    let (fq, wq) = (est.theta(0).max(0.0), est.theta(1).max(0.0));
-    let mut draws: Vec<Vec<f64>> = Vec::with_capacity(REPLICATES);
+    let [fq, wq] = theta;
+    let levels = [
+        (0.0, 0.0),
+        (fq.abs(), 0.0),
+        (0.0, wq.abs()),
+        (fq.abs(), wq.abs()),
+    ];
+    let mut draws: [Vec<Vec<f64>>; 4] = Default::default();
     for _ in 0..REPLICATES {
-        let drawn: Vec<Vec<f64>> = parts
+        let drawn: Vec<Vec<Vec<f64>>> = parts
             .iter()
-            .zip(&models)
+            .zip(models)
             .zip(&gens)
-            .map(|((p, m), gen)| p.design.draw_statistics((m, 1.0), (fq, wq), gen, &mut rng))
+            .map(|((p, m), gen)| p.design.draw_residuals((m, 1.0), &levels, gen, &mut rng))
             .collect();
-        let s = sys.stack(&drawn);
-        draws.push(est.apply(&s).into_iter().take(SLOW).collect());
+        for (l, out) in draws.iter_mut().enumerate() {
+            // The AR model a part carries is only fit_levels' fallback: the drawing one.
+            let again: Vec<SlowPart<'_>> = parts
+                .iter()
+                .zip(&drawn)
+                .zip(models)
+                .filter_map(|((p, g), ar)| {
+                    g.get(l).map(|r| SlowPart {
+                        design: p.design,
+                        resid: r,
+                        ar,
+                    })
+                })
+                .collect();
+            if let Ok(Some((t, _))) = fit_levels(&again, false) {
+                out.push(t.to_vec());
+            }
+        }
     }
-    let cov = sample_covariance(&draws, SLOW);
-    let c = |i: usize, j: usize| cov.get((i, j)).copied().unwrap_or(0.0);
-    let out = models
-        .into_iter()
-        .map(|model| {
-            // The AR model's own scale estimate: relative variance 2/ν.
-            let ar_var = 2.0 / model.dof(3);
-            let fit = SlowFit {
-                theta: [1.0, est.theta(0), est.theta(1)],
-                cov: [
-                    [ar_var, 0.0, 0.0],
-                    [0.0, c(0, 0), c(0, 1)],
-                    [0.0, c(1, 0), c(1, 1)],
-                ],
-            };
-            (fit, model)
-        })
-        .collect();
-    Ok(Some(out))
+    let [c0, cf, cw, cb] = draws.map(|d| sample_covariance(&d, SLOW));
+    let (sf, sw) = (fq.signum(), wq.signum());
+    let c = &c0 + (&cf - &c0) * sf + (&cw - &c0) * sw + (&cb - &cf - &cw + &c0) * (sf * sw);
+    let at = |m: &DMatrix<f64>, i: usize, j: usize| m.get((i, j)).copied().unwrap_or(0.0);
+    // The plug-in, negative levels drawn as zero: the form may lower a variance below it by
+    // at most half (far below zero a level's line says nothing).
+    let boundary = match (fq > 0.0, wq > 0.0) {
+        (true, true) => &cb,
+        (true, false) => &cf,
+        (false, true) => &cw,
+        (false, false) => &c0,
+    };
+    let var = |i: usize| at(&c, i, i).max(0.5 * at(boundary, i, i));
+    let (v0, v1) = (var(0), var(1));
+    let corr = {
+        let r = at(&c, 0, 1) / (at(&c, 0, 0) * at(&c, 1, 1)).sqrt();
+        if r.is_finite() && r.abs() < 1.0 && at(&c, 0, 0) > 0.0 && at(&c, 1, 1) > 0.0 {
+            r
+        } else {
+            at(&c0, 0, 1) / (at(&c0, 0, 0) * at(&c0, 1, 1)).sqrt()
+        }
+    };
+    let off = if corr.is_finite() {
+        corr * (v0 * v1).sqrt()
+    } else {
+        0.0
+    };
+    DMatrix::from_row_slice(2, 2, &[v0, off, off, v1])
 }
 
 /// The stacked statistics of the slow levels' fit and their expectation columns: per
 /// group the rows m ≥ m₀; columns Q, q, then a/m (exact white) and b/m² per group.
 struct LevelSystem {
-    /// Per group, the first row (octave index) used.
-    first: Vec<usize>,
     columns: Vec<Vec<f64>>,
     stats: Vec<f64>,
     ms: Vec<f64>,
@@ -697,13 +804,11 @@ impl LevelSystem {
     fn new(parts: &[SlowPart<'_>], stats: &[Vec<f64>], m0: &[usize]) -> Option<LevelSystem> {
         let groups = parts.len();
         let params = SLOW + 2 * groups;
-        let mut first = Vec::with_capacity(groups);
         let mut columns = vec![Vec::new(); params];
         let (mut st, mut ms) = (Vec::new(), Vec::new());
         for (j, (p, s)) in parts.iter().zip(stats).enumerate() {
             let m_lo = m0.get(j).copied().unwrap_or(8);
             let f = p.design.octaves.iter().position(|o| o.m >= m_lo)?;
-            first.push(f);
             for (r, o) in p.design.octaves.iter().enumerate().skip(f) {
                 st.push(s.get(r).copied().unwrap_or(0.0));
                 ms.push(o.m as f64);
@@ -725,20 +830,10 @@ impl LevelSystem {
         }
         // At least one more statistic than parameters.
         (st.len() > params).then_some(LevelSystem {
-            first,
             columns,
             stats: st,
             ms,
         })
-    }
-
-    /// The same rows of other statistics (a bootstrap draw's).
-    fn stack(&self, stats: &[Vec<f64>]) -> Vec<f64> {
-        let mut out = Vec::with_capacity(self.stats.len());
-        for (s, f) in stats.iter().zip(&self.first) {
-            out.extend(s.iter().skip(*f));
-        }
-        out
     }
 
     fn fit(&self) -> Option<Wls> {
@@ -763,22 +858,14 @@ fn sample_covariance(draws: &[Vec<f64>], k: usize) -> DMatrix<f64> {
     cov
 }
 
-/// A weighted least-squares fit of the statistics to the terms' expectations, as the linear
-/// map it is for fixed weights.
+/// A weighted least-squares fit of the statistics to the terms' expectations.
 struct Wls {
     theta: Vec<f64>,
-    /// θ̂ = L·s.
-    map: DMatrix<f64>,
 }
 
 impl Wls {
     fn theta(&self, i: usize) -> f64 {
         self.theta.get(i).copied().unwrap_or(0.0)
-    }
-
-    fn apply(&self, s: &[f64]) -> Vec<f64> {
-        let sv = DVector::from_column_slice(s);
-        (&self.map * sv).iter().copied().collect()
     }
 }
 
@@ -807,7 +894,6 @@ fn wls(columns: &[Vec<f64>], stats: &[f64], ms: &[f64]) -> Option<Wls> {
         fitted = (&g * &theta).iter().copied().collect();
         best = Some(Wls {
             theta: theta.iter().copied().collect(),
-            map,
         });
     }
     best
@@ -919,7 +1005,11 @@ mod tests {
         ];
         for (name, scale, fq, wq, expected) in cases {
             let draws: Vec<Vec<f64>> = (0..400)
-                .map(|_| d.draw_statistics((&white, scale), (fq, wq), &gen, &mut rng))
+                .filter_map(|_| {
+                    d.draw_residuals((&white, scale), &[(fq, wq)], &gen, &mut rng)
+                        .pop()
+                        .map(|r| d.statistics(&r))
+                })
                 .collect();
             for (i, e) in expected.iter().enumerate() {
                 let v: Vec<f64> = draws.iter().map(|s| s[i]).collect();
