@@ -605,6 +605,22 @@ fn rotation_budget(
         None,
     );
     for f in fits.iter().filter(|_| slow_noise) {
+        if f.slow_status == SlowStatus::Modelled {
+            for ch in Channel::ALL
+                .into_iter()
+                .filter(|ch| ch.of(&f.slow).is_none())
+            {
+                b.notes.push(format!(
+                    "condition {}, channel {}: flicker and random walk are not modelled, as \
+                     they could not be estimated (more than one reading in {} on a rail, or \
+                     too few averaging lengths); its fits' uncertainty counts the short-range \
+                     (AR) noise only (docs/uncertainty.md)",
+                    f.condition.letter(),
+                    ch.letter(),
+                    super::group::RAIL_ROWS
+                ));
+            }
+        }
         let why = match f.slow_status {
             SlowStatus::FromSums => {
                 "its rows were calibrated from sums (a group longer than \
