@@ -342,9 +342,18 @@ impl Rescaler {
         let r = Regressors::new(h, h.nrows())?;
         Ok(Rescaler(Regressors {
             h: Cow::Owned(h.clone()),
-            ht: r.ht,
-            inv: r.inv,
+            ..r
         }))
+    }
+
+    /// The regressors H (N × q).
+    pub fn h(&self) -> &DMatrix<f64> {
+        &self.0.h
+    }
+
+    /// (HᵀH)⁻¹.
+    pub fn gram_inv(&self) -> &DMatrix<f64> {
+        &self.0.inv
     }
 }
 

@@ -162,9 +162,9 @@ fn allan_from_prefix(s: &[f64], m: usize) -> f64 {
 pub struct SlowDesign {
     /// √(conversions) of each row.
     weights: Vec<f64>,
-    /// The weighted regressors H_w (N × q) and (H_wᵀH_w)⁻¹.
-    hw: DMatrix<f64>,
-    gram_inv: DMatrix<f64>,
+    /// The weighted regressors H_w (N × q) with (H_wᵀH_w)⁻¹, prepared for rescaling AR
+    /// models too (many per bootstrap).
+    rescaler: super::Rescaler,
     /// The raw regressors' (H₀ = W⁻¹H_w) prefix sums per column (N + 1 each).
     h0_prefix: Vec<Vec<f64>>,
     /// Per averaging length: H₀ᵀAH₀.
@@ -180,15 +180,13 @@ pub struct SlowDesign {
     lagged_slow: [Vec<f64>; 2],
     /// Unit white noise's expected Allan variances for this fit (the short-range a/m).
     expected_white: Vec<f64>,
-    /// The fit's regressors prepared for rescaling AR models (many per bootstrap).
-    rescaler: super::Rescaler,
 }
 
 impl std::fmt::Debug for SlowDesign {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("SlowDesign")
-            .field("rows", &self.hw.nrows())
-            .field("columns", &self.hw.ncols())
+            .field("rows", &self.hw().nrows())
+            .field("columns", &self.hw().ncols())
             .finish_non_exhaustive()
     }
 }
@@ -203,6 +201,16 @@ struct Octave {
 }
 
 impl SlowDesign {
+    /// The weighted regressors H_w (N × q).
+    fn hw(&self) -> &DMatrix<f64> {
+        self.rescaler.h()
+    }
+
+    /// (H_wᵀH_w)⁻¹.
+    fn gram_inv(&self) -> &DMatrix<f64> {
+        self.rescaler.gram_inv()
+    }
+
     /// For a fit of weighted regressors `hw` (N × q, with an offset column w) to rows
     /// of weights `weights`.
     pub fn new(hw: &DMatrix<f64>, weights: &[f64]) -> Result<SlowDesign, NoiseError> {
@@ -213,7 +221,7 @@ impl SlowDesign {
         if n < 64 {
             return Err(NoiseError::TooFew(n));
         }
-        let gram_inv = hw.tr_mul(hw).try_inverse().ok_or(NoiseError::Singular)?;
+        let rescaler = super::Rescaler::new(hw)?;
         let q = hw.ncols();
         let h0 = DMatrix::from_fn(n, q, |t, j| {
             hw[(t, j)] / weights.get(t).copied().unwrap_or(1.0)
@@ -247,8 +255,6 @@ impl SlowDesign {
         let walk = Toeplitz::new(&rw, &mut planner);
         let mut d = SlowDesign {
             weights: weights.to_vec(),
-            hw: hw.clone(),
-            gram_inv,
             h0_prefix,
             octaves,
             mean_inv_w2,
@@ -257,11 +263,11 @@ impl SlowDesign {
             expected_slow: [Vec::new(), Vec::new()],
             lagged_slow: [Vec::new(), Vec::new()],
             expected_white: Vec::new(),
-            rescaler: super::Rescaler::new(hw)?,
+            rescaler,
         };
         // The slow terms act on the rows as W·T·W (the walk's b(t) scaled by each row's
         // weight); W⁻¹KH_w = T·(W H_w).
-        let whw = d.weighted_rows(&d.hw);
+        let whw = d.weighted_rows(d.hw());
         let kx_fl = d.flicker.mul(&whw);
         let kx_rw = d.walk.mul(&whw);
         let fl_exp = d.expected(&kx_fl, &whw.tr_mul(&kx_fl), |m| {
@@ -295,9 +301,9 @@ impl SlowDesign {
         lags: usize,
         kappa: impl Fn(usize) -> f64,
     ) -> Vec<f64> {
-        let n = self.hw.nrows();
-        let wkxg = self.weighted_rows(kx) * &self.gram_inv;
-        let y = &self.hw * (&self.gram_inv * mw * &self.gram_inv);
+        let n = self.hw().nrows();
+        let wkxg = self.weighted_rows(kx) * self.gram_inv();
+        let y = self.hw() * (self.gram_inv() * mw * self.gram_inv());
         let lagged_dot = |a: &DMatrix<f64>, b: &DMatrix<f64>, k: usize| -> f64 {
             let (mut sum, mut back) = (0.0, 0.0);
             for (ra, rb) in a.row_iter().zip(b.row_iter().skip(k)) {
@@ -317,8 +323,8 @@ impl SlowDesign {
                     .map(|(a, b)| a * b)
                     .sum();
                 let t1 = kappa(k) * ww;
-                let t2 = lagged_dot(&wkxg, &self.hw, k);
-                let t3 = lagged_dot(&y, &self.hw, k);
+                let t2 = lagged_dot(&wkxg, self.hw(), k);
+                let t3 = lagged_dot(&y, self.hw(), k);
                 (t1 - 2.0 * t2 + t3) / n as f64
             })
             .collect()
@@ -346,7 +352,7 @@ impl SlowDesign {
         let kx_prefix: Vec<Vec<f64>> = (0..q)
             .map(|j| prefix(kx.column(j).iter().copied()))
             .collect();
-        let gm = &self.gram_inv * mw * &self.gram_inv;
+        let gm = self.gram_inv() * mw * self.gram_inv();
         self.octaves
             .iter()
             .map(|o| {
@@ -355,7 +361,7 @@ impl SlowDesign {
                 let cross: f64 = hs
                     .iter()
                     .zip(&ks)
-                    .map(|(h, k)| (k.transpose() * &self.gram_inv * h).to_scalar())
+                    .map(|(h, k)| (k.transpose() * self.gram_inv() * h).to_scalar())
                     .sum::<f64>()
                     / o.norm;
                 let last = (&o.hah * &gm).trace();
@@ -378,12 +384,12 @@ impl SlowDesign {
     fn expected_ar(&self, ar: &NoiseModel, gamma: &[f64]) -> Vec<f64> {
         let mut planner = FftPlanner::new();
         let t = Toeplitz::new(gamma, &mut planner);
-        let gh = t.mul(&self.hw);
+        let gh = t.mul(self.hw());
         let mut kx = gh.clone();
         for (mut row, w) in kx.row_iter_mut().zip(&self.weights) {
             row /= *w;
         }
-        let mw = self.hw.tr_mul(&gh);
+        let mw = self.hw().tr_mul(&gh);
         let g0 = ar.var;
         let d = |k: u64| 2.0 * (g0 - gamma.get(k as usize).copied().unwrap_or(0.0));
         let scale = self.mean_inv_w2;
@@ -401,7 +407,7 @@ impl SlowDesign {
         flicker_gen: &FlickerIncrements,
         rng: &mut ChaCha8Rng,
     ) -> Vec<Vec<f64>> {
-        let n = self.hw.nrows();
+        let n = self.hw().nrows();
         let e = draw_ar(ar, scale, n, rng);
         // The unit flicker and walk, weighted as the rows are.
         let mut fl = vec![0.0; n];
@@ -431,8 +437,8 @@ impl SlowDesign {
                         .zip(fl.iter().zip(&rw))
                         .map(|(x, (f, r))| x + a * f + b * r),
                 );
-                let beta = &self.gram_inv * self.hw.tr_mul(&ev);
-                (ev - &self.hw * beta).as_slice().to_vec()
+                let beta = self.gram_inv() * self.hw().tr_mul(&ev);
+                (ev - self.hw() * beta).as_slice().to_vec()
             })
             .collect()
     }
@@ -442,8 +448,8 @@ impl SlowDesign {
     /// estimator's weights made contrasts (the offset's measurand is the bias plus the slow
     /// noise's weighted mean over the group).
     pub fn slow_covariances(&self, hs: &DMatrix<f64>) -> Result<[DMatrix<f64>; 2], NoiseError> {
-        if hs.nrows() != self.hw.nrows() {
-            return Err(NoiseError::Length(hs.nrows(), self.hw.nrows()));
+        if hs.nrows() != self.hw().nrows() {
+            return Err(NoiseError::Length(hs.nrows(), self.hw().nrows()));
         }
         let inv = hs.tr_mul(hs).try_inverse().ok_or(NoiseError::Singular)?;
         let est = hs * inv;
@@ -601,8 +607,8 @@ pub fn estimate_pooled(
     channel: u64,
 ) -> Result<Option<Vec<(SlowFit, NoiseModel)>>, NoiseError> {
     for p in parts {
-        if p.resid.len() != p.design.hw.nrows() {
-            return Err(NoiseError::Length(p.resid.len(), p.design.hw.nrows()));
+        if p.resid.len() != p.design.hw().nrows() {
+            return Err(NoiseError::Length(p.resid.len(), p.design.hw().nrows()));
         }
     }
     let Some((theta, models)) = fit_levels(parts, true)? else {
@@ -970,7 +976,7 @@ mod tests {
         gen: &FlickerIncrements,
         rng: &mut ChaCha8Rng,
     ) -> Vec<f64> {
-        let n = d.hw.nrows();
+        let n = d.hw().nrows();
         let white = NoiseModel::white(white_var, n);
         let mut e = draw_ar(&white, 1.0, n, rng);
         let inc = gen.draw(rng);
@@ -981,8 +987,8 @@ mod tests {
             *x += fl + rw;
         }
         let ev = DVector::from_vec(e);
-        let beta = &d.gram_inv * d.hw.tr_mul(&ev);
-        (ev - &d.hw * beta).as_slice().to_vec()
+        let beta = d.gram_inv() * d.hw().tr_mul(&ev);
+        (ev - d.hw() * beta).as_slice().to_vec()
     }
 
     /// The exact expectations of the statistics against the mean of simulated ones, term by
@@ -1141,7 +1147,7 @@ mod tests {
                     .map(|r| {
                         NoiseModel::estimate(r, &[])
                             .unwrap()
-                            .rescaled(&d.hw)
+                            .rescaled(d.hw())
                             .unwrap()
                     })
                     .collect();
