@@ -835,6 +835,82 @@ fn correction_table(md: &mut String, c: &crate::calibrate::json::CorrectionJson,
     }
 }
 
+/// With `--slow-noise`: an entry's residual Allan deviations against the model's lines
+/// (one panel per condition and channel), and each channel's slow levels.
+fn residual_allan(
+    md: &mut String,
+    entry: &RateJson,
+    units: &str,
+    dir: &Path,
+) -> Result<(), ReportError> {
+    let modelled: Vec<_> = entry
+        .noise
+        .iter()
+        .flatten()
+        .filter_map(|n| n.slow.as_ref().map(|s| (n, s)))
+        .filter(|(_, s)| !s.residual_allan.is_empty())
+        .collect();
+    if modelled.is_empty() {
+        return Ok(());
+    }
+    let stem = entry
+        .rate_hz
+        .map(|r| format!("_{}mhz", (r * 1000.0).round()))
+        .unwrap_or_default();
+    let file = format!("allan_residuals{stem}.svg");
+    let panels: Vec<allan::ResidualPanel<'_>> = modelled
+        .iter()
+        .map(|(n, s)| allan::ResidualPanel {
+            title: format!("condition {}, channel {}", n.condition, n.channel),
+            points: &s.residual_allan,
+        })
+        .collect();
+    allan::write_residual(&panels, &dir.join(&file), units)?;
+    let rate = entry
+        .rate_hz
+        .map(|r| format!(" at {r} Hz"))
+        .unwrap_or_default();
+    let _ = writeln!(
+        md,
+        "## Allan deviation of the residuals{rate}\n\n\
+         Each fit's residuals (points, with the 1σ interval of their noise type where one \
+         can be given) against what the noise model predicts for them through the same fit \
+         (lines): the short-range AR model, flicker and random walk at the levels estimated \
+         from the residuals (docs/uncertainty.md, \"Slow noise\"). Where the points leave \
+         the model's line, the model does not describe the data at that averaging time.\n\n\
+         ![residual Allan deviation]({file})\n\n\
+         | channel | flicker floor ({units}) | flicker floor (µg) | random walk ({units}/√s) \
+         | random walk (µg/√s) |\n| --- | --- | --- | --- | --- |"
+    );
+    // The levels are one per channel, pooled over the groups: each channel once.
+    let mut seen = Vec::new();
+    for (n, s) in &modelled {
+        if seen.contains(&n.channel) {
+            continue;
+        }
+        seen.push(n.channel);
+        let term = |t: &Option<crate::calibrate::json::SlowTerm>, ug: bool| match t {
+            Some(t) if ug => match (t.value_ug, t.u_ug) {
+                (Some(v), Some(u)) => format!("{v:.3} (u = {u:.3})"),
+                _ => "–".into(),
+            },
+            Some(t) => format!("{:.4} (u = {:.4})", t.value, t.u),
+            None => "not positive".into(),
+        };
+        let _ = writeln!(
+            md,
+            "| {} | {} | {} | {} | {} |",
+            n.channel,
+            term(&s.flicker_floor, false),
+            term(&s.flicker_floor, true),
+            term(&s.random_walk_per_sqrt_s, false),
+            term(&s.random_walk_per_sqrt_s, true),
+        );
+    }
+    let _ = writeln!(md);
+    Ok(())
+}
+
 /// The report's Markdown and plots, from a calibration and each rate entry's series.
 #[allow(clippy::type_complexity)]
 fn markdown(
@@ -911,6 +987,9 @@ fn markdown(
                 let _ = writeln!(md);
             }
         }
+    }
+    for entry in &cal.by_rate {
+        residual_allan(&mut md, entry, &units, dir)?;
     }
     if cal.by_rate.len() > 1 {
         plot_rates(cal, &dir.join("rates.svg"))?;

@@ -13,19 +13,26 @@ fn dir(name: &str) -> PathBuf {
     d
 }
 
+/// `rotacal report REC --out OUT EXTRA…`, which must succeed: its Markdown.
+fn run_report(rec: &std::path::Path, out: &std::path::Path, extra: &[String]) -> String {
+    let mut a = vec![
+        "report".to_string(),
+        rec.display().to_string(),
+        "--out".into(),
+        out.display().to_string(),
+    ];
+    a.extend_from_slice(extra);
+    let (ok, stdout, stderr) = run(&a);
+    assert!(ok, "{stdout}\n{stderr}");
+    std::fs::read_to_string(out.join("report.md")).unwrap()
+}
+
 fn report(cfg: Config, name: &str) -> (PathBuf, String) {
     let d = dir(name);
     let rec = d.join("rec.csv");
     Simulation::new(cfg).unwrap().write_file(&rec).unwrap();
     let out = d.join("report");
-    let (ok, stdout, stderr) = run(&[
-        "report".to_string(),
-        rec.display().to_string(),
-        "--out".into(),
-        out.display().to_string(),
-    ]);
-    assert!(ok, "{stdout}\n{stderr}");
-    let md = std::fs::read_to_string(out.join("report.md")).unwrap();
+    let md = run_report(&rec, &out, &[]);
     // Every image the report names exists and is a whole SVG document.
     for img in md.split("](").skip(1).filter_map(|s| s.split(')').next()) {
         let svg = std::fs::read_to_string(out.join(img)).unwrap();
@@ -104,17 +111,7 @@ fn the_report_and_the_json_agree_for_the_same_options() {
     Simulation::new(cfg).unwrap().write_file(&rec).unwrap();
     let options = ["--pose-weights", "equal", "--u-g-loc", "1e-4"].map(String::from);
     let table = |args: &[String], name: &str| -> Vec<(f64, f64)> {
-        let out = d.join(name);
-        let mut a = vec![
-            "report".to_string(),
-            rec.display().to_string(),
-            "--out".into(),
-            out.display().to_string(),
-        ];
-        a.extend_from_slice(args);
-        let (ok, stdout, stderr) = run(&a);
-        assert!(ok, "{stdout}\n{stderr}");
-        let md = std::fs::read_to_string(out.join("report.md")).unwrap();
+        let md = run_report(&rec, &d.join(name), args);
         [
             "s_u", "s_v", "s_w", "φ_uv", "φ_vw", "φ_wu", "O_u", "O_v", "O_w",
         ]
@@ -285,4 +282,85 @@ deg = 1.0
     assert_eq!(table("| # | pose |").len(), poses.len(), "{md}");
     let dof = free["dof"].as_u64().unwrap();
     assert!(md.contains(&format!("on {dof} degrees of freedom")), "{md}");
+}
+
+/// `--slow-noise`: the report draws each fit's residual Allan deviation against the model's
+/// lines (one panel per condition and channel) and tables each channel's slow levels as
+/// the JSON gives them; the JSON's points are the model's terms summed, at τ = m/f_s.
+/// Without the option there is no such section.
+#[test]
+fn slow_noise_report_draws_the_residual_allan_deviation() {
+    let d = dir("slow");
+    let rec = d.join("rec.csv");
+    let mut cfg = Config::preset("paper-10mhz").unwrap();
+    cfg.seed = 12;
+    let mut noise = common::unstated(None, None).unwrap();
+    noise.flicker_floor_ug = Some(rotacal::simulate::NoiseSd::All(50.0));
+    cfg.sensor.noise = Some(noise);
+    Simulation::new(cfg).unwrap().write_file(&rec).unwrap();
+    let report = |extra: &[&str], name: &str| -> (PathBuf, String) {
+        let out = d.join(name);
+        let extra: Vec<String> = extra.iter().map(|s| s.to_string()).collect();
+        let md = run_report(&rec, &out, &extra);
+        (out, md)
+    };
+    let (out, md) = report(&["--slow-noise"], "with");
+    assert!(
+        md.contains("## Allan deviation of the residuals at 0.01 Hz"),
+        "{md}"
+    );
+    let svg = std::fs::read_to_string(out.join("allan_residuals_10mhz.svg")).unwrap();
+    assert!(svg.starts_with("<svg") && svg.trim_end().ends_with("</svg>"));
+    for c in ["x", "y", "z"] {
+        for ch in ["u", "v", "w"] {
+            assert!(
+                svg.contains(&format!("condition {c}, channel {ch}")),
+                "{c}{ch}"
+            );
+        }
+    }
+    assert!(svg.contains("model, through the fit"));
+
+    let json = d.join("cal.json");
+    let (ok, _, stderr) = run(&[
+        "calibrate",
+        rec.to_str().unwrap(),
+        "--slow-noise",
+        "--json",
+        json.to_str().unwrap(),
+    ]);
+    assert!(ok, "{stderr}");
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let noise = v["by_rate"][0]["noise"].as_array().unwrap();
+    assert_eq!(noise.len(), 9);
+    for n in noise {
+        let points = n["slow"]["residual_allan"].as_array().unwrap();
+        assert!(points.len() >= 8, "{n}");
+        for p in points {
+            let f = |k: &str| p[k].as_f64().unwrap();
+            assert_eq!(f("tau_s"), p["m"].as_f64().unwrap() / 16.0);
+            let sum = f("short_range_avar") + f("flicker_avar") + f("walk_avar");
+            assert!((f("expected_avar") - sum).abs() <= 1e-12 * sum.abs());
+            assert!(f("observed_avar") > 0.0);
+        }
+    }
+    // The table's floors are the JSON's, rounded.
+    for (i, ch) in ["u", "v", "w"].iter().enumerate() {
+        let row = md
+            .lines()
+            .find(|l| l.starts_with(&format!("| {ch} | ")) && l.contains("(u = "))
+            .unwrap();
+        let floor = &noise[i]["slow"]["flicker_floor"];
+        let want = format!(
+            "{:.4} (u = {:.4})",
+            floor["value"].as_f64().unwrap(),
+            floor["u"].as_f64().unwrap()
+        );
+        assert!(row.contains(&want), "{row} lacks {want}");
+    }
+
+    let (out, md) = report(&[], "without");
+    assert!(!md.contains("Allan deviation of the residuals"));
+    assert!(!out.join("allan_residuals_10mhz.svg").exists());
 }

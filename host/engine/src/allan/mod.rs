@@ -16,6 +16,7 @@ pub mod powerlaw;
 mod series;
 mod terms;
 
+pub(crate) use ci::interval_of;
 pub use ci::{chi2_quantile, confidence_interval, edf_greenhall, noise_id, Interval, ONE_SIGMA_CI};
 pub use series::{series_of, to_micro_g, Channel, Gap, Scale, Still, MICRO_G, STANDARD_GRAVITY};
 pub use terms::{expected_avar, fit_terms, Fit, Term, TermKind};

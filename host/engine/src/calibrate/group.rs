@@ -294,6 +294,8 @@ pub struct SlowNoise {
     /// The levels the covariance used: θ, or with negative levels taken as zero where
     /// signed ones would not give a positive definite covariance.
     pub theta_used: [f64; 3],
+    /// The residuals' Allan variances beside the model's expectation, per averaging length.
+    pub allan: Vec<noise::ResidualAllan>,
 }
 
 impl SlowNoise {
@@ -465,6 +467,10 @@ fn update_group(
         match e {
             Some((slow_fit, model)) => {
                 let unit_cov = [to_array(&model.sandwich(h)?), fl, rw];
+                let allan = ch.of(&p.resid).as_ref().map_or_else(Vec::new, |r| {
+                    let [_, q_fl, q_rw] = slow_fit.theta;
+                    p.design.residual_allan(r, &model, [q_fl, q_rw])
+                });
                 let (cov, theta_used) = combined(&unit_cov, &slow_fit.theta);
                 if let Some(c) = f.cov.get_mut(i) {
                     *c = cov;
@@ -478,6 +484,7 @@ fn update_group(
                         unit_cov,
                         row_interval_s: p.row_interval_s,
                         theta_used,
+                        allan,
                     });
                 }
             }

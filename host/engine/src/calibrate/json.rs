@@ -391,6 +391,34 @@ pub struct SlowJson {
     /// Degrees of freedom of the channel's sine-amplitude variance under the whole model
     /// (Welch–Satterthwaite with the terms' covariances).
     pub dof_amplitude: f64,
+    /// The residuals' overlapping Allan variance at each averaging length the levels were
+    /// fitted over, beside the model's exact expectation for this group's fit.
+    pub residual_allan: Vec<ResidualAllanJson>,
+}
+
+/// One averaging length of `residual_allan`: Allan variances of the raw residuals, output
+/// units².
+#[derive(Clone, Debug, Serialize)]
+pub struct ResidualAllanJson {
+    /// τ, s.
+    pub tau_s: f64,
+    /// Rows averaged.
+    pub m: usize,
+    /// The residuals' own Allan variance.
+    pub observed_avar: f64,
+    /// The 1σ interval of the Allan deviation, output units (noise id, Greenhall EDF), where
+    /// one can be given.
+    pub observed_adev_interval: Option<[f64; 2]>,
+    /// Its equivalent degrees of freedom.
+    pub edf: Option<f64>,
+    /// The model's expectation: the sum of the three terms below.
+    pub expected_avar: f64,
+    /// Of it, the AR (short-range) model's share through the fit.
+    pub short_range_avar: f64,
+    /// The flicker's share, at its signed level.
+    pub flicker_avar: f64,
+    /// The walk's share, at its signed level.
+    pub walk_avar: f64,
 }
 
 /// One slow term: value and standard uncertainty, in output units and in µg (through the
@@ -447,6 +475,21 @@ impl SlowJson {
             flicker_floor: root(q, sd(1), floor2.sqrt()),
             random_walk_per_sqrt_s: root(w, sd(2), per_s.sqrt()),
             dof_amplitude: s.amplitude_dof(),
+            residual_allan: s
+                .allan
+                .iter()
+                .map(|a| ResidualAllanJson {
+                    tau_s: a.m as f64 * s.row_interval_s,
+                    m: a.m,
+                    observed_avar: a.observed,
+                    observed_adev_interval: a.interval.map(|i| [i.lo, i.hi]),
+                    edf: a.interval.map(|i| i.edf),
+                    expected_avar: a.expected(),
+                    short_range_avar: a.short_range,
+                    flicker_avar: a.flicker,
+                    walk_avar: a.walk,
+                })
+                .collect(),
         }
     }
 }

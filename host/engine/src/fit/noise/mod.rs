@@ -30,7 +30,10 @@ mod slow;
 pub use lagged::{LaggedSums, LAGS};
 pub use rails::{clipped, Rails};
 pub use regression::Rescaler;
-pub use slow::{estimate_pooled, unit_flicker_quadratic, SlowDesign, SlowFit, SlowForms, SlowPart};
+pub use slow::{
+    estimate_pooled, unit_flicker_quadratic, ResidualAllan, SlowDesign, SlowFit, SlowForms,
+    SlowPart,
+};
 
 /// The largest AR order tried.
 pub const MAX_ORDER: usize = 32;
@@ -187,20 +190,33 @@ impl NoiseModel {
         if let Some(r) = self.rho.get(lag) {
             return *r;
         }
-        // ρ_k = Σ_i φ_i ρ_{k−1−i}, from k = rho.len() (≤ lag) on.
-        let mut rho = self.rho.clone();
-        loop {
+        self.autocorrelations(lag + 1)
+            .last()
+            .copied()
+            .unwrap_or(0.0)
+    }
+
+    /// ρ₀ … ρ_{n−1}: beyond the stored ones, ρ_k = Σ_i φ_i ρ_{k−1−i}.
+    fn autocorrelations(&self, n: usize) -> Vec<f64> {
+        let mut rho: Vec<f64> = self.rho.iter().copied().take(n).collect();
+        while rho.len() < n {
             let next = self
                 .ar
                 .iter()
                 .zip(rho.iter().rev())
                 .map(|(f, r)| f * r)
                 .sum();
-            if rho.len() >= lag {
-                return next;
-            }
             rho.push(next);
         }
+        rho
+    }
+
+    /// The model's autocovariances γ₀ … γ_{n−1} (O(n·p) for all of them).
+    pub fn autocovariances(&self, n: usize) -> Vec<f64> {
+        self.autocorrelations(n)
+            .into_iter()
+            .map(|r| r * self.var)
+            .collect()
     }
 
     /// 2π·S(ω)/γ₀ = Σ_k ρ_k cos(kω) at `omega` radians per sample: how many times the

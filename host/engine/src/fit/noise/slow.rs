@@ -396,6 +396,41 @@ impl SlowDesign {
         self.expected(&kx, &mw, |m| scale * allan_variance(m as u64, d))
     }
 
+    /// The raw residuals' overlapping Allan variance at each averaging length the slow
+    /// levels are fitted over, beside its exact expectation for this fit under the model:
+    /// the AR model `ar` and the slow levels `[Q, q]` (signed, as estimated), term by term.
+    /// A check of the model against the data: the AR model's line covers the short times,
+    /// the slow terms the long ones (docs/uncertainty.md, "Slow noise").
+    pub fn residual_allan(
+        &self,
+        weighted_resid: &[f64],
+        ar: &NoiseModel,
+        [q_fl, q_rw]: [f64; 2],
+    ) -> Vec<ResidualAllan> {
+        let gamma = ar.autocovariances(self.hw().nrows());
+        let short = self.expected_ar(ar, &gamma);
+        let observed = self.statistics(weighted_resid);
+        let raw: Vec<f64> = weighted_resid
+            .iter()
+            .zip(&self.weights)
+            .map(|(r, w)| r / w)
+            .collect();
+        self.octaves
+            .iter()
+            .zip(observed)
+            .zip(short)
+            .zip(self.expected_slow[0].iter().zip(&self.expected_slow[1]))
+            .map(|(((o, observed), short_range), (fl, rw))| ResidualAllan {
+                m: o.m,
+                observed,
+                interval: crate::allan::interval_of(&raw, observed.max(0.0).sqrt(), o.m),
+                short_range,
+                flicker: q_fl * fl,
+                walk: q_rw * rw,
+            })
+            .collect()
+    }
+
     /// One bootstrap draw of the fit's weighted residuals under AR model `ar` at `scale`
     /// times its variance plus flicker Q and walk q, for each (Q, q) of `levels`
     /// from the same random numbers (common random numbers: their differences are the
@@ -563,6 +598,32 @@ fn draw_ar(m: &NoiseModel, scale: f64, n: usize, rng: &mut ChaCha8Rng) -> Vec<f6
         }
     }
     out
+}
+
+/// One averaging length of [`SlowDesign::residual_allan`]: Allan variances of the raw
+/// residuals, output units².
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ResidualAllan {
+    /// Rows averaged.
+    pub m: usize,
+    /// The residuals' own.
+    pub observed: f64,
+    /// The 1σ interval of its square root, the Allan deviation (noise id and Greenhall's
+    /// degrees of freedom, as `rotacal allan` gives it), where one can be given.
+    pub interval: Option<crate::allan::Interval>,
+    /// Expected from the AR (short-range) model through the fit.
+    pub short_range: f64,
+    /// Expected from the flicker, at its signed level.
+    pub flicker: f64,
+    /// Expected from the walk, at its signed level.
+    pub walk: f64,
+}
+
+impl ResidualAllan {
+    /// The model's expectation, all terms.
+    pub fn expected(&self) -> f64 {
+        self.short_range + self.flicker + self.walk
+    }
 }
 
 /// One group's share of a pooled estimate: its design, its weighted residuals of the fit
@@ -1034,6 +1095,51 @@ mod tests {
     /// 3000 simulated records (the variance's relative standard error √(2/3000) = 2.6 %;
     /// bound 4 of them).
     /// The standalone flicker quadratic is the design's, bit for bit, on a line's change.
+    /// The residual Allan check's expectation, AR(1) ρ = 0.6 plus flicker through the
+    /// widened fit, against the mean of simulated residuals' statistics (4 standard errors
+    /// of the mean per averaging length); and the AR model's autocovariances, all at once,
+    /// against its recursion one lag at a time.
+    #[test]
+    fn residual_allan_expectation_matches_simulated_residuals() {
+        let n = 2000;
+        let d = SlowDesign::new(&tests_wide(n), &vec![1.0; n]).unwrap();
+        let ar = NoiseModel::from_autocovariances(&[4.0, 2.4], n, n).unwrap();
+        assert_eq!(ar.order(), 1);
+        let gamma = ar.autocovariances(n);
+        for k in [0, 1, 2, 7, 100, n - 1] {
+            let want = ar.var * ar.autocorrelation(k);
+            assert!((gamma[k] - want).abs() <= 1e-12 * ar.var, "lag {k}");
+        }
+        let (fq, wq) = (0.5, 0.0);
+        let gen = FlickerIncrements::new(n - 1);
+        let mut rng = ChaCha8Rng::seed_from_u64(11);
+        let draws: Vec<Vec<ResidualAllan>> = (0..400)
+            .filter_map(|_| {
+                d.draw_residuals((&ar, 1.0), &[(fq, wq)], &gen, &mut rng)
+                    .pop()
+                    .map(|r| d.residual_allan(&r, &ar, [fq, wq]))
+            })
+            .collect();
+        let first = &draws[0];
+        assert_eq!(first.len(), d.octaves.len());
+        for (i, point) in first.iter().enumerate() {
+            let v: Vec<f64> = draws.iter().map(|s| s[i].observed).collect();
+            let (mean, se) = mean_se(&v);
+            let z = (mean - point.expected()) / se;
+            assert!(
+                z.abs() < 4.0,
+                "m = {}: simulated {mean:e}, expected {:e}, z = {z:.1}",
+                point.m,
+                point.expected()
+            );
+            assert_eq!(point.walk, 0.0);
+            assert!(point.short_range > 0.0 && point.flicker > 0.0);
+        }
+        // The AR part dominates the shortest averaging, the flicker the longest.
+        let (short, long) = (&first[0], &first[first.len() - 1]);
+        assert!(short.short_range > short.flicker && long.flicker > long.short_range);
+    }
+
     #[test]
     fn unit_flicker_quadratic_is_the_designs() {
         let n = 300;
