@@ -1,6 +1,9 @@
-//! `rotacal allan --plot OUT.svg`: log-log Allan deviation with the 1σ interval bars, the
-//! fitted model and its three terms, one panel per group and channel, the legend in a
-//! column of its own so that it never covers data.
+//! Log-log Allan deviation plots, one panel per group (or condition) and channel, the
+//! legend in a column of its own so that it never covers data:
+//! - `rotacal allan --plot OUT.svg`: the points with their 1σ interval bars, the fitted
+//!   model and its three terms ([`write`]);
+//! - `rotacal report --slow-noise`: a calibration's residuals against the noise model's
+//!   expectation for the same fit and its terms ([`write_residual`]).
 
 use std::path::Path;
 
@@ -199,9 +202,14 @@ fn draw_panel(
         .label_style(("sans-serif", 10))
         .draw()
         .map_err(err(path))?;
+    // plotters does not clip: a term far below the data (a walk at short τ) would be drawn
+    // over the axis labels. A line keeps its points inside the panel's range.
+    let (lo, hi) = (y0 / 1.5, y1 * 1.5);
     for (colour, width, line) in &p.lines {
         c.draw_series(LineSeries::new(
-            line.iter().copied(),
+            line.iter()
+                .copied()
+                .filter(|&(_, v)| (lo..=hi).contains(&v)),
             colour.stroke_width(*width),
         ))
         .map_err(err(path))?;

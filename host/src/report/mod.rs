@@ -9,7 +9,9 @@
 //! - for multi-rate files, the properties against rate relative to the lowest rate, with
 //!   U (k = 2) as error bars (like seed 000 Fig. 6);
 //! - for method free: |y| against time with the still intervals marked, the
-//!   fitted gravity directions, each pose's residual, and their tables.
+//!   fitted gravity directions, each pose's residual, and their tables;
+//! - with `--slow-noise` (rotation): the residuals' Allan deviation against the noise
+//!   model's lines, and each channel's slow levels.
 //!
 //! SVG needs no fonts at build or run time; the viewer renders the text.
 
