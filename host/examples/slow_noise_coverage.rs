@@ -12,15 +12,20 @@
 //!     cargo run --release --example slow_noise_coverage -- [--stepped | --free POSES] FLOOR_UG WALK_UG_PER_SQRT_S SESSIONS [RHO] [RATE_HZ]
 //!
 //! `--without-slow-noise` calibrates rotation and free sessions without the option.
+//! `--still S` (rotation) also simulates a still recording of S seconds of the same noise
+//! (its own seed; the device put down once, at the session's rate) and pools it into the
+//! slow levels, as `calibrate --noise-from FILE` does.
 //!
 //! Prints one JSON line: overall (and how many sessions warned of drift between poses,
 //! and the coverage of those that did not), then per property (s_u, s_v, s_w, φ_uv, φ_vw, φ_wu, and
 //! for stepped sessions O_u, O_v, O_w) its coverage, mean scaled z² and mean k.
+use rotacal::calibrate::noise_from::NoiseFrom;
 use rotacal::calibrate::{calibrate, Options};
 use rotacal::recording::Method;
 use rotacal::simulate::config::FreePoses;
 use rotacal::simulate::{Config, Noise, NoiseSd, Simulation};
 use std::process::ExitCode;
+use std::sync::Arc;
 
 fn main() -> ExitCode {
     let all: Vec<String> = std::env::args().skip(1).collect();
@@ -32,10 +37,15 @@ fn main() -> ExitCode {
         .position(|a| a == "--free")
         .and_then(|i| all.get(i + 1))
         .and_then(|n| n.parse().ok());
+    let still_s: Option<f64> = all
+        .iter()
+        .position(|a| a == "--still")
+        .and_then(|i| all.get(i + 1))
+        .and_then(|n| n.parse().ok());
     let args: Vec<f64> = all
         .iter()
         .filter(|a| !a.starts_with("--"))
-        .skip(usize::from(free.is_some()))
+        .skip(usize::from(free.is_some()) + usize::from(still_s.is_some()))
         .filter_map(|a| a.parse().ok())
         .collect();
     let (floor, walk, sessions, rho, rate) = match args[..] {
@@ -95,12 +105,20 @@ fn main() -> ExitCode {
             flicker_floor_ug: Some(NoiseSd::All(floor)),
             random_walk_ug_per_sqrt_s: Some(NoiseSd::All(walk)),
         });
+        let still = match still_s.map(|s| still_noise(&cfg, s)).transpose() {
+            Ok(s) => s,
+            Err(e) => {
+                eprintln!("session {t}: still recording: {e}");
+                return ExitCode::FAILURE;
+            }
+        };
         let run = Simulation::new(cfg)
             .map_err(|e| e.to_string())
             .and_then(|sim| {
                 let rec = sim.recording().map_err(|e| e.to_string())?;
                 let opts = Options {
                     slow_noise: !stepped && slow,
+                    noise_from: still,
                     ..Options::default()
                 };
                 let cal = calibrate(&rec, &opts).map_err(|e| e.to_string())?;
@@ -164,6 +182,7 @@ fn main() -> ExitCode {
             (Some(_), _, true) => "free, --slow-noise",
             (Some(_), _, false) => "free",
             (None, true, _) => "stepped",
+            (None, false, true) if still_s.is_some() => "rotation, --noise-from",
             (None, false, true) => "rotation, --slow-noise",
             (None, false, false) => "rotation",
         },
@@ -173,4 +192,24 @@ fn main() -> ExitCode {
         per_quantity.join(", ")
     );
     ExitCode::SUCCESS
+}
+
+/// A still recording of `seconds` with the noise of session `cfg` (its own seed): the
+/// device put down once, at the session's rate, prepared for `Options::noise_from`.
+fn still_noise(cfg: &Config, seconds: f64) -> Result<Arc<NoiseFrom>, String> {
+    let mut still = cfg.clone();
+    still.seed = cfg.seed ^ 0x5711_0000_0000;
+    still.method = Method::Free;
+    still.table.rates_hz = None;
+    still.table.samples_per_condition = None;
+    still.table.duration_s = None;
+    still.table.start_angle_deg = None;
+    still.poses = Some(FreePoses::one_still(seconds));
+    let rec = Simulation::new(still)
+        .map_err(|e| e.to_string())?
+        .recording()
+        .map_err(|e| e.to_string())?;
+    NoiseFrom::new(&rec)
+        .map(Arc::new)
+        .map_err(|e| e.to_string())
 }

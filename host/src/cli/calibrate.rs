@@ -84,6 +84,32 @@ pub struct Options {
     /// moved test (under validation: docs/uncertainty.md, "Slow noise").
     #[arg(long)]
     pub slow_noise: bool,
+    /// Rotation: a still recording of the same device, in the same units and at the same
+    /// row rate, pooled with the recording in the flicker and random walk levels (implies
+    /// --slow-noise; docs/uncertainty.md, "Slow noise").
+    #[arg(long, value_name = "FILE")]
+    pub noise_from: Option<PathBuf>,
+}
+
+impl Options {
+    /// The engine's options; reads and prepares the `--noise-from` recording, if given.
+    pub fn into_engine(self) -> anyhow::Result<rotacal::calibrate::Options> {
+        let still = match &self.noise_from {
+            Some(path) => {
+                let rec = rotacal::recording::read(path)?;
+                let prepared = rotacal::calibrate::noise_from::NoiseFrom::new(&rec)
+                    .map_err(|e| anyhow::anyhow!("--noise-from {}: {e}", path.display()))?;
+                Some(std::sync::Arc::new(prepared))
+            }
+            None => None,
+        };
+        let mut opts: rotacal::calibrate::Options = self.into();
+        if still.is_some() {
+            opts.slow_noise = true;
+        }
+        opts.noise_from = still;
+        Ok(opts)
+    }
 }
 
 impl From<Options> for rotacal::calibrate::Options {
@@ -103,6 +129,7 @@ impl From<Options> for rotacal::calibrate::Options {
             g_loc: a.g_loc,
             monte_carlo: a.monte_carlo,
             slow_noise: a.slow_noise,
+            noise_from: None,
             inputs: rotacal::calibrate::TypeB {
                 u_g_loc: a.u_g_loc,
                 u_time_s: a.u_time_s,
@@ -138,7 +165,7 @@ pub struct Args {
 
 /// Run it.
 pub fn run(a: Args) -> anyhow::Result<()> {
-    let opts: rotacal::calibrate::Options = a.options.into();
+    let opts = a.options.into_engine()?;
     let cal = rotacal::calibrate::stream::calibrate_file(&a.file, &opts)?;
     if let Some(path) = a.json {
         let text = serde_json::to_string_pretty(&cal)? + "\n";

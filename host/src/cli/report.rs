@@ -16,7 +16,7 @@ pub struct Args {
 
 /// Run it.
 pub fn run(a: Args) -> anyhow::Result<()> {
-    let opts: rotacal::calibrate::Options = a.options.into();
+    let opts = a.options.into_engine()?;
     let path = rotacal::report::write_file(&a.file, &opts, &a.out)?;
     rotacal::output::emit(&format!("wrote {}\n", path.display()))?;
     Ok(())

@@ -6,19 +6,24 @@ use rotacal::calibrate::json::CalibrationJson;
 use rotacal::calibrate::{calibrate, Options};
 use rotacal::simulate::{Config, Noise, NoiseSd, Simulation};
 
-/// `paper-10mhz` with 4 counts of white noise plus a flicker floor (µg) and a random walk
-/// (µg/√s), calibrated with and without `--slow-noise`.
-fn both(seed: u64, floor_ug: f64, walk_ug: f64) -> (CalibrationJson, CalibrationJson) {
-    let mut cfg = Config::preset("paper-10mhz").unwrap();
-    cfg.seed = seed;
-    cfg.sensor.noise = Some(Noise {
+/// 4 counts of white noise plus a flicker floor (µg) and a random walk (µg/√s), unstated.
+fn slow(floor_ug: f64, walk_ug: f64) -> Option<Noise> {
+    Some(Noise {
         sd: Some(NoiseSd::All(4.0)),
         ar: None,
         lowpass_hz: None,
         state: false,
         flicker_floor_ug: Some(NoiseSd::All(floor_ug)),
         random_walk_ug_per_sqrt_s: Some(NoiseSd::All(walk_ug)),
-    });
+    })
+}
+
+/// `paper-10mhz` with 4 counts of white noise plus a flicker floor (µg) and a random walk
+/// (µg/√s), calibrated with and without `--slow-noise`.
+fn both(seed: u64, floor_ug: f64, walk_ug: f64) -> (CalibrationJson, CalibrationJson) {
+    let mut cfg = Config::preset("paper-10mhz").unwrap();
+    cfg.seed = seed;
+    cfg.sensor.noise = slow(floor_ug, walk_ug);
     let rec = Simulation::new(cfg).unwrap().recording().unwrap();
     let slow = Options {
         slow_noise: true,
@@ -127,4 +132,124 @@ fn stepped_drift_between_poses_is_warned_of_and_independent_poses_are_not() {
     println!("drift warnings: white {white}/500, AR(1) 0.6 {ar}/500, walk 10 µg/√s {walk}/200");
     assert!(white <= 8 && ar <= 8, "false alarms: {white}, {ar}");
     assert!(walk >= 190, "walk warned in {walk}/200");
+}
+
+/// A still recording of `seconds` of the preset's noise plus a flicker floor (µg), the
+/// device put down once at `rate_hz`, written to `path`.
+fn write_still(path: &std::path::Path, seconds: f64, rate_hz: f64, floor_ug: f64, units: &str) {
+    let mut cfg = Config::preset("paper-10mhz").unwrap();
+    cfg.seed = 0x5711;
+    cfg.method = rotacal::recording::Method::Free;
+    cfg.units = units.into();
+    cfg.table = Default::default();
+    cfg.timing.sample_rate_hz = rate_hz;
+    cfg.sensor.noise = slow(floor_ug, 0.0);
+    cfg.poses = Some(rotacal::simulate::config::FreePoses::one_still(seconds));
+    Simulation::new(cfg).unwrap().write_file(path).unwrap();
+}
+
+/// `calibrate --noise-from STILL`: the still recording's rows are pooled into the slow
+/// levels (named in the JSON and on the terminal; the flicker level changes, and lies within
+/// 4 u of the simulated one), and a still file in other units, at another rate or with a gap is refused
+/// with a message that names the problem and its place.
+#[test]
+fn noise_from_a_still_recording_pools_it_and_refuses_a_mismatch() {
+    let dir = std::env::temp_dir().join(format!("rotacal-noise-from-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let rec = dir.join("rec.csv");
+    let mut cfg = Config::preset("paper-10mhz").unwrap();
+    cfg.seed = 0x510E_0010;
+    cfg.sensor.noise = slow(100.0, 0.0);
+    Simulation::new(cfg).unwrap().write_file(&rec).unwrap();
+    let still = dir.join("still.csv");
+    write_still(&still, 1200.0, 16.0, 100.0, "counts");
+    let calibrate_json = |extra: &[&str], name: &str| -> (serde_json::Value, String) {
+        let json = dir.join(name);
+        let mut args = vec![
+            "calibrate",
+            rec.to_str().unwrap(),
+            "--json",
+            json.to_str().unwrap(),
+        ];
+        args.extend_from_slice(extra);
+        let (ok, out, err) = crate::common::run(&args);
+        assert!(ok, "{err}");
+        let v = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+        (v, out)
+    };
+    let (alone, _) = calibrate_json(&["--slow-noise"], "alone.json");
+    let (pooled, out) = calibrate_json(&["--noise-from", still.to_str().unwrap()], "pooled.json");
+    assert!(out.contains("pooled with 19200 still rows of"), "{out}");
+    let noise = |v: &serde_json::Value| v["by_rate"][0]["noise"].as_array().unwrap().clone();
+    for (a, p) in noise(&alone).iter().zip(&noise(&pooled)) {
+        assert!(a["slow"].get("noise_from").is_none());
+        let from = &p["slow"]["noise_from"];
+        assert_eq!(from["rows"], 19200, "{p}");
+        assert_eq!(from["row_interval_s"].as_f64().unwrap(), 1.0 / 16.0);
+        // The simulated floor, 100 µg: its Allan variance 10⁴ µg², within 4 u.
+        let f = &p["slow"]["flicker_allan_variance"];
+        let (value, u) = (f["value_ug"].as_f64().unwrap(), f["u_ug"].as_f64().unwrap());
+        assert!((value - 1e4).abs() < 4.0 * u, "{value} ± {u} µg²");
+        assert_ne!(f, &a["slow"]["flicker_allan_variance"], "nothing pooled");
+    }
+
+    let refused = |still: &std::path::Path| -> String {
+        let (ok, _, err) = crate::common::run(&[
+            "calibrate",
+            rec.to_str().unwrap(),
+            "--noise-from",
+            still.to_str().unwrap(),
+        ]);
+        assert!(!ok, "{} was accepted", still.display());
+        err
+    };
+    let grams = dir.join("still_g.csv");
+    write_still(&grams, 300.0, 16.0, 100.0, "g");
+    let err = refused(&grams);
+    assert!(
+        err.contains("its units are g, the recording's counts"),
+        "{err}"
+    );
+    let fast = dir.join("still_104.csv");
+    write_still(&fast, 300.0, 104.0, 100.0, "counts");
+    let err = refused(&fast);
+    assert!(
+        err.contains("0.009615 s apart, condition x's 0.062500 s"),
+        "{err}"
+    );
+    // A gap: rows 2000–2009 of the 20-minute file left out.
+    let text = std::fs::read_to_string(&still).unwrap();
+    let header = text.lines().take_while(|l| l.starts_with('#')).count() + 1;
+    let gapped: String = text
+        .lines()
+        .enumerate()
+        .filter(|(i, _)| !(header + 2000..header + 2010).contains(i))
+        .map(|(_, l)| format!("{l}\n"))
+        .collect();
+    let gap = dir.join("still_gap.csv");
+    std::fs::write(&gap, gapped).unwrap();
+    let err = refused(&gap);
+    assert!(err.contains("a gap") && err.contains("line"), "{err}");
+    // A static recording has no slow levels to pool the still data into.
+    let stepped = dir.join("stepped.csv");
+    let mut cfg = Config::preset("metrologia-static").unwrap();
+    cfg.sensor.noise = slow(0.0, 0.0);
+    Simulation::new(cfg).unwrap().write_file(&stepped).unwrap();
+    let (ok, _, err) = crate::common::run(&[
+        "calibrate",
+        stepped.to_str().unwrap(),
+        "--noise-from",
+        still.to_str().unwrap(),
+    ]);
+    assert!(
+        !ok && err.contains("rotation recordings only; this one is static"),
+        "{err}"
+    );
+    let short = dir.join("still_short.csv");
+    write_still(&short, 10.0, 16.0, 100.0, "counts");
+    let err = refused(&short);
+    assert!(
+        err.contains("no still stretch of at least 256 rows"),
+        "{err}"
+    );
 }

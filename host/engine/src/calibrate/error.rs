@@ -11,7 +11,7 @@ use crate::calibrate::still::StillError;
 use crate::fit::batch::BatchError;
 use crate::fit::moments::SingularWide;
 use crate::fit::noise::NoiseError;
-use crate::recording::{Recording, RecordingErrorKind};
+use crate::recording::{Method, Recording, RecordingErrorKind};
 use rotacal_shared::intrinsic::IntrinsicError;
 use rotacal_shared::{Channel, Condition, FitError};
 
@@ -83,6 +83,38 @@ pub enum CalibrateErrorKind {
         condition: Condition,
         /// Why.
         source: GroupError,
+    },
+    /// `--noise-from` for a method that has no slow levels to pool it into.
+    #[error("--noise-from applies to rotation recordings only; this one is {0}")]
+    NoiseFromMethod(Method),
+    /// `--noise-from`: the still recording is in other units than the recording.
+    #[error(
+        "--noise-from {file}: its units are {still}, the recording's {recording}: record the \
+         still data in the same units"
+    )]
+    NoiseFromUnits {
+        /// The still recording.
+        file: String,
+        /// Its units.
+        still: String,
+        /// The recording's.
+        recording: String,
+    },
+    /// `--noise-from`: the still recording's rows are not as far apart as the recording's.
+    #[error(
+        "--noise-from {file}: its rows are {still_s:.6} s apart, condition {}'s \
+         {recording_s:.6} s: record the still data at the same rate",
+        condition.letter()
+    )]
+    NoiseFromInterval {
+        /// The still recording.
+        file: String,
+        /// Its row interval, s.
+        still_s: f64,
+        /// The condition whose rows differ.
+        condition: Condition,
+        /// Their interval, s.
+        recording_s: f64,
     },
     /// A rate's properties, budget or correction could not be computed.
     #[error("at {rate_hz} Hz: {source}")]

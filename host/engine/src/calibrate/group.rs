@@ -65,6 +65,11 @@ pub struct GroupFit {
 }
 
 impl GroupFit {
+    /// Seconds between the rows of a group whose slow noise is still to be estimated.
+    pub(crate) fn pending_row_interval_s(&self) -> Option<f64> {
+        self.pending.as_ref().map(|p| p.row_interval_s)
+    }
+
     /// The fit of `condition` at the rate `rate` chose, with its covariance under `noise`
     /// and the rotation's angle per sample, rad.
     pub(crate) fn new(
@@ -296,6 +301,8 @@ pub struct SlowNoise {
     pub theta_used: [f64; 3],
     /// The residuals' Allan variances beside the model's expectation, per averaging length.
     pub allan: Vec<noise::ResidualAllan>,
+    /// The still recording pooled into the levels (`--noise-from`), if any.
+    pub still: Option<super::noise_from::StillSource>,
 }
 
 impl SlowNoise {
@@ -360,7 +367,10 @@ pub(crate) const RAIL_ROWS: usize = 200;
 /// one walk per channel, each group its own AR model: [`noise::estimate_pooled`]), and
 /// each group's covariance of (A, B, C) under it: the re-estimated AR model's sandwich plus
 /// the flicker's and the walk's exact covariances ([`SlowDesign::slow_covariances`]).
-pub(crate) fn pool_slow(fits: &mut [&mut GroupFit]) -> Result<(), (Condition, NoiseError)> {
+pub(crate) fn pool_slow(
+    fits: &mut [&mut GroupFit],
+    still: Option<&super::noise_from::NoiseFrom>,
+) -> Result<(), (Condition, NoiseError)> {
     // Per group and channel, the pooled estimate.
     let mut found: Vec<[Option<(SlowFit, NoiseModel)>; 3]> =
         fits.iter().map(|_| [None, None, None]).collect();
@@ -379,6 +389,10 @@ pub(crate) fn pool_slow(fits: &mut [&mut GroupFit]) -> Result<(), (Condition, No
                 }
             }
         }
+        // A still recording's stretches are more parts of the same levels.
+        if !parts.is_empty() {
+            parts.extend(still.into_iter().flat_map(|s| s.parts(ch)));
+        }
         let first = members
             .first()
             .and_then(|&i| fits.get(i))
@@ -396,7 +410,8 @@ pub(crate) fn pool_slow(fits: &mut [&mut GroupFit]) -> Result<(), (Condition, No
             f.pending = None;
             continue;
         }
-        update_group(f, est).map_err(|e| (f.condition, e))?;
+        update_group(f, est, still.map(super::noise_from::NoiseFrom::summary))
+            .map_err(|e| (f.condition, e))?;
         f.pending = None;
     }
     Ok(())
@@ -408,6 +423,7 @@ pub(crate) fn pool_slow(fits: &mut [&mut GroupFit]) -> Result<(), (Condition, No
 fn update_group(
     f: &mut GroupFit,
     est: [Option<(SlowFit, NoiseModel)>; 3],
+    still: Option<super::noise_from::StillSource>,
 ) -> Result<(), NoiseError> {
     let Some(p) = f.pending.take() else {
         return Ok(());
@@ -485,6 +501,7 @@ fn update_group(
                         row_interval_s: p.row_interval_s,
                         theta_used,
                         allan,
+                        still: still.clone(),
                     });
                 }
             }

@@ -394,6 +394,9 @@ pub struct SlowJson {
     /// The residuals' overlapping Allan variance at each averaging length the levels were
     /// fitted over, beside the model's exact expectation for this group's fit.
     pub residual_allan: Vec<ResidualAllanJson>,
+    /// The still recording pooled with the groups in the levels (`--noise-from`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub noise_from: Option<crate::calibrate::noise_from::StillSource>,
 }
 
 /// One averaging length of `residual_allan`: Allan variances of the raw residuals, output
@@ -490,6 +493,7 @@ impl SlowJson {
                     walk_avar: a.walk,
                 })
                 .collect(),
+            noise_from: s.still.clone(),
         }
     }
 }

@@ -28,6 +28,7 @@ mod free_method;
 mod group;
 pub mod json;
 pub mod methods;
+pub mod noise_from;
 mod pilot;
 pub mod poses;
 mod rotation;
@@ -68,6 +69,9 @@ pub struct Options {
     /// Rotation: also model flicker and a bias random walk; free: allow for them in the
     /// moved test (`--slow-noise`; under validation, docs/uncertainty.md, "Slow noise").
     pub slow_noise: bool,
+    /// Rotation with `slow_noise`: a still recording of the same device, pooled with the
+    /// recording's groups in the slow levels' estimate (`--noise-from FILE`).
+    pub noise_from: Option<std::sync::Arc<noise_from::NoiseFrom>>,
 }
 
 /// Standard uncertainties of the inputs that are not in the data (type B).
@@ -144,6 +148,9 @@ pub(crate) fn preflight(rec: &Recording, opts: &Options) -> Result<Preflight, Ca
         ));
     }
     let method = opts.method.unwrap_or(rec.method);
+    if opts.noise_from.is_some() && method != Method::Rotation {
+        return Err(err(rec, None, CalibrateErrorKind::NoiseFromMethod(method)));
+    }
     let units = rec
         .meta
         .units

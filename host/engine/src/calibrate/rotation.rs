@@ -135,7 +135,12 @@ pub(super) fn assemble(
     };
     // Slow noise is a property of each channel: pooled over every group held in memory.
     let mut held: Vec<&mut GroupFit> = fitted.iter_mut().flatten().map(|f| &mut f.fit).collect();
-    pool_slow(&mut held).map_err(|(condition, e)| GroupError::Noise(e).of(rec, None, condition))?;
+    let still = opts.noise_from.as_deref().filter(|_| opts.slow_noise);
+    if let Some(s) = still {
+        check_still(rec, &pre.units, s, &held)?;
+    }
+    pool_slow(&mut held, still)
+        .map_err(|(condition, e)| GroupError::Noise(e).of(rec, None, condition))?;
     let mut by_rate = Vec::with_capacity(plan.len());
     let mut all_fits = Vec::with_capacity(plan.len());
     for rate in plan {
@@ -637,4 +642,43 @@ fn rotation_budget(
     }
     b.combine();
     Ok(b)
+}
+
+/// A still recording (`--noise-from`) must be in the recording's units, its rows as far
+/// apart as every held group's: the slow levels are per row.
+fn check_still(
+    rec: &Recording,
+    units: &str,
+    still: &super::noise_from::NoiseFrom,
+    held: &[&mut GroupFit],
+) -> Result<(), CalibrateError> {
+    let still_units = still.units.as_deref().unwrap_or("output units");
+    if still_units != units {
+        return Err(err(
+            rec,
+            None,
+            CalibrateErrorKind::NoiseFromUnits {
+                file: still.source.clone(),
+                still: still_units.into(),
+                recording: units.into(),
+            },
+        ));
+    }
+    for f in held {
+        if let Some(dt) = f.pending_row_interval_s() {
+            if ((dt - still.row_interval_s) / dt).abs() > 0.01 {
+                return Err(err(
+                    rec,
+                    None,
+                    CalibrateErrorKind::NoiseFromInterval {
+                        file: still.source.clone(),
+                        still_s: still.row_interval_s,
+                        condition: f.condition,
+                        recording_s: dt,
+                    },
+                ));
+            }
+        }
+    }
+    Ok(())
 }

@@ -165,10 +165,14 @@ fn render_noise(n: &[NoiseJson]) -> String {
                 };
             let _ = writeln!(
                 o,
-                "      slow: flicker Allan variance {}, random walk K² {}, ν {:.0} for the amplitudes",
+                "      slow: flicker Allan variance {}, random walk K² {}, ν {:.0} for the amplitudes{}",
                 level(&s.flicker_allan_variance, "²"),
                 level(&s.random_walk_k2, "²/s"),
-                s.dof_amplitude
+                s.dof_amplitude,
+                s.noise_from.as_ref().map_or(String::new(), |f| format!(
+                    "; pooled with {} still rows of {}",
+                    f.rows, f.file
+                ))
             );
         }
     }

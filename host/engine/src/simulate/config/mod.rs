@@ -113,6 +113,22 @@ pub struct FreePoses {
     pub moved: Option<MovedPose>,
 }
 
+impl FreePoses {
+    /// A still recording: the device put down once, gently, and left for `seconds` (with
+    /// method free, what a lab records for `calibrate --noise-from`).
+    pub fn one_still(seconds: f64) -> FreePoses {
+        FreePoses {
+            count: 1,
+            directions: None,
+            still_s: seconds,
+            move_s: 1.0,
+            noise_spread: 1.0,
+            settle_ms2: 0.0,
+            moved: None,
+        }
+    }
+}
+
 /// A pose that turns while it should be still.
 #[derive(Clone, Copy, Debug, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
