@@ -193,16 +193,18 @@ fn noise_from_a_still_recording_pools_it_and_refuses_a_mismatch() {
         assert_ne!(f, &a["slow"]["flicker_allan_variance"], "nothing pooled");
     }
 
-    let refused = |still: &std::path::Path| -> String {
+    // `calibrate RECORDING --noise-from STILL`, which must fail: its message.
+    let refused_for = |recording: &std::path::Path, still: &std::path::Path| -> String {
         let (ok, _, err) = crate::common::run(&[
             "calibrate",
-            rec.to_str().unwrap(),
+            recording.to_str().unwrap(),
             "--noise-from",
             still.to_str().unwrap(),
         ]);
         assert!(!ok, "{} was accepted", still.display());
         err
     };
+    let refused = |still: &std::path::Path| refused_for(&rec, still);
     let grams = dir.join("still_g.csv");
     write_still(&grams, 300.0, 16.0, 100.0, "g");
     let err = refused(&grams);
@@ -235,14 +237,9 @@ fn noise_from_a_still_recording_pools_it_and_refuses_a_mismatch() {
     let mut cfg = Config::preset("metrologia-static").unwrap();
     cfg.sensor.noise = slow(0.0, 0.0);
     Simulation::new(cfg).unwrap().write_file(&stepped).unwrap();
-    let (ok, _, err) = crate::common::run(&[
-        "calibrate",
-        stepped.to_str().unwrap(),
-        "--noise-from",
-        still.to_str().unwrap(),
-    ]);
+    let err = refused_for(&stepped, &still);
     assert!(
-        !ok && err.contains("rotation recordings only; this one is static"),
+        err.contains("rotation recordings only; this one is static"),
         "{err}"
     );
     let short = dir.join("still_short.csv");

@@ -9,15 +9,17 @@
 //! thermal drift is not read as a walk), its own AR model, the same flicker Q and walk q per
 //! row. So the still rows must be as far apart as the recording's rows, and in its units.
 
+use super::CalibrateErrorKind;
 use crate::fit::noise::{self, NoiseError, NoiseModel, SlowDesign, SlowPart};
 use crate::recording::Recording;
 use nalgebra::DMatrix;
-use rotacal_shared::Channel;
+use rotacal_shared::{Channel, Condition};
 
 /// A still stretch needs this many rows (the slow estimate's averaging lengths).
 pub const MIN_ROWS: usize = 256;
 
-/// Still stretches' rates may differ by this much, relative.
+/// Still stretches' rates, and theirs against the recording's, may differ by this much,
+/// relative.
 const EVEN: f64 = 0.01;
 
 /// What is wrong with a still recording.
@@ -170,6 +172,34 @@ impl NoiseFrom {
             rows: self.rows,
             row_interval_s: self.row_interval_s,
         }
+    }
+
+    /// Whether these still data fit a recording in `units` whose held groups' rows are
+    /// `intervals` (condition, s) apart: the slow levels are per row.
+    pub(crate) fn check(
+        &self,
+        units: &str,
+        intervals: impl Iterator<Item = (Condition, f64)>,
+    ) -> Result<(), CalibrateErrorKind> {
+        let still_units = self.units.as_deref().unwrap_or("output units");
+        if still_units != units {
+            return Err(CalibrateErrorKind::NoiseFromUnits {
+                file: self.source.clone(),
+                still: still_units.into(),
+                recording: units.into(),
+            });
+        }
+        for (condition, dt) in intervals {
+            if ((dt - self.row_interval_s) / dt).abs() > EVEN {
+                return Err(CalibrateErrorKind::NoiseFromInterval {
+                    file: self.source.clone(),
+                    still_s: self.row_interval_s,
+                    condition,
+                    recording_s: dt,
+                });
+            }
+        }
+        Ok(())
     }
 
     /// Channel `ch`'s still parts, for [`noise::estimate_pooled`].

@@ -137,7 +137,11 @@ pub(super) fn assemble(
     let mut held: Vec<&mut GroupFit> = fitted.iter_mut().flatten().map(|f| &mut f.fit).collect();
     let still = opts.noise_from.as_deref().filter(|_| opts.slow_noise);
     if let Some(s) = still {
-        check_still(rec, &pre.units, s, &held)?;
+        let intervals = held
+            .iter()
+            .filter_map(|f| f.pending_row_interval_s().map(|dt| (f.condition, dt)));
+        s.check(&pre.units, intervals)
+            .map_err(|kind| err(rec, None, kind))?;
     }
     pool_slow(&mut held, still)
         .map_err(|(condition, e)| GroupError::Noise(e).of(rec, None, condition))?;
@@ -642,43 +646,4 @@ fn rotation_budget(
     }
     b.combine();
     Ok(b)
-}
-
-/// A still recording (`--noise-from`) must be in the recording's units, its rows as far
-/// apart as every held group's: the slow levels are per row.
-fn check_still(
-    rec: &Recording,
-    units: &str,
-    still: &super::noise_from::NoiseFrom,
-    held: &[&mut GroupFit],
-) -> Result<(), CalibrateError> {
-    let still_units = still.units.as_deref().unwrap_or("output units");
-    if still_units != units {
-        return Err(err(
-            rec,
-            None,
-            CalibrateErrorKind::NoiseFromUnits {
-                file: still.source.clone(),
-                still: still_units.into(),
-                recording: units.into(),
-            },
-        ));
-    }
-    for f in held {
-        if let Some(dt) = f.pending_row_interval_s() {
-            if ((dt - still.row_interval_s) / dt).abs() > 0.01 {
-                return Err(err(
-                    rec,
-                    None,
-                    CalibrateErrorKind::NoiseFromInterval {
-                        file: still.source.clone(),
-                        still_s: still.row_interval_s,
-                        condition: f.condition,
-                        recording_s: dt,
-                    },
-                ));
-            }
-        }
-    }
-    Ok(())
 }

@@ -372,7 +372,21 @@ impl SlowDesign {
 
     /// The raw residuals' Allan variances at each octave.
     fn statistics(&self, weighted_resid: &[f64]) -> Vec<f64> {
-        let s = prefix(weighted_resid.iter().zip(&self.weights).map(|(r, w)| r / w));
+        self.raw_statistics(&self.unweighted(weighted_resid))
+    }
+
+    /// The raw residuals r/w.
+    fn unweighted(&self, weighted_resid: &[f64]) -> Vec<f64> {
+        weighted_resid
+            .iter()
+            .zip(&self.weights)
+            .map(|(r, w)| r / w)
+            .collect()
+    }
+
+    /// [`Self::statistics`] of raw residuals.
+    fn raw_statistics(&self, raw: &[f64]) -> Vec<f64> {
+        let s = prefix(raw.iter().copied());
         self.octaves
             .iter()
             .map(|o| allan_from_prefix(&s, o.m))
@@ -409,12 +423,8 @@ impl SlowDesign {
     ) -> Vec<ResidualAllan> {
         let gamma = ar.autocovariances(self.hw().nrows());
         let short = self.expected_ar(ar, &gamma);
-        let observed = self.statistics(weighted_resid);
-        let raw: Vec<f64> = weighted_resid
-            .iter()
-            .zip(&self.weights)
-            .map(|(r, w)| r / w)
-            .collect();
+        let raw = self.unweighted(weighted_resid);
+        let observed = self.raw_statistics(&raw);
         self.octaves
             .iter()
             .zip(observed)
