@@ -41,7 +41,7 @@ use std::sync::Arc;
 /// The parametric bootstrap's replicates.
 const REPLICATES: usize = 40;
 
-/// The bootstrap's seed (mixed with the channel), so that a calibration is reproducible.
+/// The bootstrap's seed, mixed with the channel and the residuals (see [`bootstrap_seed`]).
 const SEED: u64 = 0x5107_0000;
 
 /// The three terms of the model.
@@ -800,7 +800,7 @@ fn bootstrap_covariance(
     theta: [f64; SLOW],
     channel: u64,
 ) -> DMatrix<f64> {
-    let mut rng = ChaCha8Rng::seed_from_u64(SEED ^ channel);
+    let mut rng = ChaCha8Rng::seed_from_u64(bootstrap_seed(parts, channel));
     let gens: Vec<FlickerIncrements> = parts
         .iter()
         .map(|p| FlickerIncrements::new(p.resid.len().saturating_sub(1)))
@@ -867,6 +867,23 @@ fn bootstrap_covariance(
         0.0
     };
     DMatrix::from_row_slice(2, 2, &[v0, off, off, v1])
+}
+
+/// The bootstrap's seed: a function of the channel and of every residual's bits, so that a
+/// calibration is reproducible, yet two records never share their replicates. With one
+/// seed per channel every record drew the same 40 replicates, and their sampling error
+/// became a bias of that channel's stated u (docs/uncertainty.md, "Seeded by the data").
+fn bootstrap_seed(parts: &[SlowPart<'_>], channel: u64) -> u64 {
+    // splitmix64's finaliser over the bits: cheap, and stable across toolchains.
+    let mix = |mut z: u64| {
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    };
+    let bits = parts
+        .iter()
+        .flat_map(|p| p.resid.iter().map(|r| r.to_bits()));
+    bits.fold(mix(SEED ^ channel), |h, b| mix(h ^ b))
 }
 
 /// The stacked statistics of the slow levels' fit and their expectation columns: per
