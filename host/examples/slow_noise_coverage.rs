@@ -17,7 +17,8 @@
 //! slow levels, as `calibrate --noise-from FILE` does.
 //!
 //! Prints one JSON line: overall (and how many sessions warned of drift between poses,
-//! and the coverage of those that did not), then per property (s_u, s_v, s_w, φ_uv, φ_vw, φ_wu, and
+//! and the coverage of those that did not; how many had a channel's noise terms widened or
+//! narrowed by the model check), then per property (s_u, s_v, s_w, φ_uv, φ_vw, φ_wu, and
 //! for stepped sessions O_u, O_v, O_w) its coverage, mean scaled z² and mean k.
 use rotacal::calibrate::noise_from::NoiseFrom;
 use rotacal::calibrate::{calibrate, Options};
@@ -61,6 +62,7 @@ fn main() -> ExitCode {
     };
     let (mut covered, mut total, mut z2) = (0u32, 0u32, 0.0);
     let (mut sessions_warned, mut quiet) = (0u32, (0u32, 0u32));
+    let mut rescaled = (0u32, 0u32);
     let mut per = [(0u32, 0.0f64, 0.0f64, 0.0f64); 9];
     for t in 0..sessions as u64 {
         let mut cfg = match Config::preset("paper-10mhz") {
@@ -142,6 +144,15 @@ fn main() -> ExitCode {
             })
         });
         sessions_warned += u32::from(warned);
+        // A session whose model check rescaled a channel's noise terms, either way.
+        let checked = cal.by_rate.iter().flat_map(|r| r.noise.iter().flatten());
+        let mut rescaled_here = (false, false);
+        for c in checked.filter_map(|n| n.slow.as_ref()?.model_check.as_ref()) {
+            rescaled_here.0 |= c.rescaled_by > 1.0;
+            rescaled_here.1 |= c.rescaled_by < 1.0;
+        }
+        rescaled.0 += u32::from(rescaled_here.0);
+        rescaled.1 += u32::from(rescaled_here.1);
         for rate in &cal.by_rate {
             for ((q, tr), p) in rate
                 .intrinsic
@@ -177,7 +188,7 @@ fn main() -> ExitCode {
         })
         .collect();
     println!(
-        "{{\"method\": \"{}\", \"flicker_floor_ug\": {floor}, \"random_walk_ug_per_sqrt_s\": {walk}, \"ar1\": {rho}, \"rate_hz\": {rate}, \"sessions\": {sessions}, \"intervals\": {total}, \"coverage\": {:.4}, \"mean_scaled_z2\": {:.4}, \"sessions_warned\": {sessions_warned}, \"coverage_unwarned\": {:.4}, \"per_quantity_coverage_z2_k\": [{}]}}",
+        "{{\"method\": \"{}\", \"flicker_floor_ug\": {floor}, \"random_walk_ug_per_sqrt_s\": {walk}, \"ar1\": {rho}, \"rate_hz\": {rate}, \"sessions\": {sessions}, \"intervals\": {total}, \"coverage\": {:.4}, \"mean_scaled_z2\": {:.4}, \"sessions_warned\": {sessions_warned}, \"sessions_widened\": {}, \"sessions_narrowed\": {}, \"coverage_unwarned\": {:.4}, \"per_quantity_coverage_z2_k\": [{}]}}",
         match (free, stepped, slow) {
             (Some(_), _, true) => "free, --slow-noise",
             (Some(_), _, false) => "free",
@@ -188,6 +199,8 @@ fn main() -> ExitCode {
         },
         f64::from(covered) / f64::from(total),
         z2 / f64::from(total),
+        rescaled.0,
+        rescaled.1,
         f64::from(quiet.0) / f64::from(quiet.1),
         per_quantity.join(", ")
     );

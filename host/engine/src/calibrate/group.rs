@@ -303,6 +303,14 @@ pub struct SlowNoise {
     pub allan: Vec<noise::ResidualAllan>,
     /// The still recording pooled into the levels (`--noise-from`), if any.
     pub still: Option<super::noise_from::StillSource>,
+    /// This group's share of the channel's check of the model against the data.
+    pub scatter: Option<noise::PeriodScatter>,
+    /// The channel's check, pooled over its groups; `None` below two whole turns in
+    /// every group.
+    pub check: Option<noise::ModelCheck>,
+    /// The factor the check multiplied this channel's noise terms by (1: neither widened
+    /// nor narrowed).
+    pub rescaled_by: f64,
 }
 
 impl SlowNoise {
@@ -414,7 +422,53 @@ pub(crate) fn pool_slow(
             .map_err(|e| (f.condition, e))?;
         f.pending = None;
     }
+    for ch in Channel::ALL {
+        check_model(fits, ch);
+    }
     Ok(())
+}
+
+/// The model against the data for one channel ([`noise::ModelCheck`]): its groups' turn
+/// coefficients pooled. Where they scatter more or less than the model allows (p < 10⁻³
+/// either way), every group's noise terms of the channel are multiplied by the observed
+/// ratio R, whose degrees of freedom then replace the model's in the budget
+/// (docs/uncertainty.md, "The model against the data, checked"): an overstated U fails a
+/// calibration as surely as an understated one.
+fn check_model(fits: &mut [&mut GroupFit], ch: Channel) {
+    let i = ch.index();
+    let shares: Vec<noise::PeriodScatter> = fits
+        .iter()
+        .filter_map(|f| f.slow.get(i).and_then(Option::as_ref))
+        .filter_map(|s| s.scatter)
+        .collect();
+    let Some(check) = noise::ModelCheck::pool(&shares) else {
+        return;
+    };
+    let factor = if check.widens() || check.narrows() {
+        check.ratio
+    } else {
+        1.0
+    };
+    for f in fits.iter_mut() {
+        let Some(Some(slow)) = f.slow.get_mut(i) else {
+            continue;
+        };
+        slow.check = Some(check);
+        slow.rescaled_by = factor;
+        if factor == 1.0 {
+            continue;
+        }
+        for unit in &mut slow.unit_cov {
+            for x in unit.iter_mut().flatten() {
+                *x *= factor;
+            }
+        }
+        if let Some(c) = f.cov.get_mut(i) {
+            for x in c.iter_mut().flatten() {
+                *x *= factor;
+            }
+        }
+    }
 }
 
 /// One group under its slow noise: the rate chosen again with the rate's standard error
@@ -483,10 +537,15 @@ fn update_group(
         match e {
             Some((slow_fit, model)) => {
                 let unit_cov = [to_array(&model.sandwich(h)?), fl, rw];
+                let [_, q_fl, q_rw] = slow_fit.theta;
                 let allan = ch.of(&p.resid).as_ref().map_or_else(Vec::new, |r| {
-                    let [_, q_fl, q_rw] = slow_fit.theta;
                     p.design.residual_allan(r, &model, [q_fl, q_rw])
                 });
+                let cycles: Vec<f64> = p.times.iter().map(|t| t * f.rate_hz).collect();
+                let scatter = ch
+                    .of(&p.resid)
+                    .as_ref()
+                    .and_then(|r| p.design.period_scatter(r, &model, [q_fl, q_rw], &cycles));
                 let (cov, theta_used) = combined(&unit_cov, &slow_fit.theta);
                 if let Some(c) = f.cov.get_mut(i) {
                     *c = cov;
@@ -502,6 +561,9 @@ fn update_group(
                         theta_used,
                         allan,
                         still: still.clone(),
+                        scatter,
+                        check: None,
+                        rescaled_by: 1.0,
                     });
                 }
             }

@@ -397,6 +397,45 @@ pub struct SlowJson {
     /// The still recording pooled with the groups in the levels (`--noise-from`).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub noise_from: Option<crate::calibrate::noise_from::StillSource>,
+    /// The model against the data: the channel's whole-turn sine and cosine coefficients
+    /// against the model's prediction, pooled over its groups; absent below two whole
+    /// turns in every group.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub model_check: Option<ModelCheckJson>,
+}
+
+/// What the model check did.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum CheckAction {
+    /// The data agree with the model within chance.
+    None,
+    /// The data scatter more than the model allows: its noise terms multiplied by `ratio`.
+    Widened,
+    /// They scatter less than it allows: its noise terms multiplied by `ratio`.
+    Narrowed,
+}
+
+/// `model_check` of a channel (docs/uncertainty.md, "The model against the data, checked").
+#[derive(Clone, Debug, Serialize)]
+pub struct ModelCheckJson {
+    /// Whole turns over the channel's groups.
+    pub turns: usize,
+    /// The coefficients' observed scatter over the model's expectation.
+    pub ratio: f64,
+    /// Its two-moment degrees of freedom.
+    pub dof: f64,
+    /// The probability of a scatter at least this large under the model.
+    pub p_above: f64,
+    /// The probability of a scatter at most this large under the model.
+    pub p_below: f64,
+    /// The level each side is tested at.
+    pub alpha: f64,
+    /// What was done.
+    pub action: CheckAction,
+    /// The factor the channel's noise terms were multiplied by (1 unless widened or
+    /// narrowed).
+    pub rescaled_by: f64,
 }
 
 /// One averaging length of `residual_allan`: Allan variances of the raw residuals, output
@@ -494,6 +533,22 @@ impl SlowJson {
                 })
                 .collect(),
             noise_from: s.still.clone(),
+            model_check: s.check.map(|c| ModelCheckJson {
+                turns: c.periods,
+                ratio: c.ratio,
+                dof: c.dof,
+                p_above: c.p_above,
+                p_below: c.p_below,
+                alpha: crate::fit::noise::MODEL_CHECK_ALPHA,
+                action: if c.widens() {
+                    CheckAction::Widened
+                } else if c.narrows() {
+                    CheckAction::Narrowed
+                } else {
+                    CheckAction::None
+                },
+                rescaled_by: s.rescaled_by,
+            }),
         }
     }
 }

@@ -10,6 +10,7 @@ use super::{
     correction, err, methods, nominal_rate, CalibrateError, CalibrateErrorKind, GroupError,
     Options, Preflight, RateError, TypeB, CLOCK,
 };
+use crate::fit::noise;
 use crate::recording::{same_rate, Group, Recording};
 use nalgebra::DMatrix;
 use rotacal_shared::intrinsic::{self, ConditionFit};
@@ -468,6 +469,8 @@ fn rotation_budget(
     for (c, fit) in fits.iter().enumerate() {
         for (j, (shared_fl, shared_rw, slow_cov)) in shared.iter_mut().enumerate() {
             match fit.slow.get(j).and_then(Option::as_ref) {
+                // Rescaled by the model check: below.
+                Some(sl) if sl.rescaled_by != 1.0 => {}
                 Some(sl) => {
                     let [ar_unit, fl_unit, rw_unit] = &sl.unit_cov;
                     let [t0, tq, tw] = sl.theta_used;
@@ -505,6 +508,9 @@ fn rotation_budget(
             let var = f * f * cov[1][1] + 2.0 * f * r * cov[1][2] + r * r * cov[2][2];
             *d += var / 2.0;
         }
+    }
+    for (d, x) in per_dof.iter_mut().zip(rescaled_per_dof(fits, &propagated)?) {
+        *d += x;
     }
     let dof: Vec<Option<f64>> = per_dof
         .iter()
@@ -613,6 +619,9 @@ fn rotation_budget(
         &ct,
         None,
     );
+    if slow_noise {
+        b.notes.extend(check_notes(fits));
+    }
     for f in fits.iter().filter(|_| slow_noise) {
         if f.slow_status == SlowStatus::Modelled {
             for ch in Channel::ALL
@@ -646,4 +655,83 @@ fn rotation_budget(
     }
     b.combine();
     Ok(b)
+}
+
+/// The Welch–Satterthwaite terms (Var/2 per property) of the channels whose noise terms the
+/// model check rescaled (`group::check_model`). Their variance R·V̂ is the whole-turn
+/// scatter's own estimate (the levels cancel in the ratio to first order), so R's ν
+/// replaces the model's: Var = V²·2/ν_R, the conditions' contributions of a channel added
+/// first, as R is shared. `propagated(c, j, m)`: the properties' variances from
+/// covariance m of condition c's channel j alone.
+fn rescaled_per_dof(
+    fits: &[GroupFit; 3],
+    propagated: &dyn Fn(usize, usize, [[f64; 2]; 2]) -> Result<[f64; 6], RateError>,
+) -> Result<[f64; 6], RateError> {
+    let mut out = [0.0; 6];
+    for ch in Channel::ALL {
+        let j = ch.index();
+        let mut whole = [0.0; 6];
+        let mut nu = None;
+        for (c, fit) in fits.iter().enumerate() {
+            let Some(sl) = ch.of(&fit.slow).as_ref() else {
+                continue;
+            };
+            let Some(check) = sl.check.filter(|_| sl.rescaled_by != 1.0) else {
+                continue;
+            };
+            // cov = Σ θ·unit (the units already rescaled).
+            let mut m = [[0.0; 2]; 2];
+            for (unit, t) in sl.unit_cov.iter().zip(sl.theta_used) {
+                for (row, u_row) in m.iter_mut().zip(unit) {
+                    for (x, u) in row.iter_mut().zip(u_row) {
+                        *x += t * u;
+                    }
+                }
+            }
+            for (w, v) in whole.iter_mut().zip(propagated(c, j, m)?) {
+                *w += v;
+            }
+            nu = Some(check.dof);
+        }
+        if let Some(nu) = nu {
+            for (o, w) in out.iter_mut().zip(whole) {
+                *o += w * w / nu;
+            }
+        }
+    }
+    Ok(out)
+}
+
+/// The budget's notes on the model check (`group::check_model`), one per channel whose
+/// whole-turn coefficients scatter beyond what its noise model allows, either way.
+fn check_notes(fits: &[GroupFit; 3]) -> Vec<String> {
+    let mut notes = Vec::new();
+    for ch in Channel::ALL {
+        let Some(c) = fits
+            .iter()
+            .find_map(|f| ch.of(&f.slow).as_ref().and_then(|s| s.check))
+        else {
+            continue;
+        };
+        let (done, p, side) = if c.widens() {
+            ("WIDENED", c.p_above, "large")
+        } else if c.narrows() {
+            ("NARROWED", c.p_below, "small")
+        } else {
+            continue;
+        };
+        notes.push(format!(
+            "channel {}: the residuals' sine and cosine coefficients over {} whole turns \
+             scatter {:.2} times what the noise model predicts for them (ν = {:.1}; a scatter \
+             this {side} has p = {p:.1e} under the model, below {:.0e}): the model is wrong \
+             near the rotation frequency, so the channel's noise terms in U are {done} by \
+             that factor (docs/uncertainty.md, \"The model against the data, checked\")",
+            ch.letter(),
+            c.periods,
+            c.ratio,
+            c.dof,
+            noise::MODEL_CHECK_ALPHA
+        ));
+    }
+    notes
 }

@@ -23,11 +23,13 @@
 //! samples, `lagged` gathers the autocovariances one residual at a time.
 
 mod lagged;
+mod model_check;
 mod rails;
 mod regression;
 mod slow;
 
 pub use lagged::{LaggedSums, LAGS};
+pub use model_check::{ModelCheck, PeriodScatter, ALPHA as MODEL_CHECK_ALPHA};
 pub use rails::{clipped, Rails};
 pub use regression::Rescaler;
 pub use slow::{

@@ -513,10 +513,33 @@ impl SlowDesign {
     /// xᵀ(WTW)x under unit flicker and unit walk, for a contrast x of the weighted rows
     /// (xᵀw = 0): the variance a fit coefficient with estimator weights x takes from them.
     pub fn slow_quadratic(&self, x: &DVector<f64>) -> [f64; 2] {
-        let scaled = self.weighted_rows(&DMatrix::from_column_slice(x.len(), 1, x.as_slice()));
+        let [fl, rw] = self.slow_gram(&DMatrix::from_column_slice(x.len(), 1, x.as_slice()));
+        [fl.get((0, 0)), rw.get((0, 0))].map(|v| v.copied().unwrap_or(0.0))
+    }
+
+    /// Xᵀ(WTW)X under unit flicker and unit walk, for contrasts X of the weighted rows.
+    pub(super) fn slow_gram(&self, x: &DMatrix<f64>) -> [DMatrix<f64>; 2] {
+        let scaled = self.weighted_rows(x);
         let fl = scaled.tr_mul(&self.flicker.mul(&scaled));
         let rw = scaled.tr_mul(&self.walk.mul(&scaled));
-        [fl.get((0, 0)), rw.get((0, 0))].map(|v| v.copied().unwrap_or(0.0))
+        [fl, rw]
+    }
+
+    /// XᵀΓX for the AR model `ar`'s autocovariances Γ on the weighted rows.
+    pub(super) fn ar_gram(&self, ar: &NoiseModel, x: &DMatrix<f64>) -> DMatrix<f64> {
+        let gamma = ar.autocovariances(x.nrows());
+        let t = Toeplitz::new(&gamma, &mut FftPlanner::new());
+        x.tr_mul(&t.mul(x))
+    }
+
+    /// X less its projection on the fit's regressors: (I − P)X, weighted rows.
+    pub(super) fn off_fit(&self, x: &DMatrix<f64>) -> DMatrix<f64> {
+        x - self.hw() * (self.gram_inv() * self.hw().tr_mul(x))
+    }
+
+    /// Each row's weight.
+    pub(super) fn weights(&self) -> &[f64] {
+        &self.weights
     }
 }
 
@@ -1025,8 +1048,14 @@ impl SlowFit {
 /// the widened fit of a rotation group.
 #[cfg(test)]
 fn tests_wide(n: usize) -> DMatrix<f64> {
+    tests_wide_at(n, 0.01 / 16.0)
+}
+
+/// [`tests_wide`] at `turns_per_row`.
+#[cfg(test)]
+pub(super) fn tests_wide_at(n: usize, turns_per_row: f64) -> DMatrix<f64> {
     DMatrix::from_fn(n, 10, |t, j| {
-        let a = std::f64::consts::TAU * 0.01 * t as f64 / 16.0;
+        let a = std::f64::consts::TAU * turns_per_row * t as f64;
         match j {
             0 => a.sin(),
             1 => a.cos(),
