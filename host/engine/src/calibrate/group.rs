@@ -545,7 +545,15 @@ fn update_group(
                 let scatter = ch
                     .of(&p.resid)
                     .as_ref()
-                    .and_then(|r| p.design.period_scatter(r, &model, [q_fl, q_rw], &cycles));
+                    .and_then(|r| p.design.period_scatter(r, &model, [q_fl, q_rw], &cycles))
+                    .map(|s| noise::PeriodScatter {
+                        nu_ar: model.dof(3),
+                        levels_cov: {
+                            let [_, [_, ff, fw], [_, wf, ww]] = slow_fit.cov;
+                            [[ff, fw], [wf, ww]]
+                        },
+                        ..s
+                    });
                 let (cov, theta_used) = combined(&unit_cov, &slow_fit.theta);
                 if let Some(c) = f.cov.get_mut(i) {
                     *c = cov;

@@ -423,11 +423,13 @@ pub struct ModelCheckJson {
     pub turns: usize,
     /// The coefficients' observed scatter over the model's expectation.
     pub ratio: f64,
-    /// Its two-moment degrees of freedom.
+    /// The scatter's degrees of freedom.
     pub dof: f64,
-    /// The probability of a scatter at least this large under the model.
+    /// The model's expectation's degrees of freedom (null: infinite).
+    pub dof_model: Option<f64>,
+    /// The probability of a ratio at least this large under the model.
     pub p_above: f64,
-    /// The probability of a scatter at most this large under the model.
+    /// The probability of a ratio at most this large under the model.
     pub p_below: f64,
     /// The level each side is tested at.
     pub alpha: f64,
@@ -537,6 +539,7 @@ impl SlowJson {
                 turns: c.periods,
                 ratio: c.ratio,
                 dof: c.dof,
+                dof_model: c.dof_model.is_finite().then_some(c.dof_model),
                 p_above: c.p_above,
                 p_below: c.p_below,
                 alpha: crate::fit::noise::MODEL_CHECK_ALPHA,

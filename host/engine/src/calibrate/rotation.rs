@@ -722,14 +722,15 @@ fn check_notes(fits: &[GroupFit; 3]) -> Vec<String> {
         };
         notes.push(format!(
             "channel {}: the residuals' sine and cosine coefficients over {} whole turns \
-             scatter {:.2} times what the noise model predicts for them (ν = {:.1}; a scatter \
-             this {side} has p = {p:.1e} under the model, below {:.0e}): the model is wrong \
+             scatter {:.2} times what the noise model predicts for them (ν = {:.1}, the \
+             model's {:.1}; a ratio this {side} has p = {p:.1e} under it, below {:.0e}): it is wrong \
              near the rotation frequency, so the channel's noise terms in U are {done} by \
              that factor (docs/uncertainty.md, \"The model against the data, checked\")",
             ch.letter(),
             c.periods,
             c.ratio,
             c.dof,
+            c.dof_model,
             noise::MODEL_CHECK_ALPHA
         ));
     }
