@@ -306,14 +306,16 @@ pub struct SlowNoise {
     /// This group's share of the channel's check of the model against the data.
     pub scatter: Option<noise::PeriodScatter>,
     /// The channel's check, pooled over its groups; `None` below two whole turns in
-    /// every group.
+    /// every group. Its [`noise::ModelCheck::factor`] multiplied `unit_cov`.
     pub check: Option<noise::ModelCheck>,
-    /// The factor the check multiplied this channel's noise terms by (1: neither widened
-    /// nor narrowed).
-    pub rescaled_by: f64,
 }
 
 impl SlowNoise {
+    /// The check, where it rescaled this channel's noise terms.
+    pub fn rescaled(&self) -> Option<noise::ModelCheck> {
+        self.check.filter(|c| c.verdict() != noise::Verdict::None)
+    }
+
     /// The degrees of freedom of the amplitude variance var A + var B.
     pub fn amplitude_dof(&self) -> f64 {
         let a = self.unit_cov.map(|c| c[0][0] + c[1][1]);
@@ -444,17 +446,12 @@ fn check_model(fits: &mut [&mut GroupFit], ch: Channel) {
     let Some(check) = noise::ModelCheck::pool(&shares) else {
         return;
     };
-    let factor = if check.widens() || check.narrows() {
-        check.ratio
-    } else {
-        1.0
-    };
+    let factor = check.factor();
     for f in fits.iter_mut() {
         let Some(Some(slow)) = f.slow.get_mut(i) else {
             continue;
         };
         slow.check = Some(check);
-        slow.rescaled_by = factor;
         if factor == 1.0 {
             continue;
         }
@@ -532,28 +529,21 @@ fn update_group(
     f.u_rate_hz = choice.u_rate_hz;
     let [fl, rw] = p.design.slow_covariances(h)?;
     let (fl, rw) = (to_array(&fl), to_array(&rw));
+    // The table angle of each row in turns, for the model check.
+    let cycles: Vec<f64> = p.times.iter().map(|t| t * f.rate_hz).collect();
     for (ch, e) in Channel::ALL.into_iter().zip(est) {
         let i = ch.index();
         match e {
             Some((slow_fit, model)) => {
                 let unit_cov = [to_array(&model.sandwich(h)?), fl, rw];
-                let [_, q_fl, q_rw] = slow_fit.theta;
                 let allan = ch.of(&p.resid).as_ref().map_or_else(Vec::new, |r| {
+                    let [_, q_fl, q_rw] = slow_fit.theta;
                     p.design.residual_allan(r, &model, [q_fl, q_rw])
                 });
-                let cycles: Vec<f64> = p.times.iter().map(|t| t * f.rate_hz).collect();
                 let scatter = ch
                     .of(&p.resid)
                     .as_ref()
-                    .and_then(|r| p.design.period_scatter(r, &model, [q_fl, q_rw], &cycles))
-                    .map(|s| noise::PeriodScatter {
-                        nu_ar: model.dof(3),
-                        levels_cov: {
-                            let [_, [_, ff, fw], [_, wf, ww]] = slow_fit.cov;
-                            [[ff, fw], [wf, ww]]
-                        },
-                        ..s
-                    });
+                    .and_then(|r| p.design.period_scatter(r, &model, &slow_fit, &cycles));
                 let (cov, theta_used) = combined(&unit_cov, &slow_fit.theta);
                 if let Some(c) = f.cov.get_mut(i) {
                     *c = cov;
@@ -571,7 +561,6 @@ fn update_group(
                         still: still.clone(),
                         scatter,
                         check: None,
-                        rescaled_by: 1.0,
                     });
                 }
             }

@@ -404,18 +404,6 @@ pub struct SlowJson {
     pub model_check: Option<ModelCheckJson>,
 }
 
-/// What the model check did.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
-#[serde(rename_all = "snake_case")]
-pub enum CheckAction {
-    /// The data agree with the model within chance.
-    None,
-    /// The data scatter more than the model allows: its noise terms multiplied by `ratio`.
-    Widened,
-    /// They scatter less than it allows: its noise terms multiplied by `ratio`.
-    Narrowed,
-}
-
 /// `model_check` of a channel (docs/uncertainty.md, "The model against the data, checked").
 #[derive(Clone, Debug, Serialize)]
 pub struct ModelCheckJson {
@@ -434,7 +422,7 @@ pub struct ModelCheckJson {
     /// The level each side is tested at.
     pub alpha: f64,
     /// What was done.
-    pub action: CheckAction,
+    pub action: crate::fit::noise::Verdict,
     /// The factor the channel's noise terms were multiplied by (1 unless widened or
     /// narrowed).
     pub rescaled_by: f64,
@@ -543,14 +531,8 @@ impl SlowJson {
                 p_above: c.p_above,
                 p_below: c.p_below,
                 alpha: crate::fit::noise::MODEL_CHECK_ALPHA,
-                action: if c.widens() {
-                    CheckAction::Widened
-                } else if c.narrows() {
-                    CheckAction::Narrowed
-                } else {
-                    CheckAction::None
-                },
-                rescaled_by: s.rescaled_by,
+                action: c.verdict(),
+                rescaled_by: c.factor(),
             }),
         }
     }

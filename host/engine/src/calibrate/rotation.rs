@@ -470,7 +470,7 @@ fn rotation_budget(
         for (j, (shared_fl, shared_rw, slow_cov)) in shared.iter_mut().enumerate() {
             match fit.slow.get(j).and_then(Option::as_ref) {
                 // Rescaled by the model check: below.
-                Some(sl) if sl.rescaled_by != 1.0 => {}
+                Some(sl) if sl.rescaled().is_some() => {}
                 Some(sl) => {
                     let [ar_unit, fl_unit, rw_unit] = &sl.unit_cov;
                     let [t0, tq, tw] = sl.theta_used;
@@ -676,19 +676,15 @@ fn rescaled_per_dof(
             let Some(sl) = ch.of(&fit.slow).as_ref() else {
                 continue;
             };
-            let Some(check) = sl.check.filter(|_| sl.rescaled_by != 1.0) else {
+            let Some(check) = sl.rescaled() else {
                 continue;
             };
-            // cov = Σ θ·unit (the units already rescaled).
-            let mut m = [[0.0; 2]; 2];
-            for (unit, t) in sl.unit_cov.iter().zip(sl.theta_used) {
-                for (row, u_row) in m.iter_mut().zip(unit) {
-                    for (x, u) in row.iter_mut().zip(u_row) {
-                        *x += t * u;
-                    }
-                }
-            }
-            for (w, v) in whole.iter_mut().zip(propagated(c, j, m)?) {
+            // The fit's covariance: Σ θ·unit, rescaled.
+            let [[aa, ab, _], [ba, bb, _], _] = fit.cov.get(j).copied().unwrap_or_default();
+            for (w, v) in whole
+                .iter_mut()
+                .zip(propagated(c, j, [[aa, ab], [ba, bb]])?)
+            {
                 *w += v;
             }
             nu = Some(check.dof);
@@ -713,12 +709,10 @@ fn check_notes(fits: &[GroupFit; 3]) -> Vec<String> {
         else {
             continue;
         };
-        let (done, p, side) = if c.widens() {
-            ("WIDENED", c.p_above, "large")
-        } else if c.narrows() {
-            ("NARROWED", c.p_below, "small")
-        } else {
-            continue;
+        let (done, p, side) = match c.verdict() {
+            noise::Verdict::Widened => ("WIDENED", c.p_above, "large"),
+            noise::Verdict::Narrowed => ("NARROWED", c.p_below, "small"),
+            noise::Verdict::None => continue,
         };
         notes.push(format!(
             "channel {}: the residuals' sine and cosine coefficients over {} whole turns \

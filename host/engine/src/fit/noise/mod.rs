@@ -29,7 +29,7 @@ mod regression;
 mod slow;
 
 pub use lagged::{LaggedSums, LAGS};
-pub use model_check::{ModelCheck, PeriodScatter, ALPHA as MODEL_CHECK_ALPHA};
+pub use model_check::{ModelCheck, PeriodScatter, Verdict, ALPHA as MODEL_CHECK_ALPHA};
 pub use rails::{clipped, Rails};
 pub use regression::Rescaler;
 pub use slow::{

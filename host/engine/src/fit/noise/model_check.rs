@@ -4,7 +4,7 @@
 //! fit. These coefficients are what the amplitudes are made of, so a model that
 //! understates the noise near the rotation frequency shows here first.
 
-use super::{NoiseModel, SlowDesign};
+use super::{NoiseModel, SlowDesign, SlowFit};
 use nalgebra::DMatrix;
 use statrs::distribution::{ChiSquared, ContinuousCDF, FisherSnedecor};
 
@@ -25,18 +25,17 @@ pub struct PeriodScatter {
     pub trace2: f64,
     /// tr S's terms: the AR model's, and unit flicker's and unit walk's.
     pub terms: [f64; 3],
-    /// The AR model's degrees of freedom (its level's relative variance is 2/ν).
-    pub nu_ar: f64,
-    /// The covariance of the slow levels (Q̂, q̂), shared by the channel's groups.
-    pub levels_cov: [[f64; 2]; 2],
+    /// The covariance of the model's terms (AR scale, Q̂, q̂): the AR scale the group's
+    /// own, the levels shared by the channel's groups.
+    pub terms_cov: [[f64; 3]; 3],
 }
 
 impl SlowDesign {
     /// The residuals' cosine and sine coefficients over each whole turn, against the model.
     ///
     /// - `weighted_resid`: the residuals of the fit this design describes (weighted rows);
-    /// - `ar` and `[q_fl, q_rw]`: the AR model (rescaled for the fit) and the slow levels
-    ///   (signed, as estimated);
+    /// - `ar` and `slow`: the AR model (rescaled for the fit) and the slow levels (signed,
+    ///   as estimated) with their covariance;
     /// - `cycles`: each row's table angle in turns (rate × time).
     ///
     /// With x_p the weighted cos and sin of the angle over turn p, the coefficients are
@@ -47,9 +46,10 @@ impl SlowDesign {
         &self,
         weighted_resid: &[f64],
         ar: &NoiseModel,
-        [q_fl, q_rw]: [f64; 2],
+        slow: &SlowFit,
         cycles: &[f64],
     ) -> Option<PeriodScatter> {
+        let [_, q_fl, q_rw] = slow.theta;
         let n = weighted_resid.len();
         if cycles.len() != n || self.weights().len() != n {
             return None;
@@ -93,8 +93,7 @@ impl SlowDesign {
             expected: s.trace(),
             trace2: (&s * &s).trace(),
             terms,
-            nu_ar: f64::INFINITY,
-            levels_cov: [[0.0; 2]; 2],
+            terms_cov: slow.cov,
         })
     }
 }
@@ -136,10 +135,10 @@ impl ModelCheck {
             return None;
         }
         let dof = c1 * c1 / c2;
-        // Var Ê: each group's AR level, then the shared slow levels on the pooled terms.
+        // Var Ê: each group's AR scale, then the shared slow levels on the pooled terms.
         let ar_var = sum(|s| {
-            let [t, _, _] = s.terms;
-            2.0 * t * t / s.nu_ar
+            let ([t, _, _], [[c, _, _], _, _]) = (s.terms, s.terms_cov);
+            t * t * c
         });
         let fl = sum(|s| {
             let [_, f, _] = s.terms;
@@ -149,7 +148,7 @@ impl ModelCheck {
             let [_, _, r] = s.terms;
             r
         });
-        let [[c_ff, c_fw], [_, c_ww]] = first.levels_cov;
+        let [_, [_, c_ff, c_fw], [_, _, c_ww]] = first.terms_cov;
         let var_e = ar_var + fl * fl * c_ff + 2.0 * fl * rw * c_fw + rw * rw * c_ww;
         let dof_model = if var_e > 0.0 {
             2.0 * c1 * c1 / var_e
@@ -172,26 +171,48 @@ impl ModelCheck {
         })
     }
 
-    /// The data scatter more than the model allows: its noise terms are to be widened.
-    pub fn widens(&self) -> bool {
-        self.p_above < ALPHA
+    /// What the check does: widen where the data scatter more than the model allows,
+    /// narrow where less.
+    pub fn verdict(&self) -> Verdict {
+        if self.p_above < ALPHA {
+            Verdict::Widened
+        } else if self.p_below < ALPHA {
+            Verdict::Narrowed
+        } else {
+            Verdict::None
+        }
     }
 
-    /// The data scatter less than the model allows: its noise terms are to be narrowed.
-    pub fn narrows(&self) -> bool {
-        self.p_below < ALPHA
+    /// The factor the channel's noise terms are multiplied by: R where the check acts,
+    /// else 1.
+    pub fn factor(&self) -> f64 {
+        match self.verdict() {
+            Verdict::None => 1.0,
+            Verdict::Widened | Verdict::Narrowed => self.ratio,
+        }
     }
+}
+
+/// What the model check did to a channel's noise terms.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Verdict {
+    /// The data agree with the model within chance.
+    None,
+    /// The data scatter more than the model allows: multiplied by the ratio.
+    Widened,
+    /// They scatter less than it allows: multiplied by the ratio.
+    Narrowed,
 }
 
 #[cfg(test)]
 #[allow(clippy::indexing_slicing)]
 mod tests {
+    use super::super::slow::{tests_residuals, tests_wide_at};
     use super::*;
     use crate::allan::powerlaw::FlickerIncrements;
-    use nalgebra::DVector;
-    use rand::{Rng, SeedableRng};
+    use rand::SeedableRng;
     use rand_chacha::ChaCha8Rng;
-    use rand_distr::StandardNormal;
 
     /// How often each p-value falls below 0.05 over `records` records of white noise of
     /// variance `white` plus flicker `q_fl`, checked against white noise of variance
@@ -203,27 +224,20 @@ mod tests {
         records: u64,
     ) -> ((usize, usize), usize) {
         let n = 4200;
-        let h = super::super::slow::tests_wide_at(n, turns_per_row);
-        let d = SlowDesign::new(&h, &vec![1.0; n]).unwrap();
+        let d = SlowDesign::new(&tests_wide_at(n, turns_per_row), &vec![1.0; n]).unwrap();
         let cycles: Vec<f64> = (0..n).map(|t| turns_per_row * t as f64).collect();
         let model = NoiseModel::white(model_white, n);
+        // The model known exactly: no uncertainty in its terms.
+        let known = SlowFit {
+            theta: [1.0, q_fl, 0.0],
+            cov: [[0.0; 3]; 3],
+        };
         let gen = FlickerIncrements::new(n - 1);
-        let gram_inv = h.tr_mul(&h).try_inverse().unwrap();
         let (mut above, mut below) = ((0, 0), 0);
         for seed in 0..records {
             let mut rng = ChaCha8Rng::seed_from_u64(0xC4EC_0000 + seed);
-            let inc = gen.draw(&mut rng);
-            let mut level = 0.0;
-            let e = DVector::from_fn(n, |t, _| {
-                if t > 0 {
-                    level += q_fl.sqrt() * inc[t - 1];
-                }
-                white.sqrt() * rng.sample::<f64, _>(StandardNormal) + level
-            });
-            let r = &e - &h * (&gram_inv * h.tr_mul(&e));
-            let share = d
-                .period_scatter(r.as_slice(), &model, [q_fl, 0.0], &cycles)
-                .unwrap();
+            let r = tests_residuals(&d, (white, q_fl, 0.0), &gen, &mut rng);
+            let share = d.period_scatter(&r, &model, &known, &cycles).unwrap();
             let c = ModelCheck::pool(&[share]).unwrap();
             above.0 += usize::from(c.p_above < 0.05);
             above.1 += usize::from(c.p_above < 0.01);

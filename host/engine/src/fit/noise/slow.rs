@@ -1073,6 +1073,29 @@ pub(super) fn tests_wide_at(n: usize, turns_per_row: f64) -> DMatrix<f64> {
     })
 }
 
+/// White noise plus a walk (or flicker) through the widened fit: the residuals.
+#[cfg(test)]
+pub(super) fn tests_residuals(
+    d: &SlowDesign,
+    (white_var, flicker_q, walk_q): (f64, f64, f64),
+    gen: &FlickerIncrements,
+    rng: &mut ChaCha8Rng,
+) -> Vec<f64> {
+    let n = d.hw().nrows();
+    let white = NoiseModel::white(white_var, n);
+    let mut e = draw_ar(&white, 1.0, n, rng);
+    let inc = gen.draw(rng);
+    let (mut fl, mut rw) = (0.0, 0.0);
+    for (x, dq) in e.iter_mut().skip(1).zip(&inc) {
+        fl += flicker_q.sqrt() * dq;
+        rw += walk_q.sqrt() * rng.sample::<f64, _>(StandardNormal);
+        *x += fl + rw;
+    }
+    let ev = DVector::from_vec(e);
+    let beta = d.gram_inv() * d.hw().tr_mul(&ev);
+    (ev - d.hw() * beta).as_slice().to_vec()
+}
+
 #[cfg(test)]
 #[allow(clippy::indexing_slicing)]
 mod tests {
@@ -1084,28 +1107,6 @@ mod tests {
         let mean = v.iter().sum::<f64>() / n;
         let var = v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1.0);
         (mean, (var / n).sqrt())
-    }
-
-    /// White noise plus a walk (or flicker) through the widened fit: the residuals.
-    fn residuals(
-        d: &SlowDesign,
-        (white_var, flicker_q, walk_q): (f64, f64, f64),
-        gen: &FlickerIncrements,
-        rng: &mut ChaCha8Rng,
-    ) -> Vec<f64> {
-        let n = d.hw().nrows();
-        let white = NoiseModel::white(white_var, n);
-        let mut e = draw_ar(&white, 1.0, n, rng);
-        let inc = gen.draw(rng);
-        let (mut fl, mut rw) = (0.0, 0.0);
-        for (x, dq) in e.iter_mut().skip(1).zip(&inc) {
-            fl += flicker_q.sqrt() * dq;
-            rw += walk_q.sqrt() * rng.sample::<f64, _>(StandardNormal);
-            *x += fl + rw;
-        }
-        let ev = DVector::from_vec(e);
-        let beta = d.gram_inv() * d.hw().tr_mul(&ev);
-        (ev - d.hw() * beta).as_slice().to_vec()
     }
 
     /// The exact expectations of the statistics against the mean of simulated ones, term by
@@ -1302,7 +1303,7 @@ mod tests {
             let mut est = (Vec::new(), Vec::new());
             for _ in 0..60 {
                 let resids: Vec<Vec<f64>> = (0..3)
-                    .map(|_| residuals(&d, truth, &gen, &mut rng))
+                    .map(|_| tests_residuals(&d, truth, &gen, &mut rng))
                     .collect();
                 let models: Vec<NoiseModel> = resids
                     .iter()
