@@ -140,6 +140,10 @@ pub struct Summary {
     pub clipped: u64,
     /// Session length, s of true time.
     pub duration_s: f64,
+    /// The slow noise (flicker, random walk) averaged over the rows written, u, v, w in
+    /// output units: what a static calibration's offsets measure beside the bias (zero
+    /// without slow noise).
+    pub slow_mean: [f64; 3],
 }
 
 /// A configured simulation.

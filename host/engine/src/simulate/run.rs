@@ -114,18 +114,25 @@ impl Simulation {
         let fs = c.timing.sample_rate_hz;
         let mut seq: u64 = 0;
         let mut t0 = 0.0;
-        let mut emit = |row: &mut Row, t: f64, rng: &mut ChaCha8Rng, sum: &mut Summary| {
-            row.seq = Some(seq);
-            seq += 1;
-            row.t_s = Some(self.timestamp(t, rng));
-            row.temp_c = Some(self.temp_written(t));
-            if c.timing.drop_probability > 0.0 && rng.gen::<f64>() < c.timing.drop_probability {
-                sum.dropped += 1;
-                return Ok(());
-            }
-            sum.rows += 1;
-            sink(row)
-        };
+        // The slow noise summed over the rows written.
+        let mut slow_sum = [0.0; 3];
+        let mut emit =
+            |row: &mut Row, t: f64, slow: [f64; 3], rng: &mut ChaCha8Rng, sum: &mut Summary| {
+                row.seq = Some(seq);
+                seq += 1;
+                row.t_s = Some(self.timestamp(t, rng));
+                row.temp_c = Some(self.temp_written(t));
+                if c.timing.drop_probability > 0.0 && rng.gen::<f64>() < c.timing.drop_probability {
+                    sum.dropped += 1;
+                    return Ok(());
+                }
+                sum.rows += 1;
+                for (a, b) in slow_sum.iter_mut().zip(slow) {
+                    *a += b;
+                }
+                sum.slow_mean = slow_sum.map(|a| a / sum.rows as f64);
+                sink(row)
+            };
         match c.method {
             Method::Rotation => {
                 let n = c.samples_per_condition();
@@ -153,7 +160,7 @@ impl Simulation {
                             }
                             let mut row = Row::new(cond, y[0], y[1], y[2]);
                             row.rate_hz = multi.then_some(rate);
-                            emit(&mut row, t, &mut rng, &mut sum)?;
+                            emit(&mut row, t, slow, &mut rng, &mut sum)?;
                         }
                         t0 += n as f64 / fs + c.timing.gap_s;
                     }
@@ -189,7 +196,7 @@ impl Simulation {
                             }
                             let mut row = Row::new(cond, y[0], y[1], y[2]);
                             row.angle_deg = Some(*deg);
-                            emit(&mut row, t, &mut rng, &mut sum)?;
+                            emit(&mut row, t, slow, &mut rng, &mut sum)?;
                         }
                         // The table takes the rest of the dwell to the next angle.
                         let dwell_samples = (dwell * fs).round() as u64;
@@ -210,7 +217,7 @@ impl Simulation {
         rng: &mut ChaCha8Rng,
         noise: &mut NoiseGen<'_>,
         sum: &mut Summary,
-        emit: &mut impl FnMut(&mut Row, f64, &mut ChaCha8Rng, &mut Summary) -> io::Result<()>,
+        emit: &mut impl FnMut(&mut Row, f64, [f64; 3], &mut ChaCha8Rng, &mut Summary) -> io::Result<()>,
     ) -> io::Result<f64> {
         let c = &self.cfg;
         let p = c.poses.clone().unwrap_or_default();
@@ -244,7 +251,7 @@ impl Simulation {
                     *yj = self.output(self.analog(ch, f, t, temp) + e, &mut sum.clipped);
                 }
                 let mut row = Row::new(Condition::X, y[0], y[1], y[2]);
-                emit(&mut row, t, rng, sum)
+                emit(&mut row, t, slow, rng, sum)
             };
         for (i, dir) in dirs.iter().enumerate() {
             if let Some(from) = prev {
