@@ -190,7 +190,9 @@ impl Budget {
 pub fn coverage_factor(nu: f64) -> f64 {
     use statrs::distribution::{ContinuousCDF, StudentsT};
     // k = 2 (the convention of every other result here) unless few degrees of freedom
-    // call for more.
+    // call for more. Below one degree of freedom (a variance dominated by a poorly known
+    // slow-noise level, say) k is taken at ν = 1, not back at 2.
+    let nu = if nu > 0.0 && nu < 1.0 { 1.0 } else { nu };
     if !(1.0..=1e6).contains(&nu) {
         return 2.0;
     }
