@@ -80,8 +80,10 @@ pub struct Options {
     #[arg(long, default_value_t = 1.0, value_name = "S")]
     pub min_still_s: f64,
     /// Rotation: also model flicker and a bias random walk, pooled per channel over the
-    /// recording; free: allow for the flicker the still intervals' changes show in the
-    /// moved test (under validation: docs/uncertainty.md, "Slow noise").
+    /// recording; stepped and static poses with reading times: the same terms between the
+    /// poses, in U and the offsets; free: allow for the flicker the still intervals'
+    /// changes show in the moved test (under validation: docs/uncertainty.md, "Slow
+    /// noise", "Slow noise between poses").
     #[arg(long)]
     pub slow_noise: bool,
     /// Rotation: a still recording of the same device, in the same units and at the same
@@ -146,6 +148,8 @@ impl From<Options> for rotacal::calibrate::Options {
                 },
                 // Set from the type-B inputs (flag or file) when the file is read.
                 u_angle_rad: None,
+                // Set from `slow_noise` when the poses are fitted.
+                slow: false,
             },
         }
     }

@@ -903,10 +903,10 @@ fn residual_allan(
             md,
             "| {} | {} | {} | {} | {} |",
             n.channel,
-            term(&s.flicker_floor, false),
-            term(&s.flicker_floor, true),
-            term(&s.random_walk_per_sqrt_s, false),
-            term(&s.random_walk_per_sqrt_s, true),
+            term(&s.terms.flicker_floor, false),
+            term(&s.terms.flicker_floor, true),
+            term(&s.terms.random_walk_per_sqrt_s, false),
+            term(&s.terms.random_walk_per_sqrt_s, true),
         );
     }
     let _ = writeln!(md);

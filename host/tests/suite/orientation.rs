@@ -81,6 +81,7 @@ fn session(
                 first_line: 0,
                 noise: None,
                 angle_direction: None,
+                times_s: Vec::new(),
             }
         })
         .collect()

@@ -57,6 +57,7 @@ fn seed_001_table_1_reproduced() {
             condition: *c,
             angle_deg: &a,
             y: [&d[0], &d[1], &d[2]],
+            t_s: &[],
             first_line: 0,
         })
         .collect();
@@ -157,6 +158,7 @@ fn calibrate(data: &[[Vec<f64>; 3]]) -> rotacal::calibrate::methods::StaticCalib
             condition: *c,
             angle_deg: &a,
             y: [&d[0], &d[1], &d[2]],
+            t_s: &[],
             first_line: 0,
         })
         .collect();

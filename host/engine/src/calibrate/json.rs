@@ -186,6 +186,9 @@ pub struct PosesJson {
     pub offsets_axis_pairs: Option<Uvw>,
     /// joint − axis pairs: how far the real poses depart from the model.
     pub offsets_difference: Option<[f64; 3]>,
+    /// The slow noise between the poses, when modelled (`--slow-noise`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub slow_noise: Option<PosesSlowJson>,
     /// The poses.
     pub list: Vec<PoseJson>,
 }
@@ -210,6 +213,11 @@ fn poses_json(f: &poses::PoseFit) -> PosesJson {
         offsets_difference: f
             .offsets_axis_pairs
             .map(|o| Channel::ALL.map(|ch| ch.of(&f.offsets_joint).value - ch.of(&o).value)),
+        slow_noise: f.slow.as_ref().map(|s| {
+            // Each channel's sensitivity: the norm of its row of S.
+            let sens = f.s().map(|r| r.iter().map(|x| x * x).sum::<f64>().sqrt());
+            poses_slow_json(s, sens)
+        }),
         list: f
             .poses
             .iter()
@@ -379,15 +387,9 @@ pub struct NoiseJson {
 pub struct SlowJson {
     /// The model and how it was estimated.
     pub model: String,
-    /// The flicker's Allan variance 2 ln 2·Q/π (the floor squared), output units²; signed:
-    /// a record that cannot tell a level from zero gives an estimate of either sign.
-    pub flicker_allan_variance: SlowTerm,
-    /// The walk's K² = q·f_s (σ_A(τ)² = K²·τ/3), output units² per s; signed.
-    pub random_walk_k2: SlowTerm,
-    /// The flicker floor √(2 ln 2·Q/π), output units, when its estimate is positive.
-    pub flicker_floor: Option<SlowTerm>,
-    /// The walk K, output units per √s, when its estimate is positive.
-    pub random_walk_per_sqrt_s: Option<SlowTerm>,
+    /// The levels.
+    #[serde(flatten)]
+    pub terms: SlowTerms,
     /// Degrees of freedom of the channel's sine-amplitude variance under the whole model
     /// (Welch–Satterthwaite with the terms' covariances).
     pub dof_amplitude: f64,
@@ -467,17 +469,26 @@ pub struct SlowTerm {
     pub u_ug: Option<f64>,
 }
 
-impl SlowJson {
-    /// From a group's slow noise; `sensitivity` is the channel's output units per m/s².
-    pub fn new(s: &crate::calibrate::group::SlowNoise, sensitivity: Option<f64>) -> Self {
-        let fit = &s.fit;
-        let [_, q, w] = fit.theta;
-        let sd = |i: usize| {
-            fit.cov
-                .get(i)
-                .and_then(|r| r.get(i))
-                .map_or(0.0, |v| v.max(0.0).sqrt())
-        };
+/// A channel's flicker and walk levels as the JSON gives them.
+#[derive(Clone, Debug, Serialize)]
+pub struct SlowTerms {
+    /// The flicker's Allan variance 2 ln 2·Q/π (the floor squared), output units²; signed:
+    /// a record that cannot tell a level from zero gives an estimate of either sign.
+    pub flicker_allan_variance: SlowTerm,
+    /// The walk's K² = q·f_s (σ_A(τ)² = K²·τ/3), output units² per s; signed.
+    pub random_walk_k2: SlowTerm,
+    /// The flicker floor √(2 ln 2·Q/π), output units, when its estimate is positive.
+    pub flicker_floor: Option<SlowTerm>,
+    /// The walk K, output units per √s, when its estimate is positive.
+    pub random_walk_per_sqrt_s: Option<SlowTerm>,
+}
+
+impl SlowTerms {
+    /// From the levels (Q, q) per sample at `per_s` samples a second and their standard
+    /// uncertainties; `sensitivity` is the channel's output units per m/s².
+    pub fn new(levels: [f64; 2], u: [f64; 2], per_s: f64, sensitivity: Option<f64>) -> Self {
+        let [q, w] = levels;
+        let [u_q, u_w] = u;
         let per_ug = sensitivity
             .filter(|s| *s > 0.0)
             .map(|s| 1.0 / (s * crate::allan::MICRO_G));
@@ -495,17 +506,83 @@ impl SlowJson {
             })
         };
         let floor2 = crate::allan::powerlaw::FLICKER_ALLAN_PLATEAU;
+        SlowTerms {
+            flicker_allan_variance: linear(floor2 * q, floor2 * u_q, 2),
+            random_walk_k2: linear(w * per_s, u_w * per_s, 2),
+            flicker_floor: root(q, u_q, floor2.sqrt()),
+            random_walk_per_sqrt_s: root(w, u_w, per_s.sqrt()),
+        }
+    }
+}
+
+/// `poses.slow_noise` (`--slow-noise`, static records): each channel's flicker and walk
+/// between the poses (docs/uncertainty.md, "Slow noise between poses").
+#[derive(Clone, Debug, Serialize)]
+pub struct PosesSlowJson {
+    /// The model and how it was estimated.
+    pub model: String,
+    /// The readings' rate the levels are per sample at, Hz.
+    pub rate_hz: f64,
+    /// Per channel u, v, w.
+    pub channels: Vec<PosesSlowChannel>,
+}
+
+/// One channel of `poses.slow_noise`.
+#[derive(Clone, Debug, Serialize)]
+pub struct PosesSlowChannel {
+    /// `u`, `v` or `w`.
+    pub channel: Channel,
+    /// The levels.
+    #[serde(flatten)]
+    pub terms: SlowTerms,
+    /// The correlation of the flicker and walk estimates.
+    pub correlation: f64,
+}
+
+fn poses_slow_json(s: &poses::SlowPoses, sens: [f64; 3]) -> PosesSlowJson {
+    PosesSlowJson {
+        model: "white/AR (the readings' own noise) + flicker (Kasdin 1/f) + bias random walk \
+                in session time; the levels from quadratic forms of the pose residuals with \
+                their exact expectations, unbiased and signed; uncertainties from the forms' \
+                Gaussian covariance"
+            .into(),
+        rate_hz: s.fs,
+        channels: s
+            .channels
+            .iter()
+            .zip(Channel::ALL)
+            .map(|(c, ch)| {
+                let u = [c.cov[0][0], c.cov[1][1]].map(|v| v.max(0.0).sqrt());
+                PosesSlowChannel {
+                    channel: ch,
+                    terms: SlowTerms::new(c.levels, u, s.fs, Some(*ch.of(&sens))),
+                    correlation: c.cov[0][1] / (u[0] * u[1]).max(f64::MIN_POSITIVE),
+                }
+            })
+            .collect(),
+    }
+}
+
+impl SlowJson {
+    /// From a group's slow noise; `sensitivity` is the channel's output units per m/s².
+    pub fn new(s: &crate::calibrate::group::SlowNoise, sensitivity: Option<f64>) -> Self {
+        let fit = &s.fit;
+        let [_, q, w] = fit.theta;
+        let sd = |i: usize| {
+            fit.cov
+                .get(i)
+                .and_then(|r| r.get(i))
+                .map_or(0.0, |v| v.max(0.0).sqrt())
+        };
         let per_s = 1.0 / s.row_interval_s.max(f64::MIN_POSITIVE);
+        let terms = SlowTerms::new([q, w], [sd(1), sd(2)], per_s, sensitivity);
         SlowJson {
             model: "white/AR + flicker (Kasdin 1/f) + bias random walk; the levels fitted to \
                     the residuals' overlapping Allan variances beyond the short-range \
                     correlation, with their exact expectations for the fit, pooled over \
                     the groups; uncertainties by parametric bootstrap"
                 .into(),
-            flicker_allan_variance: linear(floor2 * q, floor2 * sd(1), 2),
-            random_walk_k2: linear(w * per_s, sd(2) * per_s, 2),
-            flicker_floor: root(q, sd(1), floor2.sqrt()),
-            random_walk_per_sqrt_s: root(w, sd(2), per_s.sqrt()),
+            terms,
             dof_amplitude: s.amplitude_dof(),
             residual_allan: s
                 .allan

@@ -16,6 +16,7 @@ use rotacal_shared::intrinsic::{self, IntrinsicError};
 fn pose_options(opts: &Options, inputs: &TypeB) -> poses::Options {
     poses::Options {
         u_angle_rad: inputs.u_angle_deg.map(f64::to_radians),
+        slow: opts.slow_noise,
         ..opts.poses
     }
 }
@@ -49,6 +50,7 @@ pub(super) fn entry(
                     condition: grp.condition,
                     angle_deg: &grp.angle_deg,
                     y: [&grp.u, &grp.v, &grp.w],
+                    t_s: &grp.t_s,
                     first_line: grp.first_line,
                 });
             }
@@ -154,10 +156,15 @@ pub fn static_budget(
     };
     // Each part's variances (the unit tilt's too), computed once.
     let unit = fit.tilt_scale.as_ref().map(|t| &t.unit);
+    let slow_units = fit
+        .slow
+        .iter()
+        .flat_map(|s| s.channels.iter().flat_map(|c| &c.units));
     let cache = fit
         .parts
         .iter()
         .chain(unit)
+        .chain(slow_units)
         .map(|c| Ok((c, forms(c)?)))
         .collect::<Result<Vec<_>, IntrinsicError>>()?;
     // Per quantity, each part's variance.
@@ -219,6 +226,15 @@ pub fn static_budget(
             fit.chi2_dof
                 .map_or("undefined".to_string(), |q| format!("{q:.3}"))
         ),
+        poses::Scatter::Slow => format!(
+            "the least-squares fit of S and O to the pose means (JSON poses) at the weights \
+             of their readings' noise, each channel alone; its variance from that noise and \
+             from flicker and a bias random walk in session time, their levels estimated \
+             from the pose residuals ({}); degrees of freedom by Welch–Satterthwaite from \
+             the readings' Σ(n − 1) and the levels' covariance. The offsets are the bias \
+             averaged over the record's readings (docs/uncertainty.md)",
+            slow_levels(fit)
+        ),
         poses::Scatter::Tilt { sd_deg } => format!(
             "the readings' noise within each pose and a random tilt of each pose off its \
              nominal direction of {sd_deg:.2e}° per axis (standard deviation), estimated so that \
@@ -240,4 +256,28 @@ pub fn static_budget(
     }
     b.combine();
     Ok(b)
+}
+
+/// The slow levels of a pose fit as text: each channel's flicker Q and walk q (output
+/// units² per sample) with their standard uncertainties.
+fn slow_levels(fit: &poses::PoseFit) -> String {
+    let Some(slow) = &fit.slow else {
+        return "none".into();
+    };
+    let sd = |v: f64| v.max(0.0).sqrt();
+    slow.channels
+        .iter()
+        .zip(rotacal_shared::Channel::ALL)
+        .map(|(c, ch)| {
+            format!(
+                "{ch}: Q = {:.3e} ± {:.1e}, q = {:.3e} ± {:.1e} per sample at {:.4} Hz",
+                c.levels[0],
+                sd(c.cov[0][0]),
+                c.levels[1],
+                sd(c.cov[1][1]),
+                slow.fs
+            )
+        })
+        .collect::<Vec<_>>()
+        .join("; ")
 }

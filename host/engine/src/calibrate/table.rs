@@ -20,6 +20,10 @@ fn render_poses(p: &json::PosesJson, units: &str) -> String {
     let scatter = match (p.scatter, p.chi2_dof_joint) {
         (poses::Scatter::None, Some(q)) => format!("{} (joint χ²/dof = {q:.2})", p.scatter),
         (poses::Scatter::None, None) => p.scatter.to_string(),
+        (poses::Scatter::Slow, _) => format!(
+            "{}; the offsets are the bias averaged over the readings",
+            p.scatter
+        ),
         _ => format!("{}: {tau}", p.scatter),
     };
     let _ = writeln!(
@@ -32,10 +36,14 @@ fn render_poses(p: &json::PosesJson, units: &str) -> String {
             p.chi2_dof_joint.is_some() || p.scatter != poses::Scatter::PerChannel
         ) {
             (poses::Weights::Equal, _) => "equal",
+            _ if p.scatter == poses::Scatter::Slow => "1/se² (the readings' own noise)",
             (_, true) => "the inverse of each pose mean's covariance (u, v, w together)",
             (_, false) => "1/(se² + τ²)",
         },
     );
+    if let Some(slow) = &p.slow_noise {
+        o += &render_poses_slow(slow);
+    }
     if let Some(s) = &p.suggestion {
         let _ = writeln!(
             o,
@@ -158,16 +166,11 @@ fn render_noise(n: &[NoiseJson]) -> String {
             }
         );
         if let Some(s) = &x.slow {
-            let level =
-                |t: &crate::calibrate::json::SlowTerm, unit: &str| match (t.value_ug, t.u_ug) {
-                    (Some(v), Some(u)) => format!("{v:.3e} ± {u:.1e} µg{unit}"),
-                    _ => format!("{:.3e} ± {:.1e}", t.value, t.u),
-                };
             let _ = writeln!(
                 o,
                 "      slow: flicker Allan variance {}, random walk K² {}, ν {:.0} for the amplitudes{}",
-                level(&s.flicker_allan_variance, "²"),
-                level(&s.random_walk_k2, "²/s"),
+                slow_level(&s.terms.flicker_allan_variance, "²"),
+                slow_level(&s.terms.random_walk_k2, "²/s"),
                 s.dof_amplitude,
                 s.noise_from.as_ref().map_or(String::new(), |f| format!(
                     "; pooled with {} still rows of {}",
@@ -289,6 +292,33 @@ fn render_free(f: &FreeJson) -> String {
     o
 }
 
+/// A slow level ± its standard uncertainty, in µg (`unit` the power: "²", "²/s") where the
+/// sensitivity gives it, else in output units (unnamed, as the noise lines above).
+fn slow_level(t: &json::SlowTerm, unit: &str) -> String {
+    match (t.value_ug, t.u_ug) {
+        (Some(v), Some(u)) => format!("{v:.3e} ± {u:.1e} µg{unit}"),
+        _ => format!("{:.3e} ± {:.1e}", t.value, t.u),
+    }
+}
+
+/// The slow noise between the poses: each channel's flicker floor and walk, in µg where
+/// the sensitivity gives them, each ± its standard uncertainty.
+fn render_poses_slow(s: &json::PosesSlowJson) -> String {
+    let mut o = String::new();
+    for c in &s.channels {
+        let _ = writeln!(
+            o,
+            "    slow noise {}: flicker Allan variance {}, walk K² {} (ρ = {:.2}; signed \
+             estimates, standard uncertainties)",
+            c.channel,
+            slow_level(&c.terms.flicker_allan_variance, "²"),
+            slow_level(&c.terms.random_walk_k2, "²/s"),
+            c.correlation
+        );
+    }
+    o
+}
+
 /// The pose fit's coverage factor and the degrees of freedom behind it, when it is not
 /// [`json::K`]; else nothing.
 fn render_k(p: &PosesJson) -> String {
@@ -300,6 +330,11 @@ fn render_k(p: &PosesJson) -> String {
                 "the poses' scatter about the model, estimated from {} poses − 4",
                 p.list.len()
             ),
+            poses::Scatter::Slow => {
+                "the readings' scatter within the poses and the slow levels' estimate from \
+                 the pose residuals"
+                    .to_string()
+            }
             _ if p.chi2_dof_joint.is_some() => format!(
                 "the poses' scatter in the joint fit, 3 × {} poses − 12",
                 p.list.len()

@@ -207,6 +207,7 @@ fn a_static_budget_against_its_pose_fit() {
                 first_line: 0,
                 noise: None,
                 angle_direction: None,
+                times_s: Vec::new(),
             }
         })
         .collect();

@@ -101,6 +101,7 @@ fn pose(name: String, gravity: [f64; 3], rows: &[[f64; 3]]) -> Pose {
         first_line: 0,
         noise: None,
         angle_direction: None,
+        times_s: Vec::new(),
     }
 }
 
@@ -374,6 +375,7 @@ fn random_effects_coverage(
             }
             Scatter::None => assert!(f.parts.iter().all(|p| p.source == PartSource::PoseNoise)),
             Scatter::PerChannel => panic!("repeated readings at known directions: {:?}", f.notes),
+            Scatter::Slow => panic!("slow noise modelled without --slow-noise"),
         }
         let (est, u, k) = (estimate(&f), std_unc(&f), f.k_theta());
         for i in 0..12 {

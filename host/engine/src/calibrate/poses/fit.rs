@@ -10,8 +10,8 @@ use super::serial;
 use super::tilt::{bracket, joint_fit};
 use super::weigh::Combined;
 use super::{
-    o_index, ChannelFit, Conditioning, CovPart, OffsetEstimator, Options, PartSource, Pose,
-    PoseError, PoseFit, Serial, Weights, NOT_STILL_FACTOR, SINGULAR, TILT_MAX_RAD,
+    coef_index, o_index, ChannelFit, Conditioning, CovPart, OffsetEstimator, Options, PartSource,
+    Pose, PoseError, PoseFit, Serial, SlowPoses, Weights, NOT_STILL_FACTOR, SINGULAR, TILT_MAX_RAD,
     WELL_CONDITIONED, Z_ALARM,
 };
 use crate::calibrate::budget::coverage_factor;
@@ -177,6 +177,65 @@ impl Problem<'_> {
         })
     }
 
+    /// With `--slow-noise`: each channel at the noise-only weights 1/se², and the slow
+    /// noise between the poses estimated from their residuals. `None` with a note saying
+    /// why where the poses do not allow it.
+    fn slow(&self, notes: &mut Vec<String>) -> Option<(Combined, [ChannelFit; 3])> {
+        let why = if self.opts.weights != Weights::RandomEffects {
+            Some("equal weights take the poses' scatter as it is".to_string())
+        } else if self.opts.offsets != OffsetEstimator::Joint {
+            Some("imucal's axis-pair offsets are not propagated under it".to_string())
+        } else if !self.all_repeated {
+            Some("some pose has a single reading".to_string())
+        } else {
+            None
+        };
+        let slow = match why {
+            Some(w) => Err(w),
+            None => SlowPoses::estimate(self.poses, &self.x, &self.se2, self.noise_dof)
+                .map_err(|e| e.to_string()),
+        };
+        let mut channels = Vec::with_capacity(3);
+        for j in 0..3 {
+            let y: Vec<f64> = self.poses.iter().map(|q| q.mean[j]).collect();
+            let se2: Vec<f64> = self.se2.iter().map(|v| v[j]).collect();
+            let Some((coef, inv, chi2)) = wls(&self.x, &y, &se2) else {
+                break;
+            };
+            channels.push(ChannelFit {
+                coef,
+                cov: std::array::from_fn(|a| std::array::from_fn(|b| inv[(a, b)])),
+                tau: 0.0,
+                chi2_dof_noise_only: chi2 / self.dof.max(1) as f64,
+                nu: self.noise_dof,
+                pose_var: None,
+            });
+        }
+        match (slow, <[ChannelFit; 3]>::try_from(channels)) {
+            (Ok(s), Ok(mut ch)) => {
+                // The readings' own noise less the slow share its model saw.
+                let mut se2 = self.se2.clone();
+                for (j, c) in ch.iter_mut().enumerate() {
+                    if let Some(sc) = s.of(j) {
+                        c.cov = sc.noise_cov;
+                        for (v, own) in se2.iter_mut().zip(&sc.noise_var) {
+                            v[j] = *own;
+                        }
+                    }
+                }
+                Some((Combined::with_slow(&ch, &se2, s), ch))
+            }
+            (Err(why), _) => {
+                notes.push(format!(
+                    "--slow-noise: the slow noise between poses is not modelled, because {why}; \
+                     the poses' scatter beyond their noise is modelled as without the option"
+                ));
+                None
+            }
+            (_, Err(_)) => None,
+        }
+    }
+
     /// One channel's fit to the pose means `y` under the weights 1/(se² + τ²), from its
     /// ordinary least-squares fit `ols`: τ² = 0 when the means agree within their noise,
     /// else the τ² that brings χ² down to its degrees of freedom. Gives the coefficients,
@@ -285,6 +344,15 @@ fn u_angle_note(poses: &[Pose], parts: &[CovPart], opts: Options) -> Option<&'st
             "u_angle_deg was given but the poses are not table angles (it applies to stepped \
              records)",
         )
+    } else if parts
+        .iter()
+        .any(|c| matches!(c.source, PartSource::Slow(_)))
+    {
+        Some(
+            "u_angle_deg was given, but with the slow noise between poses modelled \
+             (--slow-noise) a stated table-angle uncertainty is not propagated yet and is \
+             not counted",
+        )
     } else if !parts.iter().any(|c| c.source == PartSource::TableAngle) {
         Some(
             "u_angle_deg was given, but with each channel's scatter estimated from the poses \
@@ -380,14 +448,34 @@ pub fn fit(poses: Vec<Pose>, g: f64, opts: Options) -> Result<PoseFit, PoseError
     };
     let mut channels = problem.fit_channels()?;
     let mut notes = Vec::new();
-    let fitted = problem.combine(&channels, &mut notes);
+    let slow = if opts.slow {
+        problem.slow(&mut notes)
+    } else {
+        None
+    };
+    let fitted = match slow {
+        Some((fitted, noise_only)) => {
+            channels = noise_only;
+            // Each channel's degrees of freedom: its least certain coefficient's.
+            for (j, c) in channels.iter_mut().enumerate() {
+                c.nu = (0..4)
+                    .map(|a| fitted.var_nu(coef_index(j, a)).1)
+                    .fold(f64::INFINITY, f64::min);
+            }
+            fitted
+        }
+        None => problem.combine(&channels, &mut notes),
+    };
     notes.extend(u_angle_note(&poses, &fitted.parts, opts).map(String::from));
     if fitted.joint {
         fitted.set_joint_channels(&mut channels, p);
     }
     let residuals = residuals(&poses, &problem.x, &channels);
     let serial = problem.serial(&channels);
-    notes.extend(serial_notes(&serial));
+    // With the slow noise modelled, the correlation the serial test looks for is in U.
+    if fitted.slow.is_none() {
+        notes.extend(serial_notes(&serial));
+    }
     let offsets_joint = [0, 1, 2].map(|j| Estimate {
         value: fitted.theta[o_index(j)],
         std_unc: fitted.var_nu(o_index(j)).0.max(0.0).sqrt(),
@@ -400,7 +488,8 @@ pub fn fit(poses: Vec<Pose>, g: f64, opts: Options) -> Result<PoseFit, PoseError
     }
     let axis_poses = axis_poses.ok();
     let weigh = fitted.weighing();
-    let offsets_axis_pairs = axis_poses.map(|ix| {
+    // Under slow noise imucal's offsets would need their own contrast: not given.
+    let offsets_axis_pairs = axis_poses.filter(|_| fitted.slow.is_none()).map(|ix| {
         [0, 1, 2].map(|j| Estimate {
             value: 0.5
                 * ix[j]
@@ -438,6 +527,7 @@ pub fn fit(poses: Vec<Pose>, g: f64, opts: Options) -> Result<PoseFit, PoseError
         axis_poses,
         notes,
         tilt_scale: fitted.tilt_scale,
+        slow: fitted.slow,
     })
 }
 

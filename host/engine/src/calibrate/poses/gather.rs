@@ -102,11 +102,12 @@ pub fn direction_name(g: &[f64; 3]) -> String {
 
 /// The poses of a file with gravity directions: by the `pose` column, else by direction.
 pub fn poses_from_oriented(o: &Oriented) -> Result<Vec<Pose>, PoseError> {
-    // (key, gravity, rows, first line)
-    type Rows = Vec<[f64; 3]>;
-    let mut groups: Vec<(String, [f64; 3], Rows, u64)> = Vec::new();
+    // (key, gravity, rows, first line, times)
+    type Group = (String, [f64; 3], Vec<[f64; 3]>, u64, Vec<f64>);
+    let mut groups: Vec<Group> = Vec::new();
     for (i, (g, y)) in o.gravity.iter().zip(&o.y).enumerate() {
         let line = o.line.get(i).copied().unwrap_or(0);
+        let t = o.t_s.as_ref().and_then(|t| t.get(i).copied());
         // Without names, a pose is one exact direction (named after grouping).
         let key = match &o.pose {
             Some(names) => names.get(i).cloned().unwrap_or_default(),
@@ -122,15 +123,16 @@ pub fn poses_from_oriented(o: &Oriented) -> Result<Vec<Pose>, PoseError> {
                     });
                 }
                 p.2.push(*y);
+                p.4.extend(t);
             }
-            None => groups.push((key, *g, vec![*y], line)),
+            None => groups.push((key, *g, vec![*y], line, t.into_iter().collect())),
         }
     }
     let named = o.pose.is_some();
     let mut names: Vec<String> = Vec::new();
     let mut poses: Vec<(Pose, Vec<[f64; 3]>)> = groups
         .into_iter()
-        .map(|(key, gravity, rows, first_line)| {
+        .map(|(key, gravity, rows, first_line, times_s)| {
             let (mean, std) = mean_std(&rows);
             let noise = pose_noise(&rows, &mean);
             let name = if named {
@@ -155,6 +157,7 @@ pub fn poses_from_oriented(o: &Oriented) -> Result<Vec<Pose>, PoseError> {
                 first_line,
                 noise,
                 angle_direction: None,
+                times_s,
             };
             (pose, rows)
         })
@@ -167,15 +170,21 @@ pub fn poses_from_oriented(o: &Oriented) -> Result<Vec<Pose>, PoseError> {
 pub fn poses_from_conditions(conds: &[StaticCondition<'_>]) -> Vec<Pose> {
     let mut out = Vec::new();
     for g in conds {
-        let mut angles: Vec<(u64, Vec<[f64; 3]>)> = Vec::new();
+        // (angle's bits, readings, their times)
+        type Angle = (u64, Vec<[f64; 3]>, Vec<f64>);
+        let mut angles: Vec<Angle> = Vec::new();
         for (i, a) in g.angle_deg.iter().enumerate() {
             let y = g.y.map(|c| c.get(i).copied().unwrap_or(f64::NAN));
-            match angles.iter_mut().find(|(k, _)| *k == a.to_bits()) {
-                Some((_, rows)) => rows.push(y),
-                None => angles.push((a.to_bits(), vec![y])),
+            let t = g.t_s.get(i).copied();
+            match angles.iter_mut().find(|(k, ..)| *k == a.to_bits()) {
+                Some((_, rows, times)) => {
+                    rows.push(y);
+                    times.extend(t);
+                }
+                None => angles.push((a.to_bits(), vec![y], t.into_iter().collect())),
             }
         }
-        for (bits, rows) in angles {
+        for (bits, rows, times_s) in angles {
             let deg = f64::from_bits(bits);
             let (mean, std) = mean_std(&rows);
             let noise = pose_noise(&rows, &mean);
@@ -191,6 +200,7 @@ pub fn poses_from_conditions(conds: &[StaticCondition<'_>]) -> Vec<Pose> {
                     g.condition
                         .gravity_direction(deg.to_radians() + std::f64::consts::FRAC_PI_2),
                 ),
+                times_s,
             };
             out.push((pose, rows));
         }

@@ -22,6 +22,7 @@
 mod fit;
 mod gather;
 mod serial;
+mod slow;
 mod tilt;
 mod weigh;
 
@@ -29,6 +30,7 @@ pub use fit::fit;
 pub(crate) use fit::weakest;
 pub use gather::{direction_name, poses_from_conditions, poses_from_oriented};
 pub use serial::{Serial, Z_ALARM};
+pub use slow::{SlowChannel, SlowPoses, SlowPosesError, SLOW_MIN_POSES};
 pub(crate) use tilt::bracket;
 pub use weigh::Weighing;
 
@@ -47,6 +49,9 @@ pub struct StaticCondition<'a> {
     pub angle_deg: &'a [f64],
     /// Readings u, v, w of each row.
     pub y: [&'a [f64]; 3],
+    /// Session time of each row, s (empty when the record has none): the slow noise
+    /// between poses is a function of it.
+    pub t_s: &'a [f64],
     /// 1-based file line of the first row (0: not from a file).
     pub first_line: u64,
 }
@@ -76,6 +81,9 @@ pub struct Pose {
     /// ∂ĝ/∂α, the direction ĝ moves in when the table angle α is off (stepped records;
     /// `None` for poses whose orientation is given directly).
     pub angle_direction: Option<[f64; 3]>,
+    /// Session time of each reading, s (empty when the record has none).
+    #[serde(skip)]
+    pub times_s: Vec<f64>,
 }
 
 /// One channel's noise at one pose, from an AR model of its readings about their mean
@@ -147,6 +155,10 @@ pub struct Options {
     /// Standard uncertainty of each table angle, rad (type B, `--u-angle-deg`): stepped
     /// records only.
     pub u_angle_rad: Option<f64>,
+    /// Model flicker and a bias random walk between the poses (`--slow-noise`): records
+    /// with reading times, repeated readings at every pose and the default weights and
+    /// offsets.
+    pub slow: bool,
 }
 
 /// How the scatter of the pose means beyond their own noise is modelled.
@@ -169,6 +181,9 @@ pub enum Scatter {
     /// A variance τ_j² per channel, added to each pose mean's own (single readings, equal
     /// weights, or scatter that no tilt explains).
     PerChannel,
+    /// Flicker and a bias random walk in session time (`--slow-noise`, [`SlowPoses`]):
+    /// the pose means err alike by how close in time they were read.
+    Slow,
 }
 
 impl std::fmt::Display for Scatter {
@@ -180,6 +195,7 @@ impl std::fmt::Display for Scatter {
                 write!(f, "each pose tilted by {sd_deg:.2e}° per axis (estimated)")
             }
             Scatter::PerChannel => f.write_str("between-pose scatter"),
+            Scatter::Slow => f.write_str("slow noise between poses (flicker, random walk)"),
         }
     }
 }
@@ -197,6 +213,9 @@ pub enum PartSource {
     /// Channel j's own fit, its variance from its scatter ([`Scatter::PerChannel`] or
     /// equal weights; type A).
     Channel(usize),
+    /// Channel j's slow noise between poses ([`Scatter::Slow`]; type A, its degrees of
+    /// freedom from the levels' covariance).
+    Slow(usize),
 }
 
 /// One part of the covariance of (S, O): the parts are independent and add up to it.
@@ -343,6 +362,8 @@ pub struct PoseFit {
     /// freedom ([`Weighing`]); `None` when the channels were fitted alone or
     /// there are no degrees of freedom.
     pub tilt_scale: Option<TiltScale>,
+    /// The slow noise between poses, when modelled ([`Scatter::Slow`]).
+    pub slow: Option<SlowPoses>,
 }
 
 /// How visible a tilt is in each quantity and in the joint fit's χ².
@@ -402,6 +423,7 @@ impl PoseFit {
         Weighing {
             parts: &self.parts,
             tilt: self.tilt_scale.as_ref(),
+            slow: self.slow.as_ref(),
         }
     }
 

@@ -5,7 +5,8 @@
 
 use super::tilt::Gls;
 use super::{
-    coef_index, join_coefs, split_coefs, ChannelFit, Cov12, CovPart, PartSource, Scatter, TiltScale,
+    coef_index, join_coefs, split_coefs, ChannelFit, Cov12, CovPart, PartSource, Scatter,
+    SlowPoses, TiltScale,
 };
 use crate::calibrate::budget::welch_satterthwaite;
 use nalgebra::{Matrix3, Vector3};
@@ -30,6 +31,7 @@ use rotacal_shared::Channel;
 pub struct Weighing<'a> {
     pub(super) parts: &'a [CovPart],
     pub(super) tilt: Option<&'a TiltScale>,
+    pub(super) slow: Option<&'a SlowPoses>,
 }
 
 impl Weighing<'_> {
@@ -49,7 +51,12 @@ impl Weighing<'_> {
                 .filter(|c| c.source != PartSource::TableAngle)
                 .map(|c| {
                     let x = of(c);
-                    (x, x * x / c.nu)
+                    match (c.source, self.slow) {
+                        // A slow part's variance is a·Q + b·q: its own variance is the
+                        // levels' covariance through (a, b).
+                        (PartSource::Slow(j), Some(s)) => (x, s.var_of_var(j, &of)),
+                        _ => (x, x * x / c.nu),
+                    }
                 })
                 .fold((0.0, 0.0), |(v, d), (x, y)| (v + x, d + y));
             return (var, welch_satterthwaite(var, denom));
@@ -141,6 +148,8 @@ pub(super) struct Combined {
     pub(super) tilt_scale: Option<TiltScale>,
     /// Fitted jointly (else each channel alone).
     pub(super) joint: bool,
+    /// The slow noise between poses, when modelled.
+    pub(super) slow: Option<SlowPoses>,
 }
 
 impl Combined {
@@ -173,6 +182,7 @@ impl Combined {
             chi2_dof,
             tilt_scale,
             joint: true,
+            slow: None,
         }
     }
 
@@ -193,6 +203,30 @@ impl Combined {
             chi2_dof: None,
             tilt_scale: None,
             joint: false,
+            slow: None,
+        }
+    }
+
+    /// From each channel's fit at the noise-only weights, with the slow noise between the
+    /// poses ([`SlowPoses`]) as a part of each channel's covariance.
+    pub(super) fn with_slow(
+        channels: &[ChannelFit; 3],
+        se2: &[[f64; 3]],
+        slow: SlowPoses,
+    ) -> Combined {
+        let mut parts = per_channel_parts(channels, se2);
+        let noise = sum_of(&parts);
+        parts.extend((0..3).filter_map(|j| slow.part(j, &noise)));
+        let theta = join_coefs(channels.each_ref().map(|c| c.coef));
+        Combined {
+            theta,
+            cov: sum_of(&parts),
+            parts,
+            scatter: Scatter::Slow,
+            chi2_dof: None,
+            tilt_scale: None,
+            joint: false,
+            slow: Some(slow),
         }
     }
 
@@ -201,6 +235,7 @@ impl Combined {
         Weighing {
             parts: &self.parts,
             tilt: self.tilt_scale.as_ref(),
+            slow: self.slow.as_ref(),
         }
     }
 
