@@ -226,15 +226,14 @@ pub fn static_budget(
             fit.chi2_dof
                 .map_or("undefined".to_string(), |q| format!("{q:.3}"))
         ),
-        poses::Scatter::Slow => format!(
-            "the least-squares fit of S and O to the pose means (JSON poses) at the weights \
-             of their readings' noise, each channel alone; its variance from that noise and \
-             from flicker and a bias random walk in session time, their levels estimated \
-             from the pose residuals ({}); degrees of freedom by Welch–Satterthwaite from \
-             the readings' Σ(n − 1) and the levels' covariance. The offsets are the bias \
-             averaged over the record's readings (docs/uncertainty.md)",
-            slow_levels(fit)
-        ),
+        poses::Scatter::Slow => "the least-squares fit of S and O to the pose means (JSON \
+             poses) at the weights of their readings' noise, each channel alone; its variance \
+             from that noise and from flicker and a bias random walk in session time, their \
+             levels estimated from the pose residuals (JSON poses.slow_noise); degrees of \
+             freedom by Welch–Satterthwaite from the readings' Σ(n − 1) and the levels' \
+             covariance. The offsets are the bias averaged over the record's readings \
+             (docs/uncertainty.md)"
+            .to_string(),
         poses::Scatter::Tilt { sd_deg } => format!(
             "the readings' noise within each pose and a random tilt of each pose off its \
              nominal direction of {sd_deg:.2e}° per axis (standard deviation), estimated so that \
@@ -256,28 +255,4 @@ pub fn static_budget(
     }
     b.combine();
     Ok(b)
-}
-
-/// The slow levels of a pose fit as text: each channel's flicker Q and walk q (output
-/// units² per sample) with their standard uncertainties.
-fn slow_levels(fit: &poses::PoseFit) -> String {
-    let Some(slow) = &fit.slow else {
-        return "none".into();
-    };
-    let sd = |v: f64| v.max(0.0).sqrt();
-    slow.channels
-        .iter()
-        .zip(rotacal_shared::Channel::ALL)
-        .map(|(c, ch)| {
-            format!(
-                "{ch}: Q = {:.3e} ± {:.1e}, q = {:.3e} ± {:.1e} per sample at {:.4} Hz",
-                c.levels[0],
-                sd(c.cov[0][0]),
-                c.levels[1],
-                sd(c.cov[1][1]),
-                slow.fs
-            )
-        })
-        .collect::<Vec<_>>()
-        .join("; ")
 }

@@ -130,7 +130,6 @@ impl Simulation {
                 for (a, b) in slow_sum.iter_mut().zip(slow) {
                     *a += b;
                 }
-                sum.slow_mean = slow_sum.map(|a| a / sum.rows as f64);
                 sink(row)
             };
         match c.method {
@@ -207,6 +206,9 @@ impl Simulation {
             }
         }
         sum.duration_s = (t0 - c.timing.gap_s).max(0.0);
+        if sum.rows > 0 {
+            sum.slow_mean = slow_sum.map(|a| a / sum.rows as f64);
+        }
         Ok(sum)
     }
 

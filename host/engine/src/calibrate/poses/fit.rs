@@ -55,7 +55,7 @@ fn conditioning(poses: &[Pose]) -> (f64, String) {
 }
 
 /// Weighted fit of one channel with variances `var` (all > 0, or all equal).
-fn wls(x: &[[f64; 4]], y: &[f64], var: &[f64]) -> Option<([f64; 4], Matrix4<f64>, f64)> {
+pub(super) fn wls(x: &[[f64; 4]], y: &[f64], var: &[f64]) -> Option<([f64; 4], Matrix4<f64>, f64)> {
     let mut m = Matrix4::zeros();
     let mut b = Vector4::zeros();
     for ((row, yi), v) in x.iter().zip(y).zip(var) {
@@ -195,44 +195,28 @@ impl Problem<'_> {
             None => SlowPoses::estimate(self.poses, &self.x, &self.se2, self.noise_dof)
                 .map_err(|e| e.to_string()),
         };
-        let mut channels = Vec::with_capacity(3);
-        for j in 0..3 {
-            let y: Vec<f64> = self.poses.iter().map(|q| q.mean[j]).collect();
-            let se2: Vec<f64> = self.se2.iter().map(|v| v[j]).collect();
-            let Some((coef, inv, chi2)) = wls(&self.x, &y, &se2) else {
-                break;
-            };
-            channels.push(ChannelFit {
-                coef,
-                cov: std::array::from_fn(|a| std::array::from_fn(|b| inv[(a, b)])),
-                tau: 0.0,
-                chi2_dof_noise_only: chi2 / self.dof.max(1) as f64,
-                nu: self.noise_dof,
-                pose_var: None,
-            });
-        }
-        match (slow, <[ChannelFit; 3]>::try_from(channels)) {
-            (Ok(s), Ok(mut ch)) => {
-                // The readings' own noise less the slow share its model saw.
+        match slow {
+            Ok(s) => {
+                // Each channel at the noise-only weights, its pose means' own variances less
+                // the slow share their readings' model saw.
                 let mut se2 = self.se2.clone();
-                for (j, c) in ch.iter_mut().enumerate() {
-                    if let Some(sc) = s.of(j) {
-                        c.cov = sc.noise_cov;
-                        for (v, own) in se2.iter_mut().zip(&sc.noise_var) {
-                            v[j] = *own;
-                        }
+                let mut channels = Vec::with_capacity(3);
+                for c in &s.channels {
+                    channels.push(c.fit);
+                    for (v, own) in se2.iter_mut().zip(&c.noise_var) {
+                        v[c.channel] = *own;
                     }
                 }
+                let ch = <[ChannelFit; 3]>::try_from(channels).ok()?;
                 Some((Combined::with_slow(&ch, &se2, s), ch))
             }
-            (Err(why), _) => {
+            Err(why) => {
                 notes.push(format!(
                     "--slow-noise: the slow noise between poses is not modelled, because {why}; \
                      the poses' scatter beyond their noise is modelled as without the option"
                 ));
                 None
             }
-            (_, Err(_)) => None,
         }
     }
 

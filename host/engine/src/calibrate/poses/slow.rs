@@ -26,16 +26,15 @@
 // Not yet free of unchecked indexing (docs/architecture.md, "Not yet").
 #![allow(clippy::indexing_slicing)]
 
-use super::{coef_index, Cov12, CovPart, PartSource, Pose};
+use super::fit::wls;
+use super::{coef_index, ChannelFit, Cov12, CovPart, PartSource, Pose};
 use crate::allan::powerlaw::flicker_structure;
+use crate::calibrate::still::median;
 use nalgebra::{DMatrix, Matrix2, Matrix3, Vector2};
 
 /// Poses a slow-noise fit needs: 4 coefficients and 2 levels per channel leave P − 6
 /// residual degrees of freedom, and the levels need some of them.
 pub const SLOW_MIN_POSES: usize = 12;
-
-/// The flicker structure function's values are tabulated below this lag (samples).
-const TABLE: usize = 4096;
 
 /// One channel's slow levels between poses.
 #[derive(Clone, Debug, PartialEq)]
@@ -48,9 +47,9 @@ pub struct SlowChannel {
     pub cov: [[f64; 2]; 2],
     /// The covariance of (S, O) each level gives at 1 (flicker, walk).
     pub units: [CovPart; 2],
-    /// The covariance of (S_j0, S_j1, S_j2, O_j) from the readings' own noise, less the
-    /// slow share their noise model saw.
-    pub noise_cov: [[f64; 4]; 4],
+    /// The channel's fit at the noise-only weights 1/se²: its coefficients, and their
+    /// covariance from the readings' own noise less the slow share their model saw.
+    pub fit: ChannelFit,
     /// Each pose mean's variance from its readings' own noise, less that share.
     pub noise_var: Vec<f64>,
 }
@@ -94,21 +93,13 @@ fn rate(poses: &[Pose]) -> Option<f64> {
         .flat_map(|p| p.times_s.windows(2).map(|w| w[1] - w[0]))
         .filter(|d| *d > 0.0 && d.is_finite())
         .collect();
-    dt.sort_by(f64::total_cmp);
-    let mid = *dt.get(dt.len() / 2)?;
-    Some(1.0 / mid)
+    let mid = median(&mut dt);
+    (mid > 0.0).then(|| 1.0 / mid)
 }
 
 /// G_f and G_w: each pair of pose means' generalised covariance at unit levels,
 /// −½·D(|s − t|) averaged over their readings (lags rounded to samples at `fs`).
 fn generalised(poses: &[Pose], fs: f64) -> [DMatrix<f64>; 2] {
-    let table: Vec<f64> = (0..TABLE as u64).map(flicker_structure).collect();
-    let flicker = |k: u64| {
-        usize::try_from(k)
-            .ok()
-            .and_then(|i| table.get(i).copied())
-            .unwrap_or_else(|| flicker_structure(k))
-    };
     let p = poses.len();
     let (mut gf, mut gw) = (DMatrix::zeros(p, p), DMatrix::zeros(p, p));
     for i in 0..p {
@@ -118,7 +109,7 @@ fn generalised(poses: &[Pose], fs: f64) -> [DMatrix<f64>; 2] {
             for s in a {
                 for t in b {
                     let k = ((s - t).abs() * fs).round() as u64;
-                    sf += flicker(k);
+                    sf += flicker_structure(k);
                     sw += k as f64;
                 }
             }
@@ -133,8 +124,8 @@ fn generalised(poses: &[Pose], fs: f64) -> [DMatrix<f64>; 2] {
     [gf, gw]
 }
 
-/// tr(A·B) for symmetric A, B.
-fn tr_sym(a: &DMatrix<f64>, b: &DMatrix<f64>) -> f64 {
+/// tr(A·Bᵀ), which is tr(A·B) for a symmetric B.
+fn tr_abt(a: &DMatrix<f64>, b: &DMatrix<f64>) -> f64 {
     a.component_mul(b).sum()
 }
 
@@ -161,7 +152,15 @@ impl SlowPoses {
         // The measurand's weights: the offset is the bias averaged over every reading.
         let total: f64 = poses.iter().map(|q| q.n as f64).sum();
         let m = DMatrix::from_fn(1, p, |_, i| poses[i].n as f64 / total);
-        let n: Vec<f64> = poses.iter().map(|q| q.n as f64).collect();
+        // Each pose's slow share of its readings' s² per unit level: −n/(n − 1)·G_ii.
+        let within: Vec<[f64; 2]> = poses
+            .iter()
+            .enumerate()
+            .map(|(i, q)| {
+                let f = -(q.n as f64) / (q.n as f64 - 1.0).max(1.0);
+                [f * g[0][(i, i)], f * g[1][(i, i)]]
+            })
+            .collect();
         let mut channels = Vec::with_capacity(3);
         for j in 0..3 {
             let d: Vec<f64> = se2.iter().map(|v| v[j]).collect();
@@ -173,13 +172,18 @@ impl SlowPoses {
                 .filter_map(|q| q.std.map(|s| s[j] * s[j]))
                 .sum::<f64>()
                 / p as f64;
+            let y: Vec<f64> = poses.iter().map(|q| q.mean[j]).collect();
+            // The noise-only fit as the pose fit makes it.
+            let fit = wls(x, &y, &d).ok_or(SlowPosesError::Singular)?;
             let data = ChannelData {
                 x: &xm,
-                y: DMatrix::from_fn(p, 1, |i, _| poses[i].mean[j]),
+                y: DMatrix::from_column_slice(p, 1, &y),
+                fit,
                 d,
                 s2,
+                within: &within,
             };
-            channels.push(channel(j, &data, &g, &m, &n, noise_dof)?);
+            channels.push(channel(j, &data, &g, &m, noise_dof)?);
         }
         Ok(SlowPoses { fs, channels })
     }
@@ -206,11 +210,8 @@ impl SlowPoses {
         Some(CovPart {
             source: PartSource::Slow(j),
             theta,
-            pose_cov: c.units[0]
-                .pose_cov
-                .iter()
-                .map(|_| Matrix3::zeros())
-                .collect(),
+            // Zeros: a generalised covariance has no variance of one pose mean.
+            pose_cov: c.units[0].pose_cov.clone(),
             nu: f64::INFINITY,
         })
     }
@@ -226,14 +227,18 @@ impl SlowPoses {
 }
 
 /// One channel's pose data: the design, the means, and each mean's own variance with
-/// its readings' sample variance.
+/// its readings' sample variance and the slow share of it.
 struct ChannelData<'a> {
     x: &'a DMatrix<f64>,
     y: DMatrix<f64>,
+    /// The pose fit's own fit at the weights 1/se² ([`wls`]): coefficients, (XᵀWX)⁻¹, χ².
+    fit: ([f64; 4], nalgebra::Matrix4<f64>, f64),
     /// se², from the readings' noise model.
     d: Vec<f64>,
     /// The readings' sample variance, pooled over the poses.
     s2: f64,
+    /// Each pose's slow share of s² per unit level (flicker, walk).
+    within: &'a [[f64; 2]],
 }
 
 /// One channel's levels and unit parts.
@@ -248,7 +253,6 @@ fn channel(
     data: &ChannelData<'_>,
     g: &[DMatrix<f64>; 2],
     m: &DMatrix<f64>,
-    n: &[f64],
     noise_dof: f64,
 ) -> Result<SlowChannel, SlowPosesError> {
     let (x, y, d) = (data.x, &data.y, &data.d);
@@ -258,12 +262,14 @@ fn channel(
         d.iter().map(|v| 1.0 / v),
     ));
     let wx = &w * x;
+    let (coef, _, chi2) = data.fit;
     let inv = (x.transpose() * &wx)
         .try_inverse()
         .ok_or(SlowPosesError::Singular)?;
-    // The estimator's weights (rows S_j0, S_j1, S_j2, O_j), the offset's less the
-    // measurand's: every row a contrast.
-    let mut l = &inv * wx.transpose();
+    // The estimator's weights (rows S_j0, S_j1, S_j2, O_j); in `l` the offset's less the
+    // measurand's, which makes every row a contrast.
+    let lo = &inv * wx.transpose();
+    let mut l = lo.clone();
     for i in 0..p {
         l[(3, i)] -= m[(0, i)];
     }
@@ -271,7 +277,7 @@ fn channel(
     let z = &r * y;
     let rgr = [&r * &g[0] * &r, &r * &g[1] * &r];
     // E[zᵀG_k z] = tr(RG_kR·D) + Σ_l θ_l·tr(RG_kR·G_l).
-    let a = Matrix2::from_fn(|k, l| tr_sym(&rgr[k], &g[l]));
+    let a = Matrix2::from_fn(|k, l| tr_abt(&rgr[k], &g[l]));
     let qk = Vector2::from_fn(|k, _| (z.transpose() * &g[k] * &z)[(0, 0)]);
     // Flicker and walk must be told apart: a singular or near-singular system is refused.
     let scale = a[(0, 0)].abs() * a[(1, 1)].abs();
@@ -279,23 +285,16 @@ fn channel(
         return Err(SlowPosesError::Confounded);
     }
     let a_inv = a.try_inverse().ok_or(SlowPosesError::Confounded)?;
-    // Each pose's slow share of s² per unit level.
-    let within: Vec<[f64; 2]> = (0..p)
-        .map(|i| {
-            let f = -n[i] / (n[i] - 1.0).max(1.0);
-            [f * g[0][(i, i)], f * g[1][(i, i)]]
-        })
-        .collect();
     let mut theta = Vector2::zeros();
     let mut own = d.clone();
     let mut dk = Vector2::zeros();
     for _ in 0..3 {
         let dm = DMatrix::from_diagonal(&nalgebra::DVector::from_column_slice(&own));
-        dk = Vector2::from_fn(|k, _| tr_sym(&rgr[k], &dm));
+        dk = Vector2::from_fn(|k, _| tr_abt(&rgr[k], &dm));
         theta = a_inv * (qk - dk);
         own = d
             .iter()
-            .zip(&within)
+            .zip(data.within)
             .map(|(di, e)| {
                 let share = (theta[0] * e[0] + theta[1] * e[1]) / data.s2;
                 di * (1.0 - share).clamp(0.1, 2.0)
@@ -329,14 +328,20 @@ fn channel(
         nu: f64::INFINITY,
     };
     // The readings' own noise through the fit, at D less the slow share.
-    let lo = &inv * wx.transpose();
     let noise = &lo * &dm * lo.transpose();
     Ok(SlowChannel {
         channel: j,
         levels: [theta[0], theta[1]],
         cov: [[ct[(0, 0)], ct[(0, 1)]], [ct[(1, 0)], ct[(1, 1)]]],
         units: [unit(&g[0]), unit(&g[1])],
-        noise_cov: std::array::from_fn(|a| std::array::from_fn(|b| noise[(a, b)])),
+        fit: ChannelFit {
+            coef,
+            cov: std::array::from_fn(|a| std::array::from_fn(|b| noise[(a, b)])),
+            tau: 0.0,
+            chi2_dof_noise_only: chi2 / p.saturating_sub(4).max(1) as f64,
+            nu: noise_dof,
+            pose_var: None,
+        },
         noise_var: own,
     })
 }
@@ -361,7 +366,7 @@ fn levels_cov(
         .map(|gk| b.iter().map(|ba| gk * ba).collect())
         .collect();
     let t = |a: usize, c: usize| {
-        Matrix2::from_fn(|k, l| 2.0 * tr_sym(&gb[k][a], &gb[l][c].transpose()))
+        Matrix2::from_fn(|k, l| 2.0 * tr_abt(&gb[k][a], &gb[l][c].transpose()))
     };
     let terms: Vec<Vec<Matrix2<f64>>> = (0..3).map(|a| (0..3).map(|c| t(a, c)).collect()).collect();
     // Cov(θ̂) for the moments m_ac = E[θ_a·θ_c] (θ_0 = 1).
