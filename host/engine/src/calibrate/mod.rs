@@ -38,6 +38,11 @@ pub mod still;
 pub mod stream;
 pub mod table;
 
+/// Readings a pose or a still interval needs for a noise model of its own; shorter poses
+/// share one pooled over them. (A model's correction for the mean taken out needs N well
+/// above the noise's correlation time.)
+pub const NOISE_MODEL_MIN: usize = 100;
+
 pub(crate) use error::err;
 pub use error::{CalibrateError, CalibrateErrorKind, GroupError, RateError};
 pub use free_method::{detection_summary, segments, Segment};

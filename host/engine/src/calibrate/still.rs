@@ -378,7 +378,7 @@ fn interval(
     let mut std_err = std.map(|s| s / m.sqrt());
     let mut verdict = Verdict::Kept;
     let mut tested = [None; 3];
-    if n >= crate::calibrate::poses::NOISE_MODEL_MIN {
+    if n >= super::NOISE_MODEL_MIN {
         // A line through each channel: its residuals give the noise model, its slope the
         // change over the interval.
         let h = line_design(times);

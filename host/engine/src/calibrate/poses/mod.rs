@@ -101,10 +101,7 @@ pub struct PoseNoise {
     pub n_eff: f64,
 }
 
-/// Readings a pose needs for a noise model of its own; shorter poses share one pooled over
-/// them. (A model's correction for the mean taken out needs N well above the noise's
-/// correlation time.)
-pub const NOISE_MODEL_MIN: usize = 100;
+pub use super::NOISE_MODEL_MIN;
 
 impl Pose {
     /// Standard error of the mean, per channel: under the readings' noise model where
