@@ -222,7 +222,7 @@ pub fn static_budget(
             "the readings' noise within each pose (JSON poses) through the joint fit of S and \
              O; no tilt estimated (joint χ²/dof = {}), so each quantity's share that a tilt \
              would move is scaled by χ²/dof with 3P − 12 degrees of freedom, the rest keeps \
-             the readings' Σ(n − 1) (docs/uncertainty.md)",
+             the readings' (JSON poses.list[].noise[].dof; docs/uncertainty.md)",
             fit.chi2_dof
                 .map_or("undefined".to_string(), |q| format!("{q:.3}"))
         ),
@@ -230,16 +230,16 @@ pub fn static_budget(
              poses) at the weights of their readings' noise, each channel alone; its variance \
              from that noise and from flicker and a bias random walk in session time, their \
              levels estimated from the pose residuals (JSON poses.slow_noise); degrees of \
-             freedom by Welch–Satterthwaite from the readings' Σ(n − 1) and the levels' \
-             covariance. The offsets are the bias averaged over the record's readings \
+             freedom by Welch–Satterthwaite from the readings' (JSON poses.list[].noise[].dof) \
+             and the levels' covariance. The offsets are the bias averaged over the record's readings \
              (docs/uncertainty.md)"
             .to_string(),
         poses::Scatter::Tilt { sd_deg } => format!(
             "the readings' noise within each pose and a random tilt of each pose off its \
              nominal direction of {sd_deg:.2e}° per axis (standard deviation), estimated so that \
              the joint fit's χ² equals its 3P − 12 degrees of freedom; degrees of freedom \
-             between those and the readings' Σ(n − 1) by how much a tilt moves each quantity \
-             (docs/uncertainty.md)"
+             between those and the readings' (JSON poses.list[].noise[].dof) by how much a \
+             tilt moves each quantity (docs/uncertainty.md)"
         ),
     };
     b.vector("poses", Kind::A, description, &contribution, &dof);

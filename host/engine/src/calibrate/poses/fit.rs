@@ -11,8 +11,8 @@ use super::tilt::{bracket, joint_fit};
 use super::weigh::Combined;
 use super::{
     coef_index, o_index, ChannelFit, Conditioning, CovPart, OffsetEstimator, Options, PartSource,
-    Pose, PoseError, PoseFit, Serial, SlowPoses, Weights, NOT_STILL_FACTOR, SINGULAR, TILT_MAX_RAD,
-    WELL_CONDITIONED, Z_ALARM,
+    Pose, PoseError, PoseFit, Serial, SlowPoses, Weights, NOISE_MODEL_MIN, NOT_STILL_FACTOR,
+    SINGULAR, TILT_MAX_RAD, WELL_CONDITIONED, Z_ALARM,
 };
 use crate::calibrate::budget::coverage_factor;
 use nalgebra::{DMatrix, DVector, Matrix4, Vector4};
@@ -88,7 +88,7 @@ struct Problem<'a> {
     se2: Vec<[f64; 3]>,
     /// P − 4.
     dof: usize,
-    /// Σ(n − 1) over the poses: the degrees of freedom of their noise.
+    /// The degrees of freedom of the poses' own noise ([`noise_dof`]).
     noise_dof: f64,
     /// Every pose has repeated readings.
     all_repeated: bool,
@@ -319,6 +319,28 @@ fn pose_se2(poses: &[Pose]) -> Vec<[f64; 3]> {
     se2
 }
 
+/// The degrees of freedom of the pose means' own variances: Σ(n − 1) over the poses with
+/// a noise model of their own (or std/√n), plus a pooled model's own once (the jackknife's,
+/// [`PoseNoise::dof`]), the least over the channels.
+fn noise_dof(poses: &[Pose]) -> f64 {
+    let pooled = |q: &Pose| q.n < NOISE_MODEL_MIN && q.noise.is_some();
+    (0..3)
+        .map(|j| {
+            let own: f64 = poses
+                .iter()
+                .filter(|q| !pooled(q) || q.noise.is_some_and(|m| m[j].is_none()))
+                .map(|q| q.n.saturating_sub(1) as f64)
+                .sum();
+            let shared = poses
+                .iter()
+                .filter(|q| pooled(q))
+                .find_map(|q| q.noise.and_then(|m| m[j]))
+                .map_or(0.0, |m| m.dof);
+            own + shared
+        })
+        .fold(f64::INFINITY, f64::min)
+}
+
 /// Why a stated table-angle uncertainty was not counted, when it was given and not.
 fn u_angle_note(poses: &[Pose], parts: &[CovPart], opts: Options) -> Option<&'static str> {
     // Nothing to say when none was given.
@@ -425,7 +447,7 @@ pub fn fit(poses: Vec<Pose>, g: f64, opts: Options) -> Result<PoseFit, PoseError
         x,
         se2: pose_se2(&poses),
         dof,
-        noise_dof: poses.iter().map(|q| q.n.saturating_sub(1) as f64).sum(),
+        noise_dof: noise_dof(&poses),
         all_repeated,
         cond,
         suggestion: &suggestion,

@@ -2,6 +2,7 @@
 //! pose mean, with its standard error from the readings' own noise.
 
 use super::{Pose, PoseError, PoseNoise, StaticCondition, NOISE_MODEL_MIN};
+use crate::calibrate::still::median;
 use crate::recording::Oriented;
 use rotacal_shared::Channel;
 
@@ -25,6 +26,7 @@ fn pose_noise(rows: &[[f64; 3]], mean: &[f64; 3]) -> Option<[Option<PoseNoise>; 
             order: m.order(),
             se: var.max(0.0).sqrt(),
             n_eff: m.var / var,
+            dof: rows.len().saturating_sub(1) as f64,
         })
     }))
 }
@@ -43,7 +45,23 @@ fn pool_short_poses(poses: &mut [(Pose, Vec<[f64; 3]>)]) {
             .map(|(p, rows)| rows.iter().map(|r| j.of(r) - j.of(&p.mean)).collect())
             .collect();
         let records: Vec<&[f64]> = resid.iter().map(Vec::as_slice).collect();
-        crate::fit::noise::NoiseModel::pooled_about_means(&records).ok()
+        let model = crate::fit::noise::NoiseModel::pooled_about_means(&records).ok()?;
+        // Its degrees of freedom at the poses' median length.
+        let lengths: Vec<usize> = records.iter().map(|r| r.len()).collect();
+        let n = median(&mut lengths.iter().map(|&l| l as f64).collect::<Vec<_>>()).round() as usize;
+        let ceiling = records
+            .iter()
+            .map(|r| r.len().saturating_sub(1))
+            .sum::<usize>() as f64;
+        // Repeatable: seeded by the channel and the readings.
+        let seed = records
+            .iter()
+            .flat_map(|r| r.iter())
+            .fold(j as u64, |h, v| h.rotate_left(7) ^ v.to_bits());
+        let dof = model
+            .pooled_mean_variance_dof(&lengths, n, seed)
+            .map_or(ceiling, |d| d.min(ceiling));
+        Some((model, dof))
     });
     if models.iter().all(Option::is_none) {
         return;
@@ -51,13 +69,14 @@ fn pool_short_poses(poses: &mut [(Pose, Vec<[f64; 3]>)]) {
     for (pose, _) in poses.iter_mut().filter(|(p, _)| short(p)) {
         let n = pose.n;
         pose.noise = Some(Channel::ALL.map(|j| {
-            let m = j.of(&models).as_ref()?;
+            let (m, dof) = j.of(&models).as_ref()?;
             let var = m.mean_variance(n).ok()?;
             Some(PoseNoise {
                 lag1: m.autocorrelation(1),
                 order: m.order(),
                 se: var.max(0.0).sqrt(),
                 n_eff: m.var / var,
+                dof: *dof,
             })
         }));
     }

@@ -99,6 +99,10 @@ pub struct PoseNoise {
     /// Effective number of independent readings: the model's variance of one reading over
     /// the mean's (close to std²/se²).
     pub n_eff: f64,
+    /// Degrees of freedom of se²: n − 1 for a pose's own model; for a pooled model, from
+    /// the jackknife of its mean variance over the poses it was pooled from (at most their
+    /// Σ(n − 1)).
+    pub dof: f64,
 }
 
 pub use super::NOISE_MODEL_MIN;
@@ -201,7 +205,8 @@ impl std::fmt::Display for Scatter {
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum PartSource {
-    /// The readings' noise within each pose (type A, Σ(n − 1) degrees of freedom).
+    /// The readings' noise within each pose (type A, with the degrees of freedom of the
+    /// poses' noise models: Σ(n − 1), a pooled model's from its jackknife).
     PoseNoise,
     /// The poses' tilt ([`Scatter::Tilt`]; type A, 3P − 12 degrees of freedom).
     PoseTilt,

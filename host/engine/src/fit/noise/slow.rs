@@ -609,7 +609,7 @@ fn column_differences(prefixes: &[Vec<f64>], m: usize) -> Vec<DVector<f64>> {
 }
 
 /// `n` samples of the AR model at `scale` times its variance, after a burn-in.
-fn draw_ar(m: &NoiseModel, scale: f64, n: usize, rng: &mut ChaCha8Rng) -> Vec<f64> {
+pub(crate) fn draw_ar(m: &NoiseModel, scale: f64, n: usize, rng: &mut ChaCha8Rng) -> Vec<f64> {
     const BURN_IN: usize = 2000;
     let sd = (m.innovation_var * scale.max(0.0)).sqrt();
     let p = m.order();
