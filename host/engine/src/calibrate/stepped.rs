@@ -156,10 +156,11 @@ pub fn static_budget(
     };
     // Each part's variances (the unit tilt's too), computed once.
     let unit = fit.tilt_scale.as_ref().map(|t| &t.unit);
-    let slow_units = fit
-        .slow
-        .iter()
-        .flat_map(|s| s.channels.iter().flat_map(|c| &c.units));
+    let slow_units = fit.slow.iter().flat_map(|s| {
+        s.channels
+            .iter()
+            .flat_map(|c| c.units.iter().chain(&c.noise_slope))
+    });
     let cache = fit
         .parts
         .iter()

@@ -390,14 +390,16 @@ impl PoseFit {
         s_block(&self.cov)
     }
 
-    /// One part's variance of each offset of the chosen estimator.
+    /// One part's variance of each offset of the chosen estimator. Signed, as the parts of
+    /// S are: a slow part at signed levels, or how a part moves with the levels, may be
+    /// negative where the sum of the parts is not.
     pub fn offset_var(&self, part: &CovPart) -> [f64; 3] {
         match (self.options.offsets, self.axis_poses) {
             (OffsetEstimator::AxisPairs, Some(ix)) => [0, 1, 2].map(|j| axis_pair_var(part, ix, j)),
             _ => {
                 // The offsets O_u, O_v, O_w are the last three of (S row-major, O).
                 let [.., u, v, w]: [f64; 12] = part.theta.diagonal().into();
-                [u, v, w].map(|x| x.max(0.0))
+                [u, v, w]
             }
         }
     }

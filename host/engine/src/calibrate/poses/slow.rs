@@ -20,9 +20,11 @@
 //!   noise model also saw ([`channel`]).
 //! - **Their covariance** is that of Gaussian quadratic forms, 2·tr(G_k·RVR·G_l·RVR), a
 //!   quadratic in the levels, solved for without the plug-in's bias ([`levels_cov`]), with
-//!   D's own estimate (ν = Σ(n − 1)) added.
-//! - **Degrees of freedom.** A quantity's slow variance a·Q + b·q has Var = (a, b)·Cov·(a, b)ᵀ,
-//!   which enters its Welch–Satterthwaite sum ([`super::Weighing`]).
+//!   D's own estimate added (its ν, the poses' noise models').
+//! - **Degrees of freedom.** A channel's share of a quantity's variance, its noise part
+//!   and its slow part a·Q + b·q, is one term: the levels and D come from the same
+//!   residuals, so D's error moves the two against each other ([`SlowPoses::var_of_var`]),
+//!   and it enters the Welch–Satterthwaite sum as one ([`super::Weighing`]).
 // Not yet free of unchecked indexing (docs/architecture.md, "Not yet").
 #![allow(clippy::indexing_slicing)]
 
@@ -45,8 +47,19 @@ pub struct SlowChannel {
     pub levels: [f64; 2],
     /// Their covariance.
     pub cov: [[f64; 2]; 2],
+    /// Their covariance from the quadratic forms alone, without D's own estimate.
+    pub cov_forms: [[f64; 2]; 2],
+    /// How the levels move per unit relative error of D: −A⁻¹·d. The readings' noise part
+    /// and the levels come from one D, so its error moves them against each other.
+    pub d_shift: [f64; 2],
+    /// D's degrees of freedom.
+    pub noise_dof: f64,
     /// The covariance of (S, O) each level gives at 1 (flicker, walk).
     pub units: [CovPart; 2],
+    /// How the readings' own noise part moves per unit level, through D's correction for
+    /// the slow share within each pose (flicker, walk): part of how a quantity's variance
+    /// follows the levels' estimates.
+    pub noise_slope: [CovPart; 2],
     /// The channel's fit at the noise-only weights 1/se²: its coefficients, and their
     /// covariance from the readings' own noise less the slow share their model saw.
     pub fit: ChannelFit,
@@ -216,12 +229,24 @@ impl SlowPoses {
         })
     }
 
-    /// The variance of a slow part's variance `of(part)` from channel j's levels'
-    /// covariance, for Welch–Satterthwaite.
-    pub fn var_of_var(&self, j: usize, of: impl Fn(&CovPart) -> f64) -> f64 {
+    /// The variance of channel j's share of a quantity's variance, its readings' noise part
+    /// `noise` (from D) and its slow part `of(part)` together, for Welch–Satterthwaite.
+    /// The share is noise·(1 + δ) + a·θ̂ with δ D's relative error and θ̂ the levels,
+    /// which δ moves by `d_shift`: its variance is aᵀ·Cov_forms·a + (noise + aᵀ·shift)²·2/ν_D,
+    /// a also counting how the noise part moves with the levels (D's slow share).
+    pub fn var_of_var(&self, j: usize, noise: f64, of: impl Fn(&CovPart) -> f64) -> f64 {
         self.of(j).map_or(0.0, |c| {
-            let (a, b) = (of(&c.units[0]), of(&c.units[1]));
-            a * a * c.cov[0][0] + 2.0 * a * b * c.cov[0][1] + b * b * c.cov[1][1]
+            let a = [0, 1].map(|k| of(&c.units[k]) + of(&c.noise_slope[k]));
+            let cv = c.cov_forms;
+            let forms =
+                a[0] * a[0] * cv[0][0] + 2.0 * a[0] * a[1] * cv[0][1] + a[1] * a[1] * cv[1][1];
+            let d = noise + a[0] * c.d_shift[0] + a[1] * c.d_shift[1];
+            let from_d = if c.noise_dof.is_finite() && c.noise_dof > 0.0 {
+                d * d * 2.0 / c.noise_dof
+            } else {
+                0.0
+            };
+            forms + from_d
         })
     }
 }
@@ -288,29 +313,32 @@ fn channel(
     let mut theta = Vector2::zeros();
     let mut own = d.clone();
     let mut dk = Vector2::zeros();
+    // d own_i / d θ_k: −d_i·e_ik/s² where the factor is not held at its bounds.
+    let mut slope = vec![[0.0; 2]; p];
     for _ in 0..3 {
         let dm = DMatrix::from_diagonal(&nalgebra::DVector::from_column_slice(&own));
         dk = Vector2::from_fn(|k, _| tr_abt(&rgr[k], &dm));
         theta = a_inv * (qk - dk);
-        own = d
+        (own, slope) = d
             .iter()
             .zip(data.within)
             .map(|(di, e)| {
-                let share = (theta[0] * e[0] + theta[1] * e[1]) / data.s2;
-                di * (1.0 - share).clamp(0.1, 2.0)
+                let factor = 1.0 - (theta[0] * e[0] + theta[1] * e[1]) / data.s2;
+                let free = (0.1..=2.0).contains(&factor);
+                let ds = e.map(|ek| if free { -di * ek / data.s2 } else { 0.0 });
+                (di * factor.clamp(0.1, 2.0), ds)
             })
-            .collect();
+            .unzip();
     }
     let dm = DMatrix::from_diagonal(&nalgebra::DVector::from_column_slice(&own));
     let rdr = &r * &dm * &r;
     let [rgr_f, rgr_w] = rgr;
-    let ct = levels_cov(&[rdr, rgr_f, rgr_w], g, &a_inv, theta);
+    let forms = levels_cov(&[rdr, rgr_f, rgr_w], g, &a_inv, theta);
+    // D's own estimate moves every E[q_k] by d_k times its relative error.
+    let shift = -(a_inv * dk);
     let ct = match noise_dof {
-        // D's own estimate moves every E[q_k] by d_k times its relative error.
-        nu if nu.is_finite() && nu > 0.0 => {
-            ct + a_inv * dk * dk.transpose() * a_inv.transpose() * (2.0 / nu)
-        }
-        _ => ct,
+        nu if nu.is_finite() && nu > 0.0 => forms + shift * shift.transpose() * (2.0 / nu),
+        _ => forms,
     };
     let block = |c4: DMatrix<f64>| {
         let mut theta = Cov12::zeros();
@@ -329,11 +357,30 @@ fn channel(
     };
     // The readings' own noise through the fit, at D less the slow share.
     let noise = &lo * &dm * lo.transpose();
+    let noise_slope = [0, 1].map(|k| {
+        let dd = DMatrix::from_diagonal(&nalgebra::DVector::from_iterator(
+            p,
+            slope.iter().map(|s| s[k]),
+        ));
+        CovPart {
+            source: PartSource::Slow(j),
+            theta: block(&lo * dd * lo.transpose()),
+            pose_cov: vec![Matrix3::zeros(); p],
+            nu: f64::INFINITY,
+        }
+    });
     Ok(SlowChannel {
         channel: j,
         levels: [theta[0], theta[1]],
         cov: [[ct[(0, 0)], ct[(0, 1)]], [ct[(1, 0)], ct[(1, 1)]]],
+        cov_forms: [
+            [forms[(0, 0)], forms[(0, 1)]],
+            [forms[(1, 0)], forms[(1, 1)]],
+        ],
+        d_shift: [shift[0], shift[1]],
+        noise_dof,
         units: [unit(&g[0]), unit(&g[1])],
+        noise_slope,
         fit: ChannelFit {
             coef,
             cov: std::array::from_fn(|a| std::array::from_fn(|b| noise[(a, b)])),

@@ -45,20 +45,27 @@ impl Weighing<'_> {
                 .sum::<f64>()
         };
         let Some(ts) = self.tilt else {
-            let (var, denom) = self
+            // With slow noise, channel j's noise part and slow part come from one D and the
+            // levels: one term, whose variance var_of_var gives; Welch–Satterthwaite's u⁴/ν
+            // is half a term's variance (ν = 2u⁴/var u²).
+            let modelled = |j: usize| self.slow.and_then(|s| s.of(j)).is_some();
+            let (var, mut denom) = self
                 .parts
                 .iter()
                 .filter(|c| c.source != PartSource::TableAngle)
                 .map(|c| {
                     let x = of(c);
-                    match (c.source, self.slow) {
-                        // A slow part's variance is a·Q + b·q: its own variance is the
-                        // levels' covariance through (a, b).
-                        (PartSource::Slow(j), Some(s)) => (x, s.var_of_var(j, &of)),
+                    match c.source {
+                        PartSource::Slow(j) | PartSource::Channel(j) if modelled(j) => (x, 0.0),
                         _ => (x, x * x / c.nu),
                     }
                 })
                 .fold((0.0, 0.0), |(v, d), (x, y)| (v + x, d + y));
+            if let Some(s) = self.slow {
+                for j in (0..3).filter(|j| modelled(*j)) {
+                    denom += 0.5 * s.var_of_var(j, sum(PartSource::Channel(j)), &of);
+                }
+            }
             return (var, welch_satterthwaite(var, denom));
         };
         let (noise, tilt) = (sum(PartSource::PoseNoise), sum(PartSource::PoseTilt));
