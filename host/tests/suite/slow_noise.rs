@@ -105,8 +105,9 @@ fn stepped(seed: u64, rho: f64, floor_ug: f64, walk_ug: f64) -> Config {
 /// Stepped sessions calibrated with `--slow-noise` (docs/uncertainty.md, "Slow noise
 /// between poses"): the k = 2 coverage of the nine properties pooled, and the mean of
 /// (1.96·z/k)², each offset against the bias plus the slow noise's mean over the readings
-/// (its measurand). Also whether any session warned of drift between poses.
-fn stepped_slow_coverage(rho: f64, floor_ug: f64, sessions: usize) -> (f64, f64, bool) {
+/// (its measurand); each property's coverage; and whether any session warned of drift
+/// between poses.
+fn stepped_slow_coverage(rho: f64, floor_ug: f64, sessions: usize) -> (f64, f64, [f64; 9], bool) {
     let per = crate::coverage::parallel_n(sessions, |t| {
         let cfg = stepped(0x57E9_0000 + t as u64, rho, floor_ug, 0.0);
         let sim = Simulation::new(cfg).unwrap();
@@ -146,24 +147,42 @@ fn stepped_slow_coverage(rho: f64, floor_ug: f64, sessions: usize) -> (f64, f64,
     let n = (sessions * 9) as f64;
     let covered = per.iter().flat_map(|(s, _)| s).filter(|(c, _)| *c).count();
     let z2: f64 = per.iter().flat_map(|(s, _)| s).map(|(_, z)| z).sum();
-    (covered as f64 / n, z2 / n, per.iter().any(|(_, w)| *w))
+    let each = std::array::from_fn(|i| {
+        per.iter().filter(|(s, _)| s[i].0).count() as f64 / sessions as f64
+    });
+    (
+        covered as f64 / n,
+        z2 / n,
+        each,
+        per.iter().any(|(_, w)| *w),
+    )
 }
 
 /// Issue 30's proof 2: stepped calibrations with 20 readings a pose under AR(1) ρ = 0.6 and
 /// under a 50 µg flicker floor, noise never stated, with `--slow-noise`: over 1000 sessions
-/// each, the nine properties' pooled k = 2 coverage lies in [0.93, 0.97] (its correlated
-/// intervals make the binomial band of 9000 too narrow; ±2.9 σ of 1000 sessions), the mean
-/// (1.96·z/k)² in 1 ± 4·√(2/1000), and no session needs the drift warning. Without the
-/// slow terms the flicker case covered 0.63 (docs/uncertainty.md).
+/// each, every property's k = 2 coverage and the nine pooled lie in [0.93, 0.97] (±2.9 σ
+/// of 1000 sessions; the pooled intervals are correlated, so 9000 would be too narrow), the
+/// mean (1.96·z/k)² in 1 ± 4·√(2/1000), and no session needs the drift warning. Without
+/// the slow terms the flicker case covered 0.63 (docs/uncertainty.md); with them but with
+/// the degrees of freedom counted wrong, the sensitivities covered up to 0.986.
 #[test]
 fn stepped_coverage_with_slow_noise_holds_under_ar_and_flicker() {
+    let names = [
+        "s_u", "s_v", "s_w", "φ_uv", "φ_vw", "φ_wu", "O_u", "O_v", "O_w",
+    ];
     for (rho, floor) in [(0.6, 0.0), (0.0, 50.0)] {
-        let (coverage, z2, warned) = stepped_slow_coverage(rho, floor, 1000);
-        println!("stepped --slow-noise, AR(1) {rho}, flicker {floor} µg: coverage {coverage:.4}, mean z² {z2:.3}");
+        let (coverage, z2, each, warned) = stepped_slow_coverage(rho, floor, 1000);
+        println!("stepped --slow-noise, AR(1) {rho}, flicker {floor} µg: coverage {coverage:.4} ({each:?}), mean z² {z2:.3}");
         assert!(
             (0.93..=0.97).contains(&coverage),
             "AR(1) {rho}, flicker {floor} µg: coverage {coverage:.4}"
         );
+        for (name, c) in names.iter().zip(each) {
+            assert!(
+                (0.93..=0.97).contains(&c),
+                "AR(1) {rho}, flicker {floor} µg: {name} covered {c:.3}"
+            );
+        }
         let band = 4.0 * (2.0f64 / 1000.0).sqrt();
         assert!(
             (z2 - 1.0).abs() <= band,
