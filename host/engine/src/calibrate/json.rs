@@ -552,11 +552,12 @@ fn poses_slow_json(s: &poses::SlowPoses, sens: [f64; 3]) -> PosesSlowJson {
             .iter()
             .zip(Channel::ALL)
             .map(|(c, ch)| {
-                let u = [c.cov[0][0], c.cov[1][1]].map(|v| v.max(0.0).sqrt());
+                let cov = c.cov();
+                let u = [cov[0][0], cov[1][1]].map(|v| v.max(0.0).sqrt());
                 PosesSlowChannel {
                     channel: ch,
                     terms: SlowTerms::new(c.levels, u, s.fs, Some(*ch.of(&sens))),
-                    correlation: c.cov[0][1] / (u[0] * u[1]).max(f64::MIN_POSITIVE),
+                    correlation: cov[0][1] / (u[0] * u[1]).max(f64::MIN_POSITIVE),
                 }
             })
             .collect(),

@@ -45,9 +45,8 @@ pub struct SlowChannel {
     pub channel: usize,
     /// Q (flicker) and q (random walk), output units² per sample at `fs`: signed estimates.
     pub levels: [f64; 2],
-    /// Their covariance.
-    pub cov: [[f64; 2]; 2],
-    /// Their covariance from the quadratic forms alone, without D's own estimate.
+    /// Their covariance from the quadratic forms alone, without D's own estimate
+    /// ([`SlowChannel::cov`] adds it).
     pub cov_forms: [[f64; 2]; 2],
     /// How the levels move per unit relative error of D: −A⁻¹·d. The readings' noise part
     /// and the levels come from one D, so its error moves them against each other.
@@ -65,6 +64,18 @@ pub struct SlowChannel {
     pub fit: ChannelFit,
     /// Each pose mean's variance from its readings' own noise, less that share.
     pub noise_var: Vec<f64>,
+}
+
+impl SlowChannel {
+    /// The levels' covariance: the quadratic forms' and D's own estimate, which moves them
+    /// by `d_shift` per unit relative error (variance 2/ν_D).
+    pub fn cov(&self) -> [[f64; 2]; 2] {
+        let (f, s, nu) = (self.cov_forms, self.d_shift, self.noise_dof);
+        if !(nu.is_finite() && nu > 0.0) {
+            return f;
+        }
+        std::array::from_fn(|a| std::array::from_fn(|b| f[a][b] + s[a] * s[b] * (2.0 / nu)))
+    }
 }
 
 /// The slow noise between the poses of a record.
@@ -336,10 +347,6 @@ fn channel(
     let forms = levels_cov(&[rdr, rgr_f, rgr_w], g, &a_inv, theta);
     // D's own estimate moves every E[q_k] by d_k times its relative error.
     let shift = -(a_inv * dk);
-    let ct = match noise_dof {
-        nu if nu.is_finite() && nu > 0.0 => forms + shift * shift.transpose() * (2.0 / nu),
-        _ => forms,
-    };
     let block = |c4: DMatrix<f64>| {
         let mut theta = Cov12::zeros();
         for a in 0..4 {
@@ -349,9 +356,11 @@ fn channel(
         }
         theta
     };
-    let unit = |gl: &DMatrix<f64>| CovPart {
+    // A part of channel j's covariance through `rows` (the estimator's weights): pose
+    // covariance `c` between the means.
+    let part = |rows: &DMatrix<f64>, c: &DMatrix<f64>| CovPart {
         source: PartSource::Slow(j),
-        theta: block(&l * gl * l.transpose()),
+        theta: block(rows * c * rows.transpose()),
         pose_cov: vec![Matrix3::zeros(); p],
         nu: f64::INFINITY,
     };
@@ -362,24 +371,18 @@ fn channel(
             p,
             slope.iter().map(|s| s[k]),
         ));
-        CovPart {
-            source: PartSource::Slow(j),
-            theta: block(&lo * dd * lo.transpose()),
-            pose_cov: vec![Matrix3::zeros(); p],
-            nu: f64::INFINITY,
-        }
+        part(&lo, &dd)
     });
     Ok(SlowChannel {
         channel: j,
         levels: [theta[0], theta[1]],
-        cov: [[ct[(0, 0)], ct[(0, 1)]], [ct[(1, 0)], ct[(1, 1)]]],
         cov_forms: [
             [forms[(0, 0)], forms[(0, 1)]],
             [forms[(1, 0)], forms[(1, 1)]],
         ],
         d_shift: [shift[0], shift[1]],
         noise_dof,
-        units: [unit(&g[0]), unit(&g[1])],
+        units: [part(&l, &g[0]), part(&l, &g[1])],
         noise_slope,
         fit: ChannelFit {
             coef,
