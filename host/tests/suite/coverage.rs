@@ -14,6 +14,10 @@
 //!   in all but 0.05 %). The same for the static method on `metrologia-static`.
 //! - efficiency: the Monte Carlo spread of each sensitivity is within 10 % of the
 //!   Cramér–Rao bound, computed in this test from the exact regressors and the truth.
+//!
+//! Each is a proof at two sizes (docs/testing.md): `scripts/bench-proofs` runs it in full
+//! and records it under bench/proofs; test-all re-runs its first sessions against that
+//! record.
 // Matrix arithmetic on small fixed arrays reads more plainly with indices.
 #![allow(clippy::needless_range_loop)]
 
@@ -24,26 +28,12 @@ use rotacal::calibrate::json::{Quantity, RateJson};
 use rotacal::calibrate::{calibrate, Options, TypeB};
 use rotacal::reference::PAPER_10MHZ;
 use rotacal::simulate::{Config, Noise, Simulation, StepError, Truth};
+use rotacal_proof::prove;
 use std::f64::consts::TAU;
 
 const TRIALS: usize = 2000;
 
-/// Runs `trial(i)` for i in 0..TRIALS on two threads.
-fn parallel<T: Send>(trial: impl Fn(usize) -> T + Sync) -> Vec<T> {
-    parallel_n(TRIALS, trial)
-}
-
-/// Runs `trial(i)` for i in 0..n on two threads.
-pub(crate) fn parallel_n<T: Send>(n: usize, trial: impl Fn(usize) -> T + Sync) -> Vec<T> {
-    let half = n / 2;
-    std::thread::scope(|s| {
-        let a = s.spawn(|| (0..half).map(&trial).collect::<Vec<_>>());
-        let mut out: Vec<T> = (half..n).map(&trial).collect();
-        let mut first = a.join().unwrap();
-        first.append(&mut out);
-        first
-    })
-}
+pub(crate) use rotacal_proof::parallel_n;
 
 pub(crate) struct Tally {
     names: Vec<&'static str>,
@@ -186,28 +176,41 @@ fn inverse3(m: &[[f64; 3]; 3]) -> [[f64; 3]; 3] {
 
 #[test]
 fn rotation_coverage_and_efficiency_through_the_simulator() {
-    let results: Vec<(RateJson, [f64; 3], Truth)> = parallel(|trial| {
-        let mut rng = ChaCha8Rng::seed_from_u64(0xA11E_0000 + trial as u64);
-        let start = [0; 3].map(|_| rng.gen::<f64>() * 360.0);
-        let sim = Simulation::new(paper_config(trial, start)).unwrap();
-        let rec = sim.recording().unwrap();
-        let cal = calibrate(&rec, &Options::default()).unwrap();
-        let entry = cal.by_rate.into_iter().next().unwrap();
-        let cfg = sim.config();
-        let sigma2 = sim.noise_floor().powi(2);
-        let crb = crb_var(
-            sim.truth(),
-            start,
-            &Crb {
-                sd: [sigma2.sqrt(); 3],
-                g: cfg.g_loc,
-                n: 4200,
-                fs: 16.0,
-                rate_hz: 0.01,
-            },
-        );
-        (entry, crb, sim.truth().clone())
-    });
+    prove(
+        "coverage::rotation_coverage_and_efficiency_through_the_simulator",
+        TRIALS,
+        efficiency_trial,
+        efficiency_check,
+    );
+}
+
+/// One session of the efficiency proof: its calibration, each sensitivity's Cramér–Rao
+/// variance, and its truth.
+fn efficiency_trial(trial: usize) -> (RateJson, [f64; 3], Truth) {
+    let mut rng = ChaCha8Rng::seed_from_u64(0xA11E_0000 + trial as u64);
+    let start = [0; 3].map(|_| rng.gen::<f64>() * 360.0);
+    let sim = Simulation::new(paper_config(trial, start)).unwrap();
+    let rec = sim.recording().unwrap();
+    let cal = calibrate(&rec, &Options::default()).unwrap();
+    let entry = cal.by_rate.into_iter().next().unwrap();
+    let cfg = sim.config();
+    let sigma2 = sim.noise_floor().powi(2);
+    let crb = crb_var(
+        sim.truth(),
+        start,
+        &Crb {
+            sd: [sigma2.sqrt(); 3],
+            g: cfg.g_loc,
+            n: 4200,
+            fs: 16.0,
+            rate_hz: 0.01,
+        },
+    );
+    (entry, crb, sim.truth().clone())
+}
+
+/// Coverage, and each sensitivity's spread against the Cramér–Rao bound.
+fn efficiency_check(results: &[(RateJson, [f64; 3], Truth)]) -> Vec<String> {
     let truth = &results[0].2;
     let mut tally = Tally::new(
         vec!["s_u", "s_v", "s_w", "φ_uv", "φ_vw", "φ_wu"],
@@ -220,7 +223,7 @@ fn rotation_coverage_and_efficiency_through_the_simulator() {
     );
     let mut crb = [0.0; 3];
     let mut rate_fitted = 0;
-    for (entry, var, _) in &results {
+    for (entry, var, _) in results {
         tally.add(&entry.intrinsic.quantities());
         for j in 0..3 {
             crb[j] += var[j] / TRIALS as f64;
@@ -252,24 +255,36 @@ fn rotation_coverage_and_efficiency_through_the_simulator() {
             PAPER_10MHZ[k].1 / u2
         );
     }
-    assert!(failures.is_empty(), "{failures:?}");
+    failures
 }
 
 #[test]
 fn static_coverage_through_the_simulator() {
-    let results: Vec<RateJson> = parallel(|trial| {
-        let mut cfg = Config::preset("metrologia-static").unwrap();
-        cfg.seed = 0x57A7_0000 + trial as u64;
-        cfg.mounting.axis = [1.0, 1.0, 0.0];
-        cfg.mounting.angle_deg = 5.0;
-        cfg.sensor.noise = unstated(None, None);
-        let sim = Simulation::new(cfg).unwrap();
-        let rec = sim.recording().unwrap();
-        calibrate(&rec, &Options::default())
-            .unwrap()
-            .by_rate
-            .remove(0)
-    });
+    prove(
+        "coverage::static_coverage_through_the_simulator",
+        TRIALS,
+        static_trial,
+        static_check,
+    );
+}
+
+/// One static session's calibration.
+fn static_trial(trial: usize) -> RateJson {
+    let mut cfg = Config::preset("metrologia-static").unwrap();
+    cfg.seed = 0x57A7_0000 + trial as u64;
+    cfg.mounting.axis = [1.0, 1.0, 0.0];
+    cfg.mounting.angle_deg = 5.0;
+    cfg.sensor.noise = unstated(None, None);
+    let sim = Simulation::new(cfg).unwrap();
+    let rec = sim.recording().unwrap();
+    calibrate(&rec, &Options::default())
+        .unwrap()
+        .by_rate
+        .remove(0)
+}
+
+/// The nine properties' coverage.
+fn static_check(results: &[RateJson]) -> Vec<String> {
     let sim = Simulation::new(Config::preset("metrologia-static").unwrap()).unwrap();
     let t = sim.truth();
     let mut tally = Tally::new(
@@ -278,24 +293,24 @@ fn static_coverage_through_the_simulator() {
         ],
         t.properties().to_vec(),
     );
-    for entry in &results {
+    for entry in results {
         tally.add(&entry.intrinsic.quantities());
     }
-    let failures = tally.check();
-    assert!(failures.is_empty(), "{failures:?}");
+    tally.check()
 }
 
 /// Coverage of the nine static properties over 2000 stepped sessions of `metrologia-static`
 /// turned in `step_deg` steps with `readings` a step (at 1 Hz, `dwell_s` apart) and
 /// `step_error`, with AR noise of coefficients `ar` (white if empty; never stated),
-/// calibrated with `inputs`.
+/// calibrated with `inputs`: the proof `name`.
 fn stepped_coverage(
+    name: &str,
     case: &str,
     (step_deg, readings, dwell_s): (f64, u32, Option<f64>),
     ar: &[f64],
     error: StepError,
     inputs: TypeB,
-) -> Vec<String> {
+) {
     let cfg = |trial: usize| {
         let mut cfg = Config::preset("metrologia-static").unwrap();
         cfg.seed = 0x57E9_0000 + trial as u64;
@@ -312,19 +327,25 @@ fn stepped_coverage(
         inputs,
         ..Options::default()
     };
-    let results: Vec<RateJson> = parallel(|trial| {
+    let trial = |trial: usize| {
         let sim = Simulation::new(cfg(trial)).unwrap();
         let rec = sim.recording().unwrap();
         calibrate(&rec, &opts).unwrap().by_rate.remove(0)
+    };
+    prove(name, TRIALS, trial, |results| {
+        stepped_tally(case, &Simulation::new(cfg(0)).unwrap(), results)
     });
-    let sim = Simulation::new(cfg(0)).unwrap();
+}
+
+/// The nine properties' coverage over `results`, against `sim`'s truth.
+fn stepped_tally(case: &str, sim: &Simulation, results: &[RateJson]) -> Vec<String> {
     let mut tally = Tally::new(
         vec![
             "s_u", "s_v", "s_w", "φ_uv", "φ_vw", "φ_wu", "O_u", "O_v", "O_w",
         ],
         sim.truth().properties().to_vec(),
     );
-    for entry in &results {
+    for entry in results {
         tally.add(&entry.intrinsic.quantities());
     }
     println!("{case}:");
@@ -340,7 +361,8 @@ fn stepped_coverage_with_stated_angle_errors() {
     // 30° steps (36 poses), 20 readings a step, each angle off by 0.01° (normal), which
     // the lab states (`--u-angle-deg 0.01`, its table's specification); the noise is not
     // stated.
-    let failures = stepped_coverage(
+    stepped_coverage(
+        "coverage::stepped_coverage_with_stated_angle_errors",
         "stepped, angle errors 0.01° stated",
         (30.0, 20, None),
         &[],
@@ -353,14 +375,14 @@ fn stepped_coverage_with_stated_angle_errors() {
             ..TypeB::default()
         },
     );
-    assert!(failures.is_empty(), "{failures:?}");
 }
 
 #[test]
 fn stepped_coverage_with_unstated_tilt_errors() {
     // The same table, each step tilted by 0.01° about each axis (normal), nothing stated:
     // the tilt is estimated from the poses' scatter.
-    let failures = stepped_coverage(
+    stepped_coverage(
+        "coverage::stepped_coverage_with_unstated_tilt_errors",
         "stepped, tilt errors 0.01° unstated",
         (30.0, 20, None),
         &[],
@@ -370,22 +392,18 @@ fn stepped_coverage_with_unstated_tilt_errors() {
         },
         TypeB::default(),
     );
-    assert!(failures.is_empty(), "{failures:?}");
 }
 
-/// Coverage of the six properties (at every rate) over `trials` runs of `cfg(trial)`.
-fn rotation_coverage(
-    case: &str,
-    trials: usize,
-    cfg: impl Fn(usize) -> Config + Sync,
-) -> Vec<String> {
-    let results: Vec<(Vec<RateJson>, Truth)> = parallel_n(trials, |trial| {
+/// Coverage of the six properties (at every rate) over `trials` runs of `cfg(trial)`: the
+/// proof `name`.
+fn rotation_coverage(name: &str, case: &str, trials: usize, cfg: impl Fn(usize) -> Config + Sync) {
+    let trial = |trial: usize| {
         let sim = Simulation::new(cfg(trial)).unwrap();
         let rec = sim.recording().unwrap();
         let cal = calibrate(&rec, &Options::default()).unwrap();
         (cal.by_rate, sim.truth().clone())
-    });
-    rotation_tally(case, &results)
+    };
+    prove(name, trials, trial, |results| rotation_tally(case, results));
 }
 
 /// Each rate's coverage of the six properties over `results` (each run's calibration and
@@ -445,26 +463,32 @@ fn correlated(trial: usize, noise: Option<Noise>) -> Config {
 
 #[test]
 fn rotation_coverage_ar1_0_3() {
-    let f = rotation_coverage("AR(1) ρ = 0.3", TRIALS, |t| {
-        correlated(t, unstated(Some(vec![0.3]), None))
-    });
-    assert!(f.is_empty(), "{f:?}");
+    rotation_coverage(
+        "coverage::rotation_coverage_ar1_0_3",
+        "AR(1) ρ = 0.3",
+        TRIALS,
+        |t| correlated(t, unstated(Some(vec![0.3]), None)),
+    );
 }
 
 #[test]
 fn rotation_coverage_ar1_0_6() {
-    let f = rotation_coverage("AR(1) ρ = 0.6", TRIALS, |t| {
-        correlated(t, unstated(Some(vec![0.6]), None))
-    });
-    assert!(f.is_empty(), "{f:?}");
+    rotation_coverage(
+        "coverage::rotation_coverage_ar1_0_6",
+        "AR(1) ρ = 0.6",
+        TRIALS,
+        |t| correlated(t, unstated(Some(vec![0.6]), None)),
+    );
 }
 
 #[test]
 fn rotation_coverage_ar1_0_9() {
-    let f = rotation_coverage("AR(1) ρ = 0.9", TRIALS, |t| {
-        correlated(t, unstated(Some(vec![0.9]), None))
-    });
-    assert!(f.is_empty(), "{f:?}");
+    rotation_coverage(
+        "coverage::rotation_coverage_ar1_0_9",
+        "AR(1) ρ = 0.9",
+        TRIALS,
+        |t| correlated(t, unstated(Some(vec![0.9]), None)),
+    );
 }
 
 #[test]
@@ -472,34 +496,46 @@ fn rotation_coverage_lowpass_like_the_lsm6ds33() {
     // The LSM6DS33 at 104 Hz with its digital low-pass at ODR/9 (11.6 Hz), seed 000's
     // 262.5 s per condition at the sensor's own rate; the level that of the 11.6 Hz band.
     // 1000 runs (each 6.5 times the samples): [0.93, 0.97] is then ±2.9 binomial σ.
-    let f = rotation_coverage("low-pass 11.6 Hz at 104 Hz", 1000, |t| {
-        let mut cfg = correlated(t, unstated(None, Some(104.0 / 9.0)));
-        cfg.timing.sample_rate_hz = 104.0;
-        cfg.table.samples_per_condition = Some(27_300);
-        cfg
-    });
-    assert!(f.is_empty(), "{f:?}");
+    rotation_coverage(
+        "coverage::rotation_coverage_lowpass_like_the_lsm6ds33",
+        "low-pass 11.6 Hz at 104 Hz",
+        1000,
+        |t| {
+            let mut cfg = correlated(t, unstated(None, Some(104.0 / 9.0)));
+            cfg.timing.sample_rate_hz = 104.0;
+            cfg.table.samples_per_condition = Some(27_300);
+            cfg
+        },
+    );
 }
 
 #[test]
 fn rotation_coverage_with_a_300_ppm_rate_error() {
-    let f = rotation_coverage("rate error 300 ppm", TRIALS, |t| {
-        let mut cfg = correlated(t, unstated(None, None));
-        cfg.effects.rate_error = Some(rotacal::simulate::config::RateError { relative: 3e-4 });
-        cfg
-    });
-    assert!(f.is_empty(), "{f:?}");
+    rotation_coverage(
+        "coverage::rotation_coverage_with_a_300_ppm_rate_error",
+        "rate error 300 ppm",
+        TRIALS,
+        |t| {
+            let mut cfg = correlated(t, unstated(None, None));
+            cfg.effects.rate_error = Some(rotacal::simulate::config::RateError { relative: 3e-4 });
+            cfg
+        },
+    );
 }
 
 #[test]
 fn rotation_coverage_at_four_rates_in_one_file() {
-    let f = rotation_coverage("10, 50, 100, 500 mHz", TRIALS, |t| {
-        let mut cfg = Config::preset("paper-multirate").unwrap();
-        cfg.seed = 0x4A7E_0000 + t as u64;
-        cfg.sensor.noise = unstated(Some(vec![0.5]), None);
-        cfg
-    });
-    assert!(f.is_empty(), "{f:?}");
+    rotation_coverage(
+        "coverage::rotation_coverage_at_four_rates_in_one_file",
+        "10, 50, 100, 500 mHz",
+        TRIALS,
+        |t| {
+            let mut cfg = Config::preset("paper-multirate").unwrap();
+            cfg.seed = 0x4A7E_0000 + t as u64;
+            cfg.sensor.noise = unstated(Some(vec![0.5]), None);
+            cfg
+        },
+    );
 }
 
 #[test]
@@ -508,7 +544,8 @@ fn stepped_coverage_with_correlated_readings() {
     // the variance std²/20 says), no angle or tilt error, nothing stated: each pose's mean
     // takes its variance from one AR model pooled over the poses. The table takes 10 s
     // to the next angle (30 s from step to step), during which the noise runs on.
-    let failures = stepped_coverage(
+    stepped_coverage(
+        "coverage::stepped_coverage_with_correlated_readings",
         "stepped, 20 readings of AR(1) ρ = 0.6",
         (30.0, 20, Some(30.0)),
         &[0.6],
@@ -518,5 +555,4 @@ fn stepped_coverage_with_correlated_readings() {
         },
         TypeB::default(),
     );
-    assert!(failures.is_empty(), "{failures:?}");
 }

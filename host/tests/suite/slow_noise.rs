@@ -2,9 +2,10 @@
 //! levels it reports against the simulated ones, U growing with them, and nothing of it
 //! without the option.
 
-use rotacal::calibrate::json::CalibrationJson;
+use rotacal::calibrate::json::{CalibrationJson, Quantity};
 use rotacal::calibrate::{calibrate, Options};
 use rotacal::simulate::{Config, Noise, NoiseSd, Simulation};
+use rotacal_proof::prove;
 
 /// 4 counts of white noise plus a flicker floor (µg) and a random walk (µg/√s), unstated.
 fn slow(floor_ug: f64, walk_ug: f64) -> Option<Noise> {
@@ -103,12 +104,12 @@ fn stepped(seed: u64, rho: f64, floor_ug: f64, walk_ug: f64) -> Config {
 }
 
 /// Stepped sessions calibrated with `--slow-noise` (docs/uncertainty.md, "Slow noise
-/// between poses"): the k = 2 coverage of the nine properties pooled, and the mean of
-/// (1.96·z/k)², each offset against the bias plus the slow noise's mean over the readings
-/// (its measurand); each property's coverage; and whether any session warned of drift
-/// between poses.
-fn stepped_slow_coverage(rho: f64, floor_ug: f64, sessions: usize) -> (f64, f64, [f64; 9], bool) {
-    let per = crate::coverage::parallel_n(sessions, |t| {
+/// between poses"), the proof `name`: the k = 2 coverage of the nine properties pooled and
+/// each, and the mean of (1.96·z/k)², each offset against the bias plus the slow noise's
+/// mean over the readings (its measurand); and whether any session warned of drift between
+/// poses. The failures of the bounds below.
+fn stepped_slow_coverage(name: &str, rho: f64, floor_ug: f64, sessions: usize) {
+    let trial = |t: usize| {
         let cfg = stepped(0x57E9_0000 + t as u64, rho, floor_ug, 0.0);
         let sim = Simulation::new(cfg).unwrap();
         let (summary, buf) = sim.write(Vec::new()).unwrap();
@@ -143,19 +144,41 @@ fn stepped_slow_coverage(rho: f64, floor_ug: f64, sessions: usize) -> (f64, f64,
             .collect();
         assert_eq!(scored.len(), 9);
         (scored, warned)
+    };
+    prove(name, sessions, trial, |per| {
+        let names = [
+            "s_u", "s_v", "s_w", "φ_uv", "φ_vw", "φ_wu", "O_u", "O_v", "O_w",
+        ];
+        let n = (sessions * 9) as f64;
+        let coverage = per.iter().flat_map(|(s, _)| s).filter(|(c, _)| *c).count() as f64 / n;
+        let z2 = per.iter().flat_map(|(s, _)| s).map(|(_, z)| z).sum::<f64>() / n;
+        let each: [f64; 9] = std::array::from_fn(|i| {
+            per.iter().filter(|(s, _)| s[i].0).count() as f64 / sessions as f64
+        });
+        let case = format!("AR(1) {rho}, flicker {floor_ug} µg");
+        println!(
+            "stepped --slow-noise, {case}: coverage {coverage:.4} ({each:?}), mean z² {z2:.3}"
+        );
+        let mut failures = Vec::new();
+        if !(0.93..=0.97).contains(&coverage) {
+            failures.push(format!("{case}: coverage {coverage:.4}"));
+        }
+        for (name, c) in names.iter().zip(each) {
+            if !(0.93..=0.97).contains(&c) {
+                failures.push(format!("{case}: {name} covered {c:.3}"));
+            }
+        }
+        let band = 4.0 * (2.0f64 / sessions as f64).sqrt();
+        if (z2 - 1.0).abs() > band {
+            failures.push(format!(
+                "{case}: mean (1.96·z/k)² {z2:.3} outside 1 ± {band:.3}"
+            ));
+        }
+        if per.iter().any(|(_, w)| *w) {
+            failures.push(format!("{case}: a drift warning"));
+        }
+        failures
     });
-    let n = (sessions * 9) as f64;
-    let covered = per.iter().flat_map(|(s, _)| s).filter(|(c, _)| *c).count();
-    let z2: f64 = per.iter().flat_map(|(s, _)| s).map(|(_, z)| z).sum();
-    let each = std::array::from_fn(|i| {
-        per.iter().filter(|(s, _)| s[i].0).count() as f64 / sessions as f64
-    });
-    (
-        covered as f64 / n,
-        z2 / n,
-        each,
-        per.iter().any(|(_, w)| *w),
-    )
 }
 
 /// Issue 30's proof 2: stepped calibrations with 20 readings a pose under AR(1) ρ = 0.6 and
@@ -167,49 +190,32 @@ fn stepped_slow_coverage(rho: f64, floor_ug: f64, sessions: usize) -> (f64, f64,
 /// the degrees of freedom counted wrong, the sensitivities covered up to 0.986.
 #[test]
 fn stepped_coverage_with_slow_noise_holds_under_ar_and_flicker() {
-    let names = [
-        "s_u", "s_v", "s_w", "φ_uv", "φ_vw", "φ_wu", "O_u", "O_v", "O_w",
-    ];
-    for (rho, floor) in [(0.6, 0.0), (0.0, 50.0)] {
-        let (coverage, z2, each, warned) = stepped_slow_coverage(rho, floor, 1000);
-        println!("stepped --slow-noise, AR(1) {rho}, flicker {floor} µg: coverage {coverage:.4} ({each:?}), mean z² {z2:.3}");
-        assert!(
-            (0.93..=0.97).contains(&coverage),
-            "AR(1) {rho}, flicker {floor} µg: coverage {coverage:.4}"
-        );
-        for (name, c) in names.iter().zip(each) {
-            assert!(
-                (0.93..=0.97).contains(&c),
-                "AR(1) {rho}, flicker {floor} µg: {name} covered {c:.3}"
-            );
-        }
-        let band = 4.0 * (2.0f64 / 1000.0).sqrt();
-        assert!(
-            (z2 - 1.0).abs() <= band,
-            "AR(1) {rho}, flicker {floor} µg: mean (1.96·z/k)² {z2:.3} outside 1 ± {band:.3}"
-        );
-        assert!(!warned, "AR(1) {rho}, flicker {floor} µg: a drift warning");
-    }
+    let name = "slow_noise::stepped_coverage_with_slow_noise_holds_under_ar_and_flicker";
+    stepped_slow_coverage(&format!("{name}#ar1_0.6"), 0.6, 0.0, 1000);
+    stepped_slow_coverage(&format!("{name}#flicker_50ug"), 0.0, 50.0, 1000);
 }
 
-/// Stepped sessions (as [`stepped`]) with a random walk (µg/√s): how many of `sessions`
-/// warn that the pose residuals are correlated from one pose to the next.
-fn stepped_drift_warnings(rho: f64, walk_ug: f64, sessions: u64) -> usize {
-    crate::coverage::parallel_n(sessions as usize, |t| {
-        let cfg = stepped(0xD21F_0000 + t as u64, rho, 0.0, walk_ug);
-        let rec = Simulation::new(cfg).unwrap().recording().unwrap();
-        let cal = calibrate(&rec, &Options::default()).unwrap();
-        cal.by_rate.iter().any(|r| {
-            r.uncertainty_budget.as_ref().is_some_and(|b| {
-                b.notes
-                    .iter()
-                    .any(|n| n.contains("correlated from one pose to the next"))
-            })
+/// Stepped sessions (as [`stepped`]) with a random walk (µg/√s): for each of `sessions`,
+/// whether it warns that the pose residuals are correlated from one pose to the next, and
+/// its properties (the proof's witness).
+fn stepped_drift_trial(rho: f64, walk_ug: f64, t: usize) -> (bool, Vec<Quantity>) {
+    let cfg = stepped(0xD21F_0000 + t as u64, rho, 0.0, walk_ug);
+    let rec = Simulation::new(cfg).unwrap().recording().unwrap();
+    let cal = calibrate(&rec, &Options::default()).unwrap();
+    let warned = cal.by_rate.iter().any(|r| {
+        r.uncertainty_budget.as_ref().is_some_and(|b| {
+            b.notes
+                .iter()
+                .any(|n| n.contains("correlated from one pose to the next"))
         })
-    })
-    .into_iter()
-    .filter(|w| *w)
-    .count()
+    });
+    let q = cal.by_rate[0]
+        .intrinsic
+        .quantities()
+        .into_iter()
+        .cloned()
+        .collect();
+    (warned, q)
 }
 
 /// The serial test of the pose residuals (docs/uncertainty.md, "Drift between poses"):
@@ -218,12 +224,38 @@ fn stepped_drift_warnings(rho: f64, walk_ug: f64, sessions: u64) -> usize {
 /// 1.5, P(> 8) ≈ 2e-5); a bias random walk of 10 µg/√s warns in at least 95 % of 200.
 #[test]
 fn stepped_drift_between_poses_is_warned_of_and_independent_poses_are_not() {
-    let white = stepped_drift_warnings(0.0, 0.0, 500);
-    let ar = stepped_drift_warnings(0.6, 0.0, 500);
-    let walk = stepped_drift_warnings(0.0, 10.0, 200);
-    println!("drift warnings: white {white}/500, AR(1) 0.6 {ar}/500, walk 10 µg/√s {walk}/200");
-    assert!(white <= 8 && ar <= 8, "false alarms: {white}, {ar}");
-    assert!(walk >= 190, "walk warned in {walk}/200");
+    let name = "slow_noise::stepped_drift_between_poses_is_warned_of_and_independent_poses_are_not";
+    let warned = |runs: &[(bool, Vec<Quantity>)]| runs.iter().filter(|r| r.0).count();
+    for (case, rho) in [("white", 0.0), ("ar1_0.6", 0.6)] {
+        prove(
+            &format!("{name}#{case}"),
+            500,
+            |t| stepped_drift_trial(rho, 0.0, t),
+            |runs| {
+                let n = warned(runs);
+                println!("drift warnings, {case}: {n}/500");
+                if n <= 8 {
+                    vec![]
+                } else {
+                    vec![format!("{case}: {n} false alarms")]
+                }
+            },
+        );
+    }
+    prove(
+        &format!("{name}#walk_10ug"),
+        200,
+        |t| stepped_drift_trial(0.0, 10.0, t),
+        |runs| {
+            let n = warned(runs);
+            println!("drift warnings, walk 10 µg/√s: {n}/200");
+            if n >= 190 {
+                vec![]
+            } else {
+                vec![format!("walk warned in {n}/200")]
+            }
+        },
+    );
 }
 
 /// A still recording of `seconds` of the preset's noise plus a flicker floor (µg), the

@@ -107,7 +107,7 @@ fn the_fast_reader_reads_as_the_csv_reader_does() {
 fn streamed_coverage_on_long_correlated_records() {
     let dir = tmp("coverage");
     let runs = 1000;
-    let results = crate::coverage::parallel_n(runs, |t| {
+    let trial = |t: usize| {
         let cfg = config(0x57E4_0000 + t as u64, 70_000, Some(vec![0.6]), None);
         let sim = Simulation::new(cfg).unwrap();
         let path = dir.join(format!("run-{t}.csv"));
@@ -115,11 +115,17 @@ fn streamed_coverage_on_long_correlated_records() {
         let cal = calibrate_file(&path, &Options::default()).unwrap();
         std::fs::remove_file(&path).unwrap();
         (cal.by_rate, sim.truth().clone())
-    });
-    let failures = crate::coverage::rotation_tally(
-        "streamed, 70 000 rows a condition, AR(1) ρ = 0.6",
-        &results,
+    };
+    rotacal_proof::prove(
+        "streaming::streamed_coverage_on_long_correlated_records",
+        runs,
+        trial,
+        |results| {
+            crate::coverage::rotation_tally(
+                "streamed, 70 000 rows a condition, AR(1) ρ = 0.6",
+                results,
+            )
+        },
     );
     std::fs::remove_dir_all(&dir).ok();
-    assert!(failures.is_empty(), "{failures:?}");
 }
