@@ -214,15 +214,18 @@ mod tests {
     use rand::SeedableRng;
     use rand_chacha::ChaCha8Rng;
 
-    /// How often each p-value falls below 0.05 over `records` records of white noise of
-    /// variance `white` plus flicker `q_fl`, checked against white noise of variance
-    /// `model_white` plus the same flicker.
+    /// The p-values (above, below) of the check on each of `records` records of white
+    /// noise of variance `white` plus flicker `q_fl`, checked against white noise of
+    /// variance `model_white` plus the same flicker: the proof `name`, whose verdict on
+    /// the counts below 0.05 and 0.01 is `check`.
     fn rejections(
+        name: &str,
         turns_per_row: f64,
         (white, q_fl): (f64, f64),
         model_white: f64,
-        records: u64,
-    ) -> ((usize, usize), usize) {
+        records: usize,
+        check: impl FnOnce(((usize, usize), usize)) -> Vec<String>,
+    ) {
         let n = 4200;
         let d = SlowDesign::new(&tests_wide_at(n, turns_per_row), &vec![1.0; n]).unwrap();
         let cycles: Vec<f64> = (0..n).map(|t| turns_per_row * t as f64).collect();
@@ -233,17 +236,20 @@ mod tests {
             cov: [[0.0; 3]; 3],
         };
         let gen = FlickerIncrements::new(n - 1);
-        let (mut above, mut below) = ((0, 0), 0);
-        for seed in 0..records {
-            let mut rng = ChaCha8Rng::seed_from_u64(0xC4EC_0000 + seed);
+        let trial = |seed: usize| {
+            let mut rng = ChaCha8Rng::seed_from_u64(0xC4EC_0000 + seed as u64);
             let r = tests_residuals(&d, (white, q_fl, 0.0), &gen, &mut rng);
             let share = d.period_scatter(&r, &model, &known, &cycles).unwrap();
             let c = ModelCheck::pool(&[share]).unwrap();
-            above.0 += usize::from(c.p_above < 0.05);
-            above.1 += usize::from(c.p_above < 0.01);
-            below += usize::from(c.p_below < 0.05);
-        }
-        (above, below)
+            (c.p_above, c.p_below)
+        };
+        rotacal_proof::prove(name, records, trial, |ps| {
+            let count = |f: &dyn Fn(&(f64, f64)) -> bool| ps.iter().filter(|p| f(p)).count();
+            check((
+                (count(&|p| p.0 < 0.05), count(&|p| p.0 < 0.01)),
+                count(&|p| p.1 < 0.05),
+            ))
+        });
     }
 
     /// Under the model p_above is uniform: over 1000 records each of white noise and of
@@ -253,30 +259,54 @@ mod tests {
     /// most records at 13 turns.
     #[test]
     fn the_check_holds_its_level_and_finds_a_model_too_small() {
+        let name =
+            "fit::noise::model_check::tests::the_check_holds_its_level_and_finds_a_model_too_small";
         let records = 1000;
         let z = |k: usize, level: f64| {
             (k as f64 - level * records as f64) / (level * (1.0 - level) * records as f64).sqrt()
         };
         for turns_per_row in [0.01 / 16.0, 0.05 / 16.0] {
             for q_fl in [0.0, 0.05] {
-                let ((a5, a1), b5) = rejections(turns_per_row, (16.0, q_fl), 16.0, records);
                 let at = format!("{turns_per_row} turns a row, Q {q_fl}");
-                println!("{at}: above {a5} {a1}, below {b5}");
-                assert!(
-                    z(a5, 0.05).abs() < 4.0,
-                    "{at}: p_above < 0.05 in {a5} of {records}"
-                );
-                assert!(
-                    z(a1, 0.01).abs() < 4.0,
-                    "{at}: p_above < 0.01 in {a1} of {records}"
-                );
-                assert!(
-                    z(b5, 0.05) < 4.0,
-                    "{at}: p_below < 0.05 in {b5} of {records}"
+                let case = format!("{name}#turns_{}_q_{q_fl}", turns_per_row * 16.0);
+                rejections(
+                    &case,
+                    turns_per_row,
+                    (16.0, q_fl),
+                    16.0,
+                    records,
+                    |((a5, a1), b5)| {
+                        println!("{at}: above {a5} {a1}, below {b5}");
+                        let mut failures = Vec::new();
+                        if z(a5, 0.05).abs() >= 4.0 {
+                            failures.push(format!("{at}: p_above < 0.05 in {a5} of {records}"));
+                        }
+                        if z(a1, 0.01).abs() >= 4.0 {
+                            failures.push(format!("{at}: p_above < 0.01 in {a1} of {records}"));
+                        }
+                        if z(b5, 0.05) >= 4.0 {
+                            failures.push(format!("{at}: p_below < 0.05 in {b5} of {records}"));
+                        }
+                        failures
+                    },
                 );
             }
         }
-        let ((found, _), _) = rejections(0.05 / 16.0, (16.0, 0.0), 8.0, 400);
-        assert!(found > 300, "half the variance found in {found} of 400");
+        let case = format!("{name}#half_the_variance");
+        rejections(
+            &case,
+            0.05 / 16.0,
+            (16.0, 0.0),
+            8.0,
+            400,
+            |((found, _), _)| {
+                println!("half the variance found in {found} of 400");
+                if found > 300 {
+                    vec![]
+                } else {
+                    vec![format!("half the variance found in {found} of 400")]
+                }
+            },
+        );
     }
 }
