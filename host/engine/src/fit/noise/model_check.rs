@@ -208,7 +208,7 @@ pub enum Verdict {
 #[cfg(test)]
 #[allow(clippy::indexing_slicing)]
 mod tests {
-    use super::super::slow::{tests_residuals, tests_wide_at};
+    use super::super::slow::tests::{tests_residuals, tests_wide_at};
     use super::*;
     use crate::allan::powerlaw::FlickerIncrements;
     use rand::SeedableRng;
