@@ -1,7 +1,7 @@
 //! Method free: still intervals found in a continuous recording (or named by its `pose`
 //! column), then G and O from |a| = g ([`super::free`]); the entry and its budget.
 
-use super::budget::Kind;
+use super::budget::{Budget, Kind};
 use super::drift;
 use super::json::{self, CorrectionJson};
 use super::sources::{gravity_source, new_budget, values6, variances6};
@@ -94,20 +94,22 @@ pub fn segments(rec: &Recording) -> Result<Vec<Segment<'_>>, CalibrateError> {
     Ok(out)
 }
 
-/// Method free: still intervals found (or named), then G and O from |a| = g.
-pub(super) fn entry(
+/// Per segment: its label, the detection that found its intervals (none where they were
+/// named), and its intervals.
+type Detections = Vec<(String, Option<still::Detection>, Vec<still::Interval>)>;
+/// Per segment with `--slow-noise`: its flicker levels and its rows.
+type Wander = Vec<([Option<drift::Level>; 3], usize)>;
+
+/// The still intervals of every segment of `rec`: found (or named), with `--slow-noise`
+/// retested against a flicker term.
+fn find_poses(
     rec: &Recording,
     opts: &Options,
-    pre: &Preflight,
-) -> Result<json::RateJson, CalibrateError> {
-    let (g, inputs, units) = (pre.g_loc, &pre.inputs, pre.units.as_str());
-    if opts.monte_carlo.is_some() {
-        return Err(err(rec, None, CalibrateErrorKind::MonteCarloFree));
-    }
-    let mut detections: Vec<(String, Option<still::Detection>, Vec<still::Interval>)> = Vec::new();
+    units: &str,
+) -> Result<(Detections, Vec<String>, Wander), CalibrateError> {
+    let mut detections: Detections = Vec::new();
     let mut drift_notes = Vec::new();
-    // Per segment with --slow-noise: its flicker levels and its rows.
-    let mut wander: Vec<([Option<drift::Level>; 3], usize)> = Vec::new();
+    let mut wander: Wander = Vec::new();
     for seg in segments(rec)? {
         let found = match seg.names {
             Some(names) => (None, still::named(&seg.t_s, &seg.y, &seg.line, names)),
@@ -150,6 +152,20 @@ pub(super) fn entry(
             .collect();
         detections.push((seg.label, det, intervals));
     }
+    Ok((detections, drift_notes, wander))
+}
+
+/// Method free: still intervals found (or named), then G and O from |a| = g.
+pub(super) fn entry(
+    rec: &Recording,
+    opts: &Options,
+    pre: &Preflight,
+) -> Result<json::RateJson, CalibrateError> {
+    let (g, units) = (pre.g_loc, pre.units.as_str());
+    if opts.monte_carlo.is_some() {
+        return Err(err(rec, None, CalibrateErrorKind::MonteCarloFree));
+    }
+    let (mut detections, drift_notes, wander) = find_poses(rec, opts, units)?;
     let poses: Vec<free::Pose> = detections
         .iter()
         .flat_map(|(_, _, iv)| iv.iter())
@@ -185,6 +201,46 @@ pub(super) fn entry(
             value,
             std_unc: var.max(0.0).sqrt(),
         });
+    let b = free_budget(
+        &fit,
+        &intr,
+        &offsets,
+        (&wander, &detections),
+        drift_notes,
+        pre,
+    );
+    let mut entry = json::free_entry(&intr, &offsets, &b, &fit, &detections).ok_or_else(|| {
+        err(
+            rec,
+            None,
+            CalibrateErrorKind::Internal("a budget without a line per property"),
+        )
+    })?;
+    let cov12 = DMatrix::from_iterator(12, 12, fit.cov.iter().copied());
+    let (device, _) =
+        correction::from_matrix(&fit.l, fit.offsets, &cov12).map_err(|e| err(rec, None, e))?;
+    entry.correction = Some(CorrectionJson::new(
+        units,
+        device,
+        None,
+        fit.k,
+        "the fit of G and O to the still poses (|a| = g)",
+    ));
+    entry.uncertainty_budget = Some(b);
+    Ok(entry)
+}
+
+/// The free fit's budget: the poses (noise, and τ when estimated), the bias's wander with
+/// `--slow-noise`, g_loc, and the notes.
+fn free_budget(
+    fit: &free::FreeFit,
+    intr: &intrinsic::Intrinsic,
+    offsets: &[intrinsic::Estimate; 3],
+    (wander, detections): (&Wander, &Detections),
+    drift_notes: Vec<String>,
+    pre: &Preflight,
+) -> Budget {
+    let (g, inputs, units) = (pre.g_loc, &pre.inputs, pre.units.as_str());
     // The budget: the poses (noise, and τ when estimated) and g_loc.
     let mut b = new_budget(units, true);
     let mut contribution: Vec<f64> = variances6(&intr.cov)
@@ -236,7 +292,7 @@ pub(super) fn entry(
     }
     b.notes.extend(fit.notes.iter().cloned());
     b.notes.extend(drift_notes);
-    let values = values6(&intr);
+    let values = values6(intr);
     let mut cg = vec![0.0; 9];
     for (c, v) in cg.iter_mut().zip(values.iter().take(3)) {
         *c = -v / g;
@@ -250,25 +306,7 @@ pub(super) fn entry(
         );
     }
     b.combine();
-    let mut entry = json::free_entry(&intr, &offsets, &b, &fit, &detections).ok_or_else(|| {
-        err(
-            rec,
-            None,
-            CalibrateErrorKind::Internal("a budget without a line per property"),
-        )
-    })?;
-    let cov12 = DMatrix::from_iterator(12, 12, fit.cov.iter().copied());
-    let (device, _) =
-        correction::from_matrix(&fit.l, fit.offsets, &cov12).map_err(|e| err(rec, None, e))?;
-    entry.correction = Some(CorrectionJson::new(
-        units,
-        device,
-        None,
-        fit.k,
-        "the fit of G and O to the still poses (|a| = g)",
-    ));
-    entry.uncertainty_budget = Some(b);
-    Ok(entry)
+    b
 }
 
 /// The offsets' term for the bias's wander over a one-segment recording of `rows` rows:
@@ -276,7 +314,7 @@ pub(super) fn entry(
 /// the variance unit flicker gives the bias at a time of the session about the kept poses'
 /// mean (the offset the fit measures), with λ's degrees of freedom.
 fn bias_wander(
-    b: &mut crate::calibrate::budget::Budget,
+    b: &mut Budget,
     levels: &[Option<drift::Level>; 3],
     rows: usize,
     intervals: &[still::Interval],

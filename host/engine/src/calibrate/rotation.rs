@@ -446,12 +446,52 @@ fn rotation_budget(
     // is the propagation with the others' covariance set to zero; their degrees of freedom
     // combine by Welch–Satterthwaite.
     let total = diag(&cal.intrinsic.cov);
+    let per_dof = fits_per_dof(fits, &cf, g)?;
+    let dof: Vec<Option<f64>> = per_dof
+        .iter()
+        .zip(&total)
+        .map(|(p, t)| (*p > 0.0).then(|| t * t / p))
+        .collect();
+    b.vector(
+        "fits",
+        Kind::A,
+        "the sine fits of the three conditions: (A, B) with their covariance under the noise \
+         model estimated from the residuals (JSON noise), propagated through the Gram form",
+        &total.map(f64::sqrt),
+        &dof,
+    );
+    let cg = [
+        -values[0] / g,
+        -values[1] / g,
+        -values[2] / g,
+        0.0,
+        0.0,
+        0.0,
+    ];
+    gravity_source(&mut b, g, inputs.u_g_loc, &cg);
+    rate_sources(&mut b, fits, refits, &cf, &values, g)?;
+    timestamps_source(&mut b, fits, &values, inputs);
+    if slow_noise {
+        slow_notes(&mut b, fits);
+    }
+    b.combine();
+    Ok(b)
+}
+
+/// Var(V̂)/2 of each property's `fits` line, for ν = V²/(Var(V̂)/2): each channel fit's
+/// share V_cj²/ν_cj, and with slow noise each channel's slow terms (see below).
+fn fits_per_dof(
+    fits: &[GroupFit; 3],
+    cf: &[ConditionFit; 3],
+    g: f64,
+) -> Result<[f64; 6], RateError> {
+    let diag = |c: &[[f64; 6]; 6]| variances6(c).map(|x| x.max(0.0));
     // Var(V̂)/2 per property (so that ν = V²/per_dof): Σ over channel fits of V²/ν, and
     // with slow noise per channel the slow terms' share, whose levels the three conditions
     // share (pooled): their contributions add before the covariance of (Q̂, q̂) applies.
     let mut per_dof = [0.0; 6];
     let propagated = |c: usize, j: usize, m: [[f64; 2]; 2]| -> Result<[f64; 6], RateError> {
-        let mut only = cf;
+        let mut only = *cf;
         for (oc, f) in only.iter_mut().enumerate() {
             for (oj, cov) in f.cov.iter_mut().enumerate() {
                 *cov = if (oc, oj) == (c, j) { m } else { [[0.0; 2]; 2] };
@@ -512,33 +552,23 @@ fn rotation_budget(
     for (d, x) in per_dof.iter_mut().zip(rescaled_per_dof(fits, &propagated)?) {
         *d += x;
     }
-    let dof: Vec<Option<f64>> = per_dof
-        .iter()
-        .zip(&total)
-        .map(|(p, t)| (*p > 0.0).then(|| t * t / p))
-        .collect();
-    b.vector(
-        "fits",
-        Kind::A,
-        "the sine fits of the three conditions: (A, B) with their covariance under the noise \
-         model estimated from the residuals (JSON noise), propagated through the Gram form",
-        &total.map(f64::sqrt),
-        &dof,
-    );
-    let cg = [
-        -values[0] / g,
-        -values[1] / g,
-        -values[2] / g,
-        0.0,
-        0.0,
-        0.0,
-    ];
-    gravity_source(&mut b, g, inputs.u_g_loc, &cg);
+    Ok(per_dof)
+}
+
+/// The `rate_x`, `rate_y`, `rate_z` lines: each condition refitted at its rate ± u.
+fn rate_sources(
+    b: &mut Budget,
+    fits: &[GroupFit; 3],
+    refits: [&dyn Refit; 3],
+    cf: &[ConditionFit; 3],
+    values: &[f64; 6],
+    g: f64,
+) -> Result<(), RateError> {
     for (c, (f, s)) in fits.iter().zip(refits).enumerate() {
         let u = f.u_rate_hz;
         let at = |rate: f64| -> Result<[f64; 6], RateError> {
             let refit = s.refit(rate)?;
-            let mut moved = cf;
+            let mut moved = *cf;
             // Condition c refitted at the rate, its covariance kept.
             for (_, m) in moved.iter_mut().enumerate().filter(|(k, _)| *k == c) {
                 *m = ConditionFit {
@@ -555,7 +585,7 @@ fn rotation_budget(
             let (hi, lo) = (at(f.rate_hz + u)?, at(f.rate_hz - u)?);
             hi.iter()
                 .zip(&lo)
-                .zip(&values)
+                .zip(values)
                 .map(|((hi, lo), v)| {
                     let (a, b) = (hi - v, lo - v);
                     if a.abs() >= b.abs() {
@@ -590,6 +620,11 @@ fn rotation_budget(
             Some(nu),
         );
     }
+    Ok(())
+}
+
+/// The `timestamps` line.
+fn timestamps_source(b: &mut Budget, fits: &[GroupFit; 3], values: &[f64; 6], inputs: &TypeB) {
     // A timestamp error of standard deviation σ_t attenuates every amplitude by
     // (ωσ_t)²/2 (method.md §7), the same for the three channels, so the angles keep.
     let resolution = 1.0 / f64::from(CLOCK.hz());
@@ -619,10 +654,13 @@ fn rotation_budget(
         &ct,
         None,
     );
-    if slow_noise {
-        b.notes.extend(check_notes(fits));
-    }
-    for f in fits.iter().filter(|_| slow_noise) {
+}
+
+/// With `--slow-noise`: the model check's notes, and a note for each condition or channel
+/// whose slow terms are not modelled, and why.
+fn slow_notes(b: &mut Budget, fits: &[GroupFit; 3]) {
+    b.notes.extend(check_notes(fits));
+    for f in fits {
         if f.slow_status == SlowStatus::Modelled {
             for ch in Channel::ALL
                 .into_iter()
@@ -653,8 +691,6 @@ fn rotation_budget(
             f.condition.letter()
         ));
     }
-    b.combine();
-    Ok(b)
 }
 
 /// The Welch–Satterthwaite terms (Var/2 per property) of the channels whose noise terms the
