@@ -107,7 +107,7 @@ fn stepped(seed: u64, rho: f64, floor_ug: f64, walk_ug: f64) -> Config {
 /// between poses"), the proof `name`: the k = 2 coverage of the nine properties pooled and
 /// each, and the mean of (1.96·z/k)², each offset against the bias plus the slow noise's
 /// mean over the readings (its measurand); and whether any session warned of drift between
-/// poses. The failures of the bounds below.
+/// poses, each held to the bounds of the test below.
 fn stepped_slow_coverage(name: &str, rho: f64, floor_ug: f64, sessions: usize) {
     let trial = |t: usize| {
         let cfg = stepped(0x57E9_0000 + t as u64, rho, floor_ug, 0.0);
@@ -195,9 +195,9 @@ fn stepped_coverage_with_slow_noise_holds_under_ar_and_flicker() {
     stepped_slow_coverage(&format!("{name}#flicker_50ug"), 0.0, 50.0, 1000);
 }
 
-/// Stepped sessions (as [`stepped`]) with a random walk (µg/√s): for each of `sessions`,
-/// whether it warns that the pose residuals are correlated from one pose to the next, and
-/// its properties (the proof's witness).
+/// Stepped session `t` (as [`stepped`]) with a random walk (µg/√s): whether it warns that
+/// the pose residuals are correlated from one pose to the next, and its properties (the
+/// proof's witness).
 fn stepped_drift_trial(rho: f64, walk_ug: f64, t: usize) -> (bool, Vec<Quantity>) {
     let cfg = stepped(0xD21F_0000 + t as u64, rho, 0.0, walk_ug);
     let rec = Simulation::new(cfg).unwrap().recording().unwrap();
