@@ -9,23 +9,13 @@ use rotacal::calibrate::json::CorrectionJson;
 use rotacal::calibrate::{calibrate, Options};
 use rotacal::correct::apply;
 use rotacal::simulate::{Config, Simulation};
+use rotacal_proof::parallel_n;
 use std::path::PathBuf;
 
 fn tmp(name: &str) -> PathBuf {
     let dir = std::env::temp_dir().join(format!("rotacal-apply-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     dir.join(name)
-}
-
-/// Runs `trial(i)` for i in 0..n on two threads.
-fn parallel<T: Send>(n: usize, trial: impl Fn(usize) -> T + Sync) -> Vec<T> {
-    std::thread::scope(|s| {
-        let a = s.spawn(|| (0..n / 2).map(&trial).collect::<Vec<_>>());
-        let mut rest: Vec<T> = (n / 2..n).map(&trial).collect();
-        let mut out = a.join().unwrap();
-        out.append(&mut rest);
-        out
-    })
 }
 
 /// Test directions: the six axes and four cube diagonals.
@@ -100,7 +90,7 @@ fn corrections(cfg: Config) -> (Simulation, CorrectionJson) {
 fn simulated_truth_round_trips_within_uncertainty() {
     const TRIALS: usize = 400;
     for preset in ["metrologia-static", "paper-10mhz"] {
-        let results = parallel(TRIALS, |i| {
+        let results = parallel_n(TRIALS, |i| {
             let mut cfg = Config::preset(preset).unwrap();
             cfg.seed = 0xA991_0000 + i as u64;
             cfg.mounting.axis = [1.0, 1.0, 0.0];
@@ -194,7 +184,7 @@ fn apply_to(rec: &rotacal::recording::Recording, c: &Correction) -> rotacal::rec
 #[test]
 fn corrected_rotation_channels_are_orthonormal_sinusoids() {
     const PAIRS: usize = 100;
-    let results = parallel(PAIRS, |i| {
+    let results = parallel_n(PAIRS, |i| {
         let mut cfg = Config::preset("paper-10mhz").unwrap();
         cfg.seed = 0x0127_0000 + 2 * i as u64;
         let (_, c) = corrections(cfg.clone());

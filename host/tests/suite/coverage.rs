@@ -33,8 +33,6 @@ use std::f64::consts::TAU;
 
 const TRIALS: usize = 2000;
 
-pub(crate) use rotacal_proof::parallel_n;
-
 pub(crate) struct Tally {
     names: Vec<&'static str>,
     truth: Vec<f64>,

@@ -18,7 +18,7 @@
 #![allow(clippy::needless_range_loop)]
 
 use crate::common;
-use crate::coverage::{parallel_n, Tally};
+use crate::coverage::Tally;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rotacal::calibrate::free::{self, Pose, Residual};
@@ -27,7 +27,7 @@ use rotacal::calibrate::still::{self, Verdict};
 use rotacal::calibrate::{calibrate, Options};
 use rotacal::recording::{Method, Recording};
 use rotacal::simulate::{Config, Simulation};
-use rotacal_proof::prove;
+use rotacal_proof::{parallel_n, prove};
 use std::path::{Path, PathBuf};
 
 const TRUTH_TOML: &str = r#"

@@ -441,11 +441,10 @@ fn rotation_budget(
     let mut b = new_budget(units, false);
     let cf = fits.clone().map(|f| f.condition_fit());
     let values = values6(&cal.intrinsic);
-    let diag = |c: &[[f64; 6]; 6]| variances6(c).map(|x| x.max(0.0));
     // Type A. The nine channel fits are independent, so each one's share of the variance
     // is the propagation with the others' covariance set to zero; their degrees of freedom
     // combine by Welch–Satterthwaite.
-    let total = diag(&cal.intrinsic.cov);
+    let total = nonneg_variances(&cal.intrinsic.cov);
     let per_dof = fits_per_dof(fits, &cf, g)?;
     let dof: Vec<Option<f64>> = per_dof
         .iter()
@@ -478,6 +477,11 @@ fn rotation_budget(
     Ok(b)
 }
 
+/// The six properties' variances from their covariance, rounding's negatives as zero.
+fn nonneg_variances(cov: &[[f64; 6]; 6]) -> [f64; 6] {
+    variances6(cov).map(|x| x.max(0.0))
+}
+
 /// Var(V̂)/2 of each property's `fits` line, for ν = V²/(Var(V̂)/2): each channel fit's
 /// share V_cj²/ν_cj, and with slow noise each channel's slow terms (see below).
 fn fits_per_dof(
@@ -485,7 +489,6 @@ fn fits_per_dof(
     cf: &[ConditionFit; 3],
     g: f64,
 ) -> Result<[f64; 6], RateError> {
-    let diag = |c: &[[f64; 6]; 6]| variances6(c).map(|x| x.max(0.0));
     // Var(V̂)/2 per property (so that ν = V²/per_dof): Σ over channel fits of V²/ν, and
     // with slow noise per channel the slow terms' share, whose levels the three conditions
     // share (pooled): their contributions add before the covariance of (Q̂, q̂) applies.
@@ -497,7 +500,7 @@ fn fits_per_dof(
                 *cov = if (oc, oj) == (c, j) { m } else { [[0.0; 2]; 2] };
             }
         }
-        Ok(diag(&intrinsic::from_gram(&only, g, 0.0)?.cov))
+        Ok(nonneg_variances(&intrinsic::from_gram(&only, g, 0.0)?.cov))
     };
     let ab = |m: &[[f64; 3]; 3], scale: f64| {
         [
