@@ -70,6 +70,17 @@ pub struct Budget {
     pub notes: Vec<String>,
 }
 
+/// How a budget's k follows from its effective degrees of freedom.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum KFrom {
+    /// Student's t: the variance estimate a scaled χ²_ν.
+    #[default]
+    StudentT,
+    /// The variance estimate normal, of relative variance 2/ν, truncated at zero
+    /// ([`coverage_factor_normal_variance`]): a variance made of signed slow-noise levels.
+    NormalVariance,
+}
+
 impl Budget {
     /// An empty budget for these properties.
     pub fn new(quantities: &[&str], units: &[String]) -> Self {
@@ -130,6 +141,11 @@ impl Budget {
 
     /// Combine: u_c² = Σ u_i², ν_eff = u_c⁴ / Σ(u_i⁴/ν_i), k = t₉₇.₅(ν_eff) (at least 2).
     pub fn combine(&mut self) {
+        self.combine_with(KFrom::StudentT);
+    }
+
+    /// [`Budget::combine`] with k from ν_eff as `k_from` says.
+    pub fn combine_with(&mut self, k_from: KFrom) {
         // Per property, each source's (contribution, degrees of freedom, name): a source
         // counts for the properties its lists cover (every source here covers them all).
         let mut per_quantity: Vec<Vec<(f64, Option<f64>, &str)>> = self
@@ -155,7 +171,10 @@ impl Budget {
                     .sum();
                 let nu = welch_satterthwaite(var, denom);
                 let nu_eff = nu.is_finite().then_some(nu);
-                let k = coverage_factor(nu);
+                let k = match k_from {
+                    KFrom::StudentT => coverage_factor(nu),
+                    KFrom::NormalVariance => coverage_factor_normal_variance(nu),
+                };
                 let dominant = terms
                     .iter()
                     .fold((f64::NEG_INFINITY, ""), |best, t| {
@@ -199,6 +218,54 @@ pub fn coverage_factor(nu: f64) -> f64 {
     StudentsT::new(0.0, 1.0, nu)
         .map(|t| t.inverse_cdf(0.975).max(2.0))
         .unwrap_or(2.0)
+}
+
+/// k for a two-sided 95 % interval when the variance estimate V̂ is normal rather than a
+/// scaled χ²: V̂ = V·(1 + δ), δ ~ N(0, 2/ν) truncated where V̂ would be negative, the error
+/// N(0, V) independent of it, and k solves E[2Φ(k·√(1 + δ)) − 1] = 0.95. It agrees with
+/// Student's t to order 1/ν and exceeds it below, where V̂'s lower tail is heavier than
+/// χ²'s: a variance made of signed slow-noise levels (docs/uncertainty.md, "k from the
+/// estimate's own degrees of freedom"). At least 2; 2 for ν infinite or not positive.
+pub fn coverage_factor_normal_variance(nu: f64) -> f64 {
+    use statrs::function::erf::erf;
+    if !(nu > 0.0 && nu <= 1e6) {
+        return 2.0;
+    }
+    let sd = (2.0 / nu).sqrt();
+    // Simpson's rule over the standard normal x = δ/sd, from where V̂ reaches zero.
+    let (lo, hi) = ((-1.0 / sd).max(-8.0), 8.0);
+    let n = 800;
+    let h = (hi - lo) / f64::from(n);
+    let covered = |k: f64| {
+        let (mut num, mut den) = (0.0, 0.0);
+        for i in 0..=n {
+            let x = lo + h * f64::from(i);
+            let w = match i {
+                0 => 1.0,
+                _ if i == n => 1.0,
+                _ if i % 2 == 1 => 4.0,
+                _ => 2.0,
+            };
+            let pdf = w * (-0.5 * x * x).exp();
+            let v = (1.0 + sd * x).max(0.0);
+            num += pdf * erf(k * v.sqrt() / std::f64::consts::SQRT_2);
+            den += pdf;
+        }
+        num / den
+    };
+    let (mut a, mut b) = (1.9, 1e4);
+    if covered(b) < 0.95 {
+        return b;
+    }
+    for _ in 0..100 {
+        let m = 0.5 * (a + b);
+        if covered(m) < 0.95 {
+            a = m;
+        } else {
+            b = m;
+        }
+    }
+    b.max(2.0)
 }
 
 /// ν_eff = var² / Σ(u_i⁴/ν_i), given that sum (infinite when it is 0).

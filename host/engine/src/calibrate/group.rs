@@ -294,6 +294,9 @@ pub struct SlowNoise {
     pub fit: SlowFit,
     /// Covariance of (A, B, C) per unit of each term.
     pub unit_cov: [[[f64; 3]; 3]; 3],
+    /// Covariance of (A, B, C) under the AR model as first estimated from the residuals,
+    /// the slow noise's short-range share still in it.
+    pub first_cov: [[f64; 3]; 3],
     /// Seconds between rows.
     pub row_interval_s: f64,
     /// The levels the covariance used: θ, or with negative levels taken as zero where
@@ -545,6 +548,10 @@ fn update_group(
                     .as_ref()
                     .and_then(|r| p.design.period_scatter(r, &model, &slow_fit, &cycles));
                 let (cov, theta_used) = combined(&unit_cov, &slow_fit.theta);
+                let first_cov = match f.noise.get(i) {
+                    Some(m) => to_array(&m.sandwich(h)?),
+                    None => cov,
+                };
                 if let Some(c) = f.cov.get_mut(i) {
                     *c = cov;
                 }
@@ -555,6 +562,7 @@ fn update_group(
                     *slot = Some(SlowNoise {
                         fit: slow_fit,
                         unit_cov,
+                        first_cov,
                         row_interval_s: p.row_interval_s,
                         theta_used,
                         allan,

@@ -2,7 +2,7 @@
 //! its rows ([`super::group`]) or from a streamed file's sums ([`super::stream`]), and one
 //! assembly of the entries for both: budgets, corrections, offsets at rest.
 
-use super::budget::{Budget, Kind};
+use super::budget::{Budget, KFrom, Kind};
 use super::group::{fit_group, pool_slow, samples, GroupFit, Refit, SlowStatus};
 use super::json::{self, CalibrationJson, CorrectionJson, FitJson, NoiseJson};
 use super::sources::{gravity_source, new_budget, values6, variances6};
@@ -445,11 +445,13 @@ fn rotation_budget(
     // is the propagation with the others' covariance set to zero; their degrees of freedom
     // combine by Welch–Satterthwaite.
     let total = nonneg_variances(&cal.intrinsic.cov);
-    let per_dof = fits_per_dof(fits, &cf, g)?;
+    let (per_dof, short_range) = fits_per_dof(fits, &cf, g)?;
+    // ν's V is at least what the short-range noise alone gives (`fits_per_dof`).
     let dof: Vec<Option<f64>> = per_dof
         .iter()
         .zip(&total)
-        .map(|(p, t)| (*p > 0.0).then(|| t * t / p))
+        .zip(&short_range)
+        .map(|((p, t), s)| (*p > 0.0).then(|| t.max(*s).powi(2) / p))
         .collect();
     b.vector(
         "fits",
@@ -472,8 +474,10 @@ fn rotation_budget(
     timestamps_source(&mut b, fits, &values, inputs);
     if slow_noise {
         slow_notes(&mut b, fits);
+        b.combine_with(KFrom::NormalVariance);
+    } else {
+        b.combine();
     }
-    b.combine();
     Ok(b)
 }
 
@@ -484,11 +488,19 @@ fn nonneg_variances(cov: &[[f64; 6]; 6]) -> [f64; 6] {
 
 /// Var(V̂)/2 of each property's `fits` line, for ν = V²/(Var(V̂)/2): each channel fit's
 /// share V_cj²/ν_cj, and with slow noise each channel's slow terms (see below).
+///
+/// Also each property's variance with every slow channel's fit under its AR model as first
+/// estimated from the residuals, the slow noise's short-range share in it: the V of ν is
+/// at least that (docs/uncertainty.md, "k from the estimate's own degrees of freedom"). A
+/// slow level estimated below zero takes V̂ below what the residuals' short-range
+/// correlation alone shows, which the noise cannot be; with V̂ itself in ν, ν fell with
+/// V̂² (below 1, k 12.7, in some sessions) and AR(1) 0.6 covered s at 0.969–0.980.
 fn fits_per_dof(
     fits: &[GroupFit; 3],
     cf: &[ConditionFit; 3],
     g: f64,
-) -> Result<[f64; 6], RateError> {
+) -> Result<([f64; 6], [f64; 6]), RateError> {
+    let mut short_range = [0.0; 6];
     // Var(V̂)/2 per property (so that ν = V²/per_dof): Σ over channel fits of V²/ν, and
     // with slow noise per channel the slow terms' share, whose levels the three conditions
     // share (pooled): their contributions add before the covariance of (Q̂, q̂) applies.
@@ -512,8 +524,13 @@ fn fits_per_dof(
     for (c, fit) in fits.iter().enumerate() {
         for (j, (shared_fl, shared_rw, slow_cov)) in shared.iter_mut().enumerate() {
             match fit.slow.get(j).and_then(Option::as_ref) {
-                // Rescaled by the model check: below.
-                Some(sl) if sl.rescaled().is_some() => {}
+                // Rescaled by the model check: below; its variance is its own floor.
+                Some(sl) if sl.rescaled().is_some() => {
+                    let m = fit.cov.get(j).copied().unwrap_or([[0.0; 3]; 3]);
+                    for (s, x) in short_range.iter_mut().zip(propagated(c, j, ab(&m, 1.0))?) {
+                        *s += x;
+                    }
+                }
                 Some(sl) => {
                     let [ar_unit, fl_unit, rw_unit] = &sl.unit_cov;
                     let [t0, tq, tw] = sl.theta_used;
@@ -526,6 +543,10 @@ fn fits_per_dof(
                     let on = |t: f64| f64::from(u8::from(t != 0.0));
                     let fl = propagated(c, j, ab(fl_unit, on(tq)))?;
                     let rw = propagated(c, j, ab(rw_unit, on(tw)))?;
+                    let first = propagated(c, j, ab(&sl.first_cov, 1.0))?;
+                    for (x, f) in short_range.iter_mut().zip(first) {
+                        *x += f;
+                    }
                     for (s, f) in shared_fl.iter_mut().zip(fl) {
                         *s += f;
                     }
@@ -538,8 +559,9 @@ fn fits_per_dof(
                     let m = fit.cov.get(j).copied().unwrap_or([[0.0; 3]; 3]);
                     let part = propagated(c, j, ab(&m, 1.0))?;
                     let nu = fit.dof(j);
-                    for (d, x) in per_dof.iter_mut().zip(part) {
+                    for ((d, s), x) in per_dof.iter_mut().zip(short_range.iter_mut()).zip(part) {
                         *d += x * x / nu;
+                        *s += x;
                     }
                 }
             }
@@ -555,7 +577,7 @@ fn fits_per_dof(
     for (d, x) in per_dof.iter_mut().zip(rescaled_per_dof(fits, &propagated)?) {
         *d += x;
     }
-    Ok(per_dof)
+    Ok((per_dof, short_range))
 }
 
 /// The `rate_x`, `rate_y`, `rate_z` lines: each condition refitted at its rate ± u.
