@@ -71,10 +71,9 @@ pub struct Budget {
 }
 
 /// How a budget's k follows from its effective degrees of freedom.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum KFrom {
     /// Student's t: the variance estimate a scaled χ²_ν.
-    #[default]
     StudentT,
     /// The variance estimate normal, of relative variance 2/ν, truncated at zero
     /// ([`coverage_factor_normal_variance`]): a variance made of signed slow-noise levels.
