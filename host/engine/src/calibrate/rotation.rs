@@ -523,11 +523,15 @@ fn fits_per_dof(
     let mut shared = [([0.0; 6], [0.0; 6], None); 3];
     for (c, fit) in fits.iter().enumerate() {
         for (j, (shared_fl, shared_rw, slow_cov)) in shared.iter_mut().enumerate() {
+            // The fit's own share of V, for the floor and for a channel without slow terms.
+            let own = || {
+                let m = fit.cov.get(j).copied().unwrap_or([[0.0; 3]; 3]);
+                propagated(c, j, ab(&m, 1.0))
+            };
             match fit.slow.get(j).and_then(Option::as_ref) {
                 // Rescaled by the model check: below; its variance is its own floor.
                 Some(sl) if sl.rescaled().is_some() => {
-                    let m = fit.cov.get(j).copied().unwrap_or([[0.0; 3]; 3]);
-                    for (s, x) in short_range.iter_mut().zip(propagated(c, j, ab(&m, 1.0))?) {
+                    for (s, x) in short_range.iter_mut().zip(own()?) {
                         *s += x;
                     }
                 }
@@ -556,10 +560,8 @@ fn fits_per_dof(
                     *slow_cov = Some(sl.fit.cov);
                 }
                 None => {
-                    let m = fit.cov.get(j).copied().unwrap_or([[0.0; 3]; 3]);
-                    let part = propagated(c, j, ab(&m, 1.0))?;
                     let nu = fit.dof(j);
-                    for ((d, s), x) in per_dof.iter_mut().zip(short_range.iter_mut()).zip(part) {
+                    for ((d, s), x) in per_dof.iter_mut().zip(short_range.iter_mut()).zip(own()?) {
                         *d += x * x / nu;
                         *s += x;
                     }
