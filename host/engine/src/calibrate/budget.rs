@@ -231,13 +231,13 @@ pub fn coverage_factor_normal_variance(nu: f64) -> f64 {
         return 2.0;
     }
     let sd = (2.0 / nu).sqrt();
-    // Simpson's rule over the standard normal x = δ/sd, from where V̂ reaches zero.
+    // Simpson's rule over the standard normal x = δ/sd, from where V̂ reaches zero: each
+    // node's weight times the normal density, normalised once, and its √(1 + δ).
     let (lo, hi) = ((-1.0 / sd).max(-8.0), 8.0);
     let n = 800;
     let h = (hi - lo) / f64::from(n);
-    let covered = |k: f64| {
-        let (mut num, mut den) = (0.0, 0.0);
-        for i in 0..=n {
+    let nodes: Vec<(f64, f64)> = (0..=n)
+        .map(|i| {
             let x = lo + h * f64::from(i);
             let w = match i {
                 0 => 1.0,
@@ -245,26 +245,25 @@ pub fn coverage_factor_normal_variance(nu: f64) -> f64 {
                 _ if i % 2 == 1 => 4.0,
                 _ => 2.0,
             };
-            let pdf = w * (-0.5 * x * x).exp();
-            let v = (1.0 + sd * x).max(0.0);
-            num += pdf * erf(k * v.sqrt() / std::f64::consts::SQRT_2);
-            den += pdf;
-        }
-        num / den
+            (w * (-0.5 * x * x).exp(), (1.0 + sd * x).max(0.0).sqrt())
+        })
+        .collect();
+    let total: f64 = nodes.iter().map(|(w, _)| w).sum();
+    let covered = |k: f64| {
+        nodes
+            .iter()
+            .map(|(w, r)| w * erf(k * r / std::f64::consts::SQRT_2))
+            .sum::<f64>()
+            / total
     };
-    let (mut a, mut b) = (1.9, 1e4);
-    if covered(b) < 0.95 {
-        return b;
+    let top = 1e4;
+    if covered(top) < 0.95 {
+        return top;
     }
-    for _ in 0..100 {
-        let m = 0.5 * (a + b);
-        if covered(m) < 0.95 {
-            a = m;
-        } else {
-            b = m;
-        }
-    }
-    b.max(2.0)
+    // Coverage grows with k: bisect its negative, which falls.
+    let falls = |k: f64| -covered(k);
+    let (_, k) = super::bisect::bracket(&falls, -0.95, (1.9, top), 100, f64::NEG_INFINITY);
+    k.max(2.0)
 }
 
 /// ν_eff = var² / Σ(u_i⁴/ν_i), given that sum (infinite when it is 0).

@@ -21,7 +21,7 @@
 //! wander over the session ([`session_wander`]): a fit's offset is the bias averaged over
 //! its poses, not the bias at any one time.
 
-use super::poses::bracket;
+use super::bisect::bracket;
 use super::still::{self, Interval, Verdict};
 use crate::allan::powerlaw::flicker_structure;
 use crate::fit::noise::unit_flicker_quadratic;

@@ -19,6 +19,7 @@
 //! every method shares), [`correction`] (the correction M·(y − O) and its covariance),
 //! [`json`] (the calibration JSON, docs/formats.md) and [`table`] (the terminal summary).
 
+mod bisect;
 pub mod budget;
 pub mod correction;
 mod drift;

@@ -7,13 +7,14 @@
 
 use super::gather::direction_name;
 use super::serial;
-use super::tilt::{bracket, joint_fit};
+use super::tilt::joint_fit;
 use super::weigh::Combined;
 use super::{
     coef_index, o_index, ChannelFit, Conditioning, CovPart, OffsetEstimator, Options, PartSource,
     Pose, PoseError, PoseFit, Serial, SlowPoses, Weights, NOISE_MODEL_MIN, NOT_STILL_FACTOR,
     SINGULAR, TILT_MAX_RAD, WELL_CONDITIONED, Z_ALARM,
 };
+use crate::calibrate::bisect::bracket;
 use crate::calibrate::budget::coverage_factor;
 use nalgebra::{DMatrix, DVector, Matrix4, Vector4};
 use rotacal_shared::intrinsic::Estimate;

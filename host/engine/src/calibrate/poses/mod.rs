@@ -31,7 +31,6 @@ pub(crate) use fit::weakest;
 pub use gather::{direction_name, poses_from_conditions, poses_from_oriented};
 pub use serial::{Serial, Z_ALARM};
 pub use slow::{SlowChannel, SlowPoses, SlowPosesError, SLOW_MIN_POSES};
-pub(crate) use tilt::bracket;
 pub use weigh::Weighing;
 
 use crate::calibrate::budget::coverage_factor;

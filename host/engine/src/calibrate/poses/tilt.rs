@@ -4,6 +4,7 @@
 
 use super::TILT_MAX_RAD;
 use super::{o_index, s_index, Cov12, CovPart, Design, PartSource, Pose, Theta, TiltScale};
+use crate::calibrate::bisect::bracket;
 use nalgebra::{Matrix3, RowVector3, Vector3};
 
 /// The poses' design in (S row-major, O): row j of pose p is (g·ĝ_p in S_j's columns, 1
@@ -82,30 +83,6 @@ fn meat(fit: &Gls, x: &[Design], v: &[Matrix3<f64>]) -> Cov12 {
 fn bisect(f: &impl Fn(f64) -> f64, target: f64, lo: f64, hi: f64) -> f64 {
     let (lo, hi) = bracket(f, target, (lo, hi), 100, f64::NEG_INFINITY);
     0.5 * (lo + hi)
-}
-
-/// Bisection of the decreasing `f(x) = target` from the bracket `(lo, hi)` (f(lo) > target
-/// ≥ f(hi)): the last bracket, after at most `steps` halvings, once it no longer narrows,
-/// or once `hi` is below `floor`.
-pub(crate) fn bracket(
-    f: &impl Fn(f64) -> f64,
-    target: f64,
-    (mut lo, mut hi): (f64, f64),
-    steps: usize,
-    floor: f64,
-) -> (f64, f64) {
-    for _ in 0..steps {
-        let mid = 0.5 * (lo + hi);
-        if mid <= lo || mid >= hi || hi < floor {
-            break;
-        }
-        if f(mid) > target {
-            lo = mid;
-        } else {
-            hi = mid;
-        }
-    }
-    (lo, hi)
 }
 
 /// The joint fit with the tilt random effect (see [`Scatter::Tilt`](super::Scatter::Tilt));
