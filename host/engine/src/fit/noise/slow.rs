@@ -692,7 +692,8 @@ const LENGTHS_PER_CORRELATION: f64 = 4.0;
 ///   terms' exact expected share; m₀ from that model (at most the fourth-longest length,
 ///   so that a model that took up slow power cannot leave too few: at a 100 µg floor that
 ///   refused about a third of the channels); and the levels once more.
-/// - Their covariance by [`bootstrap_covariance`].
+/// - Their covariance and bias by [`bootstrap_covariance`]; the bias is subtracted (on
+///   white noise it was 0.075 of the flicker level's u, low).
 /// - The estimates keep their sign: a negative Q or q is the unbiased estimate of a level
 ///   the record cannot tell from zero, so that the variance they add is unbiased too (a
 ///   truncated one overstated U by 9 % on white noise).
@@ -708,7 +709,8 @@ pub fn estimate_pooled(
     let Some((theta, models)) = fit_levels(parts, true)? else {
         return Ok(None);
     };
-    let cov = bootstrap_covariance(parts, &models, theta, channel);
+    let (cov, bias) = bootstrap_covariance(parts, &models, theta, channel);
+    let theta = [theta[0] - bias[0], theta[1] - bias[1]];
     let c = |i: usize, j: usize| cov.get((i, j)).copied().unwrap_or(0.0);
     let out = models
         .into_iter()
@@ -803,9 +805,9 @@ fn fit_levels(parts: &[SlowPart<'_>], rescale: bool) -> Result<Option<Levels>, N
     Ok(fit.map(|est| ([est.theta(0), est.theta(1)], models)))
 }
 
-/// The covariance of (Q̂, q̂) by a parametric bootstrap of the whole estimate: residuals
-/// drawn from the groups' AR models plus the slow terms through each group's fit, and
-/// [`fit_levels`] run on them.
+/// The covariance and the bias of (Q̂, q̂) by a parametric bootstrap of the whole
+/// estimate: residuals drawn from the groups' AR models plus the slow terms through each
+/// group's fit, and [`fit_levels`] run on them.
 ///
 /// - The whole estimate, not its linearisation: the averaging lengths used, the weights
 ///   and the AR models all follow the data, which a fixed linear map of the statistics
@@ -817,12 +819,14 @@ fn fit_levels(parts: &[SlowPart<'_>], rescale: bool) -> Result<Option<Levels>, N
 ///   bilinear form in the levels through them evaluated at (Q̂, q̂) (the plug-in itself when
 ///   both are positive). Each variance is kept at least half of the plug-in's, the
 ///   correlation that of C(0, 0) where the form would lose it.
+/// - The bias: each replicate's estimates less the levels drawn, through the same form;
+///   their mean, whose sampling covariance (over the replicates) is added to the levels'.
 fn bootstrap_covariance(
     parts: &[SlowPart<'_>],
     models: &[NoiseModel],
     theta: [f64; SLOW],
     channel: u64,
-) -> DMatrix<f64> {
+) -> (DMatrix<f64>, [f64; SLOW]) {
     let mut rng = ChaCha8Rng::seed_from_u64(bootstrap_seed(parts, channel));
     let gens: Vec<FlickerIncrements> = parts
         .iter()
@@ -836,6 +840,11 @@ fn bootstrap_covariance(
         (fq.abs(), wq.abs()),
     ];
     let mut draws: [Vec<Vec<f64>>; 4] = Default::default();
+    // The bias at the signed estimates, replicate by replicate (the four draws share their
+    // random numbers): the same bilinear form of each corner's estimate less its level.
+    let (sf, sw) = (fq.signum(), wq.signum());
+    let form = [1.0 - sf - sw + sf * sw, sf - sf * sw, sw - sf * sw, sf * sw];
+    let mut biases: Vec<Vec<f64>> = Vec::with_capacity(REPLICATES);
     for _ in 0..REPLICATES {
         let drawn: Vec<Vec<Vec<f64>>> = parts
             .iter()
@@ -843,7 +852,8 @@ fn bootstrap_covariance(
             .zip(&gens)
             .map(|((p, m), gen)| p.design.draw_residuals((m, 1.0), &levels, gen, &mut rng))
             .collect();
-        for (l, out) in draws.iter_mut().enumerate() {
+        let mut bias = Some([0.0; SLOW]);
+        for (l, (out, (at, weight))) in draws.iter_mut().zip(levels.iter().zip(form)).enumerate() {
             // The AR model a part carries is only fit_levels' fallback: the drawing one.
             let again: Vec<SlowPart<'_>> = parts
                 .iter()
@@ -857,13 +867,21 @@ fn bootstrap_covariance(
                     })
                 })
                 .collect();
-            if let Ok(Some((t, _))) = fit_levels(&again, false) {
-                out.push(t.to_vec());
+            match fit_levels(&again, false) {
+                Ok(Some((t, _))) => {
+                    for (b, (est, level)) in
+                        bias.iter_mut().flatten().zip(t.iter().zip([at.0, at.1]))
+                    {
+                        *b += weight * (est - level);
+                    }
+                    out.push(t.to_vec());
+                }
+                _ => bias = None,
             }
         }
+        biases.extend(bias.map(|b| b.to_vec()));
     }
     let [c0, cf, cw, cb] = draws.map(|d| sample_covariance(&d, SLOW));
-    let (sf, sw) = (fq.signum(), wq.signum());
     let c = &c0 + (&cf - &c0) * sf + (&cw - &c0) * sw + (&cb - &cf - &cw + &c0) * (sf * sw);
     let at = |m: &DMatrix<f64>, i: usize, j: usize| m.get((i, j)).copied().unwrap_or(0.0);
     // The plug-in, negative levels drawn as zero: the form may lower a variance below it by
@@ -889,7 +907,18 @@ fn bootstrap_covariance(
     } else {
         0.0
     };
-    DMatrix::from_row_slice(2, 2, &[v0, off, off, v1])
+    // The correction's own sampling variance adds to the estimate's.
+    let n = biases.len() as f64;
+    let mean = sample_mean(&biases, SLOW);
+    let cov = DMatrix::from_row_slice(2, 2, &[v0, off, off, v1])
+        + sample_covariance(&biases, SLOW) / n.max(1.0);
+    (
+        cov,
+        [
+            mean.first().copied().unwrap_or(0.0),
+            mean.get(1).copied().unwrap_or(0.0),
+        ],
+    )
 }
 
 /// The bootstrap's seed: a function of the channel and of every residual's bits, so that a
@@ -958,15 +987,22 @@ impl LevelSystem {
     }
 }
 
-/// The sample covariance of bootstrap draws of `k` parameters.
-fn sample_covariance(draws: &[Vec<f64>], k: usize) -> DMatrix<f64> {
-    let n = draws.len().max(2) as f64;
+/// The mean of bootstrap draws of `k` parameters (zeros without draws).
+fn sample_mean(draws: &[Vec<f64>], k: usize) -> Vec<f64> {
+    let n = draws.len().max(1) as f64;
     let mut mean = vec![0.0; k];
     for d in draws {
         for (m, v) in mean.iter_mut().zip(d) {
             *m += v / n;
         }
     }
+    mean
+}
+
+/// The sample covariance of bootstrap draws of `k` parameters.
+fn sample_covariance(draws: &[Vec<f64>], k: usize) -> DMatrix<f64> {
+    let n = draws.len().max(2) as f64;
+    let mean = sample_mean(draws, k);
     let mut cov = DMatrix::zeros(k, k);
     for d in draws {
         let c = DVector::from_iterator(k, d.iter().zip(&mean).map(|(v, m)| v - m));
