@@ -188,7 +188,7 @@ fn noise_models(
     let designs = if slow {
         let mut out = Vec::with_capacity(3);
         for c in coef {
-            let x = rate_direction(s, step, &wide, c);
+            let x = rate_direction(s, (step, t_end), &wide, c);
             match SlowDesign::new(&x, &weights) {
                 Ok(d) => out.push((x, d)),
                 Err(NoiseError::TooFew(_)) => break,
@@ -257,7 +257,8 @@ fn residuals(
 
 /// The widened fit `wide` with one more column for a channel of rate-fit coefficients `c`
 /// (A, B, C): its rate direction t·(A cos α − B sin α), the trend times the sine's
-/// derivative in the phase, unit amplitude.
+/// derivative in the phase, unit amplitude; `step` the fit's phase step and `t_end` the
+/// trend's scale, as `wide` was made with.
 ///
 /// The rate was fitted to the same data (the noise is modelled about the fitted rate),
 /// which takes part of this direction out of each channel's residuals (one rate for the
@@ -270,7 +271,7 @@ fn residuals(
 /// the rotation does not sweep (zero amplitude) keeps `wide`.
 fn rate_direction(
     s: &[batch::Sample],
-    step: PhaseStep,
+    (step, t_end): (PhaseStep, f64),
     wide: &DMatrix<f64>,
     c: &[f64; 3],
 ) -> DMatrix<f64> {
@@ -278,7 +279,6 @@ fn rate_direction(
     if !(amplitude > 0.0 && amplitude.is_finite()) {
         return wide.clone();
     }
-    let t_end = s.last().map_or(1.0, |x| x.0.last().0.max(1) as f64);
     let column = s.iter().map(|(ap, _)| {
         let [v] = batch::mean_over(ap, |t| {
             let trend = t.0 as f64 / t_end - 0.5;
@@ -596,14 +596,19 @@ fn update_group(
     f.rate_hz = choice.rate_hz;
     f.rate_fitted = choice.rate_fitted;
     f.u_rate_hz = choice.u_rate_hz;
+    // The flicker's and the walk's covariances of the sine fit depend on the rows' weights
+    // only, which every channel's design shares: made once.
+    let [fl, rw] = match p.design.first() {
+        Some(d) => d.slow_covariances(h)?.map(|m| to_array(&m)),
+        None => return Ok(()),
+    };
     // The table angle of each row in turns, for the model check.
     let cycles: Vec<f64> = p.times.iter().map(|t| t * f.rate_hz).collect();
     for ((ch, e), design) in Channel::ALL.into_iter().zip(est).zip(&p.design) {
         let i = ch.index();
         match e {
             Some((slow_fit, model)) => {
-                let [fl, rw] = design.slow_covariances(h)?;
-                let unit_cov = [to_array(&model.sandwich(h)?), to_array(&fl), to_array(&rw)];
+                let unit_cov = [to_array(&model.sandwich(h)?), fl, rw];
                 let allan = ch.of(&p.resid).as_ref().map_or_else(Vec::new, |r| {
                     let [_, q_fl, q_rw] = slow_fit.theta;
                     design.residual_allan(r, &model, [q_fl, q_rw])
