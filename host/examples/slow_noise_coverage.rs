@@ -4,12 +4,13 @@
 //! coefficient RHO if given, plus flicker and/or a bias random walk (docs/simulator.md),
 //! the noise never stated. With `--stepped`, the same device turned in 30° steps
 //! instead, 20 readings a step at its 16 Hz, 30 s from step to step (the nine properties;
-//! RATE is then ignored), calibrated as they come. With `--free POSES`, the same device
+//! RATE is then ignored), calibrated as they come; `--step DEG` steps by DEG instead (90:
+//! twelve static poses, each axis up and down twice). With `--free POSES`, the same device
 //! put down by hand in POSES unknown orientations at 104 Hz (still 3 s, turned in 1.5 s,
 //! each pose's noise ×1.5 either way, a 0.5 m/s² ring-down), calibrated by the free method. (1.96·z/k)² has mean ≈ 1 (within 3 % for any ν ≥ 5) when z
 //! follows Student's t with the ν that gave k; its band is χ²-based.
 //!
-//!     cargo run --release --example slow_noise_coverage -- [--stepped | --free POSES] FLOOR_UG WALK_UG_PER_SQRT_S SESSIONS [RHO] [RATE_HZ]
+//!     cargo run --release --example slow_noise_coverage -- [--stepped [--step DEG] | --free POSES] FLOOR_UG WALK_UG_PER_SQRT_S SESSIONS [RHO] [RATE_HZ]
 //!
 //! `--without-slow-noise` calibrates without the option. Stepped offsets are compared with
 //! the bias plus the slow noise's mean over the record's readings, which is what they
@@ -45,10 +46,19 @@ fn main() -> ExitCode {
         .position(|a| a == "--still")
         .and_then(|i| all.get(i + 1))
         .and_then(|n| n.parse().ok());
+    let step_deg: Option<f64> = all
+        .iter()
+        .position(|a| a == "--step")
+        .and_then(|i| all.get(i + 1))
+        .and_then(|n| n.parse().ok());
     let args: Vec<f64> = all
         .iter()
         .filter(|a| !a.starts_with("--"))
-        .skip(usize::from(free.is_some()) + usize::from(still_s.is_some()))
+        .skip(
+            usize::from(free.is_some())
+                + usize::from(still_s.is_some())
+                + usize::from(step_deg.is_some()),
+        )
         .filter_map(|a| a.parse().ok())
         .collect();
     let (floor, walk, sessions, rho, rate) = match args[..] {
@@ -95,7 +105,7 @@ fn main() -> ExitCode {
             cfg.table.rates_hz = None;
             cfg.table.samples_per_condition = None;
             cfg.table.duration_s = None;
-            cfg.table.angle_step_deg = Some(30.0);
+            cfg.table.angle_step_deg = Some(step_deg.unwrap_or(30.0));
             cfg.table.readings_per_angle = Some(20);
             cfg.table.dwell_s = Some(30.0);
         } else {
