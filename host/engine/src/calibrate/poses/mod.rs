@@ -102,6 +102,13 @@ pub struct PoseNoise {
     /// the jackknife of its mean variance over the poses it was pooled from (at most their
     /// Σ(n − 1)).
     pub dof: f64,
+    /// How much se² grows per unit level of flicker and of a bias random walk within the
+    /// pose (output units² per unit level, the levels of [`SlowPoses`]): the model
+    /// takes their share of the readings' autocovariances as its own, and slow noise
+    /// between poses must not be counted twice (docs/uncertainty.md, "Slow noise between
+    /// poses"). Zeros where it could not be computed.
+    #[serde(skip)]
+    pub slow_slope: [f64; 2],
 }
 
 pub use super::NOISE_MODEL_MIN;

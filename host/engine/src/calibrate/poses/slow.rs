@@ -197,6 +197,19 @@ impl SlowPoses {
                 .sum::<f64>()
                 / p as f64;
             let y: Vec<f64> = poses.iter().map(|q| q.mean[j]).collect();
+            // How each D_i grows per unit level within its pose: from its readings' noise
+            // model where it has one, else in proportion to the share of s² (std/√n).
+            let slope: Vec<[f64; 2]> = poses
+                .iter()
+                .zip(&d)
+                .zip(&within)
+                .map(
+                    |((q, di), e)| match q.noise.and_then(|m| m.get(j).copied().flatten()) {
+                        Some(m) => m.slow_slope,
+                        None => e.map(|ek| di * ek / s2),
+                    },
+                )
+                .collect();
             // The noise-only fit as the pose fit makes it.
             let fit = wls(x, &y, &d).ok_or(SlowPosesError::Singular)?;
             let data = ChannelData {
@@ -204,8 +217,7 @@ impl SlowPoses {
                 y: DMatrix::from_column_slice(p, 1, &y),
                 fit,
                 d,
-                s2,
-                within: &within,
+                slope,
             };
             channels.push(channel(j, &data, &g, &m, noise_dof)?);
         }
@@ -271,19 +283,18 @@ struct ChannelData<'a> {
     fit: ([f64; 4], nalgebra::Matrix4<f64>, f64),
     /// se², from the readings' noise model.
     d: Vec<f64>,
-    /// The readings' sample variance, pooled over the poses.
-    s2: f64,
-    /// Each pose's slow share of s² per unit level (flicker, walk).
-    within: &'a [[f64; 2]],
+    /// How each se² grows per unit level within its pose (flicker, walk).
+    slope: Vec<[f64; 2]>,
 }
 
 /// One channel's levels and unit parts.
 ///
 /// The pose means' own variances D come from their readings' noise model, which also sees
-/// the slow noise's share within each pose: at a 100 µg flicker floor the offsets' stated
-/// variance came out 1.7 times their spread. So D is taken less that share, in proportion
-/// to its part of the readings' sample variance, E[s²] = −n/(n − 1)·G_ii per unit level,
-/// and the levels are solved again (three rounds).
+/// the slow noise within each pose and takes it for its own: at a 100 µg flicker floor the
+/// offsets' stated variance came out 1.7 times their spread. Each D_i is taken less its
+/// growth per unit level (`slope`, from refitting the readings' model without the slow
+/// terms' expected share of their autocovariances) times the levels, and the levels are
+/// solved for with that in their expectations.
 fn channel(
     j: usize,
     data: &ChannelData<'_>,
@@ -320,28 +331,67 @@ fn channel(
     if !scale.is_finite() || a.determinant().abs() <= 1e-9 * scale {
         return Err(SlowPosesError::Confounded);
     }
-    let a_inv = a.try_inverse().ok_or(SlowPosesError::Confounded)?;
-    let mut theta = Vector2::zeros();
-    let mut own = d.clone();
-    let mut dk = Vector2::zeros();
-    // d own_i / d θ_k: −d_i·e_ik/s² where the factor is not held at its bounds.
-    let mut slope = vec![[0.0; 2]; p];
+    // D_i less its slow share, D_i − Σ_k θ_k·s_ik, is linear in the levels, and so are
+    // the expectations: E[q_k] = tr(RG_kR·D) − Σ_l θ_l·C_kl + Σ_l θ_l·A_kl, C_kl =
+    // tr(RG_kR·diag(s_l)). So θ = (A − C)⁻¹(q − d) at once. A pose whose D would leave
+    // [0.1, 2] of itself is held there and its slope dropped; the solve is made again.
+    let d0 = Vector2::from_fn(|k, _| (0..p).map(|i| rgr[k][(i, i)] * d[i]).sum::<f64>());
+    let mut free = vec![true; p];
+    let (mut theta, mut a_inv, mut own, mut slope) = (
+        Vector2::zeros(),
+        Matrix2::zeros(),
+        d.clone(),
+        vec![[0.0; 2]; p],
+    );
     for _ in 0..3 {
-        let dm = DMatrix::from_diagonal(&nalgebra::DVector::from_column_slice(&own));
-        dk = Vector2::from_fn(|k, _| tr_abt(&rgr[k], &dm));
-        theta = a_inv * (qk - dk);
-        (own, slope) = d
+        slope = data
+            .slope
             .iter()
-            .zip(data.within)
-            .map(|(di, e)| {
-                let factor = 1.0 - (theta[0] * e[0] + theta[1] * e[1]) / data.s2;
-                let free = (0.1..=2.0).contains(&factor);
-                let ds = e.map(|ek| if free { -di * ek / data.s2 } else { 0.0 });
-                (di * factor.clamp(0.1, 2.0), ds)
+            .zip(&free)
+            .map(|(s, f)| if *f { *s } else { [0.0; 2] })
+            .collect();
+        // Held poses: their fixed D less the free ones' linear part.
+        let held = Vector2::from_fn(|k, _| {
+            (0..p)
+                .filter(|&i| !free[i])
+                .map(|i| rgr[k][(i, i)] * (own[i] - d[i]))
+                .sum::<f64>()
+        });
+        let c = Matrix2::from_fn(|k, l| (0..p).map(|i| rgr[k][(i, i)] * slope[i][l]).sum::<f64>());
+        a_inv = (a - c).try_inverse().ok_or(SlowPosesError::Confounded)?;
+        theta = a_inv * (qk - d0 - held);
+        let next: Vec<(f64, bool)> = d
+            .iter()
+            .zip(&slope)
+            .zip(&own)
+            .zip(&free)
+            .map(|(((di, s), o), f)| {
+                if !*f {
+                    return (*o, false);
+                }
+                let v = di - theta[0] * s[0] - theta[1] * s[1];
+                let lo_hi = (0.1 * di, 2.0 * di);
+                (
+                    (v.clamp(lo_hi.0, lo_hi.1)),
+                    (lo_hi.0..=lo_hi.1).contains(&v),
+                )
             })
-            .unzip();
+            .collect();
+        let changed = next.iter().zip(&free).any(|((_, f), was)| f != was);
+        own = next.iter().map(|(v, _)| *v).collect();
+        free = next.iter().map(|(_, f)| *f).collect();
+        if !changed {
+            break;
+        }
     }
+    // d own_i/dθ_k: −s_ik where the pose is not held.
+    let slope: Vec<[f64; 2]> = slope
+        .iter()
+        .zip(&free)
+        .map(|(s, f)| if *f { s.map(|v| -v) } else { [0.0; 2] })
+        .collect();
     let dm = DMatrix::from_diagonal(&nalgebra::DVector::from_column_slice(&own));
+    let dk = Vector2::from_fn(|k, _| tr_abt(&rgr[k], &dm));
     let rdr = &r * &dm * &r;
     let [rgr_f, rgr_w] = rgr;
     let forms = levels_cov(&[rdr, rgr_f, rgr_w], g, &a_inv, theta);

@@ -202,20 +202,27 @@ impl NoiseModel {
                 lagged.sum::<f64>() / used as f64
             })
             .collect();
-        let model = NoiseModel::from_autocovariances(&gamma, used, used)?;
+        let lengths: Vec<usize> = records.iter().map(|r| r.len()).collect();
+        NoiseModel::from_autocovariances(&gamma, used, used)?.pooled_corrected(&lengths)
+    }
+
+    /// This model corrected for what the means of records of `lengths` took out of the
+    /// pooled autocovariances it was estimated from ([`Self::pooled_about_means`]).
+    pub fn pooled_corrected(self, lengths: &[usize]) -> Result<NoiseModel, NoiseError> {
+        let used: usize = lengths.iter().sum();
         // Records of one length share their expectation: one regressor set per length.
-        let mut lengths: Vec<(usize, usize)> = Vec::new();
-        for r in records {
-            match lengths.iter_mut().find(|(len, _)| *len == r.len()) {
+        let mut counts: Vec<(usize, usize)> = Vec::new();
+        for &len in lengths {
+            match counts.iter_mut().find(|(l, _)| *l == len) {
                 Some((_, count)) => *count += 1,
-                None => lengths.push((r.len(), 1)),
+                None => counts.push((len, 1)),
             }
         }
-        let regressors = lengths
+        let regressors = counts
             .iter()
             .map(|&(len, count)| Ok((Regressors::ones(len)?, (count * len) as f64)))
             .collect::<Result<Vec<_>, NoiseError>>()?;
-        model.fixed_point(used, records.len(), |m| {
+        self.fixed_point(used, lengths.len(), |m| {
             let mut sum = vec![0.0; m.order() + 1];
             for (r, weight) in &regressors {
                 for (s, e) in sum.iter_mut().zip(m.expected_residual_autocov(r)) {
@@ -224,6 +231,25 @@ impl NoiseModel {
             }
             sum
         })
+    }
+
+    /// The model at the same order had the observed autocovariances been lower by `shift`
+    /// (lags 0 … p), before any correction for a fit: with [`Self::rescaled`] or
+    /// [`Self::pooled_corrected`] after it, how an estimate answers a known share of its
+    /// autocovariances, such as slow noise within the records.
+    pub fn shifted(&self, shift: &[f64]) -> Result<NoiseModel, NoiseError> {
+        let observed: Vec<f64> = self
+            .observed
+            .iter()
+            .enumerate()
+            .map(|(k, o)| o - shift.get(k).copied().unwrap_or(0.0))
+            .collect();
+        NoiseModel {
+            observed: observed.clone(),
+            ..self.clone()
+        }
+        .with_autocovariances(&observed)
+        .ok_or(NoiseError::Constant)
     }
 
     /// The degrees of freedom of this pooled model's mean variance at `n` readings, 2 over
