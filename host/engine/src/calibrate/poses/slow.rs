@@ -336,20 +336,18 @@ fn channel(
     // tr(RG_kR·diag(s_l)). So θ = (A − C)⁻¹(q − d) at once. A pose whose D would leave
     // [0.1, 2] of itself is held there and its slope dropped; the solve is made again.
     let d0 = Vector2::from_fn(|k, _| (0..p).map(|i| rgr[k][(i, i)] * d[i]).sum::<f64>());
-    let mut free = vec![true; p];
-    let (mut theta, mut a_inv, mut own, mut slope) = (
-        Vector2::zeros(),
-        Matrix2::zeros(),
-        d.clone(),
-        vec![[0.0; 2]; p],
-    );
-    for _ in 0..3 {
-        slope = data
-            .slope
+    // Each pose's slope, zero where the pose is held.
+    let masked = |free: &[bool]| -> Vec<[f64; 2]> {
+        data.slope
             .iter()
-            .zip(&free)
+            .zip(free)
             .map(|(s, f)| if *f { *s } else { [0.0; 2] })
-            .collect();
+            .collect()
+    };
+    let mut free = vec![true; p];
+    let (mut theta, mut a_inv, mut own) = (Vector2::zeros(), Matrix2::zeros(), d.clone());
+    for _ in 0..3 {
+        let slope = masked(&free);
         // Held poses: their fixed D less the free ones' linear part.
         let held = Vector2::from_fn(|k, _| {
             (0..p)
@@ -360,36 +358,25 @@ fn channel(
         let c = Matrix2::from_fn(|k, l| (0..p).map(|i| rgr[k][(i, i)] * slope[i][l]).sum::<f64>());
         a_inv = (a - c).try_inverse().ok_or(SlowPosesError::Confounded)?;
         theta = a_inv * (qk - d0 - held);
-        let next: Vec<(f64, bool)> = d
-            .iter()
-            .zip(&slope)
-            .zip(&own)
-            .zip(&free)
-            .map(|(((di, s), o), f)| {
-                if !*f {
-                    return (*o, false);
-                }
-                let v = di - theta[0] * s[0] - theta[1] * s[1];
-                let lo_hi = (0.1 * di, 2.0 * di);
-                (
-                    (v.clamp(lo_hi.0, lo_hi.1)),
-                    (lo_hi.0..=lo_hi.1).contains(&v),
-                )
-            })
-            .collect();
-        let changed = next.iter().zip(&free).any(|((_, f), was)| f != was);
-        own = next.iter().map(|(v, _)| *v).collect();
-        free = next.iter().map(|(_, f)| *f).collect();
+        let mut changed = false;
+        for i in 0..p {
+            if !free[i] {
+                continue;
+            }
+            let v = d[i] - theta[0] * slope[i][0] - theta[1] * slope[i][1];
+            let (lo, hi) = (0.1 * d[i], 2.0 * d[i]);
+            own[i] = v.clamp(lo, hi);
+            if !(lo..=hi).contains(&v) {
+                free[i] = false;
+                changed = true;
+            }
+        }
         if !changed {
             break;
         }
     }
     // d own_i/dθ_k: −s_ik where the pose is not held.
-    let slope: Vec<[f64; 2]> = slope
-        .iter()
-        .zip(&free)
-        .map(|(s, f)| if *f { s.map(|v| -v) } else { [0.0; 2] })
-        .collect();
+    let slope: Vec<[f64; 2]> = masked(&free).iter().map(|s| s.map(|v| -v)).collect();
     let dm = DMatrix::from_diagonal(&nalgebra::DVector::from_column_slice(&own));
     let dk = Vector2::from_fn(|k, _| tr_abt(&rgr[k], &dm));
     let rdr = &r * &dm * &r;
