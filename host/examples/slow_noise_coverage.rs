@@ -24,7 +24,7 @@
 //! narrowed by the model check), then per property (s_u, s_v, s_w, φ_uv, φ_vw, φ_wu, and
 //! for stepped sessions O_u, O_v, O_w) its coverage, mean scaled z² and mean k.
 use rotacal::calibrate::noise_from::NoiseFrom;
-use rotacal::calibrate::{calibrate, Options};
+use rotacal::calibrate::{calibrate, CalibrateErrorKind, Options};
 use rotacal::recording::{read_bytes, Method};
 use rotacal::simulate::config::FreePoses;
 use rotacal::simulate::{Config, Noise, NoiseSd, Simulation};
@@ -75,6 +75,7 @@ fn main() -> ExitCode {
     let (mut covered, mut total, mut z2) = (0u32, 0u32, 0.0);
     let (mut sessions_warned, mut quiet) = (0u32, (0u32, 0u32));
     let mut rescaled = (0u32, 0u32);
+    let mut refused = 0u32;
     let mut per = [(0u32, 0.0f64, 0.0f64, 0.0f64); 9];
     for t in 0..sessions as u64 {
         let mut cfg = match Config::preset("paper-10mhz") {
@@ -136,11 +137,21 @@ fn main() -> ExitCode {
                     noise_from: still,
                     ..Options::default()
                 };
-                let cal = calibrate(&rec, &opts).map_err(|e| e.to_string())?;
-                Ok((sim, summary, cal))
+                match calibrate(&rec, &opts) {
+                    Ok(cal) => Ok(Some((sim, summary, cal))),
+                    // Too few poses kept for --slow-noise: a refusal, counted apart.
+                    Err(e) if matches!(*e.kind, CalibrateErrorKind::FreeSlowPoses { .. }) => {
+                        Ok(None)
+                    }
+                    Err(e) => Err(e.to_string()),
+                }
             });
         let (sim, summary, cal) = match run {
-            Ok(r) => r,
+            Ok(Some(r)) => r,
+            Ok(None) => {
+                refused += 1;
+                continue;
+            }
             Err(e) => {
                 eprintln!("session {t}: {e}");
                 return ExitCode::FAILURE;
@@ -148,9 +159,10 @@ fn main() -> ExitCode {
         };
         let truth = sim.truth();
         let mut values = truth.properties();
-        // A static calibration's offsets are the bias averaged over the record's readings
-        // (docs/uncertainty.md): the slow noise's mean over them is part of the measurand.
-        if stepped {
+        // A static or free calibration's offsets are the bias averaged over the record's
+        // readings (docs/uncertainty.md): the slow noise's mean over them is part of the
+        // measurand.
+        if stepped || free.is_some() {
             for (o, m) in values.iter_mut().skip(6).zip(summary.slow_mean) {
                 *o += m;
             }
@@ -208,7 +220,7 @@ fn main() -> ExitCode {
         })
         .collect();
     println!(
-        "{{\"method\": \"{}\", \"flicker_floor_ug\": {floor}, \"random_walk_ug_per_sqrt_s\": {walk}, \"ar1\": {rho}, \"rate_hz\": {rate}, \"sessions\": {sessions}, \"intervals\": {total}, \"coverage\": {:.4}, \"mean_scaled_z2\": {:.4}, \"sessions_warned\": {sessions_warned}, \"sessions_widened\": {}, \"sessions_narrowed\": {}, \"coverage_unwarned\": {:.4}, \"per_quantity_coverage_z2_k\": [{}]}}",
+        "{{\"method\": \"{}\", \"flicker_floor_ug\": {floor}, \"random_walk_ug_per_sqrt_s\": {walk}, \"ar1\": {rho}, \"rate_hz\": {rate}, \"sessions\": {sessions}, \"sessions_refused\": {refused}, \"intervals\": {total}, \"coverage\": {:.4}, \"mean_scaled_z2\": {:.4}, \"sessions_warned\": {sessions_warned}, \"sessions_widened\": {}, \"sessions_narrowed\": {}, \"coverage_unwarned\": {:.4}, \"per_quantity_coverage_z2_k\": [{}]}}",
         match (free, stepped, slow) {
             (Some(_), _, true) => "free, --slow-noise",
             (Some(_), _, false) => "free",

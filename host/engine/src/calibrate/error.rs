@@ -178,6 +178,26 @@ pub enum CalibrateErrorKind {
         /// The still-interval detection in a few lines.
         detections: String,
     },
+    /// `--slow-noise` on a free recording with too few poses to see the scatter between
+    /// placements that slow noise gives their means.
+    #[error(
+        "--slow-noise: {kept} poses kept, and a free calibration under slow noise needs at \
+         least {}: flicker and bias wander make the poses' means scatter beyond their own \
+         noise, and that scatter is estimated from the fit's P − 9 = {} residual degrees of \
+         freedom, too few to tell it from none (measured with fewer than {}: k = 2 coverage \
+         0.79–0.93 under slow noise; docs/uncertainty.md, \"Free poses under slow noise\"). \
+         Record more poses, or calibrate without --slow-noise, whose U does not count that \
+         scatter beyond what the poses show.\n{detections}",
+        super::free_method::SLOW_MIN_POSES,
+        kept.saturating_sub(9),
+        super::free_method::SLOW_MIN_POSES
+    )]
+    FreeSlowPoses {
+        /// Poses kept by the fit.
+        kept: usize,
+        /// The still-interval detection in a few lines.
+        detections: String,
+    },
     /// A streamed file's rows changed between two readings.
     #[error("the file changed while it was read")]
     FileChanged,

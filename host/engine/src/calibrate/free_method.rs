@@ -155,6 +155,12 @@ fn find_poses(
     Ok((detections, drift_notes, wander))
 }
 
+/// With `--slow-noise`, the fewest poses a free fit takes: the scatter τ between placements
+/// is estimated from P − 9 residual degrees of freedom, and with fewer than 15 slow noise
+/// that scatter carries is missed too often (measured: docs/uncertainty.md, "Free poses
+/// under slow noise").
+pub const SLOW_MIN_POSES: usize = 24;
+
 /// Method free: still intervals found (or named), then G and O from |a| = g.
 pub(super) fn entry(
     rec: &Recording,
@@ -182,6 +188,16 @@ pub(super) fn entry(
             },
         )
     })?;
+    if opts.slow_noise && fit.poses.len() < SLOW_MIN_POSES {
+        return Err(err(
+            rec,
+            None,
+            CalibrateErrorKind::FreeSlowPoses {
+                kept: fit.poses.len(),
+                detections: detection_summary(&detections, opts.still),
+            },
+        ));
+    }
     // The fit's rejections, on the intervals.
     for (_, _, iv) in &mut detections {
         for i in iv.iter_mut() {
@@ -309,10 +325,11 @@ fn free_budget(
     b
 }
 
-/// The offsets' term for the bias's wander over a one-segment recording of `rows` rows:
-/// each channel's flicker level λ from the moved test, where the changes demand it, times
-/// the variance unit flicker gives the bias at a time of the session about the kept poses'
-/// mean (the offset the fit measures), with λ's degrees of freedom.
+/// The offsets' term for the bias's wander in a one-segment recording of `rows` rows: the
+/// fit measures the bias averaged over its kept poses, the measurand is the bias averaged
+/// over the record's readings (as for every method); each channel's flicker level λ from
+/// the moved test, where the changes demand it, times the variance unit flicker gives the
+/// difference, with λ's degrees of freedom.
 fn bias_wander(
     b: &mut Budget,
     levels: &[Option<drift::Level>; 3],
@@ -320,12 +337,12 @@ fn bias_wander(
     intervals: &[still::Interval],
     units: &str,
 ) {
-    let mids: Vec<f64> = intervals
+    let poses: Vec<(usize, usize)> = intervals
         .iter()
         .filter(|i| i.verdict == still::Verdict::Kept)
-        .map(|i| 0.5 * (i.rows.0 + i.rows.1) as f64)
+        .map(|i| i.rows)
         .collect();
-    let unit = drift::session_wander(&mids, (0.0, rows.saturating_sub(1) as f64));
+    let unit = drift::record_against_poses(&poses, rows);
     if !(unit.is_finite() && unit > 0.0) {
         return;
     }
@@ -346,11 +363,12 @@ fn bias_wander(
         "bias_wander",
         Kind::A,
         format!(
-            "--slow-noise: the bias at a time of the session about its mean over the {} kept \
-             poses (what an offset measures), in {units}, under each channel's flicker level \
-             from the moved test where the changes demand one (0 elsewhere); ν from that \
-             level's median estimate (docs/uncertainty.md)",
-            mids.len()
+            "--slow-noise: the bias averaged over the record's readings (the offsets' \
+             measurand) against its mean over the {} kept poses (what the fit measures), in \
+             {units}, under each channel's flicker level from the moved test where the changes \
+             demand one (0 elsewhere); ν from that level's median estimate \
+             (docs/uncertainty.md)",
+            poses.len()
         ),
         &contribution,
         &dof,
@@ -392,8 +410,8 @@ fn drift_note(label: &str, levels: &[Option<drift::Level>; 3], units: &str) -> S
     format!(
         "--slow-noise: the moved test allows for flicker at the level the still intervals' \
          changes show{at}{few}, as an Allan-deviation floor: {}; the sensitivities' and \
-         angles' uncertainties do not include it yet; in a recording of one piece the offsets' U includes the bias's \
-         wander over the session (the bias_wander line)",
+         angles' uncertainties do not include it yet; in a recording of one piece the offsets' U includes how the \
+         bias averaged over the poses differs from its mean over the record (the bias_wander line)",
         each.join(", ")
     )
 }
