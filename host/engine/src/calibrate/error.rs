@@ -184,13 +184,12 @@ pub enum CalibrateErrorKind {
         "--slow-noise: {kept} poses kept, and a free calibration under slow noise needs at \
          least {}: flicker and bias wander make the poses' means scatter beyond their own \
          noise, and that scatter is estimated from the fit's P − 9 = {} residual degrees of \
-         freedom, too few to tell it from none (measured with fewer than {}: k = 2 coverage \
-         0.79–0.93 under slow noise; docs/uncertainty.md, \"Free poses under slow noise\"). \
-         Record more poses, or calibrate without --slow-noise, whose U does not count that \
-         scatter beyond what the poses show.\n{detections}",
+         freedom, too few to tell it from none (docs/uncertainty.md, \"Free poses under slow \
+         noise\", gives the coverage measured with fewer). Record more poses, or calibrate \
+         without --slow-noise, whose U does not count that scatter beyond what the poses \
+         show.\n{detections}",
         super::free_method::SLOW_MIN_POSES,
-        kept.saturating_sub(9),
-        super::free_method::SLOW_MIN_POSES
+        kept.saturating_sub(9)
     )]
     FreeSlowPoses {
         /// Poses kept by the fit.

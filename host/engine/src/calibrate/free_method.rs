@@ -188,6 +188,15 @@ pub(super) fn entry(
             },
         )
     })?;
+    // The fit's rejections, on the intervals.
+    for (_, _, iv) in &mut detections {
+        for i in iv.iter_mut() {
+            if let Some((_, v)) = fit.rejected.iter().find(|(n, _)| *n == i.name) {
+                i.verdict = v.clone();
+            }
+        }
+    }
+    // After the fit's rejections, so that the detection shows every pose left out.
     if opts.slow_noise && fit.poses.len() < SLOW_MIN_POSES {
         return Err(err(
             rec,
@@ -197,14 +206,6 @@ pub(super) fn entry(
                 detections: detection_summary(&detections, opts.still),
             },
         ));
-    }
-    // The fit's rejections, on the intervals.
-    for (_, _, iv) in &mut detections {
-        for i in iv.iter_mut() {
-            if let Some((_, v)) = fit.rejected.iter().find(|(n, _)| *n == i.name) {
-                i.verdict = v.clone();
-            }
-        }
     }
     let s_cov = poses::s_block(&fit.cov);
     let intr = intrinsic::from_matrix_cov(&fit.l, &s_cov)
