@@ -185,9 +185,15 @@ fn line_changes(index: usize, t_s: &[f64], iv: &Interval) -> Vec<(Channel, Chang
 /// measurand of every method, docs/uncertainty.md). Exact from the generalised covariance,
 /// as both means are averages of rows: Var(b̄_R − b̄_P) = (1/P)·Σ_i D̄(R, i) − (1/2P²)·Σ_ik
 /// D̄(i, k) − ½·D̄(R, R), with D̄(a, b) the structure function D(|s − t|) averaged over s in
-/// a and t in b. NaN without poses, or with a pose outside the record.
+/// a and t in b. NaN without poses, with a pose outside the record, or with two poses
+/// that share rows (still intervals never do).
 pub fn record_against_poses(poses: &[(usize, usize)], rows: usize) -> f64 {
     if poses.is_empty() || poses.iter().any(|&(a, b)| a >= b || b > rows) {
+        return f64::NAN;
+    }
+    let mut sorted = poses.to_vec();
+    sorted.sort_unstable();
+    if sorted.windows(2).any(|w| matches!(w, [x, y] if y.0 < x.1)) {
         return f64::NAN;
     }
     // S(k) = Σ_{j ≤ k} D(j) and SS(k) = Σ_{j ≤ k} S(j), so that a double sum of D(|s − t|)
@@ -308,6 +314,8 @@ mod tests {
         assert!(record_against_poses(&[], n).is_nan());
         assert!(record_against_poses(&[(10, 10)], n).is_nan());
         assert!(record_against_poses(&[(390, 401)], n).is_nan());
+        assert!(record_against_poses(&[(10, 40), (30, 60)], n).is_nan());
+        assert!(record_against_poses(&[(30, 60), (10, 30)], n).is_finite());
     }
 
     /// Against simulated unit flicker (Kasdin paths from their increments): the variance of
