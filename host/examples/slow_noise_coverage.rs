@@ -7,10 +7,12 @@
 //! RATE is then ignored), calibrated as they come; `--step DEG` steps by DEG instead (90:
 //! twelve static poses, each axis up and down twice). With `--free POSES`, the same device
 //! put down by hand in POSES unknown orientations at 104 Hz (still 3 s, turned in 1.5 s,
-//! each pose's noise ×1.5 either way, a 0.5 m/s² ring-down), calibrated by the free method. (1.96·z/k)² has mean ≈ 1 (within 3 % for any ν ≥ 5) when z
-//! follows Student's t with the ν that gave k; its band is χ²-based.
+//! each pose's noise ×1.5 either way, a 0.5 m/s² ring-down; `--tremor MS2` adds a hand's
+//! 10 Hz tremor of MS2 RMS per axis), calibrated by the free method. (1.96·z/k)² has mean
+//! ≈ 1 (within 3 % for any ν ≥ 5) when z follows Student's t with the ν that gave k; its
+//! band is χ²-based.
 //!
-//!     cargo run --release --example slow_noise_coverage -- [--stepped [--step DEG] | --free POSES] FLOOR_UG WALK_UG_PER_SQRT_S SESSIONS [RHO] [RATE_HZ]
+//!     cargo run --release --example slow_noise_coverage -- [--stepped [--step DEG] | --free POSES [--tremor MS2]] FLOOR_UG WALK_UG_PER_SQRT_S SESSIONS [RHO] [RATE_HZ]
 //!
 //! `--without-slow-noise` calibrates without the option. Stepped offsets are compared with
 //! the bias plus the slow noise's mean over the record's readings, which is what they
@@ -51,13 +53,19 @@ fn main() -> ExitCode {
         .position(|a| a == "--step")
         .and_then(|i| all.get(i + 1))
         .and_then(|n| n.parse().ok());
+    let tremor: Option<f64> = all
+        .iter()
+        .position(|a| a == "--tremor")
+        .and_then(|i| all.get(i + 1))
+        .and_then(|n| n.parse().ok());
     let args: Vec<f64> = all
         .iter()
         .filter(|a| !a.starts_with("--"))
         .skip(
             usize::from(free.is_some())
                 + usize::from(still_s.is_some())
-                + usize::from(step_deg.is_some()),
+                + usize::from(step_deg.is_some())
+                + usize::from(tremor.is_some()),
         )
         .filter_map(|a| a.parse().ok())
         .collect();
@@ -99,7 +107,8 @@ fn main() -> ExitCode {
                 move_s: 1.5,
                 noise_spread: 1.5,
                 settle_ms2: 0.5,
-                moved: None,
+                tremor_ms2: tremor.unwrap_or(0.0),
+                ..FreePoses::default()
             });
         } else if stepped {
             cfg.method = Method::Static;

@@ -981,3 +981,65 @@ fn noise_sigma_is_stated_only_when_true() {
         b.write(Vec::new()).unwrap().1
     );
 }
+
+/// A hand's tremor (`poses.tremor_ms2`, docs/simulator.md): on a channel across gravity,
+/// the tremor alone (no sensor noise) has the RMS asked for, is zero-mean, and rings at
+/// its frequency. Expected values from the AR(2) it is (poles r·e^{±iω}, r = e^{−2π/fs}
+/// for a 2 Hz band, ω = 2π·10/fs): ρ(k) ≈ r^k·cos(kω) for a narrow band (−0.74 at k = 5,
+/// +0.53 at k = 10). Over 200 s at 104 Hz the band has about 2·2 Hz·200 s = 800 degrees
+/// of freedom, so the variance is within 0.2 of its value (4 standard errors of 0.05) and
+/// each ρ within 0.15 (4 of about 1/√200, its error over 200 one-hertz resolution cells
+/// ≤ 0.035); the mean within 4 standard errors of the band's level at zero frequency.
+#[test]
+fn tremor_has_its_rms_band_and_zero_mean() {
+    let toml = |tremor: f64| {
+        format!(
+            "method = \"free\"\nunits = \"counts\"\nseed = 7\n\
+             device = {{ sensitivity = [1669.32, 1669.10, 1676.46], angles_deg = [90.0, 90.0, \
+             90.0], offsets = [525.1, 99.6, 442.4] }}\n\
+             [sensor]\nlsb = 1.0\nfull_scale = [-32768.0, 32767.0]\n\
+             [timing]\nsample_rate_hz = 104.0\n\
+             [poses]\ndirections = [[0.0, 0.0, 1.0]]\nstill_s = 200.0\ntremor_ms2 = {tremor:?}\n"
+        )
+    };
+    let u = |tremor: f64| -> Vec<f64> {
+        let r = rec(&sim(&toml(tremor)));
+        r.series.unwrap().y.iter().map(|y| y[0]).collect()
+    };
+    let (still, shaken) = (u(0.0), u(0.05));
+    let n = shaken.len() as f64;
+    let d: Vec<f64> = shaken.iter().zip(&still).map(|(a, b)| a - b).collect();
+    let mean = d.iter().sum::<f64>() / n;
+    let var = d.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / n;
+    let want = (0.05 * 1669.32f64).powi(2);
+    assert!(
+        (var / want - 1.0).abs() < 0.2,
+        "variance {var:.1}, want {want:.1}"
+    );
+    let rho = |k: usize| {
+        d.iter()
+            .zip(d.iter().skip(k))
+            .map(|(a, b)| (a - mean) * (b - mean))
+            .sum::<f64>()
+            / (n * var)
+    };
+    let r = (-TAU / 104.0).exp();
+    let w = TAU * 10.0 / 104.0;
+    for k in [5usize, 10] {
+        let expect = r.powi(k as i32) * (k as f64 * w).cos();
+        assert!(
+            (rho(k) - expect).abs() < 0.15,
+            "ρ({k}) = {:.3}, want {expect:.3}",
+            rho(k)
+        );
+    }
+    // The AR(2)'s level at zero frequency per reading: sd·|1/(1 − a₁ − a₂)| over its RMS.
+    let (a1, a2) = (2.0 * r * w.cos(), -r * r);
+    let gain = (1.0 - a2) / ((1.0 + a2) * ((1.0 - a2).powi(2) - a1 * a1));
+    let dc = want.sqrt() / gain.sqrt() / (1.0 - a1 - a2);
+    assert!(
+        mean.abs() < 4.0 * dc / n.sqrt(),
+        "mean {mean:.3}, its standard error {:.3}",
+        dc / n.sqrt()
+    );
+}

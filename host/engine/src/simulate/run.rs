@@ -267,6 +267,7 @@ impl Simulation {
             // A pose that turns: about an axis across its direction.
             let axis = unit(cross(*dir, ring));
             let mut end = *dir;
+            let mut tremor = Tremor::new(p.tremor_ms2 / c.g_loc, p.tremor_hz, fs, rng);
             for m in 0..n_still {
                 let tau = m as f64 / fs;
                 let mut g = *dir;
@@ -277,6 +278,10 @@ impl Simulation {
                 end = g;
                 let amp = p.settle_ms2 / c.g_loc * (-tau / 0.1).exp() * (TAU * 12.0 * tau).sin();
                 let g = zip_map(g, ring, |g, r| g + amp * r);
+                let g = match tremor.as_mut() {
+                    Some(t) => zip_map(g, t.next(rng), |g, h| g + h),
+                    None => g,
+                };
                 row_at(g, scale, &mut k, rng, sum)?;
             }
             prev = Some(end);
@@ -309,6 +314,51 @@ impl Simulation {
             }
         }
         f
+    }
+}
+
+/// A hand's tremor on each axis: AR(2) with its poles at `hz`, 2 Hz wide, scaled to `rms`
+/// (in g), started from its stationary state by a burn-in. Draws nothing without tremor,
+/// so that sessions without it stay as they were.
+struct Tremor {
+    a1: f64,
+    a2: f64,
+    sd: f64,
+    state: [[f64; 2]; 3],
+}
+
+impl Tremor {
+    fn new(rms: f64, hz: f64, fs: f64, rng: &mut ChaCha8Rng) -> Option<Tremor> {
+        if rms <= 0.0 {
+            return None;
+        }
+        let r = (-PI * 2.0 / fs).exp();
+        let (a1, a2) = (2.0 * r * (TAU * hz / fs).cos(), -r * r);
+        // The stationary variance of AR(2) per unit innovation variance.
+        let gain = (1.0 - a2) / ((1.0 + a2) * ((1.0 - a2).powi(2) - a1 * a1));
+        let mut t = Tremor {
+            a1,
+            a2,
+            sd: rms / gain.sqrt(),
+            state: [[0.0; 2]; 3],
+        };
+        // Twenty time constants 1/(1 − r).
+        for _ in 0..(20.0 / (1.0 - r)).ceil() as usize {
+            t.next(rng);
+        }
+        Some(t)
+    }
+
+    fn next(&mut self, rng: &mut ChaCha8Rng) -> [f64; 3] {
+        let mut out = [0.0; 3];
+        for (o, [x1, x2]) in out.iter_mut().zip(self.state.iter_mut()) {
+            let e: f64 = rng.sample(StandardNormal);
+            let x = self.a1 * *x1 + self.a2 * *x2 + self.sd * e;
+            *x2 = *x1;
+            *x1 = x;
+            *o = x;
+        }
+        out
     }
 }
 

@@ -408,6 +408,10 @@ const REFUSED: &[(&str, &str, &str)] = &[
     (FREE, "[poses]\nmove_s = -1.0", "poses.move_s"),
     (FREE, "[poses]\nnoise_spread = 0.99", "poses.noise_spread"),
     (FREE, "[poses]\nsettle_ms2 = -1.0", "poses.settle_ms2"),
+    (FREE, "[poses]\ntremor_ms2 = -0.1", "poses.tremor_ms2"),
+    (FREE, "[poses]\ntremor_hz = 1.0", "poses.tremor_hz"),
+    // At 16 Hz the 10 Hz band lies above half the sample rate.
+    (FREE, "[poses]\ntremor_ms2 = 0.05", "poses.tremor_hz"),
     (
         FREE,
         "[poses]\ncount = 3\nmoved = { pose = 3, deg = 10.0 }",
@@ -473,6 +477,10 @@ const ACCEPTED: &[(&str, &str)] = &[
         "[poses]\nnoise_spread = 1.0\nmove_s = 0.0\nsettle_ms2 = 0.0",
     ),
     (FREE, "[poses]\nmoved = { pose = 11, deg = 10.0 }"),
+    (
+        FREE,
+        "[timing]\nsample_rate_hz = 104.0\n[poses]\ntremor_ms2 = 0.05\ntremor_hz = 50.9",
+    ),
     (
         FREE,
         "[poses]\ndirections = [[0.0, 0.0, 2.0], [1.0, 0.0, 0.0]]",

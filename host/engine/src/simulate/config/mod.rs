@@ -108,6 +108,13 @@ pub struct FreePoses {
     /// random direction, decaying with 0.1 s at 12 Hz.
     #[serde(default)]
     pub settle_ms2: f64,
+    /// A hand's tremor while a pose is held: a narrow band of specific force (2 Hz wide
+    /// about `tremor_hz`), independent on each axis, with this RMS per axis, m/s². 0: none.
+    #[serde(default)]
+    pub tremor_ms2: f64,
+    /// The tremor's centre frequency, Hz (physiological tremor: 8–12 Hz).
+    #[serde(default = "default_tremor_hz")]
+    pub tremor_hz: f64,
     /// One pose that is not still: it turns steadily through `deg` degrees.
     #[serde(default)]
     pub moved: Option<MovedPose>,
@@ -124,6 +131,8 @@ impl FreePoses {
             move_s: 1.0,
             noise_spread: 1.0,
             settle_ms2: 0.0,
+            tremor_ms2: 0.0,
+            tremor_hz: default_tremor_hz(),
             moved: None,
         }
     }
@@ -151,6 +160,9 @@ fn default_move_s() -> f64 {
 fn default_spread() -> f64 {
     1.0
 }
+fn default_tremor_hz() -> f64 {
+    10.0
+}
 
 impl Default for FreePoses {
     fn default() -> Self {
@@ -161,6 +173,8 @@ impl Default for FreePoses {
             move_s: default_move_s(),
             noise_spread: default_spread(),
             settle_ms2: 0.0,
+            tremor_ms2: 0.0,
+            tremor_hz: default_tremor_hz(),
             moved: None,
         }
     }

@@ -138,7 +138,15 @@ impl Config {
             ]
             .concat(),
         )?;
-        self.poses.clone().unwrap_or_default().validate()
+        let poses = self.poses.clone().unwrap_or_default();
+        poses.validate()?;
+        if poses.tremor_ms2 > 0.0 && poses.tremor_hz + 1.0 >= self.timing.sample_rate_hz / 2.0 {
+            return bad(
+                "poses.tremor_hz",
+                "the tremor's band (±1 Hz) must lie below half timing.sample_rate_hz",
+            );
+        }
+        Ok(())
     }
 
     /// Static: the angle list or step, the readings per angle and the dwell.
@@ -309,6 +317,15 @@ impl FreePoses {
         }
         if !(self.settle_ms2.is_finite() && self.settle_ms2 >= 0.0) {
             return bad("poses.settle_ms2", "must be ≥ 0");
+        }
+        if !(self.tremor_ms2.is_finite() && self.tremor_ms2 >= 0.0) {
+            return bad("poses.tremor_ms2", "must be ≥ 0");
+        }
+        if !(self.tremor_hz.is_finite() && self.tremor_hz > 1.0) {
+            return bad(
+                "poses.tremor_hz",
+                "must be above 1 Hz (the band is 2 Hz wide)",
+            );
         }
         if let Some(m) = &self.moved {
             if m.pose >= n || !m.deg.is_finite() {
