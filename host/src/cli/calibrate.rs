@@ -82,8 +82,9 @@ pub struct Options {
     /// Rotation: also model flicker and a bias random walk, pooled per channel over the
     /// recording; stepped and static poses with reading times: the same terms between the
     /// poses, in U and the offsets; free: allow for the flicker the still intervals'
-    /// changes show in the moved test (under validation: docs/uncertainty.md, "Slow
-    /// noise", "Slow noise between poses").
+    /// changes show in the moved test, measure the poses' scatter in every fit, and refuse
+    /// fewer than 24 poses kept (docs/uncertainty.md, "Slow noise", "Slow noise between
+    /// poses", "Free poses under slow noise").
     #[arg(long)]
     pub slow_noise: bool,
     /// Rotation: a still recording of the same device, in the same units and at the same

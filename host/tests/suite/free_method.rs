@@ -121,14 +121,31 @@ fn coverage(name: &str, poses: usize, trials: usize) {
 /// Two-sided coverage of the nine properties over `trials` sessions of `poses` poses,
 /// calibrated with `opts`: the proof `name`.
 fn coverage_with(name: &str, poses: usize, trials: usize, opts: &Options) {
+    coverage_of(name, poses, (trials, true), opts, |seed| {
+        session(poses, seed)
+    });
+}
+
+/// The coverage of `trials` sessions `make(seed)` of `poses` poses, calibrated with
+/// `opts`; the offsets against the bias plus the slow noise's mean over the record's
+/// readings (their measurand, docs/uncertainty.md); with `bound_lost`, at most 1 % of the
+/// poses lost.
+fn coverage_of(
+    name: &str,
+    poses: usize,
+    (trials, bound_lost): (usize, bool),
+    opts: &Options,
+    make: impl Fn(u64) -> Simulation + Sync,
+) {
     let names = vec![
         "s_u", "s_v", "s_w", "φ_uv", "φ_vw", "φ_wu", "O_u", "O_v", "O_w",
     ];
-    let truth = session(poses, 0).truth().properties().to_vec();
+    let truth = make(0).truth().properties().to_vec();
     let trial = |i: usize| {
-        let s = session(poses, 1000 * poses as u64 + i as u64);
+        let s = make(1000 * poses as u64 + i as u64);
         assert_eq!(s.truth().properties().to_vec(), truth);
-        let rec = s.recording().unwrap();
+        let (summary, buf) = s.write(Vec::new()).unwrap();
+        let rec = rotacal::recording::read_bytes(&buf, "simulated").unwrap();
         // `--slow-noise` refuses a fit with fewer than 24 poses kept: the poses it kept.
         let cal = match calibrate(&rec, opts) {
             Ok(cal) => cal,
@@ -142,8 +159,12 @@ fn coverage_with(name: &str, poses: usize, trials: usize, opts: &Options) {
         let e = entry(&cal);
         let f = e.free.as_ref().unwrap();
         let kept = f.poses.len();
-        let q: Vec<rotacal::calibrate::json::Quantity> =
+        let mut q: Vec<rotacal::calibrate::json::Quantity> =
             e.intrinsic.quantities().into_iter().copied().collect();
+        // Against the fixed truth: the estimate less the slow noise's share of its measurand.
+        for (o, m) in q.iter_mut().skip(6).zip(summary.slow_mean) {
+            o.value -= m;
+        }
         let why: Vec<String> = f.detection[0]
             .intervals
             .iter()
@@ -158,7 +179,7 @@ fn coverage_with(name: &str, poses: usize, trials: usize, opts: &Options) {
         Ok((q, kept, f.tau_ms2 > 0.0, why, wander))
     };
     prove(name, trials, trial, |results| {
-        tally(poses, names, truth.clone(), results)
+        tally(poses, names, truth.clone(), results, bound_lost)
     });
 }
 
@@ -179,6 +200,7 @@ fn tally(
     names: Vec<&'static str>,
     truth: Vec<f64>,
     results: &[Result<FreeRun, usize>],
+    bound_lost: bool,
 ) -> Vec<String> {
     let trials = results.len();
     let mut tally = Tally::new(names, truth);
@@ -214,7 +236,7 @@ fn tally(
     // Poses are found: the moved test alone would lose 3e-4 of them; the ring-down after
     // each placement, decayed to about e⁻⁵ where the kept part begins, adds to that.
     // At most 1 % lost.
-    if lost * 100 > poses * trials {
+    if bound_lost && lost * 100 > poses * trials {
         failures.push(format!("{poses} poses: {lost} poses lost"));
     }
     failures
@@ -245,6 +267,56 @@ fn coverage_24_poses_with_the_slow_noise_option_and_none() {
         1000,
         &slow,
     );
+}
+
+/// One session of hand placements under slow noise, the noise never stated: white noise
+/// of 3–6 counts per channel, flicker at an Allan floor of `floor` µg and a bias random
+/// walk of `walk` µg/√s on every channel, a hand's tremor of `tremor` m/s² at 10 Hz while
+/// each pose is held, a ring-down after each placement, each pose's noise ×1.5 either way,
+/// the device mounted at random.
+fn hand_session(poses: usize, seed: u64, (floor, walk, tremor): (f64, f64, f64)) -> Simulation {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x510e);
+    let sd = [0; 3].map(|_| rng.gen_range(3.0..6.0));
+    let mount = random_rotation(&mut rng);
+    sim(&format!(
+        "seed = {seed}\n[mounting]\nmatrix = {}\n[sensor.noise]\nsd = [{:?}, {:?}, {:?}]\n\
+         flicker_floor_ug = {floor:?}\nrandom_walk_ug_per_sqrt_s = {walk:?}\nstate = false\n\
+         [poses]\ncount = {poses}\nstill_s = 3.0\nmove_s = 1.5\nnoise_spread = 1.5\n\
+         settle_ms2 = 0.5\ntremor_ms2 = {tremor:?}\n",
+        matrix_toml(&mount),
+        sd[0],
+        sd[1],
+        sd[2]
+    ))
+}
+
+/// Issue 30's third proof point at 24 poses: hand placements with settling, tremor, flicker
+/// and a bias random walk, calibrated with `--slow-noise`: every property's coverage in
+/// [0.93, 0.97] and its mean z² in its band, two-sided, so that the offsets' U is neither
+/// short (the poses' mean bias against the record's, the `bias_wander` line) nor long (τ's
+/// common part, which that line replaces: docs/uncertainty.md, "Free poses under slow
+/// noise"). Sessions that keep fewer than 24 poses are refused and counted as poses lost.
+#[test]
+fn coverage_24_poses_under_slow_noise() {
+    let slow = Options {
+        slow_noise: true,
+        ..Options::default()
+    };
+    for (case, levels) in [
+        ("flicker_45ug_walk_10ug_tremor", (45.0, 10.0, 0.02)),
+        ("flicker_100ug", (100.0, 0.0, 0.0)),
+        ("walk_10ug", (0.0, 10.0, 0.0)),
+    ] {
+        // Under slow noise the moved test and the ring-down leave out more poses than the
+        // 1 % bounded without it: counted and printed, not bounded here.
+        coverage_of(
+            &format!("free_method::coverage_24_poses_under_slow_noise.{case}"),
+            26,
+            (1000, false),
+            &slow,
+            |seed| hand_session(26, seed, levels),
+        );
+    }
 }
 
 #[test]

@@ -55,6 +55,20 @@ pub enum Residual {
     Algebraic,
 }
 
+/// How the poses' scatter beyond their noise enters the covariance.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Scatter {
+    /// τ added only when χ² exceeds its 99th percentile, then with P − 9 degrees of
+    /// freedom (the default).
+    #[default]
+    Tested,
+    /// τ² measured in every fit, signed and unbiased, (χ² − (P − 9))/S with S = Σ w_p(1 −
+    /// h_p) (w_p the noise-only weight, h_p the pose's leverage), and added to the
+    /// covariance even when it is negative; each property's degrees of freedom from τ²'s
+    /// own variance (`--slow-noise`: docs/uncertainty.md, "Free poses under slow noise").
+    Measured,
+}
+
 /// One pose: the mean of a still interval and its covariance.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Pose {
@@ -147,8 +161,15 @@ pub struct FreeFit {
     /// P − 9.
     pub dof: usize,
     /// Scatter of the poses beyond their noise, m/s² (0 unless χ² exceeds its 99th
-    /// percentile).
+    /// percentile; with [`Scatter::Measured`], √max(τ², 0)).
     pub tau_ms2: f64,
+    /// With [`Scatter::Measured`]: the signed estimate τ² = (χ² − (P − 9))/S, m²/s⁴, and
+    /// its variance (NaN otherwise).
+    pub tau2_measured: Option<(f64, f64)>,
+    /// How `cov` grows per unit τ² (m²/s⁴) at the noise-only weights: (JᵀWJ)⁻¹·JᵀW²J·(JᵀWJ)⁻¹.
+    pub cov_per_tau2: SMatrix<f64, 12, 12>,
+    /// Per pose, its weight w_p = 1/σ_p² (m⁻²s⁴) and 1 − h_p, h_p its leverage.
+    pub scatter_design: Vec<(f64, f64)>,
     /// Degrees of freedom behind the covariance: P − 9 with τ, else infinite.
     pub nu: f64,
     /// Coverage factor at `nu`.
@@ -161,6 +182,46 @@ pub struct FreeFit {
     pub notes: Vec<String>,
     /// The residual used.
     pub residual: Residual,
+}
+
+impl FreeFit {
+    /// Takes the common part of the scatter τ out of the offsets, where another term
+    /// stands for it (docs/uncertainty.md, "Free poses under slow noise").
+    ///
+    /// τ counts each pose's error as independent, isotropic in specific force: ε_p with
+    /// τ² per axis. Their mean over the P poses, ε̄ (τ²/P per axis), moves every pose's
+    /// reading alike, by L·ε̄, which the fit takes wholly into O; so τ gives O the
+    /// covariance (τ²/P)·L·Lᵀ from ε̄ beside what the poses' differences give. When the
+    /// poses' errors are the bias's slow wander, their mean over the poses is the
+    /// `bias_wander` line's (the poses' mean bias against the record's), and ε̄ must not
+    /// count twice. Gives whether it was taken out: not when τ = 0, or when what is left
+    /// would not be a covariance (a negative eigenvalue).
+    pub fn take_out_common_scatter(&mut self) -> bool {
+        let p = self.poses.len() as f64;
+        let tau2 = self
+            .tau2_measured
+            .map_or(self.tau_ms2.powi(2), |(t2, _)| t2);
+        if !(tau2 != 0.0 && p > 0.0) {
+            return false;
+        }
+        let l = Matrix3::from(self.l).transpose();
+        let unit = l * l.transpose() / p;
+        let (mut cov, mut per) = (self.cov, self.cov_per_tau2);
+        let mut block = cov.fixed_view_mut::<3, 3>(9, 9);
+        block -= unit * tau2;
+        let mut block = per.fixed_view_mut::<3, 3>(9, 9);
+        block -= unit;
+        let scale = cov.diagonal().amax().max(f64::MIN_POSITIVE);
+        let psd = cov
+            .symmetric_eigenvalues()
+            .iter()
+            .all(|e| *e >= -1e-12 * scale);
+        if psd {
+            self.cov = cov;
+            self.cov_per_tau2 = per;
+        }
+        psd
+    }
 }
 
 /// L from the parameters.
@@ -547,6 +608,16 @@ fn why_degenerate(dirs: &[[f64; 3]]) -> String {
 
 /// Fit G and O to the poses in gravity `g`.
 pub fn fit(poses: &[Pose], g: f64, residual: Residual) -> Result<FreeFit, FreeError> {
+    fit_with(poses, g, residual, Scatter::Tested)
+}
+
+/// Fit G and O to the poses in gravity `g`, the scatter beyond the noise as `scatter` says.
+pub fn fit_with(
+    poses: &[Pose],
+    g: f64,
+    residual: Residual,
+    scatter: Scatter,
+) -> Result<FreeFit, FreeError> {
     let mut poses: Vec<Pose> = poses.to_vec();
     let mut rejected = Vec::new();
     let mut notes = Vec::new();
@@ -645,8 +716,10 @@ pub fn fit(poses: &[Pose], g: f64, residual: Residual) -> Result<FreeFit, FreeEr
                 continue;
             }
         }
-        // Scatter beyond the noise, when χ² demands it.
-        if significant {
+        if scatter == Scatter::Measured && fit.dof > 0 {
+            measure_scatter(&mut fit, &mut notes);
+        } else if significant {
+            // Scatter beyond the noise, when χ² demands it.
             let tau = tau_for(&fit, fit.dof);
             let mut with = solve(&poses, g, residual, fit_params(&fit), tau)?;
             with.condition_number = fit.condition_number;
@@ -664,6 +737,88 @@ pub fn fit(poses: &[Pose], g: f64, residual: Residual) -> Result<FreeFit, FreeEr
         fit.rejected = rejected;
         fit.notes = notes;
         return Ok(fit);
+    }
+}
+
+/// [`Scatter::Measured`]: τ² from the noise-only χ², signed, into the covariance, and its
+/// variance, Var χ² / S² with Var χ² = Σ 2(1 − h_p)(1 + τ₊²w_p)² (each residual's share,
+/// normal, the leverages taken as independent). A negative τ² that would leave a property
+/// a negative variance is taken up to where none is (bisection).
+fn measure_scatter(fit: &mut FreeFit, notes: &mut Vec<String>) {
+    let s: f64 = fit.scatter_design.iter().map(|(w, q)| w * q).sum();
+    if !(s.is_finite() && s > 0.0) {
+        return;
+    }
+    let dof = fit.dof as f64;
+    let estimate = (fit.chi2 - dof) / s;
+    let psd = |t2: f64| {
+        let c = fit.cov + fit.cov_per_tau2 * t2;
+        let scale = c.diagonal().amax().max(f64::MIN_POSITIVE);
+        c.symmetric_eigenvalues()
+            .iter()
+            .all(|e| *e >= -1e-12 * scale)
+    };
+    let mut tau2 = estimate;
+    if !psd(tau2) {
+        let (mut lo, mut hi) = (tau2, 0.0);
+        for _ in 0..60 {
+            let mid = 0.5 * (lo + hi);
+            if psd(mid) {
+                hi = mid;
+            } else {
+                lo = mid;
+            }
+        }
+        tau2 = hi;
+    }
+    let t2p = tau2.max(0.0);
+    let var_chi2: f64 = fit
+        .scatter_design
+        .iter()
+        .map(|(w, q)| 2.0 * q * (1.0 + t2p * w).powi(2))
+        .sum();
+    let var_tau2 = var_chi2 / (s * s);
+    fit.cov += fit.cov_per_tau2 * tau2;
+    fit.tau_ms2 = t2p.sqrt();
+    fit.tau2_measured = Some((tau2, var_tau2));
+    // The fewest degrees of freedom among the parameters, for the correction's k.
+    fit.nu = fit
+        .cov
+        .diagonal()
+        .iter()
+        .zip(fit.cov_per_tau2.diagonal().iter())
+        .filter(|(_, c)| **c > 0.0)
+        .map(|(u2, c)| scatter_dof(*u2, *c, (tau2, var_tau2)))
+        .fold(f64::INFINITY, f64::min);
+    fit.k = coverage_factor(fit.nu);
+    notes.push(format!(
+        "--slow-noise: the poses' scatter beyond their noise is measured in every fit, not \
+         only when χ² is significant: τ² = {estimate:.3e} m²/s⁴ (standard deviation \
+         {:.1e}) from χ² = {:.1} on {} degrees of freedom, added to each pose's variance \
+         whatever its sign{}; each property's degrees of freedom from τ²'s variance",
+        var_tau2.sqrt(),
+        fit.chi2,
+        fit.dof,
+        if tau2 == estimate {
+            String::new()
+        } else {
+            format!(" (taken at {tau2:.3e}, where no property's variance is negative)")
+        }
+    ));
+}
+
+/// The degrees of freedom of a variance `u2` that holds `c`·τ², τ² = `tau2` of variance
+/// `var_tau2`: 2V²/Var(u²) (infinite where τ² is exact), V the larger of u² and the
+/// variance the poses' noise alone gives, u² − c·τ². A negative τ² takes u² below what the
+/// noise alone shows; with u² itself in ν, the sessions with the smallest U would get the
+/// largest k (as for the rotation budget's `fits` line, docs/uncertainty.md).
+pub fn scatter_dof(u2: f64, c: f64, (tau2, var_tau2): (f64, f64)) -> f64 {
+    let v = c * c * var_tau2;
+    let floor = u2.max(u2 - c * tau2);
+    if v > 0.0 {
+        2.0 * floor * floor / v
+    } else {
+        f64::INFINITY
     }
 }
 
@@ -790,9 +945,23 @@ fn solve(
         problem.x += step;
         x = problem.x;
     }
+    // For a scatter τ² beyond the weights: JᵀW·JᵀWJ sandwich, each pose's weight
+    // w_p = 1/σ_p², and its leverage.
+    let mut jwj = SMatrix::<f64, PARAMS, PARAMS>::zeros();
+    let mut scatter_design = Vec::with_capacity(poses.len());
+    for (row, (inv_sd, _)) in j.row_iter().zip(problem.weight.iter().copied()) {
+        let r = row.transpose();
+        let w = inv_sd * inv_sd;
+        jwj += r * r.transpose() * w;
+        scatter_design.push((w, 1.0 - (cov9 * r).dot(&r)));
+    }
     // To (S row-major, O): each column, and the columns, spread to twelve with zeros.
-    let cols9: [[f64; PARAMS]; PARAMS] = cov9.into();
-    let cov = SMatrix::<f64, 12, 12>::from(to_twelve(cols9.map(|c| to_twelve(c, 0.0)), [0.0; 12]));
+    let twelve = |m: SMatrix<f64, PARAMS, PARAMS>| {
+        let cols: [[f64; PARAMS]; PARAMS] = m.into();
+        SMatrix::<f64, 12, 12>::from(to_twelve(cols.map(|c| to_twelve(c, 0.0)), [0.0; 12]))
+    };
+    let cov = twelve(cov9);
+    let cov_per_tau2 = twelve(cov9 * jwj * cov9);
     let mut results = Vec::with_capacity(poses.len());
     let mut chi2 = 0.0;
     for (p, (inv_sd, bias)) in poses.iter().zip(problem.weight.iter().copied()) {
@@ -822,6 +991,9 @@ fn solve(
         chi2,
         dof,
         tau_ms2: tau,
+        tau2_measured: None,
+        cov_per_tau2,
+        scatter_design,
         nu,
         k: coverage_factor(nu),
         condition_number: f64::NAN,

@@ -178,7 +178,14 @@ pub(super) fn entry(
         .filter(|i| i.verdict == still::Verdict::Kept)
         .map(free::Pose::from_interval)
         .collect();
-    let fit = free::fit(&poses, g, free::Residual::Geometric).map_err(|e| {
+    // With `--slow-noise` the scatter is measured in every fit: slow noise as small as the
+    // poses' own noise escapes the χ² test on P − 9 degrees of freedom, yet counts.
+    let scatter = if opts.slow_noise {
+        free::Scatter::Measured
+    } else {
+        free::Scatter::Tested
+    };
+    let mut fit = free::fit_with(&poses, g, free::Residual::Geometric, scatter).map_err(|e| {
         err(
             rec,
             None,
@@ -207,6 +214,11 @@ pub(super) fn entry(
             },
         ));
     }
+    // With `--slow-noise` the poses' scatter beyond their noise is the bias's wander: its
+    // mean over the poses against the record's is the bias_wander line's, so τ's share of
+    // it leaves the offsets (docs/uncertainty.md, "Free poses under slow noise").
+    let wander_term = WanderTerm::of((&wander, &detections));
+    let common_out = wander_term.is_some() && fit.take_out_common_scatter();
     let s_cov = poses::s_block(&fit.cov);
     let intr = intrinsic::from_matrix_cov(&fit.l, &s_cov)
         .map_err(|e| err(rec, None, CalibrateErrorKind::Intrinsic(e)))?;
@@ -222,7 +234,7 @@ pub(super) fn entry(
         &fit,
         &intr,
         &offsets,
-        (&wander, &detections),
+        (wander_term.as_ref(), common_out),
         drift_notes,
         pre,
     );
@@ -253,7 +265,7 @@ fn free_budget(
     fit: &free::FreeFit,
     intr: &intrinsic::Intrinsic,
     offsets: &[intrinsic::Estimate; 3],
-    (wander, detections): (&Wander, &Detections),
+    (wander, common_out): (Option<&WanderTerm>, bool),
     drift_notes: Vec<String>,
     pre: &Preflight,
 ) -> Budget {
@@ -266,7 +278,32 @@ fn free_budget(
         .collect();
     contribution.extend(offsets.iter().map(|o| o.std_unc));
     let nu = fit.nu.is_finite().then_some(fit.nu);
-    let description = if fit.tau_ms2 > 0.0 {
+    let mut nu_each = [nu; 9];
+    if let Some(tau2) = fit.tau2_measured {
+        // Each property's variance holds c·τ²: its degrees of freedom from τ²'s variance.
+        let per = intrinsic::from_matrix_cov(&fit.l, &poses::s_block(&fit.cov_per_tau2));
+        let mut c: Vec<f64> = per.map_or(vec![0.0; 6], |p| variances6(&p.cov).to_vec());
+        c.extend(fit.cov_per_tau2.diagonal().iter().skip(9));
+        for ((n, u), c) in nu_each.iter_mut().zip(&contribution).zip(&c) {
+            let dof = free::scatter_dof(u * u, *c, tau2);
+            *n = dof.is_finite().then_some(dof);
+        }
+    }
+    let description = if let Some((tau2, _)) = fit.tau2_measured {
+        format!(
+            "the fit of G and O to the {} still poses' means (JSON free.poses): each pose's \
+             noise (an AR model of its readings about a line) and a scatter τ² = {tau2:.3e} \
+             m²/s⁴ beyond it, measured from χ² and counted whatever its sign; each property's \
+             ν from τ²'s variance{}",
+            fit.poses.len(),
+            if common_out {
+                "; the offsets without τ²'s common part (the poses' mean error, which the \
+                 bias_wander line counts)"
+            } else {
+                ""
+            }
+        )
+    } else if fit.tau_ms2 > 0.0 {
         format!(
             "the fit of G and O to the {} still poses' means (JSON free.poses): each pose's \
              noise (an AR model of its readings about a line) and a scatter τ = {:.3e} m/s² \
@@ -292,9 +329,9 @@ fn free_budget(
             fit.dof
         )
     };
-    b.vector("poses", Kind::A, description, &contribution, &[nu; 9]);
-    if let ([(levels, rows)], [(_, _, intervals)]) = (wander.as_slice(), detections.as_slice()) {
-        bias_wander(&mut b, levels, *rows, intervals, units);
+    b.vector("poses", Kind::A, description, &contribution, &nu_each);
+    if let Some(term) = wander {
+        bias_wander(&mut b, term, units);
     }
     if fit.dof == 0 {
         // Nine poses fit the nine unknowns exactly: nothing tests the readings' noise model
@@ -306,6 +343,16 @@ fn free_budget(
              unchecked; with 12 or more poses χ² tests it",
             fit.poses.len()
         ));
+    }
+    let wanted = (fit.tau_ms2 > 0.0 || fit.tau2_measured.is_some_and(|(t2, _)| t2 != 0.0))
+        && wander.is_some();
+    if wanted && !common_out {
+        b.notes.push(
+            "--slow-noise: τ's common part could not be taken out of the offsets (what would \
+             be left is not a covariance), so it counts beside the bias_wander line and the \
+             offsets' U may be larger than it needs to be"
+                .into(),
+        );
     }
     b.notes.extend(fit.notes.iter().cloned());
     b.notes.extend(drift_notes);
@@ -326,37 +373,53 @@ fn free_budget(
     b
 }
 
-/// The offsets' term for the bias's wander in a one-segment recording of `rows` rows: the
-/// fit measures the bias averaged over its kept poses, the measurand is the bias averaged
-/// over the record's readings (as for every method); each channel's flicker level λ from
-/// the moved test, where the changes demand it, times the variance unit flicker gives the
-/// difference, with λ's degrees of freedom.
-fn bias_wander(
-    b: &mut Budget,
-    levels: &[Option<drift::Level>; 3],
-    rows: usize,
-    intervals: &[still::Interval],
-    units: &str,
-) {
-    let poses: Vec<(usize, usize)> = intervals
-        .iter()
-        .filter(|i| i.verdict == still::Verdict::Kept)
-        .map(|i| i.rows)
-        .collect();
-    let unit = drift::record_against_poses(&poses, rows);
-    if !(unit.is_finite() && unit > 0.0) {
-        return;
+/// The offsets' term for the bias's wander in a one-segment recording: the fit measures
+/// the bias averaged over its kept poses, the measurand is the bias averaged over the
+/// record's readings (as for every method).
+struct WanderTerm {
+    /// The variance unit flicker gives the difference ([`drift::record_against_poses`]).
+    unit: f64,
+    /// Each channel's flicker level from the moved test.
+    levels: [Option<drift::Level>; 3],
+    /// The kept poses.
+    poses: usize,
+}
+
+impl WanderTerm {
+    /// For a recording of one segment with `--slow-noise`, when the kept poses give a unit.
+    fn of((wander, detections): (&Wander, &Detections)) -> Option<WanderTerm> {
+        let ([(levels, rows)], [(_, _, intervals)]) = (wander.as_slice(), detections.as_slice())
+        else {
+            return None;
+        };
+        let poses: Vec<(usize, usize)> = intervals
+            .iter()
+            .filter(|i| i.verdict == still::Verdict::Kept)
+            .map(|i| i.rows)
+            .collect();
+        let unit = drift::record_against_poses(&poses, *rows);
+        (unit.is_finite() && unit > 0.0).then_some(WanderTerm {
+            unit,
+            levels: *levels,
+            poses: poses.len(),
+        })
     }
+}
+
+/// The `bias_wander` line: each channel's flicker level λ from the moved test, where the
+/// changes demand it, times the variance unit flicker gives the difference, with λ's
+/// degrees of freedom.
+fn bias_wander(b: &mut Budget, term: &WanderTerm, units: &str) {
     let mut contribution = vec![0.0; 9];
     let mut dof = vec![None; 9];
     for ((c, d), l) in contribution
         .iter_mut()
         .skip(6)
         .zip(dof.iter_mut().skip(6))
-        .zip(levels)
+        .zip(&term.levels)
     {
         if let Some(l) = l.filter(|l| l.demanded) {
-            *c = (l.lambda * unit).max(0.0).sqrt();
+            *c = (l.lambda * term.unit).max(0.0).sqrt();
             *d = Some(drift::level_dof(l.intervals));
         }
     }
@@ -369,7 +432,7 @@ fn bias_wander(
              {units}, under each channel's flicker level from the moved test where the changes \
              demand one (0 elsewhere); ν from that level's median estimate \
              (docs/uncertainty.md)",
-            poses.len()
+            term.poses
         ),
         &contribution,
         &dof,
@@ -410,9 +473,10 @@ fn drift_note(label: &str, levels: &[Option<drift::Level>; 3], units: &str) -> S
     };
     format!(
         "--slow-noise: the moved test allows for flicker at the level the still intervals' \
-         changes show{at}{few}, as an Allan-deviation floor: {}; the sensitivities' and \
-         angles' uncertainties do not include it yet; in a recording of one piece the offsets' U includes how the \
-         bias averaged over the poses differs from its mean over the record (the bias_wander line)",
+         changes show{at}{few}, as an Allan-deviation floor: {}; between the poses the \
+         slow noise counts through the measured scatter τ² (the poses line), and in a \
+         recording of one piece the offsets' U includes how the bias averaged over the poses \
+         differs from its mean over the record (the bias_wander line)",
         each.join(", ")
     )
 }

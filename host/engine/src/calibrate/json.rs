@@ -811,6 +811,10 @@ pub struct FreeJson {
     pub dof: usize,
     /// Scatter beyond the noise per pose, m/s² (0: none needed).
     pub tau_ms2: f64,
+    /// With `--slow-noise`: the scatter measured in every fit, τ² signed, m²/s⁴ (and µg²),
+    /// with its standard uncertainty (absent otherwise).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub tau2_measured: Option<SlowTerm>,
     /// Degrees of freedom of the fit's covariance (null: infinite).
     pub nu: Option<f64>,
     /// Condition number of the unit design.
@@ -868,6 +872,17 @@ pub fn free_entry(
             chi2: fit.chi2,
             dof: fit.dof,
             tau_ms2: fit.tau_ms2,
+            tau2_measured: fit.tau2_measured.map(|(value, var)| {
+                // µg of standard gravity, squared.
+                let per_ug2 = crate::allan::MICRO_G.powi(-2);
+                let u = var.max(0.0).sqrt();
+                SlowTerm {
+                    value,
+                    u,
+                    value_ug: Some(value * per_ug2),
+                    u_ug: Some(u * per_ug2),
+                }
+            }),
             nu: fit.nu.is_finite().then_some(fit.nu),
             condition_number: fit.condition_number,
             suggestion: fit.suggestion.clone(),
