@@ -290,12 +290,13 @@ fn hand_session(poses: usize, seed: u64, (floor, walk, tremor): (f64, f64, f64))
     ))
 }
 
-/// Issue 30's third proof point at 24 poses: hand placements with settling, tremor, flicker
-/// and a bias random walk, calibrated with `--slow-noise`: every property's coverage in
-/// [0.93, 0.97] and its mean z² in its band, two-sided, so that the offsets' U is neither
-/// short (the poses' mean bias against the record's, the `bias_wander` line) nor long (τ's
-/// common part, which that line replaces: docs/uncertainty.md, "Free poses under slow
-/// noise"). Sessions that keep fewer than 24 poses are refused and counted as poses lost.
+/// Issue 30's third proof point at 24 poses: hand placements with settling, tremor,
+/// flicker and a bias random walk, calibrated with `--slow-noise`: every property's
+/// coverage in [0.93, 0.97], two-sided (±2.9 binomial σ at 1000 sessions), so that the
+/// offsets' U is neither short (the poses' mean bias against the record's, the
+/// `bias_wander` line) nor long (τ's common part, which that line replaces:
+/// docs/uncertainty.md, "Free poses under slow noise"). Sessions that keep fewer than 24
+/// poses are refused and counted as poses lost.
 #[test]
 fn coverage_24_poses_under_slow_noise() {
     let slow = Options {

@@ -163,14 +163,15 @@ pub struct FreeFit {
     /// Scatter of the poses beyond their noise, m/s² (0 unless χ² exceeds its 99th
     /// percentile; with [`Scatter::Measured`], √max(τ², 0)).
     pub tau_ms2: f64,
-    /// With [`Scatter::Measured`]: the signed estimate τ² = (χ² − (P − 9))/S, m²/s⁴, and
-    /// its variance (NaN otherwise).
+    /// With [`Scatter::Measured`]: the signed estimate τ² = (χ² − (P − 9))/S, m²/s⁴, as
+    /// used (raised where it would leave a negative variance), and its variance.
     pub tau2_measured: Option<(f64, f64)>,
     /// How `cov` grows per unit τ² (m²/s⁴) at the noise-only weights: (JᵀWJ)⁻¹·JᵀW²J·(JᵀWJ)⁻¹.
     pub cov_per_tau2: SMatrix<f64, 12, 12>,
     /// Per pose, its weight w_p = 1/σ_p² (m⁻²s⁴) and 1 − h_p, h_p its leverage.
     pub scatter_design: Vec<(f64, f64)>,
-    /// Degrees of freedom behind the covariance: P − 9 with τ, else infinite.
+    /// Degrees of freedom behind the covariance: P − 9 with τ, else infinite; with
+    /// [`Scatter::Measured`], the fewest among the parameters ([`scatter_dof`]).
     pub nu: f64,
     /// Coverage factor at `nu`.
     pub k: f64,
@@ -945,8 +946,9 @@ fn solve(
         problem.x += step;
         x = problem.x;
     }
-    // For a scatter τ² beyond the weights: JᵀW·JᵀWJ sandwich, each pose's weight
-    // w_p = 1/σ_p², and its leverage.
+    // For a scatter τ² beyond the weights: the sandwich (JᵀJ)⁻¹·JᵀWJ·(JᵀJ)⁻¹ with J's rows
+    // already weighted by 1/σ_p (so JᵀWJ here is the unweighted Jacobian's JᵀW²J), each
+    // pose's weight w_p = 1/σ_p², and its leverage h_p = j_pᵀ(JᵀJ)⁻¹j_p.
     let mut jwj = SMatrix::<f64, PARAMS, PARAMS>::zeros();
     let mut scatter_design = Vec::with_capacity(poses.len());
     for (row, (inv_sd, _)) in j.row_iter().zip(problem.weight.iter().copied()) {
