@@ -711,6 +711,17 @@ pub fn estimate_pooled(
     };
     let (cov, bias) = bootstrap_covariance(parts, &models, theta, channel);
     let theta = [theta[0] - bias[0], theta[1] - bias[1]];
+    // Each group's AR model again at the levels used: the short-range share is what the
+    // residuals hold beyond the slow terms at these levels, not at the biased ones (the
+    // model at the fitted levels where these are too large for its autocovariances).
+    // Fitted at the biased levels, a walk's share of 0.4 counts² at every lag left one
+    // channel's autocovariances negative and its AR(32) a notch at the fit frequency:
+    // U 34 times too small (docs/uncertainty.md).
+    let models: Vec<NoiseModel> = parts
+        .iter()
+        .zip(models)
+        .map(|(p, m)| model_without(p, &autocovariances(p), theta, true).unwrap_or(m))
+        .collect();
     let c = |i: usize, j: usize| cov.get((i, j)).copied().unwrap_or(0.0);
     let out = models
         .into_iter()
@@ -731,6 +742,49 @@ pub fn estimate_pooled(
     Ok(Some(out))
 }
 
+/// A group's residuals' autocovariances at lags 0 to the AR models' highest order.
+fn autocovariances(p: &SlowPart<'_>) -> Vec<f64> {
+    let n = p.resid.len();
+    (0..=super::MAX_ORDER.min(n / 10))
+        .map(|k| {
+            let lagged = p.resid.iter().zip(p.resid.iter().skip(k));
+            lagged.map(|(a, b)| a * b).sum::<f64>() / n as f64
+        })
+        .collect()
+}
+
+/// A group's AR model from its residuals' autocovariances `observed` less the slow terms'
+/// expected share at `levels` (rescaled for the fit with `rescale`); `None` where the
+/// levels are too large for these autocovariances.
+fn model_without(
+    p: &SlowPart<'_>,
+    observed: &[f64],
+    levels: [f64; SLOW],
+    rescale: bool,
+) -> Option<NoiseModel> {
+    let n = p.resid.len();
+    let adjusted: Vec<f64> = observed
+        .iter()
+        .enumerate()
+        .map(|(k, gk)| {
+            let share = |i: usize, level: f64| {
+                let unit = p.design.lagged_slow.get(i).and_then(|l| l.get(k));
+                level * unit.copied().unwrap_or(0.0)
+            };
+            gk - share(0, levels[0]) - share(1, levels[1])
+        })
+        .collect();
+    NoiseModel::from_autocovariances(&adjusted, n, n)
+        .and_then(|m| {
+            if rescale {
+                m.rescaled_by(&p.design.rescaler)
+            } else {
+                Ok(m)
+            }
+        })
+        .ok()
+}
+
 /// The slow levels (Q, q) and each group's AR model without their share.
 type Levels = ([f64; SLOW], Vec<NoiseModel>);
 
@@ -742,18 +796,7 @@ type Levels = ([f64; SLOW], Vec<NoiseModel>);
 fn fit_levels(parts: &[SlowPart<'_>], rescale: bool) -> Result<Option<Levels>, NoiseError> {
     let groups = parts.len();
     let stats: Vec<Vec<f64>> = parts.iter().map(|p| p.design.statistics(p.resid)).collect();
-    let observed: Vec<Vec<f64>> = parts
-        .iter()
-        .map(|p| {
-            let n = p.resid.len();
-            (0..=super::MAX_ORDER.min(n / 10))
-                .map(|k| {
-                    let lagged = p.resid.iter().zip(p.resid.iter().skip(k));
-                    lagged.map(|(a, b)| a * b).sum::<f64>() / n as f64
-                })
-                .collect()
-        })
-        .collect();
+    let observed: Vec<Vec<f64>> = parts.iter().map(autocovariances).collect();
     let mut m0 = vec![8usize; groups];
     let mut models: Vec<NoiseModel> = parts.iter().map(|p| p.ar.clone()).collect();
     let mut fit = None;
@@ -767,31 +810,10 @@ fn fit_levels(parts: &[SlowPart<'_>], rescale: bool) -> Result<Option<Levels>, N
         if round == 1 && !rescale {
             break;
         }
-        // Each group's AR model without the slow terms' expected share.
+        // Each group's AR model without the slow terms' expected share; where the levels
+        // are too large for its autocovariances, the model as first estimated.
         for (((model, p), obs), m0) in models.iter_mut().zip(parts).zip(&observed).zip(&mut m0) {
-            let n = p.resid.len();
-            let adjusted: Vec<f64> = obs
-                .iter()
-                .enumerate()
-                .map(|(k, gk)| {
-                    let share = |i: usize, level: f64| {
-                        let unit = p.design.lagged_slow.get(i).and_then(|l| l.get(k));
-                        level * unit.copied().unwrap_or(0.0)
-                    };
-                    gk - share(0, levels[0]) - share(1, levels[1])
-                })
-                .collect();
-            *model = match NoiseModel::from_autocovariances(&adjusted, n, n).and_then(|m| {
-                if rescale {
-                    m.rescaled_by(&p.design.rescaler)
-                } else {
-                    Ok(m)
-                }
-            }) {
-                Ok(m) => m,
-                // Levels too large for these autocovariances: the model as first estimated.
-                Err(_) => p.ar.clone(),
-            };
+            *model = model_without(p, obs, levels, rescale).unwrap_or_else(|| p.ar.clone());
             if round == 0 {
                 let corr = model.variance_factor(0.0).clamp(1.0, 1e6);
                 let want = (LENGTHS_PER_CORRELATION * corr).ceil() as usize;
