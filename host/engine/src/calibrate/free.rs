@@ -202,7 +202,7 @@ impl FreeFit {
         let tau2 = self
             .tau2_measured
             .map_or(self.tau_ms2.powi(2), |(t2, _)| t2);
-        if !(tau2 != 0.0 && p > 0.0) {
+        if tau2 == 0.0 || p == 0.0 {
             return false;
         }
         let l = Matrix3::from(self.l).transpose();
@@ -212,11 +212,7 @@ impl FreeFit {
         block -= unit * tau2;
         let mut block = per.fixed_view_mut::<3, 3>(9, 9);
         block -= unit;
-        let scale = cov.diagonal().amax().max(f64::MIN_POSITIVE);
-        let psd = cov
-            .symmetric_eigenvalues()
-            .iter()
-            .all(|e| *e >= -1e-12 * scale);
+        let psd = is_covariance(&cov);
         if psd {
             self.cov = cov;
             self.cov_per_tau2 = per;
@@ -752,13 +748,7 @@ fn measure_scatter(fit: &mut FreeFit, notes: &mut Vec<String>) {
     }
     let dof = fit.dof as f64;
     let estimate = (fit.chi2 - dof) / s;
-    let psd = |t2: f64| {
-        let c = fit.cov + fit.cov_per_tau2 * t2;
-        let scale = c.diagonal().amax().max(f64::MIN_POSITIVE);
-        c.symmetric_eigenvalues()
-            .iter()
-            .all(|e| *e >= -1e-12 * scale)
-    };
+    let psd = |t2: f64| is_covariance(&(fit.cov + fit.cov_per_tau2 * t2));
     let mut tau2 = estimate;
     if !psd(tau2) {
         let (mut lo, mut hi) = (tau2, 0.0);
@@ -806,6 +796,14 @@ fn measure_scatter(fit: &mut FreeFit, notes: &mut Vec<String>) {
             format!(" (taken at {tau2:.3e}, where no property's variance is negative)")
         }
     ));
+}
+
+/// Whether `cov` is a covariance: no eigenvalue below −10⁻¹² of its largest variance.
+fn is_covariance(cov: &SMatrix<f64, 12, 12>) -> bool {
+    let scale = cov.diagonal().amax().max(f64::MIN_POSITIVE);
+    cov.symmetric_eigenvalues()
+        .iter()
+        .all(|e| *e >= -1e-12 * scale)
 }
 
 /// The degrees of freedom of a variance `u2` that holds `c`·τ², τ² = `tau2` of variance
