@@ -204,6 +204,76 @@ phase_deg = 30.0
     assert!((t.angles_deg[0] - uv).abs() < 1e-9);
 }
 
+/// The effects outside the discrepancy workflow's catalogue (a higher-order response, an
+/// offset step, a nodding axis), compared value by value with the model written out here.
+#[test]
+fn effects_outside_the_catalogue_match_an_independent_model() {
+    let toml = format!(
+        r#"
+seed = 6
+g_loc = {G}
+[device]
+matrix = {s}
+offsets = [{o0}, {o1}, {o2}]
+[sensor]
+noise_sigma = 0.0
+lsb = 0.0
+full_scale = [-1e9, 1e9]
+[timing]
+sample_rate_hz = 10.0
+tick_hz = 1e9
+gap_s = 5.0
+[table]
+rates_hz = [0.05]
+samples_per_condition = 400
+start_angle_deg = [10.0, 200.0, 300.0]
+[effects.nonlinearity_high]
+order = 5
+k = [1e-6, -2e-6, 3e-6]
+[effects.offset_step]
+at_s = 57.25
+size = [4.0, -7.0, 0.5]
+[effects.axis_wobble]
+tilt_deg = 0.3
+phase_deg = 20.0
+"#,
+        s = fmt_matrix(&S),
+        o0 = O[0],
+        o1 = O[1],
+        o2 = O[2],
+    );
+    let recording = rec(&sim(&toml));
+    let k5 = [1e-6, -2e-6, 3e-6];
+    let step = [4.0, -7.0, 0.5];
+    let start = [10.0f64, 200.0, 300.0].map(f64::to_radians);
+    let (n, fs, gap, omega) = (400usize, 10.0, 5.0, TAU * 0.05);
+    let sn = S.map(|row| (row[0] * row[0] + row[1] * row[1] + row[2] * row[2]).sqrt());
+    let (mut worst, mut stepped) = (0.0f64, 0usize);
+    for (gi, g) in recording.groups.iter().enumerate() {
+        let tg = gi as f64 * (n as f64 / fs + gap);
+        for k in 0..n {
+            let tau = k as f64 / fs;
+            let t = tg + tau;
+            let alpha = start[gi] + omega * tau;
+            let theta = 0.3f64.to_radians() * (2.0 * alpha + 20f64.to_radians()).sin();
+            let mut gh = g_hat(gi, alpha).map(|v| v * theta.cos());
+            gh[gi] += theta.sin();
+            let y = [g.u[k], g.v[k], g.w[k]];
+            for j in 0..3 {
+                let a = (0..3).map(|i| S[j][i] * G * gh[i]).sum::<f64>() / sn[j];
+                let jump = if t >= 57.25 { step[j] } else { 0.0 };
+                let want = sn[j] * (a + k5[j] * a.powi(5)) + O[j] + jump;
+                worst = worst.max((y[j] - want).abs() / want.abs().max(1.0));
+            }
+            stepped += usize::from(t >= 57.25);
+        }
+    }
+    assert!(worst < 1e-11, "worst relative difference {worst:e}");
+    // The step falls inside the y condition's group (45 s + 12.3 s): 277 of its rows and
+    // all of z's.
+    assert_eq!(stepped, 277 + n);
+}
+
 /// The static method's timing and effects, with repeated readings and an angle list.
 #[test]
 fn static_with_effects_matches_an_independent_model() {
@@ -546,6 +616,22 @@ fn bad_configurations_name_the_key() {
         ),
         ("preset = \"paper-10mhz\"\n[sensor.noise]\nlow_pass_hz = 2.0\n", "low_pass_hz"),
         ("preset = \"paper-10mhz\"\nunits = \"V\"\n[sensor.noise]\nar = [0.5]\n", "sensor.noise.sd"),
+        (
+            "preset = \"paper-10mhz\"\n[effects.nonlinearity_high]\norder = 3\nk = [0.0, 0.0, 0.0]\n",
+            "effects.nonlinearity_high.order",
+        ),
+        (
+            "preset = \"paper-10mhz\"\n[effects.offset_step]\nat_s = inf\nsize = [1.0, 0.0, 0.0]\n",
+            "effects.offset_step.at_s",
+        ),
+        (
+            "preset = \"paper-10mhz\"\n[effects.axis_wobble]\ntilt_deg = 9.0\n",
+            "effects.axis_wobble.tilt_deg",
+        ),
+        (
+            "preset = \"metrologia-static\"\n[effects.axis_wobble]\ntilt_deg = 0.1\n",
+            "effects.axis_wobble",
+        ),
     ];
     for (text, want) in cases {
         let err = Config::from_toml(text)

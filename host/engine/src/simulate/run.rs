@@ -33,7 +33,13 @@ impl Simulation {
         if let Some(n) = &e.nonlinearity_3rd {
             resp += ch.of(&n.k3) * a * a * a;
         }
+        if let Some(n) = &e.nonlinearity_high {
+            resp += ch.of(&n.k) * a.powf(f64::from(n.order));
+        }
         let mut y = sj * resp + ch.of(&self.cfg.device.offsets);
+        if let Some(s) = e.offset_step.as_ref().filter(|s| t >= s.at_s) {
+            y += ch.of(&s.size);
+        }
         if let Some(d) = &e.offset_drift {
             y += ch.of(&d.per_s) * t;
         }
@@ -306,7 +312,15 @@ impl Simulation {
             let psi = r.phase_deg.to_radians();
             alpha += r.relative * ((omega * tj + psi).sin() - psi.sin());
         }
-        let mut f = cond.gravity_direction(alpha).map(|v| self.cfg.g_loc * v);
+        let mut g_hat = cond.gravity_direction(alpha);
+        if let Some(w) = &e.axis_wobble {
+            let theta = w.tilt_deg.to_radians()
+                * (f64::from(w.per_rev) * alpha + w.phase_deg.to_radians()).sin();
+            let (s, c) = theta.sin_cos();
+            let axis = Condition::ALL.map(|a| f64::from(u8::from(a == cond)));
+            g_hat = zip_map(g_hat, axis, |g, n| c * g + s * n);
+        }
+        let mut f = g_hat.map(|v| self.cfg.g_loc * v);
         if let Some(cp) = &e.centripetal {
             let a = omega * omega * cp.radius_m;
             for (fi, d) in f.iter_mut().zip(*cond.of(&self.outward)) {

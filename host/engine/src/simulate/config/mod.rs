@@ -489,6 +489,17 @@ pub struct Effects {
     /// The rate varies once per revolution.
     #[serde(default)]
     pub rate_ripple: Option<RateRipple>,
+    /// A response of one higher order (4 … 7) along each sensitive axis: outside the
+    /// discrepancy workflow's catalogue.
+    #[serde(default)]
+    pub nonlinearity_high: Option<NonlinearityHigh>,
+    /// The offsets jump once: outside the catalogue.
+    #[serde(default)]
+    pub offset_step: Option<OffsetStep>,
+    /// The platter's axis nods a whole number of times per revolution: outside the
+    /// catalogue.
+    #[serde(default)]
+    pub axis_wobble: Option<AxisWobble>,
     /// Static: each step of the table lands off its nominal orientation.
     #[serde(default)]
     pub step_error: Option<StepError>,
@@ -587,6 +598,47 @@ pub struct RateRipple {
     /// ψ, degrees.
     #[serde(default)]
     pub phase_deg: f64,
+}
+
+/// `nonlinearity_high`: s_j·(a + K_j·a^order).
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct NonlinearityHigh {
+    /// The power, 4 … 7.
+    pub order: u32,
+    /// K per channel, 1/(m/s²)^(order − 1).
+    pub k: [f64; 3],
+}
+
+/// `offset_step`: from session time `at_s` on, channel j's offset is O_j + size_j (a
+/// shock, or a range or filter setting changed during the session).
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct OffsetStep {
+    /// When, seconds from the start of the session.
+    pub at_s: f64,
+    /// The jump per channel, output units.
+    pub size: [f64; 3],
+}
+
+/// `axis_wobble`: the platter's axis nods `per_rev` times per revolution, so gravity, in
+/// the platter frame, leaves the plane of rotation towards the axis by the angle
+/// θ = tilt·sin(per_rev·α + ψ): ĝ' = cos θ·ĝ(α) + sin θ·n̂, n̂ the condition's axis.
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct AxisWobble {
+    /// The largest tilt, degrees.
+    pub tilt_deg: f64,
+    /// Nods per revolution (default 2).
+    #[serde(default = "two")]
+    pub per_rev: u32,
+    /// ψ, degrees.
+    #[serde(default)]
+    pub phase_deg: f64,
+}
+
+fn two() -> u32 {
+    2
 }
 
 fn preset_text(name: &str) -> Result<&'static str, ConfigError> {

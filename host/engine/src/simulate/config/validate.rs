@@ -361,12 +361,13 @@ impl Temperature {
 
 impl Effects {
     /// The effects only rotation simulates, each with whether it is given.
-    fn rotation_keys(&self) -> [(&'static str, bool); 4] {
+    fn rotation_keys(&self) -> [(&'static str, bool); 5] {
         [
             ("effects.rate_error", self.rate_error.is_some()),
             ("effects.centripetal", self.centripetal.is_some()),
             ("effects.axis_time_skew", self.axis_time_skew.is_some()),
             ("effects.rate_ripple", self.rate_ripple.is_some()),
+            ("effects.axis_wobble", self.axis_wobble.is_some()),
         ]
     }
 
@@ -422,6 +423,25 @@ impl Effects {
             finite("effects.rate_ripple", &[x.relative, x.phase_deg])?;
             if x.relative.abs() >= 1.0 {
                 return bad("effects.rate_ripple.relative", "must be below 1 in size");
+            }
+        }
+        if let Some(x) = &self.nonlinearity_high {
+            finite("effects.nonlinearity_high.k", &x.k)?;
+            if !(4..=7).contains(&x.order) {
+                return bad("effects.nonlinearity_high.order", "must be 4, 5, 6 or 7");
+            }
+        }
+        if let Some(x) = &self.offset_step {
+            finite("effects.offset_step.size", &x.size)?;
+            finite("effects.offset_step.at_s", &[x.at_s])?;
+        }
+        if let Some(x) = &self.axis_wobble {
+            finite("effects.axis_wobble", &[x.tilt_deg, x.phase_deg])?;
+            if x.tilt_deg.abs() > 5.0 {
+                return bad("effects.axis_wobble.tilt_deg", "must lie within ±5 degrees");
+            }
+            if !(1..=20).contains(&x.per_rev) {
+                return bad("effects.axis_wobble.per_rev", "must be 1 … 20");
             }
         }
         Ok(())
