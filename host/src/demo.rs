@@ -112,6 +112,8 @@ pub struct Puzzle {
     pub deviation_modelled: (f64, f64),
     /// The discrepancy report.
     pub report: PathBuf,
+    /// The workflow's verdict: explained, and its summary.
+    pub verdict: (bool, String),
 }
 
 /// The puzzle's simulation.
@@ -180,6 +182,7 @@ fn puzzle(seed: u64, dir: &Path) -> anyhow::Result<Puzzle> {
         deviation_per_rate,
         deviation_modelled,
         report,
+        verdict: (a.verdict.explained, a.verdict.summary.clone()),
     })
 }
 
@@ -569,6 +572,11 @@ pub fn checks(d: &Demo) -> Vec<Check> {
             measured: format!("{label} = {v:+.4} ± {u:.4}, {:.2} U", v.abs() / u),
         });
     }
+    c.push(Check {
+        claim: "puzzle: the discrepancy workflow's verdict is \"explained\"".into(),
+        passed: p.verdict.0,
+        measured: p.verdict.1.clone(),
+    });
     let in_u = |(v, u): (f64, f64), t: f64| (v - t).abs() / u;
     let k2 = in_u(p.k2_w, p.true_k2_w);
     let radii: Vec<f64> = p.radius.iter().map(|&r| in_u(r, p.true_radius_m)).collect();
@@ -773,6 +781,7 @@ fn render_puzzle(o: &mut String, p: &Puzzle) {
          (χ²/dof {:.0} → {:.3}): K2_w = {:.3e} ± {:.1e} /(m/s²),\n\
          radius {} m.\n\
          With them modelled: {label} = {:+.4} ± {:.4}, {}.\n\
+         Verdict: {}.\n\
          Report: {}",
         rates.join(", "),
         short(p.true_radius_m * 100.0),
@@ -797,6 +806,7 @@ fn render_puzzle(o: &mut String, p: &Puzzle) {
         p.deviation_modelled.0,
         p.deviation_modelled.1,
         against_u(p.deviation_modelled),
+        p.verdict.1,
         p.report.display()
     );
 }

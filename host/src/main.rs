@@ -72,6 +72,8 @@ fn main() -> ExitCode {
             eprintln!("rotacal: {e:#}");
             if e.downcast_ref::<cli::record::Incomplete>().is_some() {
                 ExitCode::from(3)
+            } else if e.downcast_ref::<cli::discrepancy::Unexplained>().is_some() {
+                ExitCode::from(4)
             } else {
                 ExitCode::FAILURE
             }

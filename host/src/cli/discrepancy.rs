@@ -28,6 +28,12 @@ pub struct Args {
     pub slow_noise: bool,
 }
 
+/// The analysis ran, and something in the data is not explained (exit status 4): the
+/// output, the JSON and the report are written first.
+#[derive(Debug, thiserror::Error)]
+#[error("{0}")]
+pub struct Unexplained(pub String);
+
 /// Run it.
 pub fn run(a: Args) -> anyhow::Result<()> {
     if !(a.alpha > 0.0 && a.alpha < 1.0) {
@@ -53,6 +59,9 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         let units = rec.meta.units.as_deref().unwrap_or("output units");
         let path = rotacal::report::discrepancy::write(&analysis, dir, units)?;
         rotacal::output::emit(&format!("report: {}\n", path.display()))?;
+    }
+    if !analysis.verdict.explained {
+        return Err(Unexplained(analysis.verdict.summary.clone()).into());
     }
     Ok(())
 }

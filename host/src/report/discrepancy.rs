@@ -165,7 +165,15 @@ pub fn render(a: &Analysis) -> String {
         );
     }
     if a.steps.is_empty() {
-        let _ = writeln!(o, "No effect beyond the baseline is demanded by the data.");
+        let _ = writeln!(
+            o,
+            "No effect of the catalogue beyond the baseline is demanded by the data{}",
+            if a.verdict.explained {
+                "."
+            } else {
+                "; they are not explained (the verdict, below)."
+            }
+        );
     }
     let _ = writeln!(
         o,
@@ -224,7 +232,33 @@ pub fn render(a: &Analysis) -> String {
         );
         moved(&a.intrinsic_baseline, &a.intrinsic_final, &mut o);
     }
+    verdict(a, &mut o);
     o
+}
+
+/// The verdict and, when the data are not explained, where (at most ten places).
+fn verdict(a: &Analysis, o: &mut String) {
+    let v = &a.verdict;
+    let _ = writeln!(o, "Verdict: {}", v.summary);
+    if v.unexplained.is_empty() {
+        return;
+    }
+    let _ = writeln!(
+        o,
+        "Not explained (size in output units, in noise sd, and z; largest first{}):",
+        if v.unexplained.len() > 10 {
+            format!(", 10 of {}", v.unexplained.len())
+        } else {
+            String::new()
+        }
+    );
+    for u in v.unexplained.iter().take(10) {
+        let _ = writeln!(
+            o,
+            "  {}: {}, {:.4} ({:.2} sd, z = {:.1})",
+            u.at, u.what, u.size, u.size_in_sd, u.z
+        );
+    }
 }
 
 fn series(a: &Analysis, gi: usize, fit: usize, label: &str) -> Option<Series> {

@@ -38,9 +38,9 @@ fn clean_demo_passes_and_its_sentences_agree_with_its_numbers() {
     let (ok, out, err) = run(&["demo", "--out", dir.to_str().unwrap()]);
     assert!(ok, "{out}\n{err}");
     let checks: Vec<&str> = out.lines().filter(|l| l.starts_with("  ok ")).collect();
-    assert_eq!(checks.len(), 12, "{out}");
+    assert_eq!(checks.len(), 13, "{out}");
     assert!(!out.contains("FAIL"), "{out}");
-    assert_eq!(out.lines().last(), Some("All 12 checks passed."));
+    assert_eq!(out.lines().last(), Some("All 13 checks passed."));
 
     // The device's fits are the firmware's, run on this host.
     assert!(
@@ -133,7 +133,7 @@ fn a_corrupted_device_fit_fails_the_demo_naming_the_crosscheck() {
     );
     assert_eq!(o.status.code(), Some(1), "{out}\n{err}");
     assert!(
-        err.starts_with("rotacal: the demo failed 1 of 12 checks:\n  cross-check: "),
+        err.starts_with("rotacal: the demo failed 1 of 13 checks:\n  cross-check: "),
         "{err}"
     );
     assert!(err.contains("1 of 36 fits outside the threshold"), "{err}");
@@ -146,7 +146,7 @@ fn a_corrupted_device_fit_fails_the_demo_naming_the_crosscheck() {
     assert!(out.contains("  FAIL cross-check: "), "{out}");
     let last = out.lines().last().unwrap();
     assert!(
-        last.starts_with("FAILED 1 of 12 checks: cross-check"),
+        last.starts_with("FAILED 1 of 13 checks: cross-check"),
         "{last}"
     );
     let xc: serde_json::Value =
@@ -200,7 +200,7 @@ fn a_property_4u_from_the_truth_fails_its_3u_check() {
             assert!(err.contains(&format!("= {:.2} U", by.abs())), "{err}");
             let text = demo::render(&e);
             assert!(text.contains(&format!("  FAIL {claim}")), "{text}");
-            assert!(text.ends_with(&format!("FAILED 1 of 12 checks: {claim}.\n")));
+            assert!(text.ends_with(&format!("FAILED 1 of 13 checks: {claim}.\n")));
         }
     }
 

@@ -14,7 +14,9 @@ pub mod locate;
 pub mod model;
 pub mod noise;
 pub mod slow;
+pub mod structure;
 pub mod trials;
+pub mod verdict;
 
 use crate::calibrate::json::Quantity;
 use crate::recording::{Method, Recording};
@@ -328,6 +330,11 @@ pub struct Analysis {
     pub last_candidates: Vec<Criterion>,
     /// The effects that could not be tested on this file, and why.
     pub untestable: Vec<(String, String)>,
+    /// Whether the final model and the noise account for the data, and where not.
+    pub verdict: verdict::Verdict,
+    /// Structure the generic fit would have left, found before the noise was estimated
+    /// (and kept out of the noise model).
+    pub structure: Vec<structure::Structure>,
     /// The fits, for plots (not serialised).
     #[serde(skip)]
     pub fits: Vec<Fit>,
@@ -398,8 +405,9 @@ pub fn data_from(rec: &Recording, opts: &Options) -> Result<(Data, NoiseSigma), 
         g_loc,
         sigma: [1.0; 3],
         noise: Vec::new(),
+        generic: noise::Generic::default(),
     };
-    data.noise = noise::estimate(&data)?;
+    (data.noise, data.generic) = noise::estimate(&data)?;
     let rows = data.rows().max(1) as f64;
     data.sigma = Channel::ALL.map(|ch| {
         (data
@@ -770,7 +778,10 @@ pub fn analyse(
             (e.name().to_string(), p)
         })
         .collect();
+    let verdict = verdict::judge(&data, &current, alpha, levels.as_ref());
     Ok(Analysis {
+        verdict,
+        structure: data.generic.structure.clone(),
         final_parameters,
         alpha,
         intrinsic_baseline,

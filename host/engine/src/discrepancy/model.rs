@@ -179,6 +179,8 @@ pub struct Data {
     pub sigma: [f64; 3],
     /// The noise model per group and channel (u, v, w), held fixed through every fit.
     pub noise: Vec<[NoiseModel; 3]>,
+    /// The generic fits the noise models come from, and the structure found in them.
+    pub generic: super::noise::Generic,
 }
 
 /// A group's channel's rows through its noise filter: rows `t ≥ p` whose window

@@ -200,7 +200,12 @@ fn channel_levels(data: &Data, ch: Channel) -> Result<SlowFit, SlowError> {
         .iter()
         .enumerate()
         .filter_map(|(gi, g)| {
-            let (x, r) = super::noise::generic_fit(g, ch)?;
+            let extras: &[super::noise::Extra] = data
+                .generic
+                .extras
+                .get(gi)
+                .map_or(&[], |e| ch.of(e).as_slice());
+            let (x, r) = super::noise::generic_fit(g, ch, extras)?;
             let design = SlowDesign::new(&x, &vec![1.0; x.nrows()]).ok()?;
             Some((design, r, gi))
         })
@@ -404,6 +409,7 @@ mod tests {
             g_loc: 9.81,
             sigma: [1.0; 3],
             noise: Vec::new(),
+            generic: Default::default(),
         }
     }
 

@@ -25,6 +25,17 @@ pub struct Tested {
 }
 
 impl Tested {
+    /// Linear functionals of the readings that are no model's parameters (the verdict's
+    /// parts of a generic fit): their values, covariance under the AR model and weights.
+    pub fn linear(values: Vec<f64>, gls_cov: DMatrix<f64>, weights: Vec<[Vec<f64>; 3]>) -> Self {
+        Tested {
+            values,
+            gls_cov,
+            weights,
+            targets: Vec::new(),
+        }
+    }
+
     /// Write one number per parameter (a standard uncertainty, say) into their places in
     /// `into`, a [`Params`] of the fit's shape.
     pub fn write(&self, numbers: &[f64], into: &mut Params) {
