@@ -231,6 +231,20 @@ pub fn render(a: &Analysis) -> String {
             }
         );
         moved(&a.intrinsic_baseline, &a.intrinsic_final, &mut o);
+        if a.confirmed_effects.len() < a.steps.len() {
+            let _ = writeln!(
+                o,
+                "Not confirmed: {} (candidates: the data are not explained, so the tests \
+                 that named them assumed a model the data reject); the result applies no \
+                 correction for them: the baseline's properties above.",
+                a.steps
+                    .iter()
+                    .map(|s| s.effect.as_str())
+                    .filter(|e| !a.confirmed_effects.iter().any(|c| c == e))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            );
+        }
     }
     verdict(a, &mut o);
     o

@@ -323,6 +323,12 @@ pub struct Analysis {
     pub intrinsic_baseline: Vec<RateIntrinsic>,
     /// See `intrinsic_baseline`.
     pub intrinsic_final: Vec<RateIntrinsic>,
+    /// The named effects that are confirmed, whose corrections the result applies: all of
+    /// them when the verdict is "explained", none otherwise (each was named by a test that
+    /// assumed the larger model right, which the data then showed it is not).
+    pub confirmed_effects: Vec<String>,
+    /// Intrinsic properties per rate with only the confirmed effects modelled: the result.
+    pub intrinsic_confirmed: Vec<RateIntrinsic>,
     /// The last model.
     #[serde(rename = "final")]
     pub final_: Goodness,
@@ -779,7 +785,17 @@ pub fn analyse(
         })
         .collect();
     let verdict = verdict::judge(&data, &current, alpha, levels.as_ref());
+    let (confirmed_effects, intrinsic_confirmed) = if verdict.explained {
+        (current.effects.clone(), intrinsic_now.clone())
+    } else {
+        (Vec::new(), intrinsic_baseline.clone())
+    };
     Ok(Analysis {
+        confirmed_effects: confirmed_effects
+            .iter()
+            .map(|e| e.name().to_string())
+            .collect(),
+        intrinsic_confirmed,
         verdict,
         structure: data.generic.structure.clone(),
         final_parameters,
