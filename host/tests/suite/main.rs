@@ -36,3 +36,4 @@ mod simulator;
 mod slow_noise;
 mod static_method;
 mod streaming;
+mod verdict;

@@ -63,7 +63,8 @@ pub struct Verdict {
     pub summary: String,
     /// The final model against the generic fits.
     pub lack_of_fit: LackOfFit,
-    /// What is not explained, most significant first.
+    /// What is not explained: the structure the scan found first, then the final model's
+    /// misfit, each by z, largest first.
     pub unexplained: Vec<Unexplained>,
 }
 
@@ -230,7 +231,19 @@ pub fn judge(data: &Data, last: &Fit, alpha: f64, levels: Option<&SlowLevels>) -
             }
         }
     }
-    unexplained.sort_by(|a, b| b.z.total_cmp(&a.z));
+    // The scan's structure first (no catalogue effect can make it, and what the final model
+    // then misses is often what a wrongly named effect bent to fit it), each part by z.
+    let scanned = |u: &Unexplained| {
+        data.generic
+            .structure
+            .iter()
+            .any(|s| s.at == u.at && s.what.to_string() == u.what)
+    };
+    unexplained.sort_by(|a, b| {
+        scanned(b)
+            .cmp(&scanned(a))
+            .then_with(|| b.z.total_cmp(&a.z))
+    });
     let explained = unexplained.is_empty() && !misfit;
     let summary = if explained {
         format!(
