@@ -153,6 +153,16 @@ fn effects_outside_the_catalogue_are_unexplained_where_they_are() {
                     ));
                 }
             }
+            // What an unexplained session names stays a candidate.
+            for o in runs
+                .iter()
+                .filter(|o| !o.explained && !o.confirmed.is_empty())
+            {
+                failures.push(format!(
+                    "{:?} in {:?}: unexplained, yet {:?} of {:?} confirmed",
+                    o.effect, o.noise, o.confirmed, o.named
+                ));
+            }
             let moved: Vec<&Outcome> = runs
                 .iter()
                 .filter(|o| !o.moved_beyond_u.is_empty())

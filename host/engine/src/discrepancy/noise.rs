@@ -301,7 +301,8 @@ pub fn estimate(data: &Data) -> Result<(Vec<[NoiseModel; 3]>, Generic), NoiseEst
             let flagged = noise::clipped(y);
             let x = design(&g.tau, g.omega(), temp, &flagged, extras);
             let e = ols_residuals(&x, y, &flagged);
-            if let Some(s) = structure::step(e.as_slice()) {
+            let basis = x.clone().qr().q();
+            if let Some(s) = structure::step(e.as_slice(), &basis) {
                 let p = (s.p_single * channels).min(1.0);
                 if p < super::ALPHA {
                     extras.push(Extra::Step(s.row));
