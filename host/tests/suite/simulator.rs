@@ -632,6 +632,10 @@ fn bad_configurations_name_the_key() {
             "preset = \"metrologia-static\"\n[effects.axis_wobble]\ntilt_deg = 0.1\n",
             "effects.axis_wobble",
         ),
+        (
+            "preset = \"paper-10mhz\"\n[effects.noise_change]\nat_s = 10.0\nfactor = 0.0\n",
+            "effects.noise_change.factor",
+        ),
     ];
     for (text, want) in cases {
         let err = Config::from_toml(text)

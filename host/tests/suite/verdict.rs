@@ -20,14 +20,17 @@ enum Outside {
     Ripple,
     /// The axis nods twice a revolution: a 2nd harmonic on each condition's axial channel.
     Wobble,
+    /// The noise grows by a quarter at 450 s, 127.5 s into condition y (near its middle).
+    NoiseChange,
 }
 
-const OUTSIDE: [Outside; 5] = [
+const OUTSIDE: [Outside; 6] = [
     Outside::Order5,
     Outside::Order4,
     Outside::Step,
     Outside::Ripple,
     Outside::Wobble,
+    Outside::NoiseChange,
 ];
 
 impl Outside {
@@ -38,6 +41,7 @@ impl Outside {
             Outside::Step => "[effects.offset_step]\nat_s = 400.0\nsize = [0.0, 8.0, 0.0]\n",
             Outside::Ripple => "[effects.rate_ripple]\nrelative = 6.7e-4\n",
             Outside::Wobble => "[effects.axis_wobble]\ntilt_deg = 0.02\n",
+            Outside::NoiseChange => "[effects.noise_change]\nat_s = 450.0\nfactor = 1.25\n",
         }
     }
 
@@ -59,6 +63,7 @@ impl Outside {
             }
             Outside::Ripple => what.starts_with("harmonic 2 ") && !axial,
             Outside::Wobble => what.starts_with("harmonic 2 ") && axial,
+            Outside::NoiseChange => what.starts_with("the noise's sd changes") && cond == 'y',
         }
     }
 }

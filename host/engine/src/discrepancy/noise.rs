@@ -16,6 +16,7 @@ use super::structure::{self, Kind, Structure};
 use crate::fit::noise::{self, NoiseError, NoiseModel};
 use nalgebra::{DMatrix, DVector};
 use rotacal_shared::{Channel, Condition};
+use statrs::distribution::{ContinuousCDF, FisherSnedecor, Normal};
 
 /// Why a group's channel has no noise model.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -194,7 +195,7 @@ fn whitened_level(
     x: &DMatrix<f64>,
     y: &DVector<f64>,
     flagged: &[bool],
-) -> Result<f64, ChannelNoiseError> {
+) -> Result<(f64, Halves), ChannelNoiseError> {
     let keep = whiten_keep(m, flagged);
     let rows = keep.iter().filter(|&&k| k).count();
     let mut xw = x.clone();
@@ -211,10 +212,46 @@ fn whitened_level(
     let qm = qr.q();
     let e = &yw - &qm * (qm.transpose() * &yw);
     let level = e.norm_squared() / (rows - q) as f64;
+    // The kept rows' whitened residuals, first half against second.
+    let kept_e: Vec<f64> = e
+        .iter()
+        .zip(&keep)
+        .filter(|(_, k)| **k)
+        .map(|(v, _)| *v)
+        .collect();
+    let (a, b) = kept_e.split_at(kept_e.len() / 2);
+    let mean_square = |x: &[f64]| x.iter().map(|v| v * v).sum::<f64>() / x.len().max(1) as f64;
+    let halves = Halves {
+        first: mean_square(a),
+        second: mean_square(b),
+        n: [a.len(), b.len()],
+    };
     if level.is_finite() && level > 0.0 {
-        Ok(level)
+        Ok((level, halves))
     } else {
         Err(ChannelNoiseError::Zero)
+    }
+}
+
+/// The mean squares of a group's channel's whitened generic residuals in its two halves
+/// (relative to the model before its level is set), and their rows.
+#[derive(Clone, Copy, Debug)]
+struct Halves {
+    first: f64,
+    second: f64,
+    n: [usize; 2],
+}
+
+impl Halves {
+    /// Two-sided P of so large a ratio under one level: F(n₁, n₂) (Gaussian innovations;
+    /// the few coefficients of the fit left out of the degrees of freedom).
+    fn p_value(&self) -> f64 {
+        let [n1, n2] = self.n.map(|n| n.max(1) as f64);
+        let ratio = self.first / self.second.max(f64::MIN_POSITIVE);
+        FisherSnedecor::new(n1, n2)
+            .map(|d| 2.0 * d.cdf(ratio).min(d.sf(ratio)))
+            .unwrap_or(1.0)
+            .min(1.0)
     }
 }
 
@@ -231,7 +268,7 @@ fn model_of(
     temp: Option<&[f64]>,
     flagged: &[bool],
     extras: &[Extra],
-) -> Result<(NoiseModel, usize, usize), ChannelNoiseError> {
+) -> Result<(NoiseModel, usize, usize, Halves), ChannelNoiseError> {
     let x = design(tau, omega, temp, flagged, extras);
     let yv = DVector::from_iterator(
         y.len(),
@@ -241,9 +278,15 @@ fn model_of(
     );
     let e = ols_residuals(&x, y, flagged);
     let m = NoiseModel::estimate(e.as_slice(), flagged).and_then(|m| m.rescaled(&x))?;
-    let factor = whitened_level(&m, &x, &yv, flagged)?;
+    let (factor, halves) = whitened_level(&m, &x, &yv, flagged)?;
     let kept = whiten_keep(&m, flagged).iter().filter(|&&k| k).count();
-    Ok((m.scaled(factor), kept, x.ncols()))
+    // The halves' levels as one reading's marginal sd would be under the model.
+    let halves = Halves {
+        first: halves.first * m.var,
+        second: halves.second * m.var,
+        ..halves
+    };
+    Ok((m.scaled(factor), kept, x.ncols(), halves))
 }
 
 /// The noise model per group and channel (u, v, w), each from its generic fit with the
@@ -326,7 +369,7 @@ pub fn estimate(data: &Data) -> Result<(Vec<[NoiseModel; 3]>, Generic), NoiseEst
             // Without the temperature if it makes the fit singular (a temperature that is
             // a straight line in time).
             let fit = |temp| model_of(y, (&g.tau, g.omega()), temp, &flagged, extras);
-            let (m, kept, q) = fit(temp)
+            let (m, kept, q, halves) = fit(temp)
                 .or_else(|e| temp.map_or(Err(e), |_| fit(None)))
                 .map_err(|cause| NoiseEstimateError::Channel {
                     condition: g.condition,
@@ -334,6 +377,20 @@ pub fn estimate(data: &Data) -> Result<(Vec<[NoiseModel; 3]>, Generic), NoiseEst
                     channel,
                     cause,
                 })?;
+            let p = (halves.p_value() * channels).min(1.0);
+            if p < super::ALPHA {
+                generic.structure.push(Structure {
+                    at,
+                    what: Kind::NoiseChange {
+                        first_sd: halves.first.sqrt(),
+                        second_sd: halves.second.sqrt(),
+                    },
+                    size: halves.second.sqrt() - halves.first.sqrt(),
+                    // The normal deviate of the single test's two-sided p.
+                    z: -Normal::standard().inverse_cdf((halves.p_value() / 2.0).max(1e-300)),
+                    p_value: p,
+                });
+            }
             generic.dof += kept.saturating_sub(q) as f64;
             generic.coefficients += q;
             group_models.push(m);

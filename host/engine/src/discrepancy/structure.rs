@@ -37,6 +37,13 @@ pub enum Kind {
         /// Seconds into the group.
         tau_s: f64,
     },
+    /// The noise's sd differs between the group's halves.
+    NoiseChange {
+        /// One reading's noise sd in the first half, output units.
+        first_sd: f64,
+        /// The same in the second half.
+        second_sd: f64,
+    },
 }
 
 impl fmt::Display for Kind {
@@ -44,6 +51,13 @@ impl fmt::Display for Kind {
         match self {
             Kind::Harmonic(k) => write!(f, "harmonic {k} of the table angle"),
             Kind::Step { tau_s } => write!(f, "a step in the level {tau_s:.1} s into the group"),
+            Kind::NoiseChange {
+                first_sd,
+                second_sd,
+            } => write!(
+                f,
+                "the noise's sd changes between the group's halves, {first_sd:.3} to {second_sd:.3}"
+            ),
         }
     }
 }

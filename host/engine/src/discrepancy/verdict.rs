@@ -142,7 +142,7 @@ pub fn judge(data: &Data, last: &Fit, alpha: f64, levels: Option<&SlowLevels>) -
         .structure
         .iter()
         // Under slow noise the scan's steps are judged again below, with the slow terms.
-        .filter(|s| levels.is_none() || matches!(s.what, Kind::Harmonic(_)))
+        .filter(|s| levels.is_none() || !matches!(s.what, Kind::Step { .. }))
         .map(|s| {
             let gi = data.groups.iter().position(|g| match s.at {
                 Place::Group {

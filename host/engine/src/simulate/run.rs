@@ -156,6 +156,11 @@ impl Simulation {
                             let t = t0 + tau;
                             let temp = self.temperature(t);
                             let mut y = noise.draw(&mut rng);
+                            if let Some(nc) =
+                                c.effects.noise_change.as_ref().filter(|nc| t >= nc.at_s)
+                            {
+                                y = y.map(|v| v * nc.factor);
+                            }
                             let slow = noise.slow_at(t);
                             for (ch, yj) in Channel::ALL.into_iter().zip(&mut y) {
                                 let f = self.specific_force(cond, omega, start, tau, ch);

@@ -500,6 +500,9 @@ pub struct Effects {
     /// catalogue.
     #[serde(default)]
     pub axis_wobble: Option<AxisWobble>,
+    /// The sensor's short-range noise changes its level once: outside the catalogue.
+    #[serde(default)]
+    pub noise_change: Option<NoiseChange>,
     /// Static: each step of the table lands off its nominal orientation.
     #[serde(default)]
     pub step_error: Option<StepError>,
@@ -635,6 +638,17 @@ pub struct AxisWobble {
     /// ψ, degrees.
     #[serde(default)]
     pub phase_deg: f64,
+}
+
+/// `noise_change`: from session time `at_s` on, the sensor's noise (white and AR, not the
+/// slow terms) is `factor` times what `[sensor.noise]` says (rotation).
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct NoiseChange {
+    /// When, seconds from the start of the session.
+    pub at_s: f64,
+    /// The noise's factor after it.
+    pub factor: f64,
 }
 
 fn two() -> u32 {

@@ -361,13 +361,14 @@ impl Temperature {
 
 impl Effects {
     /// The effects only rotation simulates, each with whether it is given.
-    fn rotation_keys(&self) -> [(&'static str, bool); 5] {
+    fn rotation_keys(&self) -> [(&'static str, bool); 6] {
         [
             ("effects.rate_error", self.rate_error.is_some()),
             ("effects.centripetal", self.centripetal.is_some()),
             ("effects.axis_time_skew", self.axis_time_skew.is_some()),
             ("effects.rate_ripple", self.rate_ripple.is_some()),
             ("effects.axis_wobble", self.axis_wobble.is_some()),
+            ("effects.noise_change", self.noise_change.is_some()),
         ]
     }
 
@@ -434,6 +435,12 @@ impl Effects {
         if let Some(x) = &self.offset_step {
             finite("effects.offset_step.size", &x.size)?;
             finite("effects.offset_step.at_s", &[x.at_s])?;
+        }
+        if let Some(x) = &self.noise_change {
+            finite("effects.noise_change", &[x.at_s, x.factor])?;
+            if !(x.factor > 0.0 && x.factor <= 100.0) {
+                return bad("effects.noise_change.factor", "must lie in (0, 100]");
+            }
         }
         if let Some(x) = &self.axis_wobble {
             finite("effects.axis_wobble", &[x.tilt_deg, x.phase_deg])?;
