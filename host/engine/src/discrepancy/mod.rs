@@ -13,6 +13,7 @@
 pub mod locate;
 pub mod model;
 pub mod noise;
+pub mod place;
 pub mod slow;
 pub mod structure;
 pub mod trials;
@@ -411,7 +412,7 @@ pub fn data_from(rec: &Recording, opts: &Options) -> Result<(Data, NoiseSigma), 
         g_loc,
         sigma: [1.0; 3],
         noise: Vec::new(),
-        generic: noise::Generic::default(),
+        generic: structure::Generic::default(),
     };
     (data.noise, data.generic) = noise::estimate(&data)?;
     let rows = data.rows().max(1) as f64;

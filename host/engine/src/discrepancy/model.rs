@@ -180,7 +180,7 @@ pub struct Data {
     /// The noise model per group and channel (u, v, w), held fixed through every fit.
     pub noise: Vec<[NoiseModel; 3]>,
     /// The generic fits the noise models come from, and the structure found in them.
-    pub generic: super::noise::Generic,
+    pub generic: super::structure::Generic,
 }
 
 /// A group's channel's rows through its noise filter: rows `t ≥ p` whose window

@@ -80,30 +80,7 @@ pub const HOW: &str = "AR(p) per group and channel, Yule-Walker with the order b
 /// Harmonics of the nominal rate in the generic fit.
 const HARMONICS: usize = 4;
 
-/// A regressor the structure scan adds to a group's channel's generic fit
-/// ([`super::structure`]), so that the noise model does not take in what it found.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub enum Extra {
-    /// sin kωτ and cos kωτ.
-    Harmonic(usize),
-    /// 1 from this row on.
-    Step(usize),
-}
-
-/// What the generic fits held beyond their fixed regressors, and their degrees of freedom.
-#[derive(Clone, Debug, Default, PartialEq)]
-pub struct Generic {
-    /// Per group, per channel u, v, w: the regressors the structure scan added.
-    pub extras: Vec<[Vec<Extra>; 3]>,
-    /// What the scan found, as the verdict reports it.
-    pub structure: Vec<Structure>,
-    /// Σ over groups and channels of the whitened rows kept less the generic fit's
-    /// coefficients: the χ² each generic fit has under its own noise model (the level is
-    /// set so), against which a physical model's χ² shows its lack of fit.
-    pub dof: f64,
-    /// The generic fits' coefficients over all groups and channels.
-    pub coefficients: usize,
-}
+pub use super::structure::{Extra, Generic};
 
 /// Regressors of the generic fit: 1, τ (scaled to [0, 1]), sin kωτ and cos kωτ for
 /// k = 1 … [`HARMONICS`], (τ/span)·sin ωτ and (τ/span)·cos ωτ (a rate error's growing

@@ -9,7 +9,7 @@
 //! - a step's standardised CUSUM is scaled by a long-run variance from the median of
 //!   blocks' autocovariances, which one step (confined to one block) cannot move.
 
-use super::locate::Place;
+use super::place::Place;
 use crate::fit::noise::NoiseModel;
 use nalgebra::{DMatrix, DVector};
 use rustfft::num_complex::Complex;
@@ -294,6 +294,31 @@ pub fn step(e: &[f64], basis: &DMatrix<f64>) -> Option<StepTest> {
 fn scan_max_p(c: f64, lambda: f64) -> f64 {
     let phi = Normal::standard().pdf(c);
     (2.0 * (phi * (c - 1.0 / c) * lambda + 4.0 * phi / c)).clamp(0.0, 1.0)
+}
+
+/// A regressor the structure scan adds to a group's channel's generic fit
+/// ([`super::structure`]), so that the noise model does not take in what it found.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Extra {
+    /// sin kωτ and cos kωτ.
+    Harmonic(usize),
+    /// 1 from this row on.
+    Step(usize),
+}
+
+/// What the generic fits held beyond their fixed regressors, and their degrees of freedom.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Generic {
+    /// Per group, per channel u, v, w: the regressors the structure scan added.
+    pub extras: Vec<[Vec<Extra>; 3]>,
+    /// What the scan found, as the verdict reports it.
+    pub structure: Vec<Structure>,
+    /// Σ over groups and channels of the whitened rows kept less the generic fit's
+    /// coefficients: the χ² each generic fit has under its own noise model (the level is
+    /// set so), against which a physical model's χ² shows its lack of fit.
+    pub dof: f64,
+    /// The generic fits' coefficients over all groups and channels.
+    pub coefficients: usize,
 }
 
 #[cfg(test)]
