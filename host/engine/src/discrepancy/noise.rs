@@ -137,25 +137,25 @@ fn design(
 /// The coefficients of `y` (rows in `flagged` zero) by ordinary least squares on `x`;
 /// `None` if `x` is singular.
 fn ols_coefficients(x: &DMatrix<f64>, y: &[f64], flagged: &[bool]) -> Option<DVector<f64>> {
-    let yv = DVector::from_iterator(
-        y.len(),
-        y.iter()
-            .zip(flagged)
-            .map(|(v, f)| if *f { 0.0 } else { *v }),
-    );
+    let yv = masked(y, flagged);
     let qr = x.clone().qr();
     let qty = qr.q().transpose() * yv;
     qr.r().solve_upper_triangular(&qty)
 }
 
-/// Residuals of `y` (rows in `flagged` zero) by ordinary least squares on `x`.
-fn ols_residuals(x: &DMatrix<f64>, y: &[f64], flagged: &[bool]) -> DVector<f64> {
-    let yv = DVector::from_iterator(
+/// `y` with the rows in `flagged` zero (readings at a rail, out of every fit).
+fn masked(y: &[f64], flagged: &[bool]) -> DVector<f64> {
+    DVector::from_iterator(
         y.len(),
         y.iter()
             .zip(flagged)
             .map(|(v, f)| if *f { 0.0 } else { *v }),
-    );
+    )
+}
+
+/// Residuals of `y` (rows in `flagged` zero) by ordinary least squares on `x`.
+fn ols_residuals(x: &DMatrix<f64>, y: &[f64], flagged: &[bool]) -> DVector<f64> {
+    let yv = masked(y, flagged);
     let q = x.clone().qr().q();
     &yv - &q * (q.transpose() * &yv)
 }
@@ -247,12 +247,7 @@ fn model_of(
     extras: &[Extra],
 ) -> Result<(NoiseModel, usize, usize, Halves), ChannelNoiseError> {
     let x = design(tau, omega, temp, flagged, extras);
-    let yv = DVector::from_iterator(
-        y.len(),
-        y.iter()
-            .zip(flagged)
-            .map(|(v, f)| if *f { 0.0 } else { *v }),
-    );
+    let yv = masked(y, flagged);
     let e = ols_residuals(&x, y, flagged);
     let m = NoiseModel::estimate(e.as_slice(), flagged).and_then(|m| m.rescaled(&x))?;
     let (factor, halves) = whitened_level(&m, &x, &yv, flagged)?;
@@ -445,13 +440,9 @@ pub(super) fn chi2_on_generic_rows(
 ) -> f64 {
     let flagged = noise::clipped(ch.of(&g.y).as_slice());
     let keep = whiten_keep(m, &flagged);
-    let mut r: Vec<f64> = residual
-        .iter()
-        .zip(&flagged)
-        .map(|(v, f)| if *f { 0.0 } else { *v })
-        .collect();
-    super::model::whiten(m, &mut r, &keep);
-    r.iter().map(|v| v * v).sum()
+    let mut r = masked(residual, &flagged);
+    super::model::whiten(m, r.as_mut_slice(), &keep);
+    r.norm_squared()
 }
 
 /// One part of the generic fit, measured in a physical model's residuals.
@@ -533,13 +524,7 @@ pub(super) fn components(
             c -= proj;
         }
     }
-    let mut yw = DVector::from_iterator(
-        residual.len(),
-        residual
-            .iter()
-            .zip(&flagged)
-            .map(|(v, f)| if *f { 0.0 } else { *v }),
-    );
+    let mut yw = masked(residual, &flagged);
     super::model::whiten(m, yw.as_mut_slice(), &keep);
     let Some(cov) = (xw.transpose() * &xw).try_inverse() else {
         return Vec::new();
