@@ -177,5 +177,12 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         std::fs::write(&path, text).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
     }
     rotacal::output::emit(&rotacal::calibrate::table::render(&cal))?;
+    if let Some(c) = cal.residual_structure.as_ref().filter(|c| c.found) {
+        eprintln!(
+            "warning: {} finding(s) of structure beyond the noise in the residuals (see the \
+             table's end and the JSON's residual_structure)",
+            c.structure.len()
+        );
+    }
     Ok(())
 }

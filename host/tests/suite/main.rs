@@ -36,4 +36,5 @@ mod simulator;
 mod slow_noise;
 mod static_method;
 mod streaming;
+mod structure_check;
 mod verdict;

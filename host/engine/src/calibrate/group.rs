@@ -2,6 +2,7 @@
 //! the choice of rate, the sine fit in f64, the noise model of its residuals and the
 //! fit's covariance under it; and the refit at another rate the budget needs.
 
+use super::structure::{scan_channel, ChannelScan, ALPHA as STRUCTURE_ALPHA};
 use super::{err, CalibrateError, CalibrateErrorKind, GroupError, CLOCK};
 use crate::fit::batch;
 use crate::fit::noise::{self, NoiseError, NoiseModel, SlowDesign, SlowFit};
@@ -62,6 +63,9 @@ pub struct GroupFit {
     pub(crate) pending: Option<std::sync::Arc<PendingSlow>>,
     /// The rotation's angle per sample, rad (mean over the group).
     pub omega_per_sample: f64,
+    /// The structure scan of each channel's widened-fit residuals; none for a group
+    /// calibrated from a streamed file's sums.
+    pub scan: Option<[ChannelScan; 3]>,
 }
 
 impl GroupFit {
@@ -92,6 +96,7 @@ impl GroupFit {
             slow_status,
             pending: None,
             omega_per_sample,
+            scan: None,
         }
     }
 
@@ -201,7 +206,42 @@ fn noise_models(
     };
     let mut models = Vec::with_capacity(3);
     let mut resid_of = [None, None, None];
-    for (ch, slot) in Channel::ALL.into_iter().zip(&mut resid_of) {
+    let mut scan: [ChannelScan; 3] = Default::default();
+    let mut step_joined: [Option<(SlowDesign, Vec<f64>)>; 3] = [None, None, None];
+    let t0 = s.first().map_or(Ticks(0), |x| x.0.first());
+    let times: Vec<f64> = s
+        .iter()
+        .map(|(ap, _)| batch::seconds_between(ap.first(), t0, CLOCK))
+        .collect();
+    let dt_s = times.last().copied().unwrap_or(0.0) / (s.len().max(2) - 1) as f64;
+    let rms_weight = (weights.iter().map(|w| w * w).sum::<f64>() / s.len().max(1) as f64).sqrt();
+    let scan_at = (dt_s, step.to_hz(CLOCK), rms_weight);
+    let harmonic_columns = |ks: &[usize]| {
+        let mut x = DMatrix::zeros(s.len(), 2 * ks.len());
+        for ((ap, _), mut row) in s.iter().zip(x.row_iter_mut()) {
+            let w = batch::root_weight(ap);
+            for (&k, pair) in ks
+                .iter()
+                .zip(row.iter_mut().collect::<Vec<_>>().chunks_mut(2))
+            {
+                let [sin, cos] = batch::mean_over(ap, |t| {
+                    let (a, b) = (k as f64 * step.phase_at(t).radians()).sin_cos();
+                    [a, b]
+                });
+                if let [a, b] = pair {
+                    **a = w * sin;
+                    **b = w * cos;
+                }
+            }
+        }
+        x
+    };
+    for (((ch, slot), scan), test_slot) in Channel::ALL
+        .into_iter()
+        .zip(&mut resid_of)
+        .zip(&mut scan)
+        .zip(&mut step_joined)
+    {
         let plain: Vec<f64> = s.iter().map(|(_, y)| *ch.of(y)).collect();
         let flags = noise::clipped(&plain);
         let y = nalgebra::DVector::from_iterator(
@@ -209,6 +249,20 @@ fn noise_models(
             s.iter().map(|(ap, y)| batch::root_weight(ap) * ch.of(y)),
         );
         let resid = residuals(&wide, &y, &flags)?;
+        // Scanned with the rate direction in the fit: a rate fit a little off (a harmonic
+        // beside the sine moves it) leaves a growing first harmonic, whose CUSUM reads as
+        // steps.
+        let with_rate = match designs.as_ref().and_then(|d| d.get(ch.index())) {
+            Some((x, _)) => x.clone(),
+            None => rate_direction(s, (step, t_end), &wide, ch.of(coef)),
+        };
+        *scan = scan_channel(
+            &residuals(&with_rate, &y, &flags)?,
+            (&with_rate, &harmonic_columns),
+            &flags,
+            scan_at,
+            &times,
+        );
         let model = NoiseModel::estimate(resid.as_slice(), &flags)?.rescaled(&wide)?;
         // Readings on a rail leave the fit, which the slow terms' expectations do not
         // follow: such a channel keeps the AR model alone. A few of them (at most one row
@@ -219,6 +273,24 @@ fn noise_models(
         if let Some((x, _)) = designs.as_ref().and_then(|d| d.get(ch.index())) {
             if on_rail * RAIL_ROWS <= s.len() {
                 *slot = Some(residuals(x, &y, &flags)?.as_slice().to_vec());
+                // A step the group's scan finds (Bonferroni over its three channels) joins
+                // a second fit, from which the slow levels its test uses are estimated, so
+                // that the step does not raise them ([`step_under_slow`]). U keeps the
+                // levels of the fit without it: a walk's largest excursion, taken for a
+                // step, would lower them.
+                if let Some((st, _)) = scan
+                    .step
+                    .filter(|(st, _)| st.p_single * 3.0 < STRUCTURE_ALPHA)
+                {
+                    let q = x.ncols();
+                    let mut wider = x.clone().insert_column(q, 0.0);
+                    for (v, w) in wider.column_mut(q).iter_mut().zip(&weights).skip(st.row) {
+                        *v = *w;
+                    }
+                    let joined = SlowDesign::new(&wider, &weights)?;
+                    let resid = residuals(&wider, &y, &flags)?.as_slice().to_vec();
+                    *test_slot = Some((joined, resid));
+                }
             }
         }
         models.push(model);
@@ -228,6 +300,8 @@ fn noise_models(
         models,
         resid: resid_of,
         design: designs.map(|d| d.map(|(_, design)| design)),
+        scan,
+        step_joined,
     })
 }
 
@@ -317,6 +391,11 @@ struct GroupNoise {
     resid: [Option<Vec<f64>>; 3],
     /// Per channel, the design of the fit its slow residuals come from.
     design: Option<[SlowDesign; 3]>,
+    /// Per channel, the structure scan of the widened fit's residuals.
+    scan: [ChannelScan; 3],
+    /// Per channel whose scan found a step: the slow design and residuals with the step
+    /// joined, from which the levels its test uses are estimated.
+    step_joined: [Option<(SlowDesign, Vec<f64>)>; 3],
 }
 
 /// What the slow-noise estimate needs of a group held in memory, kept until every group of
@@ -335,6 +414,8 @@ pub struct PendingSlow {
     other: (FitResult<f64>, DMatrix<f64>),
     /// Each row's time from the first, s.
     times: Vec<f64>,
+    /// [`GroupNoise::step_joined`].
+    step_joined: [Option<(SlowDesign, Vec<f64>)>; 3],
 }
 
 /// What [`rate_choice`] takes: the IEEE 1057 fit's (rate, standard error) in Hz and
@@ -437,6 +518,60 @@ fn combined(unit: &[[[f64; 3]; 3]; 3], theta: &[f64; 3]) -> ([[f64; 3]; 3], [f64
     }
 }
 
+/// Per channel, the slow levels and the AR model re-estimated with them (none for a
+/// channel with readings on a rail).
+type ChannelLevels = [Option<(SlowFit, NoiseModel)>; 3];
+
+/// Standard deviations of the slow share's estimate added to it in the step's test: the
+/// one-sided normal quantile at the structure check's α.
+const SLOW_RAISE: f64 = 3.09;
+
+/// Each channel's scanned step, read again under its slow noise `est` (estimated with the
+/// step joined to the fit where the scan found one): the residuals' sum from the step on,
+/// eᵀd with d the step's indicator off the fit (the channel's slow design), over √(dᵀΣd),
+/// Σ the AR model scaled by θ₀ plus Q·T_fl + q·T_rw with the slow share raised by
+/// [`SLOW_RAISE`] standard deviations of its estimate
+/// ([`super::structure::ChannelScan::slow_z`]).
+fn step_under_slow(
+    scan: &mut [ChannelScan; 3],
+    est: &ChannelLevels,
+    p: &PendingSlow,
+) -> Result<(), NoiseError> {
+    for ((c, e), (design, resid)) in scan.iter_mut().zip(est).zip(p.design.iter().zip(&p.resid)) {
+        let (Some((s, _)), Some((fit, model)), Some(resid)) = (&c.step, e, resid) else {
+            continue;
+        };
+        let n = resid.len();
+        let indicator = DMatrix::from_fn(n, 1, |i, _| if i >= s.row { 1.0 } else { 0.0 });
+        let d = design.off_fit(&indicator);
+        let dd = d.norm_squared();
+        if dd <= 0.0 || dd.is_nan() {
+            continue;
+        }
+        let num: f64 = resid.iter().skip(s.row).sum();
+        let ar = model.sandwich(&d)?.get((0, 0)).copied().unwrap_or(0.0) * dd * dd;
+        let dv = nalgebra::DVector::from_column_slice(d.as_slice());
+        let [fl, rw] = design.slow_quadratic(&dv);
+        // The slow share raised by 3.09 standard deviations of its estimate (from the
+        // levels' covariance): a group of a few turns bounds the levels loosely, and a test
+        // on the estimate alone alarms whenever it falls short (as the discrepancy
+        // workflow's slow tests, docs/discrepancy.md, "Slow noise").
+        let a = [0.0, fl, rw];
+        let slow: f64 = fit.theta.iter().zip(&a).map(|(t, x)| t * x).sum();
+        let mut v = 0.0;
+        for (row, ai) in fit.cov.iter().zip(&a) {
+            for (c, aj) in row.iter().zip(&a) {
+                v += ai * c * aj;
+            }
+        }
+        let var = fit.theta[0].max(0.0) * ar + slow.max(0.0) + SLOW_RAISE * v.max(0.0).sqrt();
+        if var > 0.0 {
+            c.slow_z = Some(num.abs() / var.sqrt());
+        }
+    }
+    Ok(())
+}
+
 /// A channel keeps its slow terms with at most one reading in this many on a rail
 /// ([`noise_models`]).
 pub(crate) const RAIL_ROWS: usize = 200;
@@ -449,24 +584,32 @@ pub(crate) fn pool_slow(
     fits: &mut [&mut GroupFit],
     still: Option<&super::noise_from::NoiseFrom>,
 ) -> Result<(), (Condition, NoiseError)> {
-    // Per group and channel, the pooled estimate.
+    // Per group and channel, the pooled estimate; and for the steps' tests, where a
+    // group's scan found a step, the estimate with the step joined to its fit.
     let mut found: Vec<[Option<(SlowFit, NoiseModel)>; 3]> =
         fits.iter().map(|_| [None, None, None]).collect();
+    let mut for_steps = found.clone();
     for ch in Channel::ALL {
         let mut members = Vec::new();
         let mut parts = Vec::new();
+        let mut joined = Vec::new();
         for (i, f) in fits.iter().enumerate() {
             if let Some(p) = &f.pending {
                 if let (Some(resid), Some(design)) = (ch.of(&p.resid), p.design.get(ch.index())) {
                     members.push(i);
-                    parts.push(noise::SlowPart {
-                        design,
-                        resid,
-                        ar: ch.of(&f.noise),
+                    let ar = ch.of(&f.noise);
+                    parts.push(noise::SlowPart { design, resid, ar });
+                    joined.push(match ch.of(&p.step_joined) {
+                        Some((design, resid)) => noise::SlowPart { design, resid, ar },
+                        None => noise::SlowPart { design, resid, ar },
                     });
                 }
             }
         }
+        let any_joined = fits
+            .iter()
+            .filter_map(|f| f.pending.as_ref())
+            .any(|p| ch.of(&p.step_joined).is_some());
         // A still recording's stretches are more parts of the same levels.
         if !parts.is_empty() {
             parts.extend(still.into_iter().flat_map(|s| s.parts(ch)));
@@ -477,19 +620,39 @@ pub(crate) fn pool_slow(
             .map_or(Condition::X, |f| f.condition);
         let estimates =
             noise::estimate_pooled(&parts, ch.index() as u64).map_err(|e| (first, e))?;
-        for (&i, est) in members.iter().zip(estimates.into_iter().flatten()) {
+        // The still recording's parts join the steps' estimate too.
+        if any_joined {
+            joined.extend(still.into_iter().flat_map(|s| s.parts(ch)));
+        }
+        let for_test = if any_joined {
+            noise::estimate_pooled(&joined, ch.index() as u64).map_err(|e| (first, e))?
+        } else {
+            estimates.clone()
+        };
+        for ((&i, est), test) in members
+            .iter()
+            .zip(estimates.into_iter().flatten())
+            .zip(for_test.into_iter().flatten())
+        {
             if let Some(slot) = found.get_mut(i).and_then(|g| g.get_mut(ch.index())) {
                 *slot = Some(est);
             }
+            if let Some(slot) = for_steps.get_mut(i).and_then(|g| g.get_mut(ch.index())) {
+                *slot = Some(test);
+            }
         }
     }
-    for (f, est) in fits.iter_mut().zip(found) {
+    for ((f, est), test) in fits.iter_mut().zip(found).zip(for_steps) {
         if est.iter().all(Option::is_none) {
             f.pending = None;
             continue;
         }
-        update_group(f, est, still.map(super::noise_from::NoiseFrom::summary))
-            .map_err(|e| (f.condition, e))?;
+        update_group(
+            f,
+            (est, &test),
+            still.map(super::noise_from::NoiseFrom::summary),
+        )
+        .map_err(|e| (f.condition, e))?;
         f.pending = None;
     }
     for ch in Channel::ALL {
@@ -541,7 +704,7 @@ fn check_model(fits: &mut [&mut GroupFit], ch: Channel) {
 /// sandwich plus the flicker's and the walk's exact covariances.
 fn update_group(
     f: &mut GroupFit,
-    est: [Option<(SlowFit, NoiseModel)>; 3],
+    (est, for_steps): (ChannelLevels, &ChannelLevels),
     still: Option<super::noise_from::StillSource>,
 ) -> Result<(), NoiseError> {
     let Some(p) = f.pending.take() else {
@@ -596,6 +759,9 @@ fn update_group(
     f.rate_hz = choice.rate_hz;
     f.rate_fitted = choice.rate_fitted;
     f.u_rate_hz = choice.u_rate_hz;
+    if let Some(scan) = f.scan.as_mut() {
+        step_under_slow(scan, for_steps, &p)?;
+    }
     // The flicker's and the walk's covariances of the sine fit depend on the rows' weights
     // only, which every channel's design shares: made once.
     let [fl, rw] = match p.design.first() {
@@ -790,6 +956,7 @@ pub(crate) fn fit_group(
     };
     let h = batch::design(s, step, CLOCK, rotacal_shared::Model::SINE, Ticks(0));
     let cov = sine_cov(&h, &noise.models).map_err(|e| fail(e.into()))?;
+    let scan = noise.scan;
     let pending = match (noise.design, other) {
         (Some(design), Some((other_fit, other_step))) => {
             let t0 = s.first().map_or(Ticks(0), |x| x.0.first());
@@ -807,6 +974,7 @@ pub(crate) fn fit_group(
                     .iter()
                     .map(|(ap, _)| batch::seconds_between(ap.first(), t0, CLOCK))
                     .collect(),
+                step_joined: noise.step_joined,
             })
         }
         _ => None,
@@ -820,6 +988,7 @@ pub(crate) fn fit_group(
         status,
     );
     f.pending = pending.map(std::sync::Arc::new);
+    f.scan = Some(scan);
     Ok(f)
 }
 

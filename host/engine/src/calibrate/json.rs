@@ -667,6 +667,53 @@ pub struct CalibrationJson {
     pub units: String,
     /// One entry per nominal rate (static: one, rate null).
     pub by_rate: Vec<RateJson>,
+    /// An extension of formats.md, rotation only: structure in the fits' residuals that no
+    /// noise model should take in (docs/uncertainty.md, "Structure beyond the noise").
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub residual_structure: Option<StructureCheckJson>,
+}
+
+/// `residual_structure`: the check of every group's widened-fit residuals for a harmonic
+/// of the table angle above the fourth or a step in the level.
+#[derive(Clone, Debug, Serialize)]
+pub struct StructureCheckJson {
+    /// Whether anything was found: the calibration's uncertainties then rest on a noise
+    /// model that has taken in structure, and the terminal warns.
+    pub found: bool,
+    /// The chance that noise alone reports something, per kind of test, over the file.
+    pub alpha: f64,
+    /// Groups scanned (held in memory).
+    pub groups_scanned: usize,
+    /// Groups calibrated from a streamed file's sums, whose residuals were not held.
+    pub groups_not_scanned: usize,
+    /// Whether steps were tested against the flicker and walk levels (`--slow-noise`).
+    pub slow_noise: bool,
+    /// What was found.
+    pub structure: Vec<StructureJson>,
+}
+
+/// One entry of `residual_structure.structure`.
+#[derive(Clone, Debug, Serialize)]
+pub struct StructureJson {
+    /// The group's nominal rate, Hz.
+    pub rate_hz: f64,
+    /// x, y or z.
+    pub condition: Condition,
+    /// u, v or w.
+    pub channel: Channel,
+    /// "harmonic" or "step".
+    pub kind: &'static str,
+    /// Which harmonic of the table angle (harmonics only).
+    pub harmonic: Option<usize>,
+    /// The step's time from the group's first row, s (steps only).
+    pub at_s: Option<f64>,
+    /// The harmonic's amplitude or the step's height, output units.
+    pub size: f64,
+    /// Size over its standard error under the noise around it.
+    pub z: f64,
+    /// The chance that noise alone shows something as large among the file's tests of
+    /// its kind (Bonferroni).
+    pub p_value: f64,
 }
 
 /// Property `i` of a budget as a [`Quantity`] with `value` and its combined uncertainty

@@ -37,6 +37,7 @@ mod sources;
 mod stepped;
 pub mod still;
 pub mod stream;
+pub mod structure;
 pub mod table;
 
 /// Readings a pose or a still interval needs for a noise model of its own; shorter poses
@@ -126,6 +127,7 @@ impl Preflight {
             g_loc: self.g_loc,
             units: self.units,
             by_rate,
+            residual_structure: None,
         }
     }
 }

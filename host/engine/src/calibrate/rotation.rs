@@ -146,6 +146,15 @@ pub(super) fn assemble(
     }
     pool_slow(&mut held, still)
         .map_err(|(condition, e)| GroupError::Noise(e).of(rec, None, condition))?;
+    let checked = super::structure::check(
+        plan.iter().flat_map(|rate| {
+            rate.groups
+                .iter()
+                .filter_map(|&i| fitted.get(i).and_then(Option::as_ref))
+                .map(|f| (rate.nominal_hz, &f.fit))
+        }),
+        opts.slow_noise,
+    );
     let mut by_rate = Vec::with_capacity(plan.len());
     let mut all_fits = Vec::with_capacity(plan.len());
     for rate in plan {
@@ -174,7 +183,9 @@ pub(super) fn assemble(
         let at_rest = offsets_at_rest(&all_fits).map_err(|e| err(rec, None, e))?;
         set_offsets_at_rest(&mut by_rate, at_rest);
     }
-    Ok(pre.json(by_rate))
+    let mut json = pre.json(by_rate);
+    json.residual_structure = Some(checked);
+    Ok(json)
 }
 
 /// What a rotation entry needs beyond its fits.

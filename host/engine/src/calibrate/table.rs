@@ -202,6 +202,58 @@ pub fn render(c: &CalibrationJson) -> String {
     for r in &c.by_rate {
         o += &render_rate(r, &c.units);
     }
+    if let Some(check) = &c.residual_structure {
+        o += &render_structure(check, &c.units);
+    }
+    o
+}
+
+/// The residuals' structure check: a warning per finding, or what was scanned.
+fn render_structure(c: &crate::calibrate::json::StructureCheckJson, units: &str) -> String {
+    let mut o = String::new();
+    let unscanned = if c.groups_not_scanned > 0 {
+        format!(
+            "; {} group(s) calibrated from the file's sums were not scanned",
+            c.groups_not_scanned
+        )
+    } else {
+        String::new()
+    };
+    if !c.found {
+        let _ = writeln!(
+            o,
+            "\nresidual structure: none beyond the noise in {} group(s) scanned (α = {} per \
+             kind of test over the file){unscanned}",
+            c.groups_scanned, c.alpha
+        );
+        return o;
+    }
+    let _ = writeln!(
+        o,
+        "\nwarning: the residuals hold structure that is not noise; the noise model has taken \
+         it in, and U is not to be trusted (docs/uncertainty.md, \"Structure beyond the \
+         noise\"; `rotacal discrepancy` locates it){unscanned}:",
+    );
+    let steps = c.structure.iter().filter(|s| s.at_s.is_some()).count();
+    if steps >= 2 && !c.slow_noise {
+        let _ = writeln!(
+            o,
+            "  ({steps} steps: steps in several channels are more often slow noise, flicker or a \
+             bias random walk, than steps; --slow-noise models it and tests them against it)"
+        );
+    }
+    for s in &c.structure {
+        let what = match (s.harmonic, s.at_s) {
+            (Some(k), _) => format!("harmonic {k} of the table angle, amplitude"),
+            (None, Some(t)) => format!("a step in the level {t:.1} s into the group, height"),
+            (None, None) => s.kind.to_string(),
+        };
+        let _ = writeln!(
+            o,
+            "  {} at {} Hz, channel {}: {what} {:.3} {units} (z = {:.1}, p = {:.1e})",
+            s.condition, s.rate_hz, s.channel, s.size, s.z, s.p_value
+        );
+    }
     o
 }
 

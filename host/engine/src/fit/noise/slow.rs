@@ -533,7 +533,7 @@ impl SlowDesign {
     }
 
     /// X less its projection on the fit's regressors: (I − P)X, weighted rows.
-    pub(super) fn off_fit(&self, x: &DMatrix<f64>) -> DMatrix<f64> {
+    pub(crate) fn off_fit(&self, x: &DMatrix<f64>) -> DMatrix<f64> {
         x - self.hw() * (self.gram_inv() * self.hw().tr_mul(x))
     }
 
