@@ -108,12 +108,14 @@ pub struct Puzzle {
     /// s_w(last rate) − s_w(first rate) and its U, from per-rate fits (the paper's
     /// analysis).
     pub deviation_per_rate: (f64, f64),
-    /// The same with the named effects modelled.
+    /// The same with the confirmed effects modelled (the workflow's result).
     pub deviation_modelled: (f64, f64),
     /// The discrepancy report.
     pub report: PathBuf,
     /// The workflow's verdict: explained, and its summary.
     pub verdict: (bool, String),
+    /// The named effects the workflow confirmed.
+    pub confirmed: Vec<String>,
 }
 
 /// The puzzle's simulation.
@@ -157,7 +159,7 @@ fn puzzle(seed: u64, dir: &Path) -> anyhow::Result<Puzzle> {
         &first.intrinsic.sensitivity.w,
         &last.intrinsic.sensitivity.w,
     );
-    let deviation_modelled = match (a.intrinsic_final.first(), a.intrinsic_final.last()) {
+    let deviation_modelled = match (a.intrinsic_confirmed.first(), a.intrinsic_confirmed.last()) {
         (Some(f), Some(l)) => dev(&f.sensitivity[2], &l.sensitivity[2]),
         _ => anyhow::bail!("the puzzle's analysis has no rates"),
     };
@@ -183,6 +185,7 @@ fn puzzle(seed: u64, dir: &Path) -> anyhow::Result<Puzzle> {
         deviation_modelled,
         report,
         verdict: (a.verdict.explained, a.verdict.summary.clone()),
+        confirmed: a.confirmed_effects.clone(),
     })
 }
 
@@ -573,9 +576,17 @@ pub fn checks(d: &Demo) -> Vec<Check> {
         });
     }
     c.push(Check {
-        claim: "puzzle: the discrepancy workflow's verdict is \"explained\"".into(),
-        passed: p.verdict.0,
-        measured: p.verdict.1.clone(),
+        claim: "puzzle: the discrepancy workflow's verdict is \"explained\", its named \
+                effects confirmed"
+            .into(),
+        passed: p.verdict.0 && !p.named.is_empty() && p.confirmed.len() == p.named.len(),
+        measured: format!(
+            "{}; confirmed {} of {} named ({})",
+            p.verdict.1,
+            p.confirmed.len(),
+            p.named.len(),
+            p.confirmed.join(", ")
+        ),
     });
     let in_u = |(v, u): (f64, f64), t: f64| (v - t).abs() / u;
     let k2 = in_u(p.k2_w, p.true_k2_w);

@@ -231,18 +231,41 @@ pub fn render(a: &Analysis) -> String {
             }
         );
         moved(&a.intrinsic_baseline, &a.intrinsic_final, &mut o);
-        if a.confirmed_effects.len() < a.steps.len() {
+        for c in &a.confirmation {
             let _ = writeln!(
                 o,
-                "Not confirmed: {} (candidates: the data are not explained, so the tests \
-                 that named them assumed a model the data reject); the result applies no \
-                 correction for them: the baseline's properties above.",
+                "{} {}: {}",
+                if c.confirmed {
+                    "Confirmed:"
+                } else {
+                    "Candidate, not confirmed:"
+                },
+                c.effect,
+                c.reason
+            );
+        }
+        if a.confirmed_effects.len() < a.steps.len() {
+            let why = if a.verdict.explained {
+                "they fail the halves' checks above"
+            } else {
+                "the data are not explained, so the tests that named them assumed a model \
+                 the data reject"
+            };
+            let _ = writeln!(
+                o,
+                "Not confirmed: {} (candidates: {why}); the result applies no correction for \
+                 them: its properties are {}.",
                 a.steps
                     .iter()
                     .map(|s| s.effect.as_str())
                     .filter(|e| !a.confirmed_effects.iter().any(|c| c == e))
                     .collect::<Vec<_>>()
-                    .join(", ")
+                    .join(", "),
+                if a.confirmed_effects.is_empty() {
+                    "the baseline's above"
+                } else {
+                    "those of the confirmed effects' model (JSON intrinsic_confirmed)"
+                }
             );
         }
     }

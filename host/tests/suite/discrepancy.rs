@@ -384,6 +384,15 @@ fn alarms(runs: &[Analysis], want: &[String]) -> Vec<(usize, Vec<String>)> {
         .collect()
 }
 
+/// The runs (seed, what) whose verdict is "unexplained", with the verdict's first place.
+fn unexplained(runs: &[Analysis]) -> Vec<(usize, String)> {
+    runs.iter()
+        .enumerate()
+        .filter(|(_, a)| !a.verdict.explained)
+        .map(|(i, a)| (i + 1, a.verdict.summary.clone()))
+        .collect()
+}
+
 /// The least and the greatest final χ²/dof of `runs`.
 fn chi2_range(runs: &[Analysis]) -> (f64, f64) {
     runs.iter()
@@ -438,21 +447,31 @@ fn clean_sessions(name: &str, noise: Noise, multi: bool, seeds: u64, clip: bool,
             })
             .collect();
         let alarms = alarms(runs, &want);
+        let unexplained = unexplained(runs);
         let (lo, hi) = chi2_range(runs);
         let dof = runs.last().map_or(0.0, |a| a.final_.dof);
         println!(
-            "{}{}{}: {} alarms in {seeds} seeds {alarms:?}; final χ²/dof {lo:.4} … {hi:.4} \
-             (band 1 ± {:.4})",
+            "{}{}{}: {} alarms in {seeds} seeds {alarms:?}; {} unexplained {unexplained:?}; \
+             final χ²/dof {lo:.4} … {hi:.4} (band 1 ± {:.4})",
             noise.name(),
             if multi { ", two rates" } else { "" },
             if clip { ", u clipped" } else { "" },
             alarms.len(),
+            unexplained.len(),
             3.0 * (2.0 / dof).sqrt()
         );
         if alarms.len() > bound {
             failures.push(format!(
                 "{} alarms, at most {bound}: {alarms:?}",
                 alarms.len()
+            ));
+        }
+        // The verdict "explained" in at least 95 %: the same bound (its tests are at
+        // α = 1e-3 each, a handful a session).
+        if unexplained.len() > bound {
+            failures.push(format!(
+                "{} unexplained, at most {bound}: {unexplained:?}",
+                unexplained.len()
             ));
         }
         failures
@@ -554,7 +573,10 @@ fn effects_at_five_times(
             for (i, a) in runs.iter().enumerate() {
                 let mut named = a.named_effects.clone();
                 named.sort();
-                if named == *want {
+                let mut confirmed = a.confirmed_effects.clone();
+                confirmed.sort();
+                // Named alone, confirmed on the halves, and the verdict "explained".
+                if named == *want && confirmed == *want && a.verdict.explained {
                     alone += 1;
                 }
                 lo = lo.min(a.final_.chi2_dof);
@@ -578,7 +600,7 @@ fn effects_at_five_times(
                 }
             }
             println!(
-                "{label}: {} at {m:.3e}: named{} in {alone}/{seeds}",
+                "{label}: {} at {m:.3e}: named{}, confirmed and explained in {alone}/{seeds}",
                 e.name(),
                 if effects.len() > 1 {
                     " with the clip"
@@ -675,18 +697,24 @@ fn slow_clean_sessions(name: &str, noise: Noise, seeds: u64) {
     };
     prove(name, seeds as usize, trial, |runs| {
         let alarms = alarms(runs, &[]);
+        let unexplained = unexplained(runs);
         let (lo, hi) = chi2_range(runs);
         println!(
-            "{} with --slow-noise: {} alarms in {seeds} seeds {alarms:?}; final χ²/dof \
-             {lo:.4} … {hi:.4}",
+            "{} with --slow-noise: {} alarms in {seeds} seeds {alarms:?}; {} unexplained \
+             {unexplained:?}; final χ²/dof {lo:.4} … {hi:.4}",
             noise.name(),
-            alarms.len()
+            alarms.len(),
+            unexplained.len()
         );
-        if alarms.len() <= 5 {
-            vec![]
-        } else {
-            vec![format!("{}: {alarms:?}", noise.name())]
+        let mut failures = Vec::new();
+        if alarms.len() > 5 {
+            failures.push(format!("{}: {alarms:?}", noise.name()));
         }
+        // The verdict "explained" in at least 95 %.
+        if unexplained.len() > 5 {
+            failures.push(format!("{} unexplained: {unexplained:?}", noise.name()));
+        }
+        failures
     });
 }
 

@@ -10,6 +10,7 @@
 //! 4. Test every applicable effect by a nested F-test; name the most significant one that
 //!    passes, add it, refit, and repeat until none passes.
 
+pub mod confirm;
 pub mod locate;
 pub mod model;
 pub mod noise;
@@ -324,12 +325,16 @@ pub struct Analysis {
     pub intrinsic_baseline: Vec<RateIntrinsic>,
     /// See `intrinsic_baseline`.
     pub intrinsic_final: Vec<RateIntrinsic>,
-    /// The named effects that are confirmed, whose corrections the result applies: all of
-    /// them when the verdict is "explained", none otherwise (each was named by a test that
-    /// assumed the larger model right, which the data then showed it is not).
+    /// The named effects that are confirmed, whose corrections the result applies: those
+    /// that pass the halves' checks when the verdict is "explained", none otherwise (each
+    /// was named by a test that assumed the larger model right, which the data then showed
+    /// it is not).
     pub confirmed_effects: Vec<String>,
     /// Intrinsic properties per rate with only the confirmed effects modelled: the result.
     pub intrinsic_confirmed: Vec<RateIntrinsic>,
+    /// Each named effect's checks on the halves of the data, when the verdict is
+    /// "explained" ([`confirm`]).
+    pub confirmation: Vec<confirm::Confirmation>,
     /// The last model.
     #[serde(rename = "final")]
     pub final_: Goodness,
@@ -786,10 +791,30 @@ pub fn analyse(
         })
         .collect();
     let verdict = verdict::judge(&data, &current, alpha, levels.as_ref());
-    let (confirmed_effects, intrinsic_confirmed) = if verdict.explained {
-        (current.effects.clone(), intrinsic_now.clone())
+    // Named effects in explained data are checked on the halves; in unexplained data they
+    // stay candidates (each was named by a test that assumed the larger model right).
+    let confirmation = if verdict.explained {
+        confirm::check(&data, &current, alpha, levels.as_ref())?
     } else {
-        (Vec::new(), intrinsic_baseline.clone())
+        Vec::new()
+    };
+    let confirmed_effects: Vec<Effect> = current
+        .effects
+        .iter()
+        .copied()
+        .filter(|e| {
+            confirmation
+                .iter()
+                .any(|c| c.confirmed && c.effect == e.name())
+        })
+        .collect();
+    let intrinsic_confirmed = if confirmed_effects.len() == current.effects.len() {
+        intrinsic_now.clone()
+    } else if confirmed_effects.is_empty() {
+        intrinsic_baseline.clone()
+    } else {
+        let confirmed_fit = model::fit(&data, &confirmed_effects, Some(&current.params))?;
+        intrinsic_per_rate(&data, &confirmed_fit)
     };
     Ok(Analysis {
         confirmed_effects: confirmed_effects
@@ -797,6 +822,7 @@ pub fn analyse(
             .map(|e| e.name().to_string())
             .collect(),
         intrinsic_confirmed,
+        confirmation,
         verdict,
         structure: data.generic.structure.clone(),
         final_parameters,

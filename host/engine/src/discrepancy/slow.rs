@@ -313,6 +313,17 @@ impl SlowLevels {
         (u, nu)
     }
 
+    /// The same levels for data whose group i starts `by[i]` rows into the group it was
+    /// part of (the second half of each group, say), so that its weights fall where its
+    /// rows were.
+    pub(super) fn shifted(&self, by: &[usize]) -> SlowLevels {
+        let mut out = self.clone();
+        for (s, b) in out.starts.iter_mut().zip(by) {
+            *s += b;
+        }
+        out
+    }
+
     /// Channel `j`'s weights of the `k` parameters of `t`, placed on the session's grid.
     fn on_grid(&self, data: &Data, t: &Tested, j: usize, k: usize) -> DMatrix<f64> {
         let mut x = DMatrix::zeros(self.grid, k);

@@ -1,0 +1,209 @@
+//! Whether a named effect earns its name (docs/discrepancy.md, "Confirmed or candidate").
+//!
+//! The final model is fitted again on each half of every group (the first and the second
+//! half of its rows), with every named effect on. For each effect, with θ its parameters
+//! (K₂ per channel, δ, …) and u their standard uncertainties in each half's fit:
+//!
+//! - **Consistent**: the halves agree, χ² = Σ (θ_A − θ_B)²/(u_A² + u_B²) against χ²(k) at
+//!   the workflow's α. An effect that stands in for something else (a 5th harmonic read as
+//!   K₃, a step read as a drift) takes different values where that something differs.
+//! - **Predicts**: each half's θ, as a direction, is found in the other half's data:
+//!   z = Σ θ_A·θ_B/u_B² / √(Σ θ_A²/u_B²), N(0, 1) when the other half holds no such
+//!   effect, must exceed the one-sided normal quantile at α, both ways (A → B and B → A).
+//!   An effect fitted to noise does not recur in data it was not fitted to.
+//!
+//! Under `--slow-noise` the halves' uncertainties carry the slow terms, on the session's
+//! grid with each half in its place. Channels are independent in the model, so a
+//! parameter's own variance is its channel's; within a channel the parameters are taken as
+//! uncorrelated (δ stands alone; the centripetal b of three conditions barely correlate).
+//! Saturation has no fitted parameter (the rails are read from the data) and is confirmed
+//! by the readings on its rails.
+
+use super::model::{self, Data, Effect, Fit, GroupData, Params};
+use super::slow::SlowLevels;
+use super::DiscrepancyError;
+use serde::Serialize;
+use statrs::distribution::{ChiSquared, ContinuousCDF, Normal};
+
+/// One named effect's checks.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Confirmation {
+    /// The effect's name.
+    pub effect: String,
+    /// Whether it passed every check: its correction is applied.
+    pub confirmed: bool,
+    /// The halves' difference: χ², its degrees of freedom and P(χ²(k) ≥ it). None for an
+    /// effect without fitted parameters.
+    pub consistency: Option<Halves>,
+    /// z of the first half's θ in the second half's data, and of the second's in the first.
+    pub predicts: Option<[f64; 2]>,
+    /// Why it is or is not confirmed, in a sentence.
+    pub reason: String,
+}
+
+/// The halves' agreement.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct Halves {
+    /// Σ (θ_A − θ_B)²/(u_A² + u_B²).
+    pub chi2: f64,
+    /// Parameters compared.
+    pub dof: usize,
+    /// P(χ²(dof) ≥ chi2).
+    pub p_value: f64,
+}
+
+/// The first and the second half of every group's rows (noise models and generic fits as
+/// the whole's), and each group's row where its second half starts.
+fn halves(data: &Data) -> (Data, Data, Vec<usize>) {
+    let split = |g: &GroupData, first: bool| -> GroupData {
+        let at = g.tau.len() / 2;
+        let part = |v: &[f64]| -> Vec<f64> {
+            let (a, b) = v.split_at(at.min(v.len()));
+            if first { a } else { b }.to_vec()
+        };
+        GroupData {
+            condition: g.condition,
+            rate_hz: g.rate_hz,
+            tau: part(&g.tau),
+            t: part(&g.t),
+            temp: part(&g.temp),
+            y: [part(&g.y[0]), part(&g.y[1]), part(&g.y[2])],
+        }
+    };
+    let of = |first: bool| Data {
+        groups: data.groups.iter().map(|g| split(g, first)).collect(),
+        g_loc: data.g_loc,
+        sigma: data.sigma,
+        noise: data.noise.clone(),
+        generic: data.generic.clone(),
+    };
+    let at = data.groups.iter().map(|g| g.tau.len() / 2).collect();
+    (of(true), of(false), at)
+}
+
+/// An effect's fitted parameters, in a fixed order (none for saturation).
+fn values(e: Effect, p: &Params) -> Vec<f64> {
+    match e {
+        Effect::RateError => p.delta.into_iter().collect(),
+        Effect::OffsetDrift => p.drift.map(Vec::from).unwrap_or_default(),
+        Effect::TemperatureOffset => p.temp.map(Vec::from).unwrap_or_default(),
+        Effect::Nonlinearity2nd => p.k2.map(Vec::from).unwrap_or_default(),
+        Effect::Nonlinearity3rd => p.k3.map(Vec::from).unwrap_or_default(),
+        Effect::Centripetal => p
+            .centripetal
+            .map(|b| b.iter().flatten().copied().collect())
+            .unwrap_or_default(),
+        Effect::Saturation => Vec::new(),
+    }
+}
+
+/// A half's fit and its parameters' standard uncertainties (with the slow terms when
+/// `levels` are given, the half placed on the session's grid at `shift`).
+fn half_fit(
+    half: &Data,
+    current: &Fit,
+    levels: Option<(&SlowLevels, &[usize])>,
+) -> Result<(Fit, Params), DiscrepancyError> {
+    let f = model::fit(half, &current.effects, Some(&current.params))?;
+    let unc = match levels {
+        Some((l, shift)) => super::slow_uncertainty(half, &l.shifted(shift), &f)?.unc,
+        None => f.unc.clone(),
+    };
+    Ok((f, unc))
+}
+
+/// Each named effect of `current` (the final model on `data`) checked on the halves, at
+/// significance `alpha`.
+pub(super) fn check(
+    data: &Data,
+    current: &Fit,
+    alpha: f64,
+    levels: Option<&SlowLevels>,
+) -> Result<Vec<Confirmation>, DiscrepancyError> {
+    if current.effects.is_empty() {
+        return Ok(Vec::new());
+    }
+    let (a, b, at) = halves(data);
+    let none = vec![0; data.groups.len()];
+    let (fa, ua) = half_fit(&a, current, levels.map(|l| (l, none.as_slice())))?;
+    let (fb, ub) = half_fit(&b, current, levels.map(|l| (l, at.as_slice())))?;
+    let z_alpha = Normal::standard().inverse_cdf(1.0 - alpha);
+    let mut out = Vec::new();
+    for &e in &current.effects {
+        let (ta, sa, tb, sb) = (
+            values(e, &fa.params),
+            values(e, &ua),
+            values(e, &fb.params),
+            values(e, &ub),
+        );
+        if ta.is_empty() {
+            out.push(Confirmation {
+                effect: e.name().to_string(),
+                confirmed: true,
+                consistency: None,
+                predicts: None,
+                reason: "no fitted parameter: the rails are read from the data".into(),
+            });
+            continue;
+        }
+        let usable: Vec<(f64, f64, f64, f64)> = ta
+            .iter()
+            .zip(&sa)
+            .zip(tb.iter().zip(&sb))
+            .map(|((&x, &ux), (&y, &uy))| (x, ux, y, uy))
+            .filter(|(x, ux, y, uy)| {
+                [x, ux, y, uy].iter().all(|v| v.is_finite()) && *ux > 0.0 && *uy > 0.0
+            })
+            .collect();
+        let chi2: f64 = usable
+            .iter()
+            .map(|(x, ux, y, uy)| (x - y).powi(2) / (ux * ux + uy * uy))
+            .sum();
+        let dof = usable.len();
+        let p_value = match ChiSquared::new(dof.max(1) as f64) {
+            Ok(d) if dof > 0 => d.sf(chi2),
+            _ => f64::NAN,
+        };
+        // z of the direction θ_from in the data whose estimate is θ_to ± u_to.
+        let predicts = |from_is_a: bool| -> f64 {
+            let (mut num, mut den) = (0.0, 0.0);
+            for (x, ux, y, uy) in &usable {
+                let (from, to, u_to) = if from_is_a { (x, y, uy) } else { (y, x, ux) };
+                num += from * to / (u_to * u_to);
+                den += from * from / (u_to * u_to);
+            }
+            if den > 0.0 {
+                num / den.sqrt()
+            } else {
+                0.0
+            }
+        };
+        let z = [predicts(true), predicts(false)];
+        let consistent = p_value >= alpha;
+        let predicting = z.iter().all(|z| *z > z_alpha);
+        let reason = match (consistent, predicting) {
+            (true, true) => format!(
+                "the halves agree (χ² = {chi2:.1} on {dof}, p = {p_value:.2}) and each half's \
+                 fit is found in the other's data (z = {:.1}, {:.1})",
+                z[0], z[1]
+            ),
+            (false, _) => format!(
+                "the halves disagree (χ² = {chi2:.1} on {dof}, p = {p_value:.1e} < {alpha}): \
+                 it stands in for something that differs between them"
+            ),
+            (true, false) => format!(
+                "a half's fit is not found in the other's data (z = {:.1}, {:.1}; needed \
+                 above {z_alpha:.2} both ways)",
+                z[0], z[1]
+            ),
+        };
+        out.push(Confirmation {
+            effect: e.name().to_string(),
+            confirmed: consistent && predicting,
+            consistency: Some(Halves { chi2, dof, p_value }),
+            predicts: Some(z),
+            reason,
+        });
+    }
+    Ok(out)
+}
