@@ -663,58 +663,51 @@ struct Step {
 }
 
 fn gauss_newton_step(data: &Data, p: &Params, l: &Layout, s: [f64; 3]) -> Result<Step, ModelError> {
-    let n_rows = data.rows();
     let with_delta = p.delta.is_some();
-    // Per channel: QR of the weighted Jacobian; projections for the Schur complement.
-    struct Chan {
-        q: DMatrix<f64>,
-        rr: DMatrix<f64>,
-        r: DVector<f64>,
-        z: DVector<f64>,
-    }
+    let q = l.n();
+    // Per channel: R of the whitened [Jacobian | z | r] (a triangle of q + 2 columns, its
+    // last two columns Qᵀz and Qᵀr above the residual parts), gathered group by group
+    // ([`factor_channel`]): no Q of all rows is formed.
     let mut chans = Vec::with_capacity(3);
     let mut zz = 0.0;
     let mut zr = 0.0;
     let mut chi2 = 0.0;
     for (ch, sj) in Channel::ALL.into_iter().zip(s) {
-        let System { xs, r, z, .. } = whitened_system(data, p, l, ch, sj)?;
-        chi2 += r.iter().map(|v| v * v).sum::<f64>();
-        let x = DMatrix::from_vec(n_rows, l.n(), xs);
-        let r = DVector::from_vec(r);
-        let z = DVector::from_vec(z);
-        let qr = x.qr();
-        let q = qr.q();
+        let (aug, rr_sum) = factor_channel(data, p, l, ch, sj)?;
+        chi2 += rr_sum;
+        let at = |i: usize, j: usize| aug.get((i, j)).copied().unwrap_or(0.0);
         if with_delta {
-            let zp = &z - &q * (q.transpose() * &z);
-            let rp = &r - &q * (q.transpose() * &r);
-            zz += zp.dot(&zp);
-            zr += zp.dot(&rp);
+            // z less its projection on the Jacobian has norm |α| = |R[q, q]|, and its dot
+            // with r's own such part is α·R[q, q + 1].
+            let alpha = at(q, q);
+            zz += alpha * alpha;
+            zr += alpha * at(q, q + 1);
         }
-        let rr = qr.r();
-        chans.push(Chan { q, rr, r, z });
+        let rr = aug.view((0, 0), (q, q)).into_owned();
+        let qz = aug.view((0, q), (q, 1)).into_owned();
+        let qr = aug.view((0, q + 1), (q, 1)).into_owned();
+        chans.push((rr, qz, qr));
     }
     let delta = with_delta.then(|| if zz > 0.0 { zr / zz } else { 0.0 });
     let delta_var = with_delta.then(|| if zz > 0.0 { 1.0 / zz } else { f64::INFINITY });
     let mut local: [DVector<f64>; 3] = Default::default();
     let mut cov: [DMatrix<f64>; 3] = Default::default();
-    for ((c, local), cov) in chans.into_iter().zip(&mut local).zip(&mut cov) {
+    for (((rr, qz, qr), local), cov) in chans.into_iter().zip(&mut local).zip(&mut cov) {
         let rhs = match delta {
-            Some(d) => &c.r - &c.z * d,
-            None => c.r.clone(),
+            Some(d) => &qr - &qz * d,
+            None => qr,
         };
-        let qt = c.q.transpose();
-        let rr = &c.rr;
-        let mut cj = crate::fit::batch::unscaled_cov(rr).map_err(ModelError::Undetermined)?;
+        let mut cj = crate::fit::batch::unscaled_cov(&rr).map_err(ModelError::Undetermined)?;
         // The solves fail on a zero on R's diagonal, which unscaled_cov refuses first.
         let singular = ModelError::Undetermined(BatchError::Singular);
         let beta = rr
-            .solve_upper_triangular(&(&qt * &rhs))
+            .solve_upper_triangular(&rhs)
             .ok_or_else(|| singular.clone())?;
         if let Some(v) = delta_var {
-            let wv = rr.solve_upper_triangular(&(&qt * &c.z)).ok_or(singular)?;
+            let wv = rr.solve_upper_triangular(&qz).ok_or(singular)?;
             cj += &wv * wv.transpose() * v;
         }
-        *local = beta;
+        *local = DVector::from_column_slice(beta.as_slice());
         *cov = cj;
     }
     Ok(Step {
@@ -724,6 +717,44 @@ fn gauss_newton_step(data: &Data, p: &Params, l: &Layout, s: [f64; 3]) -> Result
         delta_var,
         chi2_before: chi2,
     })
+}
+
+/// Channel `ch`'s whitened system [X | z | r] reduced to its triangle R (q + 2 columns)
+/// one group at a time: each group's rows stacked under the triangle so far and factored
+/// again (a tall-skinny QR), so that memory holds one group's rows, not all of them. Also
+/// Σ r², the whitened residuals' sum of squares.
+fn factor_channel(
+    data: &Data,
+    p: &Params,
+    l: &Layout,
+    ch: Channel,
+    sj: f64,
+) -> Result<(DMatrix<f64>, f64), ModelError> {
+    let q = l.n();
+    let mut tri = DMatrix::<f64>::zeros(0, q + 2);
+    let mut rr_sum = 0.0;
+    for gi in 0..data.groups.len() {
+        let System { xs, r, z, .. } = whitened_system_of(data, p, l, ch, sj, gi..gi + 1)?;
+        rr_sum += r.iter().map(|v| v * v).sum::<f64>();
+        let n = r.len();
+        let mut stacked = DMatrix::<f64>::zeros(tri.nrows() + n, q + 2);
+        stacked
+            .view_mut((0, 0), (tri.nrows(), q + 2))
+            .copy_from(&tri);
+        for (j, col) in xs.chunks_exact(n.max(1)).enumerate().take(q) {
+            stacked
+                .view_mut((tri.nrows(), j), (n, 1))
+                .copy_from_slice(col);
+        }
+        stacked
+            .view_mut((tri.nrows(), q), (n, 1))
+            .copy_from_slice(&z);
+        stacked
+            .view_mut((tri.nrows(), q + 1), (n, 1))
+            .copy_from_slice(&r);
+        tri = stacked.qr().r();
+    }
+    Ok((tri, rr_sum))
 }
 
 /// A channel's linearised model over every group's rows, prewhitened.
@@ -747,7 +778,25 @@ fn whitened_system(
     ch: Channel,
     sj: f64,
 ) -> Result<System, ModelError> {
-    let n_rows = data.rows();
+    whitened_system_of(data, p, l, ch, sj, 0..data.groups.len())
+}
+
+/// [`whitened_system`] over the groups `which` only (their rows, in order).
+fn whitened_system_of(
+    data: &Data,
+    p: &Params,
+    l: &Layout,
+    ch: Channel,
+    sj: f64,
+    which: std::ops::Range<usize>,
+) -> Result<System, ModelError> {
+    let n_rows: usize = data
+        .groups
+        .iter()
+        .skip(which.start)
+        .take(which.len())
+        .map(|g| g.tau.len())
+        .sum();
     let with_delta = p.delta.is_some();
     let mut xs = vec![0.0; n_rows * l.n()];
     let mut r = vec![0.0; n_rows];
@@ -756,7 +805,14 @@ fn whitened_system(
     let mut cols: Vec<&mut [f64]> = xs.chunks_exact_mut(n_rows.max(1)).collect();
     let (mut r_rest, mut z_rest) = (r.as_mut_slice(), z.as_mut_slice());
     let mut keeps = Vec::with_capacity(data.groups.len());
-    for ((gi, g), ab) in data.groups.iter().enumerate().zip(&p.ab) {
+    for ((gi, g), ab) in data
+        .groups
+        .iter()
+        .enumerate()
+        .zip(&p.ab)
+        .skip(which.start)
+        .take(which.len())
+    {
         let omega = g.omega();
         let [a_amp, b_amp] = *ch.of(ab);
         let n = g.tau.len();
