@@ -331,6 +331,7 @@ pub fn estimate(data: &Data) -> Result<(Vec<[NoiseModel; 3]>, Generic), NoiseEst
                         at,
                         what: Kind::Step {
                             tau_s: g.tau.get(s.row).copied().unwrap_or(0.0),
+                            lambda: s.lambda,
                         },
                         size,
                         z: s.z,

@@ -6,7 +6,7 @@ use super::place::Place;
 use serde::Serialize;
 use std::fmt;
 
-pub use crate::fit::structure::{bridge_max_p, harmonics, step, STEP_MARGIN};
+pub use crate::fit::structure::{harmonics, scan_max_p, step};
 
 /// What was found.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -17,6 +17,9 @@ pub enum Kind {
     Step {
         /// Seconds into the group.
         tau_s: f64,
+        /// The scan's decorrelation Λ ([`crate::fit::structure::scan_max_p`]), with which
+        /// the step is tested again under slow noise.
+        lambda: f64,
     },
     /// The noise's sd differs between the group's halves.
     NoiseChange {
@@ -31,7 +34,9 @@ impl fmt::Display for Kind {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
             Kind::Harmonic(k) => write!(f, "harmonic {k} of the table angle"),
-            Kind::Step { tau_s } => write!(f, "a step in the level {tau_s:.1} s into the group"),
+            Kind::Step { tau_s, .. } => {
+                write!(f, "a step in the level {tau_s:.1} s into the group")
+            }
             Kind::NoiseChange {
                 first_sd,
                 second_sd,

@@ -197,17 +197,22 @@ pub fn judge(data: &Data, last: &Fit, alpha: f64, levels: Option<&SlowLevels>) -
         }
         let tests = parts.iter().filter(|p| p.1.extra.is_none()).count().max(1) as f64;
         let channels = (3 * data.groups.len()).max(1) as f64;
+        // A scanned step's decorrelation, as its scan measured it at `at`.
+        let lambda_at = |at: Place| {
+            data.generic.structure.iter().find_map(|s| match s.what {
+                Kind::Step { lambda, .. } if s.at == at => Some(lambda),
+                _ => None,
+            })
+        };
         for (at, c, sd, gi, ch) in parts {
             let (p, z) = match levels {
                 Some(l) => match slow_p(data, l, (gi, ch), &c) {
-                    Some((_, z)) if c.extra.is_some() => (
-                        structure::bridge_max_p(
-                            z,
-                            structure::STEP_MARGIN,
-                            1.0 - structure::STEP_MARGIN,
-                        ),
-                        z,
-                    ),
+                    // The maximum of the scan, read again under slow noise with the scan's
+                    // own multiplicity.
+                    Some((_, z)) if c.extra.is_some() => match lambda_at(at) {
+                        Some(lambda) => (structure::scan_max_p(z, lambda), z),
+                        None => continue,
+                    },
                     Some(pz) => pz,
                     None => continue,
                 },

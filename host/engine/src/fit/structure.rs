@@ -24,7 +24,7 @@ pub const GENERIC_HARMONICS: usize = 4;
 const BACKGROUND_BINS: usize = 12;
 
 /// The fraction of a group left out at each end of the step scan.
-pub const STEP_MARGIN: f64 = 0.05;
+const STEP_MARGIN: f64 = 0.05;
 
 /// One harmonic's test.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -166,15 +166,6 @@ fn long_run_variance(e: &[f64]) -> Option<f64> {
     lrv(&corrected)
 }
 
-/// P(max over t ∈ [t0, t1] of |U(t)| > c) for U the standardised Brownian bridge,
-/// B(t)/√(t(1−t)) (Siegmund 1988's approximation, both sides).
-pub fn bridge_max_p(c: f64, t0: f64, t1: f64) -> f64 {
-    let phi = Normal::standard().pdf(c);
-    let span = (t1 * (1.0 - t0) / (t0 * (1.0 - t1))).ln();
-    let one = phi * (c - 1.0 / c) * 0.5 * span + 4.0 * phi / c;
-    small_c_guard(c, 2.0 * one)
-}
-
 /// The most likely step in the residuals `e` of a least-squares fit whose regressors span
 /// the orthonormal columns of `basis` (a constant among them), from 5 % to 95 % of the way
 /// through. For a step from row t on, H_t, the fit's regressors take out what they can of
@@ -235,7 +226,8 @@ pub fn step(e: &[f64], basis: &DMatrix<f64>) -> Option<StepTest> {
 }
 
 /// P(max |z_t| > c) for a standardised Gaussian scan whose neighbours decorrelate by
-/// Λ in all (Siegmund's approximation, both sides; [`bridge_max_p`] for the bridge).
+/// Λ in all (Siegmund's approximation, both sides; for the standardised Brownian bridge
+/// over [t₀, t₁], Λ = ½·ln(t₁(1 − t₀)/(t₀(1 − t₁)))).
 pub fn scan_max_p(c: f64, lambda: f64) -> f64 {
     let phi = Normal::standard().pdf(c);
     small_c_guard(c, 2.0 * (phi * (c - 1.0 / c) * lambda + 4.0 * phi / c))
