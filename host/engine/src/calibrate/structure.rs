@@ -47,8 +47,8 @@ pub(super) fn scan_channel(
 ) -> ChannelScan {
     let mut e = resid.clone();
     let mask = |x: &mut DMatrix<f64>| {
-        for (i, _) in flags.iter().enumerate().filter(|(_, f)| **f) {
-            x.row_mut(i).fill(0.0);
+        for (mut row, _) in x.row_iter_mut().zip(flags).filter(|(_, f)| **f) {
+            row.fill(0.0);
         }
     };
     for (v, _) in e.iter_mut().zip(flags).filter(|(_, f)| **f) {

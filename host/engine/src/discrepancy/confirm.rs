@@ -67,7 +67,7 @@ fn halves(data: &Data) -> (Data, Data, Vec<usize>) {
             tau: part(&g.tau),
             t: part(&g.t),
             temp: part(&g.temp),
-            y: [part(&g.y[0]), part(&g.y[1]), part(&g.y[2])],
+            y: g.y.each_ref().map(|v| part(v)),
         }
     };
     let of = |first: bool| Data {
@@ -113,20 +113,38 @@ fn half_fit(
 }
 
 /// Each named effect of `current` (the final model on `data`) checked on the halves, at
-/// significance `alpha`.
+/// significance `alpha`; unchecked, and so not confirmed, where a half cannot be fitted.
 pub(super) fn check(
     data: &Data,
     current: &Fit,
     alpha: f64,
     levels: Option<&SlowLevels>,
-) -> Result<Vec<Confirmation>, DiscrepancyError> {
+) -> Vec<Confirmation> {
     if current.effects.is_empty() {
-        return Ok(Vec::new());
+        return Vec::new();
     }
     let (a, b, at) = halves(data);
     let none = vec![0; data.groups.len()];
-    let (fa, ua) = half_fit(&a, current, levels.map(|l| (l, none.as_slice())))?;
-    let (fb, ub) = half_fit(&b, current, levels.map(|l| (l, at.as_slice())))?;
+    let fits = half_fit(&a, current, levels.map(|l| (l, none.as_slice()))).and_then(|fa| {
+        half_fit(&b, current, levels.map(|l| (l, at.as_slice()))).map(|fb| (fa, fb))
+    });
+    // Halves too short or too poor to fit leave every effect unchecked: none is confirmed.
+    let ((fa, ua), (fb, ub)) = match fits {
+        Ok(f) => f,
+        Err(e) => {
+            return current
+                .effects
+                .iter()
+                .map(|effect| Confirmation {
+                    effect: effect.name().to_string(),
+                    confirmed: false,
+                    consistency: None,
+                    predicts: None,
+                    reason: format!("the halves could not be fitted ({e}), so it is unchecked"),
+                })
+                .collect();
+        }
+    };
     let z_alpha = Normal::standard().inverse_cdf(1.0 - alpha);
     let mut out = Vec::new();
     for &e in &current.effects {
@@ -205,5 +223,5 @@ pub(super) fn check(
             reason,
         });
     }
-    Ok(out)
+    out
 }
