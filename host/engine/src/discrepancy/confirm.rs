@@ -112,6 +112,60 @@ fn half_fit(
     Ok((f, unc))
 }
 
+/// Under slow noise, the halves' difference θ_A − θ_B as one linear form of all the
+/// readings (each half's weights in its rows, the second's negated), tested as the
+/// candidates are ([`SlowLevels::test`]): the slow terms' covariance of the difference
+/// includes what one walk through both halves gives them in common, and each parameter's
+/// slow variance is raised by 3.09 of its standard deviations. Returns (k·F, k).
+fn slow_difference(
+    data: &Data,
+    levels: &SlowLevels,
+    (a, fa): (&Data, &Fit),
+    (b, fb): (&Data, &Fit),
+    e: Effect,
+) -> Option<(f64, usize)> {
+    let ta = model::tested(a, fa, e).ok()??;
+    let tb = model::tested(b, fb, e).ok()??;
+    let k = ta.values.len();
+    if k == 0 || tb.values.len() != k {
+        return None;
+    }
+    let values: Vec<f64> = ta
+        .values
+        .iter()
+        .zip(&tb.values)
+        .map(|(x, y)| x - y)
+        .collect();
+    // Each half's GLS covariance scaled by its χ²/dof, as a candidate's test scales it.
+    let gls = &ta.gls_cov * fa.chi2_dof() + &tb.gls_cov * fb.chi2_dof();
+    // Per parameter and channel: group after group, the first half's weights then the
+    // second's negated, in the whole data's rows.
+    let weights = ta
+        .weights
+        .iter()
+        .zip(&tb.weights)
+        .map(|(wa, wb)| {
+            let mut out: [Vec<f64>; 3] = Default::default();
+            for ((o, wa), wb) in out.iter_mut().zip(wa).zip(wb) {
+                let (mut ra, mut rb) = (wa.as_slice(), wb.as_slice());
+                for ((ga, gb), g) in a.groups.iter().zip(&b.groups).zip(&data.groups) {
+                    let (pa, rest_a) = ra.split_at(ga.tau.len().min(ra.len()));
+                    let (pb, rest_b) = rb.split_at(gb.tau.len().min(rb.len()));
+                    ra = rest_a;
+                    rb = rest_b;
+                    o.reserve(g.tau.len());
+                    o.extend_from_slice(pa);
+                    o.extend(pb.iter().map(|v| -v));
+                }
+            }
+            out
+        })
+        .collect();
+    let diff = model::Tested::linear(values, gls, weights);
+    let t = levels.test(data, &diff, 1.0, fa.dof.min(fb.dof))?;
+    Some((t.f * k as f64, k))
+}
+
 /// Each named effect of `current` (the final model on `data`) checked on the halves, at
 /// significance `alpha`; unchecked, and so not confirmed, where a half cannot be fitted.
 pub(super) fn check(
@@ -173,11 +227,20 @@ pub(super) fn check(
                 [x, ux, y, uy].iter().all(|v| v.is_finite()) && *ux > 0.0 && *uy > 0.0
             })
             .collect();
-        let chi2: f64 = usable
-            .iter()
-            .map(|(x, ux, y, uy)| (x - y).powi(2) / (ux * ux + uy * uy))
-            .sum();
-        let dof = usable.len();
+        let independent = || -> (f64, usize) {
+            let chi2 = usable
+                .iter()
+                .map(|(x, ux, y, uy)| (x - y).powi(2) / (ux * ux + uy * uy))
+                .sum();
+            (chi2, usable.len())
+        };
+        let (chi2, dof) = match levels {
+            Some(l) => match slow_difference(data, l, (&a, &fa), (&b, &fb), e) {
+                Some(d) => d,
+                None => independent(),
+            },
+            None => independent(),
+        };
         let p_value = match ChiSquared::new(dof.max(1) as f64) {
             Ok(d) if dof > 0 => d.sf(chi2),
             _ => f64::NAN,
