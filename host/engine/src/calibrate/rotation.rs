@@ -146,7 +146,7 @@ pub(super) fn assemble(
     }
     pool_slow(&mut held, still)
         .map_err(|(condition, e)| GroupError::Noise(e).of(rec, None, condition))?;
-    let checked = super::structure::check(
+    let checked = structure_check(
         plan.iter().flat_map(|rate| {
             rate.groups
                 .iter()
@@ -803,4 +803,67 @@ fn check_notes(fits: &[GroupFit; 3]) -> Vec<String> {
         ));
     }
     notes
+}
+
+/// The file's check over the groups `fits` (each with its nominal rate): the harmonics'
+/// p-values multiplied by the number of harmonics tested in the file, the steps' by the
+/// number of channels scanned (Bonferroni); what falls below [`super::structure::ALPHA`] is reported.
+/// Groups calibrated from a streamed file's sums were not scanned, and are counted so.
+fn structure_check<'a>(
+    fits: impl Iterator<Item = (f64, &'a GroupFit)> + Clone,
+    slow_noise: bool,
+) -> json::StructureCheckJson {
+    let scanned = fits.clone().filter_map(|(_, f)| f.scan.as_ref());
+    let harmonics = scanned
+        .clone()
+        .flatten()
+        .map(|c| c.harmonics.len())
+        .sum::<usize>()
+        .max(1) as f64;
+    let channels = (3 * scanned.clone().count()).max(1) as f64;
+    let mut found = Vec::new();
+    for (rate_hz, f) in fits.clone() {
+        let Some(scan) = &f.scan else { continue };
+        for (channel, c) in Channel::ALL.into_iter().zip(scan) {
+            let at = |kind, harmonic, at_s, size, z, p_value| json::StructureJson {
+                rate_hz,
+                condition: f.condition,
+                channel,
+                kind,
+                harmonic,
+                at_s,
+                size,
+                z,
+                p_value,
+            };
+            for h in &c.harmonics {
+                let p = (h.p_single * harmonics).min(1.0);
+                if p < super::structure::ALPHA {
+                    found.push(at("harmonic", Some(h.k), None, h.amplitude, h.z, p));
+                }
+            }
+            if let Some((s, t)) = &c.step {
+                // Under the slow noise, the maximum is re-read at the scan's row: smaller
+                // than the slow-standardised maximum, and Λ, from the AR scan, counts more
+                // chances than the slower statistic has; both err towards silence.
+                let (z, p_single) = match c.slow_z {
+                    Some(z) => (z, crate::fit::structure::scan_max_p(z, s.lambda)),
+                    None => (s.z, s.p_single),
+                };
+                let p = (p_single * channels).min(1.0);
+                if p < super::structure::ALPHA {
+                    found.push(at("step", None, Some(*t), s.size, z, p));
+                }
+            }
+        }
+    }
+    let groups_scanned = fits.clone().filter(|(_, f)| f.scan.is_some()).count();
+    json::StructureCheckJson {
+        found: !found.is_empty(),
+        alpha: super::structure::ALPHA,
+        groups_scanned,
+        groups_not_scanned: fits.count() - groups_scanned,
+        slow_noise,
+        structure: found,
+    }
 }

@@ -3,13 +3,11 @@
 //! data hold what no noise model should take in: a harmonic of the table angle above the
 //! fourth, or a step in the level. Such structure would read as correlated noise and widen
 //! U in silence; the scan ([`crate::fit::structure`]) finds it, and the calibration warns
-//! and sets `residual_structure.found` in its JSON.
+//! and sets `residual_structure.found` in its JSON (the file's count of tests and the JSON
+//! are made where the groups are assembled, `rotation.rs`).
 
-use super::json::{StructureCheckJson, StructureJson};
-use super::GroupFit;
 use crate::fit::structure::{self, HarmonicTest, StepTest};
 use nalgebra::{DMatrix, DVector};
-use rotacal_shared::Channel;
 
 /// The chance that noise alone raises a warning anywhere in a file, per kind of test
 /// (harmonics, steps): Bonferroni over the file's tests of that kind.
@@ -102,68 +100,5 @@ pub(super) fn scan_channel(
         harmonics,
         step,
         slow_z: None,
-    }
-}
-
-/// The file's check over the groups `fits` (each with its nominal rate): the harmonics'
-/// p-values multiplied by the number of harmonics tested in the file, the steps' by the
-/// number of channels scanned (Bonferroni); what falls below [`ALPHA`] is reported.
-/// Groups calibrated from a streamed file's sums were not scanned, and are counted so.
-pub(super) fn check<'a>(
-    fits: impl Iterator<Item = (f64, &'a GroupFit)> + Clone,
-    slow_noise: bool,
-) -> StructureCheckJson {
-    let scanned = fits.clone().filter_map(|(_, f)| f.scan.as_ref());
-    let harmonics = scanned
-        .clone()
-        .flatten()
-        .map(|c| c.harmonics.len())
-        .sum::<usize>()
-        .max(1) as f64;
-    let channels = (3 * scanned.clone().count()).max(1) as f64;
-    let mut found = Vec::new();
-    for (rate_hz, f) in fits.clone() {
-        let Some(scan) = &f.scan else { continue };
-        for (channel, c) in Channel::ALL.into_iter().zip(scan) {
-            let at = |kind, harmonic, at_s, size, z, p_value| StructureJson {
-                rate_hz,
-                condition: f.condition,
-                channel,
-                kind,
-                harmonic,
-                at_s,
-                size,
-                z,
-                p_value,
-            };
-            for h in &c.harmonics {
-                let p = (h.p_single * harmonics).min(1.0);
-                if p < ALPHA {
-                    found.push(at("harmonic", Some(h.k), None, h.amplitude, h.z, p));
-                }
-            }
-            if let Some((s, t)) = &c.step {
-                // Under the slow noise, the maximum is re-read at the scan's row: smaller
-                // than the slow-standardised maximum, and Λ, from the AR scan, counts more
-                // chances than the slower statistic has; both err towards silence.
-                let (z, p_single) = match c.slow_z {
-                    Some(z) => (z, structure::scan_max_p(z, s.lambda)),
-                    None => (s.z, s.p_single),
-                };
-                let p = (p_single * channels).min(1.0);
-                if p < ALPHA {
-                    found.push(at("step", None, Some(*t), s.size, z, p));
-                }
-            }
-        }
-    }
-    let groups_scanned = fits.clone().filter(|(_, f)| f.scan.is_some()).count();
-    StructureCheckJson {
-        found: !found.is_empty(),
-        alpha: ALPHA,
-        groups_scanned,
-        groups_not_scanned: fits.count() - groups_scanned,
-        slow_noise,
-        structure: found,
     }
 }
