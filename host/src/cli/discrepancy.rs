@@ -49,15 +49,24 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         alpha: a.alpha,
         slow_noise: a.slow_noise,
     };
-    let analysis = rotacal::discrepancy::run(&rec, &opts)?;
+    let rows = rotacal::discrepancy::rows_from(&rec, &opts)?;
+    let units = rec
+        .meta
+        .units
+        .clone()
+        .unwrap_or_else(|| "output units".into());
+    let stated = rec.meta.noise_sigma;
+    // The workflow works on its own copy of the rows: the recording is not held beside it.
+    drop(rec);
+    let (data, noise) = rotacal::discrepancy::with_noise(rows)?;
+    let analysis = rotacal::discrepancy::analyse(data, noise, stated, &opts)?;
     if let Some(path) = &a.json {
         std::fs::write(path, serde_json::to_string_pretty(&analysis)? + "\n")
             .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
     }
     rotacal::output::emit(&rotacal::report::discrepancy::render(&analysis))?;
     if let Some(dir) = &a.report {
-        let units = rec.meta.units.as_deref().unwrap_or("output units");
-        let path = rotacal::report::discrepancy::write(&analysis, dir, units)?;
+        let path = rotacal::report::discrepancy::write(&analysis, dir, &units)?;
         rotacal::output::emit(&format!("report: {}\n", path.display()))?;
     }
     if !analysis.verdict.explained {

@@ -358,6 +358,13 @@ pub struct Analysis {
 /// The recording as the model's data, with its noise model estimated from the data (a
 /// stated `noise_sigma` is not used: see [`NoiseStatement`]).
 pub fn data_from(rec: &Recording, opts: &Options) -> Result<(Data, NoiseSigma), DiscrepancyError> {
+    with_noise(rows_from(rec, opts)?)
+}
+
+/// The recording's rows as the model sees them, before any noise is estimated: what
+/// [`data_from`] starts from. A caller that holds the recording only for this can drop it
+/// before [`with_noise`], whose fits hold designs of the rows.
+pub fn rows_from(rec: &Recording, opts: &Options) -> Result<Data, DiscrepancyError> {
     if rec.method != Method::Rotation {
         return Err(DiscrepancyError::NotRotation {
             source_name: rec.source.clone(),
@@ -412,13 +419,18 @@ pub fn data_from(rec: &Recording, opts: &Options) -> Result<(Data, NoiseSigma), 
             y: [g.u.clone(), g.v.clone(), g.w.clone()],
         });
     }
-    let mut data = Data {
+    Ok(Data {
         groups,
         g_loc,
         sigma: [1.0; 3],
         noise: Vec::new(),
         generic: structure::Generic::default(),
-    };
+    })
+}
+
+/// [`rows_from`]'s data with each group's channel's noise model estimated (after the
+/// structure scan, [`noise::estimate`]), and the noise level per channel it gives.
+pub fn with_noise(mut data: Data) -> Result<(Data, NoiseSigma), DiscrepancyError> {
     (data.noise, data.generic) = noise::estimate(&data)?;
     let rows = data.rows().max(1) as f64;
     data.sigma = Channel::ALL.map(|ch| {
