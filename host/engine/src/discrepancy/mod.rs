@@ -740,11 +740,15 @@ pub fn analyse(
     let mut findings = locate::locate(&data, &baseline);
     findings.extend(locate::angles_against_rate(&intrinsic_baseline));
     findings.sort_by(|a, b| b.z.total_cmp(&a.z));
-    let mut current = baseline.clone();
-    let mut fits = vec![baseline.clone()];
+    let baseline_goodness = Goodness::of(&baseline);
+    // The fits in order, the last the current model: each held once (a fit holds its
+    // residuals, rows × 3).
+    let mut fits = vec![baseline];
+    let no_fit = || DiscrepancyError::Fit(ModelError::Internal("no fit was kept"));
     let mut steps = Vec::new();
     let mut intrinsic_now = intrinsic_baseline.clone();
     let last_candidates = loop {
+        let current = fits.last().ok_or_else(no_fit)?;
         let mut tests = Vec::new();
         let mut best: Option<(Criterion, Fit, Effect)> = None;
         for &e in candidates.iter().filter(|e| !current.effects.contains(e)) {
@@ -754,8 +758,8 @@ pub fn analyse(
                 continue;
             };
             let c = match &levels {
-                Some(l) => slow_criterion(&data, l, (e, &current, &with), n, alpha)?,
-                None => criterion(e, &current, &with, n, alpha),
+                Some(l) => slow_criterion(&data, l, (e, current, &with), n, alpha)?,
+                None => criterion(e, current, &with, n, alpha),
             };
             if c.passed
                 && best
@@ -787,26 +791,26 @@ pub fn analyse(
             .last()
             .map(|s| s.intrinsic_after.clone())
             .unwrap_or_default();
-        fits.push(with.clone());
-        current = with;
+        fits.push(with);
     };
+    let current = fits.last().ok_or_else(no_fit)?;
     let slow_unc = match &levels {
-        Some(l) => Some(slow_uncertainty(&data, l, &current)?),
+        Some(l) => Some(slow_uncertainty(&data, l, current)?),
         None => None,
     };
     let final_parameters = current
         .effects
         .iter()
         .map(|&e| {
-            let p = parameters(e, &current, &data, slow_unc.as_ref());
+            let p = parameters(e, current, &data, slow_unc.as_ref());
             (e.name().to_string(), p)
         })
         .collect();
-    let verdict = verdict::judge(&data, &current, alpha, levels.as_ref());
+    let verdict = verdict::judge(&data, current, alpha, levels.as_ref());
     // Named effects in explained data are checked on the halves; in unexplained data they
     // stay candidates (each was named by a test that assumed the larger model right).
     let confirmation = if verdict.explained {
-        confirm::check(&data, &current, alpha, levels.as_ref())
+        confirm::check(&data, current, alpha, levels.as_ref())
     } else {
         Vec::new()
     };
@@ -847,11 +851,11 @@ pub fn analyse(
         noise_sigma_stated: stated
             .filter(|s| *s > 0.0)
             .map(|s| check_statement(s, &data)),
-        baseline: Goodness::of(&baseline),
+        baseline: baseline_goodness,
         findings,
         named_effects: steps.iter().map(|s| s.effect.clone()).collect(),
         steps,
-        final_: Goodness::of(&current),
+        final_: Goodness::of(current),
         last_candidates,
         untestable,
         fits,

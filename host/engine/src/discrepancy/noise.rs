@@ -169,13 +169,14 @@ fn ols_residuals(x: &DMatrix<f64>, y: &[f64], flagged: &[bool]) -> DVector<f64> 
 /// freedom; for AR(1) ρ = 0.5 the χ²/dof would sit 0.5 % low.)
 fn whitened_level(
     m: &NoiseModel,
-    x: &DMatrix<f64>,
+    x: DMatrix<f64>,
     y: &DVector<f64>,
     flagged: &[bool],
 ) -> Result<(f64, Halves), ChannelNoiseError> {
     let keep = whiten_keep(m, flagged);
     let rows = keep.iter().filter(|&&k| k).count();
-    let mut xw = x.clone();
+    // Whitened in place: the design is not needed after.
+    let mut xw = x;
     for mut c in xw.column_iter_mut() {
         super::model::whiten(m, c.as_mut_slice(), &keep);
     }
@@ -250,7 +251,8 @@ fn model_of(
     let yv = masked(y, flagged);
     let e = ols_residuals(&x, y, flagged);
     let m = NoiseModel::estimate(e.as_slice(), flagged).and_then(|m| m.rescaled(&x))?;
-    let (factor, halves) = whitened_level(&m, &x, &yv, flagged)?;
+    let q = x.ncols();
+    let (factor, halves) = whitened_level(&m, x, &yv, flagged)?;
     let kept = whiten_keep(&m, flagged).iter().filter(|&&k| k).count();
     // The halves' levels as one reading's marginal sd would be under the model.
     let halves = Halves {
@@ -258,7 +260,7 @@ fn model_of(
         second: halves.second * m.var,
         ..halves
     };
-    Ok((m.scaled(factor), kept, x.ncols(), halves))
+    Ok((m.scaled(factor), kept, q, halves))
 }
 
 /// The noise model per group and channel (u, v, w), each from its generic fit with the
@@ -316,8 +318,12 @@ pub fn estimate(data: &Data) -> Result<(Vec<[NoiseModel; 3]>, Generic), NoiseEst
             let flagged = noise::clipped(y);
             let x = design(&g.tau, g.omega(), temp, &flagged, extras);
             let e = ols_residuals(&x, y, &flagged);
-            let basis = x.clone().qr().q();
-            if let Some(s) = structure::step(e.as_slice(), &basis) {
+            let basis = x.qr().q();
+            let found = structure::step(e.as_slice(), &basis);
+            // Each of these is rows × coefficients: not held through the fits below.
+            drop(basis);
+            drop(e);
+            if let Some(s) = found {
                 let p = (s.p_single * channels).min(1.0);
                 if p < super::ALPHA {
                     extras.push(Extra::Step(s.row));
