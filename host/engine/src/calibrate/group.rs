@@ -252,13 +252,19 @@ fn noise_models(
         // Scanned with the rate direction in the fit: a rate fit a little off (a harmonic
         // beside the sine moves it) leaves a growing first harmonic, whose CUSUM reads as
         // steps.
+        let own;
         let with_rate = match designs.as_ref().and_then(|d| d.get(ch.index())) {
-            Some((x, _)) => x.clone(),
-            None => rate_direction(s, (step, t_end), &wide, ch.of(coef)),
+            Some((x, _)) => x,
+            None => {
+                own = rate_direction(s, (step, t_end), &wide, ch.of(coef));
+                &own
+            }
         };
+        // With slow noise, also the residuals the slow levels are estimated from.
+        let rate_resid = residuals(with_rate, &y, &flags)?;
         *scan = scan_channel(
-            &residuals(&with_rate, &y, &flags)?,
-            (&with_rate, &harmonic_columns),
+            &rate_resid,
+            (with_rate, &harmonic_columns),
             &flags,
             scan_at,
             &times,
@@ -272,7 +278,7 @@ fn noise_models(
         let on_rail = flags.iter().filter(|f| **f).count();
         if let Some((x, _)) = designs.as_ref().and_then(|d| d.get(ch.index())) {
             if on_rail * RAIL_ROWS <= s.len() {
-                *slot = Some(residuals(x, &y, &flags)?.as_slice().to_vec());
+                *slot = Some(rate_resid.as_slice().to_vec());
                 // A step the group's scan finds (Bonferroni over its three channels) joins
                 // a second fit, from which the slow levels its test uses are estimated, so
                 // that the step does not raise them ([`step_under_slow`]). U keeps the

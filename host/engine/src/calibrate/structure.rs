@@ -80,19 +80,6 @@ pub(super) fn scan_channel(
         e -= proj;
     }
     let step = structure::step(e.as_slice(), &basis).map(|mut s| {
-        // The step's height beside the fit's regressors (Frisch–Waugh): eᵀh̃/‖h̃‖², where
-        // eᵀh̃ is the residuals' sum from the step on and ‖h̃‖² what the regressors leave of
-        // the step's own length. The CUSUM's reading, of residuals the trend has already
-        // tilted, is low.
-        let after = e.len().saturating_sub(s.row);
-        let sum: f64 = e.iter().skip(s.row).sum();
-        let tail: f64 = (0..basis.ncols())
-            .map(|j| basis.column(j).iter().skip(s.row).sum::<f64>().powi(2))
-            .sum();
-        let left = after as f64 - tail;
-        if left > 0.0 {
-            s.size = sum / left;
-        }
         s.size /= weight;
         (s, times.get(s.row).copied().unwrap_or(f64::NAN))
     });

@@ -327,8 +327,9 @@ pub fn estimate(data: &Data) -> Result<(Vec<[NoiseModel; 3]>, Generic), NoiseEst
                 let p = (s.p_single * channels).min(1.0);
                 if p < super::ALPHA {
                     extras.push(Extra::Step(s.row));
-                    // Its height with the line fitted beside it (the CUSUM's, of residuals
-                    // the line has already tilted, reads low).
+                    // Its height refitted with the step in the design: the scan's own
+                    // reading (Frisch–Waugh) is the same value to rounding, but under slow
+                    // noise it moved the proofs' witness sessions beyond their tolerance.
                     let x = design(&g.tau, g.omega(), temp, &flagged, extras);
                     let size = ols_coefficients(&x, y, &flagged)
                         .and_then(|b| b.iter().next_back().copied())

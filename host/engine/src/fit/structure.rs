@@ -112,7 +112,8 @@ pub fn harmonics(e: &[f64], dt: f64, rate_hz: f64) -> Vec<HarmonicTest> {
 pub struct StepTest {
     /// The first row after the step.
     pub row: usize,
-    /// Level after minus level before, output units.
+    /// The step's height with the fit's regressors beside it (level after less level
+    /// before), in the residuals' units.
     pub size: f64,
     /// The standardised CUSUM's largest size.
     pub z: f64,
@@ -186,7 +187,7 @@ pub fn step(e: &[f64], basis: &DMatrix<f64>) -> Option<StepTest> {
     let last = n.saturating_sub(first);
     let mut suffix = 0.0;
     let mut c = DVector::<f64>::zeros(basis.ncols());
-    let mut best: Option<(usize, f64)> = None;
+    let mut best: Option<(usize, f64, f64)> = None;
     // Λ = Σ (1 − corr(z_t, z_{t+1})) over the scan: the statistic's decorrelation, which
     // sets how many near-independent chances the maximum had (for the bridge, ½·ln of the
     // span's odds ratio).
@@ -204,21 +205,19 @@ pub fn step(e: &[f64], basis: &DMatrix<f64>) -> Option<StepTest> {
                     lambda += (1.0 - dot / (left * left_p).sqrt()).max(0.0);
                 }
                 let z = suffix / (sd * left.sqrt());
-                if best.is_none_or(|(_, bz)| z.abs() > bz.abs()) {
-                    best = Some((t, z));
+                if best.is_none_or(|(_, bz, _)| z.abs() > bz.abs()) {
+                    // The step's height beside the fit's regressors (Frisch–Waugh):
+                    // eᵀh̃_t/‖h̃_t‖².
+                    best = Some((t, z, suffix / left));
                 }
                 previous = Some((c.clone(), left));
             }
         }
     }
-    let (row, z) = best?;
-    let tf = row as f64;
-    // The CUSUM's reading of the height (level after less level before about the fit);
-    // the caller refits with the step for its height beside the other regressors.
-    let s: f64 = e.iter().take(row).sum();
+    let (row, z, size) = best?;
     Some(StepTest {
         row,
-        size: -s * nf / (tf * (nf - tf)),
+        size,
         z: z.abs(),
         p_single: scan_max_p(z.abs(), lambda),
         lambda,
