@@ -27,6 +27,7 @@ mod model_check;
 mod rails;
 mod regression;
 mod slow;
+mod streamed;
 
 pub use lagged::{LaggedSums, LAGS};
 pub use model_check::{ModelCheck, PeriodScatter, Verdict, ALPHA as MODEL_CHECK_ALPHA};
@@ -36,6 +37,7 @@ pub use slow::{
     estimate_pooled, unit_flicker_quadratic, ResidualAllan, SlowDesign, SlowFit, SlowForms,
     SlowPart,
 };
+pub use streamed::Rows;
 
 /// The largest AR order tried.
 pub const MAX_ORDER: usize = 32;

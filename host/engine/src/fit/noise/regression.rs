@@ -83,6 +83,13 @@ impl NoiseModel {
         self.rescaled_with(&r)
     }
 
+    /// [`Self::rescaled`] for white noise, which needs only how many regressors the fit
+    /// had (σ̂² = RSS/(N − q)), not the regressors; `None` for a correlated model, which
+    /// needs them.
+    pub fn rescaled_white(&self, q: usize) -> Option<Result<NoiseModel, NoiseError>> {
+        (self.order() == 0).then(|| self.clone().fixed_point(self.n, q, |_| Vec::new()))
+    }
+
     /// [`Self::rescaled`] for regressors prepared once ([`Rescaler`]).
     pub fn rescaled_by(self, r: &Rescaler) -> Result<NoiseModel, NoiseError> {
         if r.0.h.nrows() != self.n {
@@ -108,7 +115,7 @@ impl NoiseModel {
     /// The model whose expected sample autocovariances, after a fit of `q` regressors to
     /// `n` samples, match the observed ones: `expected` gives them for a model. Iterated
     /// until a step moves the level by less than 10⁻⁶ of it (see [`NoiseModel::rescaled`]).
-    fn fixed_point(
+    pub(super) fn fixed_point(
         self,
         n: usize,
         q: usize,
