@@ -49,15 +49,14 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         alpha: a.alpha,
         slow_noise: a.slow_noise,
     };
-    let rows = rotacal::discrepancy::rows_from(&rec, &opts)?;
     let units = rec
         .meta
         .units
         .clone()
         .unwrap_or_else(|| "output units".into());
     let stated = rec.meta.noise_sigma;
-    // The workflow works on its own copy of the rows: the recording is not held beside it.
-    drop(rec);
+    // The workflow takes the recording's rows over: they are not held twice.
+    let rows = rotacal::discrepancy::rows_from(rec, &opts)?;
     let (data, noise) = rotacal::discrepancy::with_noise(rows)?;
     let analysis = rotacal::discrepancy::analyse(data, noise, stated, &opts)?;
     if let Some(path) = &a.json {

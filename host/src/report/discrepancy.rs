@@ -301,7 +301,7 @@ fn verdict(a: &Analysis, o: &mut String) {
 fn series(a: &Analysis, gi: usize, fit: usize, label: &str) -> Option<Series> {
     let g = a.data.groups.get(gi)?;
     let f = a.fits.get(fit)?;
-    let r = f.residuals.get(gi)?;
+    let r = Channel::ALL.map(|ch| f.residuals(&a.data, gi, ch));
     let mut s = Series::new(
         format!("{} at {} Hz, {label}", g.condition.letter(), g.rate_hz),
         format!(
@@ -314,7 +314,7 @@ fn series(a: &Analysis, gi: usize, fit: usize, label: &str) -> Option<Series> {
     );
     // Every row has its readings and residuals (the fit's residuals are of each reading).
     let [yu, yv, yw] = &g.y;
-    let [ru, rv, rw] = r;
+    let [ru, rv, rw] = &r;
     let readings = yu.iter().zip(yv).zip(yw);
     let residuals = ru.iter().zip(rv).zip(rw);
     for (t, (((&u, &v), &w), ((&eu, &ev), &ew))) in g.tau.iter().zip(readings.zip(residuals)) {
@@ -336,10 +336,9 @@ pub fn write(a: &Analysis, dir: &Path, units: &str) -> Result<PathBuf, ReportErr
         .fits
         .first()
         .map(|f| {
-            f.residuals
-                .iter()
-                .enumerate()
-                .map(|(gi, r)| {
+            (0..a.data.groups.len())
+                .map(|gi| {
+                    let r = Channel::ALL.map(|ch| f.residuals(&a.data, gi, ch));
                     let n = r.iter().map(Vec::len).sum::<usize>().max(1);
                     (
                         r.iter().flatten().map(|x| x * x).sum::<f64>() / n as f64,

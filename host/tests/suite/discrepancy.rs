@@ -223,10 +223,8 @@ fn the_model_is_the_simulators_physics() {
         Effect::Centripetal,
     ];
     let f = fit(&data, &all, None).unwrap();
-    let worst = f
-        .residuals
-        .iter()
-        .flatten()
+    let worst = (0..data.groups.len())
+        .flat_map(|gi| Channel::ALL.map(|ch| f.residuals(&data, gi, ch)))
         .flatten()
         .fold(0.0f64, |m, r| m.max(r.abs()));
     println!("largest |measured − predicted| = {worst:.2e} counts");

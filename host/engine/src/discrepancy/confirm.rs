@@ -52,10 +52,10 @@ pub struct Halves {
     pub p_value: f64,
 }
 
-/// The first and the second half of every group's rows (noise models and generic fits as
-/// the whole's), and each group's row where its second half starts.
-fn halves(data: &Data) -> (Data, Data, Vec<usize>) {
-    let split = |g: &GroupData, first: bool| -> GroupData {
+/// The first (`first`) or the second half of every group's rows (noise models and generic
+/// fits as the whole's).
+fn half(data: &Data, first: bool) -> Data {
+    let split = |g: &GroupData| -> GroupData {
         let at = g.tau.len() / 2;
         let part = |v: &[f64]| -> Vec<f64> {
             let (a, b) = v.split_at(at.min(v.len()));
@@ -70,15 +70,13 @@ fn halves(data: &Data) -> (Data, Data, Vec<usize>) {
             y: g.y.each_ref().map(|v| part(v)),
         }
     };
-    let of = |first: bool| Data {
-        groups: data.groups.iter().map(|g| split(g, first)).collect(),
+    Data {
+        groups: data.groups.iter().map(split).collect(),
         g_loc: data.g_loc,
         sigma: data.sigma,
         noise: data.noise.clone(),
         generic: data.generic.clone(),
-    };
-    let at = data.groups.iter().map(|g| g.tau.len() / 2).collect();
-    (of(true), of(false), at)
+    }
 }
 
 /// An effect's fitted parameters, in a fixed order (none for saturation).
@@ -177,13 +175,19 @@ pub(super) fn check(
     if current.effects.is_empty() {
         return Vec::new();
     }
-    let (a, b, at) = halves(data);
+    // Each group's row where its second half starts.
+    let at: Vec<usize> = data.groups.iter().map(|g| g.tau.len() / 2).collect();
     let none = vec![0; data.groups.len()];
+    // One half's rows at a time, but for the slow test of their difference, which needs
+    // both (each half is as large as half the recording).
+    let a = half(data, true);
     let fits = half_fit(&a, current, levels.map(|l| (l, none.as_slice()))).and_then(|fa| {
-        half_fit(&b, current, levels.map(|l| (l, at.as_slice()))).map(|fb| (fa, fb))
+        let a = levels.is_some().then_some(a);
+        let b = half(data, false);
+        half_fit(&b, current, levels.map(|l| (l, at.as_slice()))).map(|fb| (fa, fb, a, b))
     });
     // Halves too short or too poor to fit leave every effect unchecked: none is confirmed.
-    let ((fa, ua), (fb, ub)) = match fits {
+    let ((fa, ua), (fb, ub), a, b) = match fits {
         Ok(f) => f,
         Err(e) => {
             return current
@@ -234,12 +238,12 @@ pub(super) fn check(
                 .sum();
             (chi2, usable.len())
         };
-        let (chi2, dof) = match levels {
-            Some(l) => match slow_difference(data, l, (&a, &fa), (&b, &fb), e) {
+        let (chi2, dof) = match (levels, &a) {
+            (Some(l), Some(a)) => match slow_difference(data, l, (a, &fa), (&b, &fb), e) {
                 Some(d) => d,
                 None => independent(),
             },
-            None => independent(),
+            _ => independent(),
         };
         let p_value = match ChiSquared::new(dof.max(1) as f64) {
             Ok(d) if dof > 0 => d.sf(chi2),

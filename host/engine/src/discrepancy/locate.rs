@@ -55,11 +55,11 @@ fn sample_interval(tau: &[f64]) -> f64 {
 pub fn locate(data: &Data, fit: &Fit) -> Vec<Finding> {
     let mut out = Vec::new();
     let temperature = data.temperature_varies();
-    for (gi, (g, residuals)) in data.groups.iter().zip(&fit.residuals).enumerate() {
+    for (gi, g) in data.groups.iter().enumerate() {
         let alpha: Vec<f64> = g.tau.iter().map(|t| g.omega() * t).collect();
         let omega = g.omega() * sample_interval(&g.tau);
         for channel in Channel::ALL {
-            let r = channel.of(residuals);
+            let r = &fit.residuals(data, gi, channel);
             let model = data.noise.get(gi).map(|m| channel.of(m));
             // The sd of a slowly varying coefficient (trend, temperature) and of one at k·ω.
             let sd_at = |w: f64| {
@@ -128,10 +128,9 @@ pub fn locate(data: &Data, fit: &Fit) -> Vec<Finding> {
                 let (mut w2, mut m) = (Vec::new(), Vec::new());
                 let mut n_min = usize::MAX;
                 let mut sd = 0.0f64;
-                let groups = data.groups.iter().zip(&fit.residuals).enumerate();
-                for (gi, (g, residuals)) in groups {
+                for (gi, g) in data.groups.iter().enumerate() {
                     if g.condition == c {
-                        let r = channel.of(residuals);
+                        let r = fit.residuals(data, gi, channel);
                         if let Some(m) = data.noise.get(gi).map(|m| channel.of(m)) {
                             sd = sd.max(m.sd() * m.variance_factor(0.0).sqrt());
                         }

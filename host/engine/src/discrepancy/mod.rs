@@ -358,13 +358,13 @@ pub struct Analysis {
 /// The recording as the model's data, with its noise model estimated from the data (a
 /// stated `noise_sigma` is not used: see [`NoiseStatement`]).
 pub fn data_from(rec: &Recording, opts: &Options) -> Result<(Data, NoiseSigma), DiscrepancyError> {
-    with_noise(rows_from(rec, opts)?)
+    with_noise(rows_from(rec.clone(), opts)?)
 }
 
 /// The recording's rows as the model sees them, before any noise is estimated: what
-/// [`data_from`] starts from. A caller that holds the recording only for this can drop it
-/// before [`with_noise`], whose fits hold designs of the rows.
-pub fn rows_from(rec: &Recording, opts: &Options) -> Result<Data, DiscrepancyError> {
+/// [`data_from`] starts from. The recording is consumed group by group (its readings move,
+/// its other columns are freed), so the rows are never held twice.
+pub fn rows_from(rec: Recording, opts: &Options) -> Result<Data, DiscrepancyError> {
     if rec.method != Method::Rotation {
         return Err(DiscrepancyError::NotRotation {
             source_name: rec.source.clone(),
@@ -397,26 +397,30 @@ pub fn rows_from(rec: &Recording, opts: &Options) -> Result<Data, DiscrepancyErr
     } else {
         temps.iter().sum::<f64>() / temps.len() as f64
     };
-    let mut groups = Vec::new();
+    let mut rates = Vec::with_capacity(rec.groups.len());
     for g in &rec.groups {
-        let rate =
-            rec.nominal_rate(g)
-                .or(opts.rate_hz)
-                .ok_or_else(|| DiscrepancyError::NoRate {
-                    source_name: rec.source.clone(),
-                    condition: g.condition,
-                })?;
+        rates.push(rec.nominal_rate(g).or(opts.rate_hz).ok_or_else(|| {
+            DiscrepancyError::NoRate {
+                source_name: rec.source.clone(),
+                condition: g.condition,
+            }
+        })?);
+    }
+    let mut groups = Vec::with_capacity(rec.groups.len());
+    for (g, rate_hz) in rec.groups.into_iter().zip(rates) {
         let t0 = g.t_s.first().copied().unwrap_or(0.0);
+        let n = g.len();
         groups.push(GroupData {
             condition: g.condition,
-            rate_hz: rate,
+            rate_hz,
             tau: g.t_s.iter().map(|t| t - t0).collect(),
-            t: g.t_s.iter().map(|t| t - t_mean).collect(),
-            temp: match &g.temp_c {
-                Some(t) => t.iter().map(|x| x - temp_mean).collect(),
-                None => vec![0.0; g.len()],
+            // In place: t_s's own storage.
+            t: g.t_s.into_iter().map(|t| t - t_mean).collect(),
+            temp: match g.temp_c {
+                Some(t) => t.into_iter().map(|x| x - temp_mean).collect(),
+                None => vec![0.0; n],
             },
-            y: [g.u.clone(), g.v.clone(), g.w.clone()],
+            y: [g.u, g.v, g.w],
         });
     }
     Ok(Data {

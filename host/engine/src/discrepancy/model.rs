@@ -32,7 +32,9 @@ use nalgebra::{DMatrix, DVector};
 use rotacal_shared::{Channel, Condition};
 use std::f64::consts::TAU;
 
+mod stream;
 mod weights;
+pub(super) use stream::{Triangle, Whitener};
 pub use weights::{tested, Tested};
 
 /// Why the model could not be fitted.
@@ -224,13 +226,12 @@ pub(super) fn kept(p: usize, flagged: &[bool]) -> Vec<bool> {
         .collect()
 }
 
-/// Σ of squared whitened residuals and the rows kept.
-fn whitened_ss(m: &NoiseModel, r: &[f64], flagged: &[bool]) -> (f64, usize) {
+/// Σ of squared whitened residuals and the rows kept (`r` is whitened in place).
+fn whitened_ss(m: &NoiseModel, r: &mut [f64], flagged: &[bool]) -> (f64, usize) {
     let keep = kept(m.order(), flagged);
-    let mut x = r.to_vec();
-    whiten(m, &mut x, &keep);
+    whiten(m, r, &keep);
     (
-        x.iter().map(|v| v * v).sum(),
+        r.iter().map(|v| v * v).sum(),
         keep.iter().filter(|&&k| k).count(),
     )
 }
@@ -373,9 +374,26 @@ struct Eval {
 /// Channel `ch`'s prediction at `row` of group `g`, whose A and B for the channel are
 /// `ab`, at sensitivity `s`.
 fn eval(p: &Params, s: f64, ab: [f64; 2], g: &GroupData, ch: Channel, row: &Row) -> Eval {
+    eval_at(p, s, ab, g, ch, row, phase(p, g, row.tau))
+}
+
+/// sin φ and cos φ at `tau` seconds into group `g` (one for all three channels).
+fn phase(p: &Params, g: &GroupData, tau: f64) -> (f64, f64) {
+    let phi = g.omega() * (1.0 + p.delta.unwrap_or(0.0)) * tau;
+    phi.sin_cos()
+}
+
+/// [`eval`] at the phase's sine and cosine ([`phase`]).
+fn eval_at(
+    p: &Params,
+    s: f64,
+    ab: [f64; 2],
+    g: &GroupData,
+    ch: Channel,
+    row: &Row,
+    (sin, cos): (f64, f64),
+) -> Eval {
     let omega = g.omega();
-    let phi = omega * (1.0 + p.delta.unwrap_or(0.0)) * row.tau;
-    let (sin, cos) = phi.sin_cos();
     let [a_amp, b_amp] = ab;
     let c = g.condition;
     let a0 = p
@@ -424,6 +442,16 @@ enum Param {
 }
 
 impl Param {
+    /// Whether the parameter's column has values in group `g`'s rows (its place `gi`):
+    /// where [`Param::derivative`] gives one.
+    fn touches(self, g: &GroupData, gi: usize) -> bool {
+        match self {
+            Param::Amp { group, .. } => group == gi,
+            Param::Offset(c) | Param::Centripetal(c) => c == g.condition,
+            Param::K2 | Param::K3 | Param::Drift | Param::Temp => true,
+        }
+    }
+
     /// dy/d(this parameter) at `row` of group `g` (its place `gi`) with the prediction `e`
     /// at sensitivity `sj`: `None` where the parameter is another group's or condition's.
     fn derivative(self, g: &GroupData, gi: usize, sj: f64, row: &Row, e: &Eval) -> Option<f64> {
@@ -499,8 +527,6 @@ pub struct Fit {
     pub n_params: usize,
     /// Residual RMS per channel, output units.
     pub rms: [f64; 3],
-    /// Residuals per group and channel.
-    pub residuals: Vec<[Vec<f64>; 3]>,
 }
 
 impl Fit {
@@ -513,6 +539,28 @@ impl Fit {
     pub fn rms_all(&self) -> f64 {
         (self.rms.iter().map(|r| r * r).sum::<f64>() / 3.0).sqrt()
     }
+
+    /// Group `gi`'s residuals (reading less prediction) in channel `ch`, made again from
+    /// the parameters when asked (a fit does not hold rows × 3 of them); empty for a group
+    /// the data do not have.
+    pub fn residuals(&self, data: &Data, gi: usize, ch: Channel) -> Vec<f64> {
+        let s = self.params.sensitivity(data);
+        residuals_of(data, &self.params, *ch.of(&s), gi, ch).0
+    }
+}
+
+/// Group `gi`'s residuals in channel `ch` under `p` at sensitivity `sj`, and which readings
+/// the model puts at a rail.
+fn residuals_of(data: &Data, p: &Params, sj: f64, gi: usize, ch: Channel) -> (Vec<f64>, Vec<bool>) {
+    let (Some(g), Some(ab)) = (data.groups.get(gi), p.ab.get(gi)) else {
+        return (Vec::new(), Vec::new());
+    };
+    g.rows(ch)
+        .map(|row| {
+            let e = eval(p, sj, *ch.of(ab), g, ch, &row);
+            (row.y - e.y, e.clipped)
+        })
+        .unzip()
 }
 
 /// Fit the model with `effects` on, starting from `start` where given.
@@ -587,25 +635,15 @@ pub fn fit(data: &Data, effects: &[Effect], start: Option<&Params>) -> Result<Fi
     let mut chi2 = 0.0;
     let mut ss = [0.0; 3];
     let mut used = 0usize;
-    let mut residuals = Vec::with_capacity(data.groups.len());
-    for ((gi, g), ab) in data.groups.iter().enumerate().zip(&p.ab) {
-        let mut r: [Vec<f64>; 3] = Default::default();
-        let per_channel = r.iter_mut().zip(ss.iter_mut()).zip(s);
-        for (ch, ((rj, ssj), sj)) in Channel::ALL.into_iter().zip(per_channel) {
-            let mut clipped = Vec::with_capacity(g.tau.len());
-            for row in g.rows(ch) {
-                let e = eval(&p, sj, *ch.of(ab), g, ch, &row);
-                clipped.push(e.clipped);
-                let res = row.y - e.y;
-                *ssj += res * res;
-                rj.push(res);
-            }
+    for gi in 0..data.groups.len() {
+        for (ch, (ssj, sj)) in Channel::ALL.into_iter().zip(ss.iter_mut().zip(s)) {
+            let (mut r, clipped) = residuals_of(data, &p, sj, gi, ch);
+            *ssj += r.iter().map(|v| v * v).sum::<f64>();
             let m = noise_of(data, gi, ch)?;
-            let (c, n) = whitened_ss(m, rj, &clipped);
+            let (c, n) = whitened_ss(m, &mut r, &clipped);
             chi2 += c;
             used += n;
         }
-        residuals.push(r);
     }
     let n_params = layout.n() * 3 + usize::from(p.delta.is_some());
     let dof = used as f64 - n_params as f64;
@@ -638,7 +676,6 @@ pub fn fit(data: &Data, effects: &[Effect], start: Option<&Params>) -> Result<Fi
         dof,
         n_params,
         rms: ss.map(|ssj| (ssj / n_rows as f64).sqrt()),
-        residuals,
     })
 }
 
@@ -667,14 +704,21 @@ fn gauss_newton_step(data: &Data, p: &Params, l: &Layout, s: [f64; 3]) -> Result
     let q = l.n();
     // Per channel: R of the whitened [Jacobian | z | r] (a triangle of q + 2 columns, its
     // last two columns Qᵀz and Qᵀr above the residual parts), gathered group by group
-    // ([`factor_channel`]): no Q of all rows is formed.
+    // ([`factor_group`]): no Q is formed, and no group's rows are held.
+    let mut tris = [q, q, q].map(|q| Triangle::new(q + 2));
+    let mut chi2 = 0.0;
+    for gi in 0..data.groups.len() {
+        let (group_tris, rr_sum) = factor_group(data, p, l, s, gi)?;
+        chi2 += rr_sum;
+        for (tri, g) in tris.iter_mut().zip(&group_tris) {
+            tri.push_matrix(g);
+        }
+    }
     let mut chans = Vec::with_capacity(3);
     let mut zz = 0.0;
     let mut zr = 0.0;
-    let mut chi2 = 0.0;
-    for (ch, sj) in Channel::ALL.into_iter().zip(s) {
-        let (aug, rr_sum) = factor_channel(data, p, l, ch, sj)?;
-        chi2 += rr_sum;
+    for tri in tris {
+        let aug = tri.finish();
         let at = |i: usize, j: usize| aug.get((i, j)).copied().unwrap_or(0.0);
         if with_delta {
             // z less its projection on the Jacobian has norm |α| = |R[q, q]|, and its dot
@@ -719,50 +763,99 @@ fn gauss_newton_step(data: &Data, p: &Params, l: &Layout, s: [f64; 3]) -> Result
     })
 }
 
-/// Channel `ch`'s whitened system [X | z | r] reduced to its triangle R (q + 2 columns)
-/// one group at a time: each group's rows stacked under the triangle so far and factored
-/// again (a tall-skinny QR), so that memory holds one group's rows, not all of them. Also
-/// Σ r², the whitened residuals' sum of squares.
-fn factor_channel(
+/// Group `gi`'s rows of each channel's whitened system [X | z | r], reduced to a triangle
+/// as they stream past (sin φ and cos φ once per row for the three channels), over the
+/// columns the group's rows touch, then spread into the layout's q + 2 columns; and Σ r²
+/// of the whitened residuals over the three channels.
+fn factor_group(
     data: &Data,
     p: &Params,
     l: &Layout,
-    ch: Channel,
-    sj: f64,
-) -> Result<(DMatrix<f64>, f64), ModelError> {
+    s: [f64; 3],
+    gi: usize,
+) -> Result<([DMatrix<f64>; 3], f64), ModelError> {
+    let missing = || ModelError::Internal("a group without data or parameters");
+    let g = data.groups.get(gi).ok_or_else(missing)?;
+    let ab = p.ab.get(gi).ok_or_else(missing)?;
+    let with_delta = p.delta.is_some();
     let q = l.n();
-    let mut tri = DMatrix::<f64>::zeros(0, q + 2);
+    let omega = g.omega();
+    // The layout's columns this group's rows touch (the others are zero in them), then z
+    // (with δ) and r.
+    let own: Vec<(usize, Param)> = (0..q)
+        .zip(l.cols.iter().copied())
+        .filter(|(_, c)| c.touches(g, gi))
+        .collect();
+    let w = own.len() + usize::from(with_delta) + 1;
+    let models = Channel::ALL.map(|ch| noise_of(data, gi, ch));
+    let [mu, mv, mw] = models;
+    let models = [mu?, mv?, mw?];
+    let mut whiteners = models.map(|m| Whitener::new(m, w));
+    let mut tris = [w, w, w].map(Triangle::new);
     let mut rr_sum = 0.0;
-    for gi in 0..data.groups.len() {
-        let System { xs, r, z, .. } = whitened_system_of(data, p, l, ch, sj, gi..gi + 1)?;
-        rr_sum += r.iter().map(|v| v * v).sum::<f64>();
-        let n = r.len();
-        let mut stacked = DMatrix::<f64>::zeros(tri.nrows() + n, q + 2);
-        stacked
-            .view_mut((0, 0), (tri.nrows(), q + 2))
-            .copy_from(&tri);
-        for (j, col) in xs.chunks_exact(n.max(1)).enumerate().take(q) {
-            stacked
-                .view_mut((tri.nrows(), j), (n, 1))
-                .copy_from_slice(col);
+    let (mut raw, mut out) = (vec![0.0; w], vec![0.0; w]);
+    let rows = g.tau.iter().zip(&g.t).zip(&g.temp).enumerate();
+    for (i, ((&tau, &t), &temp)) in rows {
+        let sin_cos = phase(p, g, tau);
+        let per_channel = whiteners.iter_mut().zip(&mut tris).zip(s);
+        for (ch, ((whitener, tri), sj)) in Channel::ALL.into_iter().zip(per_channel) {
+            let y = ch.of(&g.y).get(i).copied().ok_or_else(missing)?;
+            let row = Row { tau, t, temp, y };
+            let [a_amp, b_amp] = *ch.of(ab);
+            let e = eval_at(p, sj, [a_amp, b_amp], g, ch, &row, sin_cos);
+            let mut values = raw.iter_mut();
+            for ((_, param), x) in own.iter().zip(values.by_ref()) {
+                *x = match param.derivative(g, gi, sj, &row, &e) {
+                    Some(v) if !e.clipped => v,
+                    _ => 0.0,
+                };
+            }
+            if with_delta {
+                if let Some(x) = values.next() {
+                    *x = if e.clipped {
+                        0.0
+                    } else {
+                        let h = e.dyda / sj; // dy/d(amplitude in output units)
+                        h * (a_amp * e.cos - b_amp * e.sin) * omega * tau
+                    };
+                }
+            }
+            if let Some(x) = values.next() {
+                *x = y - e.y;
+            }
+            if whitener.push(&raw, e.clipped, &mut out) {
+                let r = out.last().copied().unwrap_or(0.0);
+                rr_sum += r * r;
+                tri.push(&out);
+            }
         }
-        stacked
-            .view_mut((tri.nrows(), q), (n, 1))
-            .copy_from_slice(&z);
-        stacked
-            .view_mut((tri.nrows(), q + 1), (n, 1))
-            .copy_from_slice(&r);
-        tri = stacked.qr().r();
     }
-    Ok((tri, rr_sum))
+    // Each channel's triangle in the layout's columns: the group's own, z at q, r at q + 1.
+    let spread = |tri: Triangle| {
+        let local = tri.finish();
+        let mut from = vec![None; q + 2];
+        let targets = own
+            .iter()
+            .map(|(j, _)| *j)
+            .chain(with_delta.then_some(q))
+            .chain([q + 1]);
+        for (k, to) in targets.enumerate() {
+            if let Some(f) = from.get_mut(to) {
+                *f = Some(k);
+            }
+        }
+        DMatrix::from_fn(w, q + 2, |i, j| match from.get(j).copied().flatten() {
+            Some(k) => local.get((i, k)).copied().unwrap_or(0.0),
+            None => 0.0,
+        })
+    };
+    Ok((tris.map(spread), rr_sum))
 }
 
 /// A channel's linearised model over every group's rows, prewhitened.
 struct System {
     /// The Jacobian, column-major: a column of all rows per parameter of the layout.
     xs: Vec<f64>,
-    /// The residuals.
-    r: Vec<f64>,
     /// The derivatives in δ.
     z: Vec<f64>,
     /// Per group, which whitened rows are kept ([`kept`]).
@@ -770,7 +863,7 @@ struct System {
 }
 
 /// Channel `ch`'s [`System`] at sensitivity `sj`, each group's rows prewhitened by its
-/// noise model.
+/// noise model (the slow-noise weights need every row's: [`weights`]).
 fn whitened_system(
     data: &Data,
     p: &Params,
@@ -778,41 +871,15 @@ fn whitened_system(
     ch: Channel,
     sj: f64,
 ) -> Result<System, ModelError> {
-    whitened_system_of(data, p, l, ch, sj, 0..data.groups.len())
-}
-
-/// [`whitened_system`] over the groups `which` only (their rows, in order).
-fn whitened_system_of(
-    data: &Data,
-    p: &Params,
-    l: &Layout,
-    ch: Channel,
-    sj: f64,
-    which: std::ops::Range<usize>,
-) -> Result<System, ModelError> {
-    let n_rows: usize = data
-        .groups
-        .iter()
-        .skip(which.start)
-        .take(which.len())
-        .map(|g| g.tau.len())
-        .sum();
+    let n_rows = data.rows();
     let with_delta = p.delta.is_some();
     let mut xs = vec![0.0; n_rows * l.n()];
-    let mut r = vec![0.0; n_rows];
     let mut z = vec![0.0; n_rows];
-    // The rows of each column, of r and of z below the groups done.
+    // The rows of each column and of z below the groups done.
     let mut cols: Vec<&mut [f64]> = xs.chunks_exact_mut(n_rows.max(1)).collect();
-    let (mut r_rest, mut z_rest) = (r.as_mut_slice(), z.as_mut_slice());
+    let mut z_rest = z.as_mut_slice();
     let mut keeps = Vec::with_capacity(data.groups.len());
-    for ((gi, g), ab) in data
-        .groups
-        .iter()
-        .enumerate()
-        .zip(&p.ab)
-        .skip(which.start)
-        .take(which.len())
-    {
+    for ((gi, g), ab) in data.groups.iter().enumerate().zip(&p.ab) {
         let omega = g.omega();
         let [a_amp, b_amp] = *ch.of(ab);
         let n = g.tau.len();
@@ -823,9 +890,8 @@ fn whitened_system_of(
                 (row, e)
             })
             .collect();
-        let (rg, zg) = (take_rows(&mut r_rest, n), take_rows(&mut z_rest, n));
-        for ((rv, zv), (row, e)) in rg.iter_mut().zip(zg.iter_mut()).zip(&rows) {
-            *rv = row.y - e.y;
+        let zg = take_rows(&mut z_rest, n);
+        for (zv, (row, e)) in zg.iter_mut().zip(&rows) {
             if with_delta && !e.clipped {
                 let h = e.dyda / sj; // dy/d(amplitude in output units)
                 *zv = h * (a_amp * e.cos - b_amp * e.sin) * omega * row.tau;
@@ -835,7 +901,6 @@ fn whitened_system_of(
         // Prewhiten the group's rows of the residual and of every column.
         let m = noise_of(data, gi, ch)?;
         let keep = kept(m.order(), &clipped);
-        whiten(m, rg, &keep);
         if with_delta {
             whiten(m, zg, &keep);
         }
@@ -852,12 +917,7 @@ fn whitened_system_of(
         }
         keeps.push(keep);
     }
-    Ok(System {
-        xs,
-        r,
-        z,
-        keep: keeps,
-    })
+    Ok(System { xs, z, keep: keeps })
 }
 
 /// The first `n` entries of `rest` (all, if it has fewer), leaving it the others.

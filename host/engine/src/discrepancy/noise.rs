@@ -12,6 +12,7 @@
 
 use super::locate::Place;
 use super::model::{Data, GroupData};
+use super::model::{Triangle, Whitener};
 use super::structure::{self, Kind, Structure};
 use crate::fit::noise::{self, NoiseError, NoiseModel};
 use nalgebra::{DMatrix, DVector};
@@ -82,10 +83,143 @@ const HARMONICS: usize = 4;
 
 pub use super::structure::{Extra, Generic};
 
-/// Regressors of the generic fit: 1, τ (scaled to [0, 1]), sin kωτ and cos kωτ for
-/// k = 1 … [`HARMONICS`], (τ/span)·sin ωτ and (τ/span)·cos ωτ (a rate error's growing
-/// quadrature), the temperature when `temp` is given, and `extras`; rows flagged in `skip`
-/// are zero.
+/// Regressors of the generic fit, one row at a time: 1, τ (scaled to [0, 1]), sin kωτ and
+/// cos kωτ for k = 1 … [`HARMONICS`], (τ/span)·sin ωτ and (τ/span)·cos ωτ (a rate error's
+/// growing quadrature), the temperature when `temp` is given, and `extras`. The fits
+/// stream these rows ([`Triangle`]) rather than hold rows × columns of them.
+struct DesignRows<'a> {
+    tau: &'a [f64],
+    omega: f64,
+    span: f64,
+    temp: Option<&'a [f64]>,
+    extras: &'a [Extra],
+    cols: usize,
+}
+
+impl<'a> DesignRows<'a> {
+    fn new(tau: &'a [f64], omega: f64, temp: Option<&'a [f64]>, extras: &'a [Extra]) -> Self {
+        let span = tau.last().copied().unwrap_or(1.0).max(f64::MIN_POSITIVE);
+        let extra_cols: usize = extras
+            .iter()
+            .map(|e| match e {
+                Extra::Harmonic(_) => 2,
+                Extra::Step(_) => 1,
+            })
+            .sum();
+        DesignRows {
+            tau,
+            omega,
+            span,
+            temp,
+            extras,
+            cols: 4 + 2 * HARMONICS + usize::from(temp.is_some()) + extra_cols,
+        }
+    }
+
+    /// Row `i`'s regressors into `out` (its first [`DesignRows::cols`] values). The
+    /// harmonics 2 … [`HARMONICS`] come from the first by the angle-sum rule (a few
+    /// roundings from sin kωτ itself), so a row costs one sine and cosine: the fits make
+    /// each row a dozen times.
+    fn row(&self, i: usize, out: &mut [f64]) {
+        let (omega, span) = (self.omega, self.span);
+        let t = self.tau.get(i).copied().unwrap_or(0.0);
+        let (s1, c1) = (omega * t).sin_cos();
+        let mut slots = out.iter_mut();
+        let mut put = |v: f64| {
+            if let Some(x) = slots.next() {
+                *x = v;
+            }
+        };
+        put(1.0);
+        put(t / span);
+        let (mut s, mut c) = (s1, c1);
+        for _ in 1..=HARMONICS {
+            put(s);
+            put(c);
+            (s, c) = (s * c1 + c * s1, c * c1 - s * s1);
+        }
+        put(t / span * s1);
+        put(t / span * c1);
+        if let Some(temp) = self.temp {
+            put(temp.get(i).copied().unwrap_or(0.0));
+        }
+        for e in self.extras {
+            match *e {
+                Extra::Harmonic(k) => {
+                    let (s, c) = (k as f64 * omega * t).sin_cos();
+                    put(s);
+                    put(c);
+                }
+                Extra::Step(from) => put(if i >= from { 1.0 } else { 0.0 }),
+            }
+        }
+    }
+}
+
+impl DesignRows<'_> {
+    /// Row `i` as [x | y] (cols + 1 values), all zero where `skip` (a reading at a rail:
+    /// never in a kept whitened window).
+    fn augmented(&self, i: usize, y: f64, skip: bool, buf: &mut [f64]) {
+        if skip {
+            buf.fill(0.0);
+        } else {
+            self.row(i, buf);
+            if let Some(last) = buf.last_mut() {
+                *last = y;
+            }
+        }
+    }
+
+    /// The triangle of the whitened rows [x | y] under `m` (`y` row by row, rows in
+    /// `flagged` at a rail), and the whitened rows kept.
+    fn whitened_triangle(
+        &self,
+        m: &NoiseModel,
+        y: impl Fn(usize) -> f64,
+        flagged: &[bool],
+    ) -> (DMatrix<f64>, usize) {
+        let w = self.cols + 1;
+        let (mut raw, mut out) = (vec![0.0; w], vec![0.0; w]);
+        let mut whitener = Whitener::new(m, w);
+        let mut tri = Triangle::new(w);
+        let mut kept = 0usize;
+        for (i, &f) in flagged.iter().enumerate() {
+            self.augmented(i, y(i), f, &mut raw);
+            if whitener.push(&raw, f, &mut out) {
+                tri.push(&out);
+                kept += 1;
+            }
+        }
+        (tri.finish(), kept)
+    }
+}
+
+/// The design's rows with those flagged zero, as the AR model's rescaling reads them.
+struct Masked<'a> {
+    rows: &'a DesignRows<'a>,
+    flagged: &'a [bool],
+}
+
+impl noise::Rows for Masked<'_> {
+    fn len(&self) -> usize {
+        self.flagged.len()
+    }
+
+    fn cols(&self) -> usize {
+        self.rows.cols
+    }
+
+    fn row(&self, t: usize, out: &mut [f64]) {
+        if self.flagged.get(t).copied().unwrap_or(true) {
+            out.fill(0.0);
+        } else {
+            self.rows.row(t, out);
+        }
+    }
+}
+
+/// The generic fit's regressors as a matrix, rows flagged in `skip` zero (for the slow-noise
+/// levels, [`generic_fit`], which need every row at once).
 fn design(
     tau: &[f64],
     omega: f64,
@@ -93,71 +227,68 @@ fn design(
     skip: &[bool],
     extras: &[Extra],
 ) -> DMatrix<f64> {
-    let span = tau.last().copied().unwrap_or(1.0).max(f64::MIN_POSITIVE);
-    let extra_cols: usize = extras
-        .iter()
-        .map(|e| match e {
-            Extra::Harmonic(_) => 2,
-            Extra::Step(_) => 1,
-        })
-        .sum();
-    let cols = 4 + 2 * HARMONICS + usize::from(temp.is_some()) + extra_cols;
-    let mut x = DMatrix::zeros(tau.len(), cols);
-    let mut temps = temp.map(<[f64]>::iter);
-    for (i, ((mut row, &t), &skipped)) in x.row_iter_mut().zip(tau).zip(skip).enumerate() {
-        let temp_t = temps.as_mut().and_then(Iterator::next).copied();
-        if skipped {
-            continue;
-        }
-        let harmonic = |k: f64, sine: bool| {
-            if sine {
-                (k * omega * t).sin()
-            } else {
-                (k * omega * t).cos()
+    let rows = DesignRows::new(tau, omega, temp, extras);
+    let mut x = DMatrix::zeros(tau.len(), rows.cols);
+    let mut buf = vec![0.0; rows.cols];
+    for (i, (mut row, &skipped)) in x.row_iter_mut().zip(skip).enumerate() {
+        if !skipped {
+            rows.row(i, &mut buf);
+            for (x, v) in row.iter_mut().zip(&buf) {
+                *x = *v;
             }
-        };
-        let both = |k: f64| [true, false].map(|sine| harmonic(k, sine));
-        let extra = extras.iter().flat_map(|e| match *e {
-            Extra::Harmonic(k) => both(k as f64).to_vec(),
-            Extra::Step(from) => vec![if i >= from { 1.0 } else { 0.0 }],
-        });
-        let values = [1.0, t / span]
-            .into_iter()
-            .chain((1..=HARMONICS).flat_map(|k| both(k as f64)))
-            .chain(both(1.0).map(|h| t / span * h))
-            .chain(temp_t)
-            .chain(extra);
-        for (x, v) in row.iter_mut().zip(values) {
-            *x = v;
         }
     }
     x
 }
 
-/// The coefficients of `y` (rows in `flagged` zero) by ordinary least squares on `x`;
-/// `None` if `x` is singular.
-fn ols_coefficients(x: &DMatrix<f64>, y: &[f64], flagged: &[bool]) -> Option<DVector<f64>> {
-    let yv = masked(y, flagged);
-    let qr = x.clone().qr();
-    let qty = qr.q().transpose() * yv;
-    qr.r().solve_upper_triangular(&qty)
+/// An ordinary least-squares fit of `y` on the design's rows, rows in `flagged` left out:
+/// its triangle R (q × q, RᵀR = XᵀX) and coefficients.
+struct Ols {
+    r: DMatrix<f64>,
+    beta: DVector<f64>,
 }
 
-/// `y` with the rows in `flagged` zero (readings at a rail, out of every fit).
-fn masked(y: &[f64], flagged: &[bool]) -> DVector<f64> {
-    DVector::from_iterator(
-        y.len(),
-        y.iter()
-            .zip(flagged)
-            .map(|(v, f)| if *f { 0.0 } else { *v }),
-    )
+/// The fit, streamed; `None` if the design is singular (a diagonal of R below 10⁻¹⁰ of
+/// the largest: a temperature that is a straight line in time, say).
+fn ols(rows: &DesignRows, y: &[f64], flagged: &[bool]) -> Option<Ols> {
+    let q = rows.cols;
+    let mut tri = Triangle::new(q + 1);
+    let mut buf = vec![0.0; q + 1];
+    for (i, (&v, &f)) in y.iter().zip(flagged).enumerate() {
+        if !f {
+            rows.augmented(i, v, false, &mut buf);
+            tri.push(&buf);
+        }
+    }
+    let full = tri.finish();
+    let r = full.view((0, 0), (q, q)).into_owned();
+    let qty = full.view((0, q), (q, 1)).into_owned();
+    let diag = r.diagonal().map(f64::abs);
+    if q == 0 || diag.min() <= 1e-10 * diag.max() {
+        return None;
+    }
+    let beta = r.solve_upper_triangular(&qty)?;
+    Some(Ols {
+        r,
+        beta: DVector::from_column_slice(beta.as_slice()),
+    })
 }
 
-/// Residuals of `y` (rows in `flagged` zero) by ordinary least squares on `x`.
-fn ols_residuals(x: &DMatrix<f64>, y: &[f64], flagged: &[bool]) -> DVector<f64> {
-    let yv = masked(y, flagged);
-    let q = x.clone().qr().q();
-    &yv - &q * (q.transpose() * &yv)
+/// Residuals of `y` from the fit `f` on the design's rows; rows in `flagged` zero.
+fn ols_residuals(rows: &DesignRows, f: &Ols, y: &[f64], flagged: &[bool]) -> Vec<f64> {
+    let mut x = DVector::zeros(rows.cols);
+    y.iter()
+        .zip(flagged)
+        .enumerate()
+        .map(|(i, (&v, &skip))| {
+            if skip {
+                0.0
+            } else {
+                rows.row(i, x.as_mut_slice());
+                v - x.dot(&f.beta)
+            }
+        })
+        .collect()
 }
 
 /// The innovations' variance as the generic fit made by generalised least squares under
@@ -166,46 +297,51 @@ fn ols_residuals(x: &DMatrix<f64>, y: &[f64], flagged: &[bool]) -> DVector<f64> 
 /// it is unbiased for it. (Rescaling the innovations like the marginal level,
 /// [`NoiseModel::rescaled`], would not be: a slowly varying regressor takes a share
 /// (1+ρ)/(1−ρ) of the marginal variance for AR(1) noise, but only one whitened degree of
-/// freedom; for AR(1) ρ = 0.5 the χ²/dof would sit 0.5 % low.)
+/// freedom; for AR(1) ρ = 0.5 the χ²/dof would sit 0.5 % low.) Two streamed passes: the
+/// fit, then its whitened residuals' halves. Also the whitened rows kept.
 fn whitened_level(
     m: &NoiseModel,
-    x: DMatrix<f64>,
-    y: &DVector<f64>,
+    rows: &DesignRows,
+    y: &[f64],
     flagged: &[bool],
-) -> Result<(f64, Halves), ChannelNoiseError> {
-    let keep = whiten_keep(m, flagged);
-    let rows = keep.iter().filter(|&&k| k).count();
-    // Whitened in place: the design is not needed after.
-    let mut xw = x;
-    for mut c in xw.column_iter_mut() {
-        super::model::whiten(m, c.as_mut_slice(), &keep);
-    }
-    let mut yw = y.clone();
-    super::model::whiten(m, yw.as_mut_slice(), &keep);
-    let q = xw.ncols();
-    if rows <= q + 10 {
+) -> Result<(f64, Halves, usize), ChannelNoiseError> {
+    let q = rows.cols;
+    let value = |i: usize| y.get(i).copied().unwrap_or(0.0);
+    let (full, kept) = rows.whitened_triangle(m, value, flagged);
+    if kept <= q + 10 {
         return Err(ChannelNoiseError::TooFewRows);
     }
-    let qr = xw.qr();
-    let qm = qr.q();
-    let e = &yw - &qm * (qm.transpose() * &yw);
-    let level = e.norm_squared() / (rows - q) as f64;
+    let r = full.view((0, 0), (q, q)).into_owned();
+    let qty = full.view((0, q), (q, 1)).into_owned();
+    let rss = full.get((q, q)).map_or(0.0, |v| v * v);
+    let level = rss / (kept - q) as f64;
+    let beta = r
+        .solve_upper_triangular(&qty)
+        .ok_or(ChannelNoiseError::Zero)?;
     // The kept rows' whitened residuals, first half against second.
-    let kept_e: Vec<f64> = e
-        .iter()
-        .zip(&keep)
-        .filter(|(_, k)| **k)
-        .map(|(v, _)| *v)
-        .collect();
-    let (a, b) = kept_e.split_at(kept_e.len() / 2);
-    let mean_square = |x: &[f64]| x.iter().map(|v| v * v).sum::<f64>() / x.len().max(1) as f64;
+    let half = kept / 2;
+    let mut whitener = Whitener::new(m, q + 1);
+    let (mut raw, mut out) = (vec![0.0; q + 1], vec![0.0; q + 1]);
+    let (mut sums, mut seen) = ([0.0; 2], 0usize);
+    for (i, &f) in flagged.iter().enumerate() {
+        rows.augmented(i, value(i), f, &mut raw);
+        if whitener.push(&raw, f, &mut out) {
+            let fitted: f64 = out.iter().zip(beta.iter()).map(|(x, b)| x * b).sum();
+            let e = out.last().copied().unwrap_or(0.0) - fitted;
+            if let Some(s) = sums.get_mut(usize::from(seen >= half)) {
+                *s += e * e;
+            }
+            seen += 1;
+        }
+    }
+    let n = [half, kept - half];
     let halves = Halves {
-        first: mean_square(a),
-        second: mean_square(b),
-        n: [a.len(), b.len()],
+        first: sums[0] / n[0].max(1) as f64,
+        second: sums[1] / n[1].max(1) as f64,
+        n,
     };
     if level.is_finite() && level > 0.0 {
-        Ok((level, halves))
+        Ok((level, halves, kept))
     } else {
         Err(ChannelNoiseError::Zero)
     }
@@ -247,13 +383,30 @@ fn model_of(
     flagged: &[bool],
     extras: &[Extra],
 ) -> Result<(NoiseModel, usize, usize, Halves), ChannelNoiseError> {
-    let x = design(tau, omega, temp, flagged, extras);
-    let yv = masked(y, flagged);
-    let e = ols_residuals(&x, y, flagged);
-    let m = NoiseModel::estimate(e.as_slice(), flagged).and_then(|m| m.rescaled(&x))?;
-    let q = x.ncols();
-    let (factor, halves) = whitened_level(&m, x, &yv, flagged)?;
-    let kept = whiten_keep(&m, flagged).iter().filter(|&&k| k).count();
+    let rows = DesignRows::new(tau, omega, temp, extras);
+    let q = rows.cols;
+    let fit = ols(&rows, y, flagged).ok_or(NoiseError::Singular)?;
+    let m = NoiseModel::estimate(&ols_residuals(&rows, &fit, y, flagged), flagged)?;
+    let m = match m.rescaled_white(q) {
+        Some(white) => white?,
+        // A correlated model's rescaling needs the regressors themselves, row by row.
+        None => {
+            let inv = fit
+                .r
+                .clone()
+                .try_inverse()
+                .map(|ri| &ri * ri.transpose())
+                .ok_or(NoiseError::Singular)?;
+            m.rescaled_rows(
+                &Masked {
+                    rows: &rows,
+                    flagged,
+                },
+                &inv,
+            )?
+        }
+    };
+    let (factor, halves, kept) = whitened_level(&m, &rows, y, flagged)?;
     // The halves' levels as one reading's marginal sd would be under the model.
     let halves = Halves {
         first: halves.first * m.var,
@@ -283,8 +436,12 @@ pub fn estimate(data: &Data) -> Result<(Vec<[NoiseModel; 3]>, Generic), NoiseEst
         tests.push(Channel::ALL.map(|ch| {
             let y = ch.of(&g.y);
             let flagged = noise::clipped(y);
-            let e = ols_residuals(&design(&g.tau, g.omega(), temp, &flagged, &[]), y, &flagged);
-            structure::harmonics(e.as_slice(), sample_interval(&g.tau), g.rate_hz)
+            let rows = DesignRows::new(&g.tau, g.omega(), temp, &[]);
+            // A singular generic fit has no residuals to scan (its noise model reports it).
+            ols(&rows, y, &flagged).map_or_else(Vec::new, |fit| {
+                let e = ols_residuals(&rows, &fit, y, &flagged);
+                structure::harmonics(&e, sample_interval(&g.tau), g.rate_hz)
+            })
         }));
     }
     let count = tests.iter().flatten().map(Vec::len).sum::<usize>().max(1) as f64;
@@ -316,13 +473,11 @@ pub fn estimate(data: &Data) -> Result<(Vec<[NoiseModel; 3]>, Generic), NoiseEst
             }
             let y = channel.of(&g.y);
             let flagged = noise::clipped(y);
-            let x = design(&g.tau, g.omega(), temp, &flagged, extras);
-            let e = ols_residuals(&x, y, &flagged);
-            let basis = x.qr().q();
-            let found = structure::step(e.as_slice(), &basis);
-            // Each of these is rows × coefficients: not held through the fits below.
-            drop(basis);
-            drop(e);
+            let found = step_scan(
+                DesignRows::new(&g.tau, g.omega(), temp, extras),
+                y,
+                &flagged,
+            );
             if let Some(s) = found {
                 let p = (s.p_single * channels).min(1.0);
                 if p < super::ALPHA {
@@ -330,9 +485,9 @@ pub fn estimate(data: &Data) -> Result<(Vec<[NoiseModel; 3]>, Generic), NoiseEst
                     // Its height refitted with the step in the design: the scan's own
                     // reading (Frisch–Waugh) is the same value to rounding, but under slow
                     // noise it moved the proofs' witness sessions beyond their tolerance.
-                    let x = design(&g.tau, g.omega(), temp, &flagged, extras);
-                    let size = ols_coefficients(&x, y, &flagged)
-                        .and_then(|b| b.iter().next_back().copied())
+                    let rows = DesignRows::new(&g.tau, g.omega(), temp, extras);
+                    let size = ols(&rows, y, &flagged)
+                        .and_then(|f| f.beta.iter().next_back().copied())
                         .unwrap_or(s.size);
                     generic.structure.push(Structure {
                         at,
@@ -382,6 +537,22 @@ pub fn estimate(data: &Data) -> Result<(Vec<[NoiseModel; 3]>, Generic), NoiseEst
         generic.extras.push(extras);
     }
     Ok((models, generic))
+}
+
+/// The step scan ([`structure::step_by`]) of the generic fit's residuals, its orthonormal
+/// basis rows made from the design's rows and R (q_t = R⁻ᵀx_t) as the scan asks for them.
+fn step_scan(rows: DesignRows, y: &[f64], flagged: &[bool]) -> Option<structure::StepTest> {
+    let fit = ols(&rows, y, flagged)?;
+    let e = ols_residuals(&rows, &fit, y, flagged);
+    let rt = fit.r.transpose();
+    structure::step_by(&e, rows.cols, |t, row| {
+        if flagged.get(t).copied().unwrap_or(true) {
+            row.fill(0.0);
+        } else {
+            rows.row(t, row.as_mut_slice());
+            rt.solve_lower_triangular_mut(row);
+        }
+    })
 }
 
 /// The mean interval between a group's rows, s.
@@ -444,13 +615,17 @@ pub(super) fn chi2_on_generic_rows(
     g: &GroupData,
     ch: Channel,
     m: &NoiseModel,
-    residual: &[f64],
+    mut residual: Vec<f64>,
 ) -> f64 {
     let flagged = noise::clipped(ch.of(&g.y).as_slice());
     let keep = whiten_keep(m, &flagged);
-    let mut r = masked(residual, &flagged);
-    super::model::whiten(m, r.as_mut_slice(), &keep);
-    r.norm_squared()
+    for (r, f) in residual.iter_mut().zip(&flagged) {
+        if *f {
+            *r = 0.0;
+        }
+    }
+    super::model::whiten(m, &mut residual, &keep);
+    residual.iter().map(|v| v * v).sum()
 }
 
 /// One part of the generic fit, measured in a physical model's residuals.
@@ -471,7 +646,8 @@ pub struct Component {
     /// Their covariance under the noise model.
     pub cov: DMatrix<f64>,
     /// Per coefficient, its weights on the group's channel's residuals (Σ weight × residual
-    /// is the coefficient): for the slow terms' share of its variance.
+    /// is the coefficient): for the slow terms' share of its variance (empty unless asked
+    /// for).
     pub weights: Vec<Vec<f64>>,
 }
 
@@ -506,41 +682,133 @@ fn whiten_transpose(m: &NoiseModel, v: &[f64], keep: &[bool]) -> Vec<f64> {
 /// first harmonic, which the physical model fits freely: so each part's coefficient is the
 /// same linear form of the readings as of the residuals, and its weights (for the slow
 /// terms' share of its variance) are exact. The constant and the first harmonic are not
-/// parts: their residual coefficients are zero.
+/// parts: their residual coefficients are zero. The weights (rows × coefficients) are made
+/// only `with_weights`; the rest is streamed from the rows.
 pub(super) fn components(
     g: &GroupData,
     ch: Channel,
     extras: &[Extra],
     m: &NoiseModel,
     residual: &[f64],
+    with_weights: bool,
 ) -> Vec<Component> {
     let flagged = noise::clipped(ch.of(&g.y).as_slice());
     let temp = varying_temperature(g);
-    let x = design(&g.tau, g.omega(), temp, &flagged, extras);
-    let keep = whiten_keep(m, &flagged);
-    let mut xw = x.clone();
-    for mut c in xw.column_iter_mut() {
-        super::model::whiten(m, c.as_mut_slice(), &keep);
-    }
-    // The local span (constant, sin ωτ, cos ωτ: columns 0, 2, 3) projected out of the rest.
+    let rows = DesignRows::new(&g.tau, g.omega(), temp, extras);
+    let q = rows.cols;
+    let value = |i: usize| residual.get(i).copied().unwrap_or(0.0);
+    let (t, _) = rows.whitened_triangle(m, value, &flagged);
+    // [XᵀX  Xᵀy] of the whitened rows.
+    let gram = t.tr_mul(&t);
+    // The local span (constant, sin ωτ, cos ωτ: columns 0, 2, 3) projected out of the rest:
+    // X̃_O = X_O − X_L·P with P = G_LL⁻¹G_LO, so X̃ᵀX̃ is block diagonal with G_LL and the
+    // Schur complement G_OO − G_OL·P, and X̃ᵀy has y's L part and g_O − Pᵀg_L.
     let local = [0usize, 2, 3];
-    let s = xw.select_columns(local.iter());
-    let q = s.clone().qr().q();
-    for (j, mut c) in xw.column_iter_mut().enumerate() {
-        if !local.contains(&j) {
-            let proj = &q * (q.transpose() * &c);
-            c -= proj;
-        }
-    }
-    let mut yw = masked(residual, &flagged);
-    super::model::whiten(m, yw.as_mut_slice(), &keep);
-    let Some(cov) = (xw.transpose() * &xw).try_inverse() else {
+    let others: Vec<usize> = (0..q).filter(|j| !local.contains(j)).collect();
+    let block = |r: &[usize], c: &[usize]| gram.select_rows(r.iter()).select_columns(c.iter());
+    let Some(ll_inv) = block(&local, &local).try_inverse() else {
         return Vec::new();
     };
-    let beta = &cov * (xw.transpose() * yw);
-    // Each coefficient's weights on the whitened rows are the rows of cov·Xwᵀ.
-    let hat = &xw * &cov;
-    // Each part's columns and how its size is read.
+    let proj = &ll_inv * block(&local, &others);
+    let schur = block(&others, &others) - block(&others, &local) * &proj;
+    let Some(oo_inv) = schur.try_inverse() else {
+        return Vec::new();
+    };
+    let gy = |r: &[usize]| block(r, &[q]);
+    let beta_l = &ll_inv * gy(&local);
+    let beta_o = &oo_inv * (gy(&others) - proj.tr_mul(&gy(&local)));
+    // In the design's column order.
+    let mut cov = DMatrix::zeros(q, q);
+    let mut beta = DVector::zeros(q);
+    for (idx, inv, b) in [
+        (&local[..], &ll_inv, &beta_l),
+        (&others[..], &oo_inv, &beta_o),
+    ] {
+        for (a, &i) in idx.iter().enumerate() {
+            if let (Some(x), Some(v)) = (beta.get_mut(i), b.get(a)) {
+                *x = *v;
+            }
+            for (c, &j) in idx.iter().enumerate() {
+                if let (Some(x), Some(v)) = (cov.get_mut((i, j)), inv.get((a, c))) {
+                    *x = *v;
+                }
+            }
+        }
+    }
+    let parts = component_parts(g, temp.is_some(), extras);
+    // Each coefficient's weights on the whitened rows are the rows of X̃·cov: a second pass
+    // over the rows, only where they are asked for (the slow terms' share).
+    let hat = with_weights.then(|| {
+        let wanted: Vec<usize> = parts.iter().flat_map(|(_, c, _)| c.clone()).collect();
+        let mut cols: Vec<Vec<f64>> = vec![Vec::with_capacity(flagged.len()); wanted.len()];
+        let mut whitener = Whitener::new(m, q + 1);
+        let (mut raw, mut out) = (vec![0.0; q + 1], vec![0.0; q + 1]);
+        let mut x = DVector::zeros(q);
+        for (i, &f) in flagged.iter().enumerate() {
+            rows.augmented(i, value(i), f, &mut raw);
+            let kept = whitener.push(&raw, f, &mut out);
+            if kept {
+                for (v, o) in x.iter_mut().zip(&out) {
+                    *v = *o;
+                }
+                let xl = x.select_rows(local.iter());
+                let moved = proj.tr_mul(&xl);
+                for (&j, d) in others.iter().zip(moved.iter()) {
+                    if let Some(v) = x.get_mut(j) {
+                        *v -= d;
+                    }
+                }
+            }
+            for (col, &c) in cols.iter_mut().zip(&wanted) {
+                col.push(if kept { x.dot(&cov.column(c)) } else { 0.0 });
+            }
+        }
+        let keep = whiten_keep(m, &flagged);
+        wanted
+            .into_iter()
+            .zip(cols)
+            .map(|(c, col)| (c, whiten_transpose(m, &col, &keep)))
+            .collect::<Vec<_>>()
+    });
+    parts
+        .into_iter()
+        .filter_map(|(what, cols, extra)| {
+            let b = DVector::from_iterator(
+                cols.len(),
+                cols.iter().filter_map(|&c| beta.get(c).copied()),
+            );
+            let c = cov.select_rows(cols.iter()).select_columns(cols.iter());
+            let c_keep = c.clone();
+            let chi2 = c.try_inverse().map(|ci| (b.transpose() * ci * &b).sum())?;
+            // A pair's amplitude; one coefficient's value (the trend's regressor is τ/span,
+            // so its coefficient is the change over the group; the temperature's, per °C).
+            let size = if cols.len() == 2 { b.norm() } else { b.sum() };
+            let weights = hat.as_ref().map_or_else(Vec::new, |hat| {
+                cols.iter()
+                    .filter_map(|c| hat.iter().find(|(j, _)| j == c).map(|(_, w)| w.clone()))
+                    .collect()
+            });
+            Some(Component {
+                what,
+                size,
+                chi2,
+                k: cols.len(),
+                extra,
+                values: b.iter().copied().collect(),
+                cov: c_keep,
+                weights,
+            })
+        })
+        .collect()
+}
+
+/// The generic fit's parts: what each is, its columns in the design, and the scan's
+/// regressor it is, if one.
+fn component_parts(
+    g: &GroupData,
+    with_temp: bool,
+    extras: &[Extra],
+) -> Vec<(String, Vec<usize>, Option<Extra>)> {
     let mut parts: Vec<(String, Vec<usize>, Option<Extra>)> = vec![("trend".into(), vec![1], None)];
     for k in 2..=HARMONICS {
         let c = 2 * k;
@@ -557,7 +825,7 @@ pub(super) fn components(
         None,
     ));
     next += 2;
-    if temp.is_some() {
+    if with_temp {
         parts.push(("temperature".into(), vec![next], None));
         next += 1;
     }
@@ -583,37 +851,6 @@ pub(super) fn components(
         }
     }
     parts
-        .into_iter()
-        .filter_map(|(what, cols, extra)| {
-            let b = DVector::from_iterator(
-                cols.len(),
-                cols.iter().filter_map(|&c| beta.get(c).copied()),
-            );
-            let c = cov.select_rows(cols.iter()).select_columns(cols.iter());
-            let c_keep = c.clone();
-            let chi2 = c.try_inverse().map(|ci| (b.transpose() * ci * &b).sum())?;
-            // A pair's amplitude; one coefficient's value (the trend's regressor is τ/span,
-            // so its coefficient is the change over the group; the temperature's, per °C).
-            let size = if cols.len() == 2 { b.norm() } else { b.sum() };
-            let weights = cols
-                .iter()
-                .map(|&c| {
-                    let col: Vec<f64> = hat.column(c).iter().copied().collect();
-                    whiten_transpose(m, &col, &keep)
-                })
-                .collect();
-            Some(Component {
-                what,
-                size,
-                chi2,
-                k: cols.len(),
-                extra,
-                values: b.iter().copied().collect(),
-                cov: c_keep,
-                weights,
-            })
-        })
-        .collect()
 }
 
 #[cfg(test)]

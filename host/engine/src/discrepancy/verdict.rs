@@ -105,6 +105,38 @@ fn slow_p(
     Some((p, (test.f * c.k as f64).sqrt()))
 }
 
+/// A part's p-value and z: its χ² under the AR model, or with `levels` the slow terms in
+/// its covariance (a scanned step's maximum read again with the scan's own multiplicity);
+/// `None` where it cannot be tested.
+fn part_p(
+    data: &Data,
+    levels: Option<&SlowLevels>,
+    (gi, ch, at): (usize, Channel, Place),
+    c: &noise::Component,
+) -> Option<(f64, f64)> {
+    // A scanned step's decorrelation, as its scan measured it at `at`.
+    let lambda_at = |at: Place| {
+        data.generic.structure.iter().find_map(|s| match s.what {
+            Kind::Step { lambda, .. } if s.at == at => Some(lambda),
+            _ => None,
+        })
+    };
+    match levels {
+        Some(l) => match slow_p(data, l, (gi, ch), c)? {
+            (_, z) if c.extra.is_some() => {
+                lambda_at(at).map(|lambda| (structure::scan_max_p(z, lambda), z))
+            }
+            pz => Some(pz),
+        },
+        None => Some((
+            ChiSquared::new(c.k as f64)
+                .map(|d| d.sf(c.chi2))
+                .unwrap_or(1.0),
+            c.chi2.sqrt(),
+        )),
+    }
+}
+
 /// The verdict on `last`, the final model, at significance `alpha` for each of its two
 /// parts (the scan's structure and the lack of fit); with `levels` (`--slow-noise`), the
 /// parts of the generic fit in its residuals and the scan's steps are tested with the slow
@@ -112,10 +144,11 @@ fn slow_p(
 pub fn judge(data: &Data, last: &Fit, alpha: f64, levels: Option<&SlowLevels>) -> Verdict {
     let k = data.generic.coefficients.saturating_sub(last.n_params);
     let mut chi2 = 0.0;
-    for (gi, (g, residuals)) in data.groups.iter().zip(&last.residuals).enumerate() {
+    for (gi, g) in data.groups.iter().enumerate() {
         for ch in Channel::ALL {
             if let Some(m) = data.noise.get(gi) {
-                chi2 += noise::chi2_on_generic_rows(g, ch, ch.of(m), ch.of(residuals).as_slice());
+                let r = last.residuals(data, gi, ch);
+                chi2 += noise::chi2_on_generic_rows(g, ch, ch.of(m), r);
             }
         }
     }
@@ -166,7 +199,7 @@ pub fn judge(data: &Data, last: &Fit, alpha: f64, levels: Option<&SlowLevels>) -
         .collect();
     if misfit || levels.is_some() {
         let mut parts = Vec::new();
-        for (gi, (g, residuals)) in data.groups.iter().zip(&last.residuals).enumerate() {
+        for (gi, g) in data.groups.iter().enumerate() {
             for ch in Channel::ALL {
                 let (Some(m), Some(extras)) = (data.noise.get(gi), data.generic.extras.get(gi))
                 else {
@@ -183,46 +216,27 @@ pub fn judge(data: &Data, last: &Fit, alpha: f64, levels: Option<&SlowLevels>) -
                     ch,
                     ch.of(extras).as_slice(),
                     ch.of(m),
-                    ch.of(residuals).as_slice(),
+                    &last.residuals(data, gi, ch),
+                    levels.is_some(),
                 );
-                for c in found {
+                for mut c in found {
                     // The scan's harmonics stand on their own test; its steps are judged
                     // here only under slow noise.
                     let step = matches!(c.extra, Some(noise::Extra::Step(_)));
                     if c.extra.is_none() || (levels.is_some() && step) {
-                        parts.push((at, c, sd, gi, ch));
+                        // Tested now, so that no part holds its weights (rows each) longer.
+                        let Some((p, z)) = part_p(data, levels, (gi, ch, at), &c) else {
+                            continue;
+                        };
+                        c.weights = Vec::new();
+                        parts.push((at, c, sd, p, z));
                     }
                 }
             }
         }
         let tests = parts.iter().filter(|p| p.1.extra.is_none()).count().max(1) as f64;
         let channels = (3 * data.groups.len()).max(1) as f64;
-        // A scanned step's decorrelation, as its scan measured it at `at`.
-        let lambda_at = |at: Place| {
-            data.generic.structure.iter().find_map(|s| match s.what {
-                Kind::Step { lambda, .. } if s.at == at => Some(lambda),
-                _ => None,
-            })
-        };
-        for (at, c, sd, gi, ch) in parts {
-            let (p, z) = match levels {
-                Some(l) => match slow_p(data, l, (gi, ch), &c) {
-                    // The maximum of the scan, read again under slow noise with the scan's
-                    // own multiplicity.
-                    Some((_, z)) if c.extra.is_some() => match lambda_at(at) {
-                        Some(lambda) => (structure::scan_max_p(z, lambda), z),
-                        None => continue,
-                    },
-                    Some(pz) => pz,
-                    None => continue,
-                },
-                None => (
-                    ChiSquared::new(c.k as f64)
-                        .map(|d| d.sf(c.chi2))
-                        .unwrap_or(1.0),
-                    c.chi2.sqrt(),
-                ),
-            };
+        for (at, c, sd, p, z) in parts {
             let count = if c.extra.is_some() { channels } else { tests };
             if p * count < alpha {
                 unexplained.push(Unexplained {
