@@ -148,6 +148,14 @@ fn effects_outside_the_catalogue_are_unexplained_where_they_are() {
                                 .is_some_and(|(at, what, _)| o.effect.located(at, what))
                     })
                     .count();
+                if let Some(o) = chunk.first() {
+                    println!(
+                        "{:?} in {:?}: unexplained at its place in {located} of {}",
+                        o.effect,
+                        o.noise,
+                        chunk.len()
+                    );
+                }
                 // At least 90 %: 18 of 20.
                 if located * 10 < SEEDS * 9 {
                     let o = &chunk[0];
@@ -172,6 +180,11 @@ fn effects_outside_the_catalogue_are_unexplained_where_they_are() {
                 .iter()
                 .filter(|o| !o.moved_beyond_u.is_empty())
                 .collect();
+            println!(
+                "a property moved beyond U by a named effect in {} of {} sessions",
+                moved.len(),
+                runs.len()
+            );
             // At least 95 % of sessions with no property moved beyond U.
             if moved.len() * 20 > runs.len() {
                 failures.push(format!(
