@@ -6,6 +6,7 @@ use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::channel::Channel;
 use heapless::Vec;
 use rotacal_sensor::Chip;
+use rotacal_shared::device::route::{RESULTS_QUEUE, STREAM_QUEUE};
 use rotacal_shared::packet::{Command, SensorStatus};
 
 /// Into the logic task.
@@ -36,9 +37,9 @@ pub type Encoded = Vec<u8, 244>;
 /// Sensor and BLE → logic.
 pub static EVENTS: Channel<CriticalSectionRawMutex, Event, 32> = Channel::new();
 /// Logic → BLE: packets for the stream characteristic.
-pub static STREAM: Channel<CriticalSectionRawMutex, Encoded, 12> = Channel::new();
+pub static STREAM: Channel<CriticalSectionRawMutex, Encoded, STREAM_QUEUE> = Channel::new();
 /// Logic → BLE: packets for the fit-results characteristic.
-pub static RESULTS: Channel<CriticalSectionRawMutex, Encoded, 6> = Channel::new();
+pub static RESULTS: Channel<CriticalSectionRawMutex, Encoded, RESULTS_QUEUE> = Channel::new();
 
 static OVERFLOWS: AtomicU32 = AtomicU32::new(0);
 

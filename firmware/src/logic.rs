@@ -7,6 +7,7 @@ use defmt::{info, warn};
 use embassy_nrf::gpio::Output;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::signal::Signal;
+use rotacal_shared::device::route::{Characteristic, Room};
 use rotacal_shared::device::{Config, Device, RING};
 use rotacal_shared::packet::{Packet, RunState};
 
@@ -28,20 +29,34 @@ fn encode(p: &Packet) -> Option<Encoded> {
     Encoded::from_slice(buf.get(..n)?).ok()
 }
 
-/// Samples and temperatures to the stream characteristic; fits, the quick-look and
-/// status to the fit-results one. A full queue drops the packet: samples can be fetched
-/// again from the ring (Backfill), and the next status repeats the state.
+/// Each packet to its characteristic's queue, as rotacal-shared routes it
+/// ([`Characteristic::of`]). A full queue drops a live packet: samples can be fetched
+/// again from the ring (Backfill). Replays and status replies are never offered beyond
+/// the room ([`Device::pump`]).
 fn route(p: Packet) {
     let Some(v) = encode(&p) else {
         warn!("cannot encode {}", p);
         return;
     };
-    let sent = match p {
-        Packet::Samples(_) | Packet::Temperature(_) => STREAM.try_send(v).is_ok(),
-        _ => RESULTS.try_send(v).is_ok(),
+    let sent = match Characteristic::of(&p) {
+        Some(Characteristic::Stream) => STREAM.try_send(v).is_ok(),
+        Some(Characteristic::Results) => RESULTS.try_send(v).is_ok(),
+        Some(Characteristic::Info) => {
+            INFO.signal(v);
+            true
+        }
+        None => true,
     };
     if !sent {
         warn!("BLE queue full: packet dropped");
+    }
+}
+
+/// The queues' free places, for [`Device::pump`].
+fn room() -> Room {
+    Room {
+        stream: STREAM.free_capacity(),
+        results: RESULTS.free_capacity(),
     }
 }
 
@@ -84,7 +99,7 @@ pub async fn logic_task(dev: &'static mut Device<RING>, mut led: Output<'static>
             Event::Command(c) => {
                 info!("command {}", c);
                 let before = dev.status().state;
-                dev.on_command(c, &mut out);
+                dev.command(c, &mut out);
                 let now = dev.status().state;
                 if now == RunState::Complete && before != RunState::Complete {
                     if let Some(q) = dev.quick_look() {
@@ -100,5 +115,8 @@ pub async fn logic_task(dev: &'static mut Device<RING>, mut led: Output<'static>
             }
             Event::Poll(now) => dev.poll(u64::from(now), &mut out),
         }
+        // A backfill and a status reply go as the BLE side drains the queues: every event
+        // (a conversion at 104 Hz, a poll every 100 ms) offers them the free places.
+        dev.pump(room(), &mut out);
     }
 }

@@ -373,6 +373,82 @@ fn backfill_resends_from_the_ring() {
     assert_eq!(n, 10);
 }
 
+/// A backfill goes out as the link has room: never more packets than the room given, the
+/// same batches as all at once, and the status reply only after the last of them (and only
+/// when the results queue has a place).
+#[test]
+fn a_backfill_is_paced_by_the_room_and_its_status_comes_last() {
+    use rotacal_shared::device::route::{Characteristic, Room, RESULTS_QUEUE, STREAM_QUEUE};
+    let (_, dev) = run_paper();
+    let cmd = Command::Backfill {
+        from_seq: STREAMED - 300,
+        count: 300,
+    };
+    let mut all_at_once = Vec::new();
+    dev.clone().on_command(cmd, &mut |x| all_at_once.push(x));
+    let mut dev = dev;
+    let mut paced = Vec::new();
+    dev.command(cmd, &mut |x| paced.push(x));
+    assert!(paced.is_empty());
+    let mut pumps = 0;
+    loop {
+        pumps += 1;
+        assert!(pumps < 1000, "the replay never ends");
+        let mut now = Vec::new();
+        // Two places a time, and none in the results queue for the first ten pumps.
+        let room = Room {
+            stream: 2,
+            results: usize::from(pumps > 10),
+        };
+        let done = dev.pump(room, &mut |x| now.push(x));
+        let stream = now
+            .iter()
+            .filter(|p| Characteristic::of(p) == Some(Characteristic::Stream))
+            .count();
+        assert!(stream <= 2, "{stream} packets for 2 places");
+        paced.extend(now);
+        if done {
+            break;
+        }
+    }
+    assert_eq!(paced, all_at_once);
+    assert!(matches!(paced.last(), Some(Packet::Status(_))));
+    assert_eq!(
+        paced
+            .iter()
+            .filter(|p| matches!(p, Packet::Status(_)))
+            .count(),
+        1
+    );
+    // 300 samples in batches of 7: more batches than the firmware's stream queue holds.
+    assert!(
+        paced.len() > STREAM_QUEUE + RESULTS_QUEUE,
+        "{}",
+        paced.len()
+    );
+    assert!(dev.pump(Room::UNLIMITED, &mut |_| panic!("nothing is owed")));
+}
+
+/// The firmware's routing: batches of either version and temperatures to the stream
+/// characteristic, fits, the quick-look and status to the results one.
+#[test]
+fn packets_go_to_the_firmwares_characteristics() {
+    use rotacal_shared::device::route::Characteristic;
+    let (p, _) = run_paper();
+    for x in &p {
+        let want = match x {
+            Packet::Samples(_) | Packet::Averages(_) | Packet::Temperature(_) => {
+                Characteristic::Stream
+            }
+            Packet::Info(_) => Characteristic::Info,
+            _ => Characteristic::Results,
+        };
+        assert_eq!(Characteristic::of(x), Some(want), "{x:?}");
+    }
+    assert!(p.iter().any(|x| matches!(x, Packet::Averages(_))));
+    assert_eq!(Characteristic::of(&Packet::Command(Command::Stop)), None);
+}
+
 #[test]
 fn a_part_filled_batch_waits_at_most_max_batch_age() {
     let mut dev = Device::<RING>::new(Config::FEATHER);

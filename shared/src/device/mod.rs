@@ -10,6 +10,7 @@
 
 pub mod packetiser;
 pub mod ring;
+pub mod route;
 pub mod sampler;
 pub mod session;
 pub mod simulated;
@@ -20,7 +21,8 @@ use crate::packet::{
 };
 use crate::time::TickRate;
 use packetiser::Packetiser;
-use ring::Ring;
+use ring::{Replay, Ring};
+use route::Room;
 use sampler::{Sampler, StreamSample};
 use session::Session;
 
@@ -80,6 +82,10 @@ pub struct Device<const RING: usize> {
     lost: u32,
     last_error: Option<CommandError>,
     latest: Option<StreamSample>,
+    /// A backfill still being sent ([`Device::pump`]).
+    replay: Option<Replay>,
+    /// A command's status reply is owed: it goes once any replay is sent.
+    reply_owed: bool,
 }
 
 impl<const RING: usize> Device<RING> {
@@ -95,6 +101,8 @@ impl<const RING: usize> Device<RING> {
             lost: 0,
             last_error: None,
             latest: None,
+            replay: None,
+            reply_owed: false,
         }
     }
 
@@ -195,8 +203,35 @@ impl<const RING: usize> Device<RING> {
         self.live.flush_if_older(now, self.cfg.max_batch_age, out);
     }
 
-    /// A command from the host. Refusals set `last_error` and are reported in a status.
+    /// A command from the host, with its replay and its status reply sent at once (a link
+    /// without queues; the firmware uses [`Device::command`] and [`Device::pump`]).
     pub fn on_command(&mut self, cmd: Command, out: &mut impl FnMut(Packet)) {
+        self.command(cmd, out);
+        self.pump(Room::UNLIMITED, out);
+    }
+
+    /// Send what is owed, as the link has room: a backfill's batches, then the status reply
+    /// to the last command (after the batches it answers for, so the host has them when
+    /// it reads the reply). Call after every event, with the queues' free places. True when
+    /// nothing is owed any more.
+    pub fn pump(&mut self, room: Room, out: &mut impl FnMut(Packet)) -> bool {
+        if let Some(r) = &mut self.replay {
+            if r.send(&self.ring, room.stream, out) {
+                self.replay = None;
+            }
+        }
+        if self.replay.is_none() && self.reply_owed && room.results > 0 {
+            self.reply_owed = false;
+            out(Packet::Status(self.status()));
+        }
+        self.replay.is_none() && !self.reply_owed
+    }
+
+    /// A command from the host: it acts at once (a Stop's last batch and final fit go out
+    /// through `out`); a backfill's replay and the status reply are owed, for
+    /// [`Device::pump`]. Refusals set `last_error` and are reported in the status. A
+    /// backfill replaces one still being sent (the host asks again when a reply is late).
+    pub fn command(&mut self, cmd: Command, out: &mut impl FnMut(Packet)) {
         let result = match cmd {
             Command::Start {
                 condition,
@@ -228,9 +263,13 @@ impl<const RING: usize> Device<RING> {
                 self.lost = 0;
                 Ok(())
             }
-            Command::Backfill { from_seq, count } => self.ring.replay(from_seq, count, out),
+            Command::Backfill { from_seq, count } => {
+                let (replay, result) = self.ring.replay(from_seq, count);
+                self.replay = Some(replay);
+                result
+            }
         };
         self.last_error = result.err();
-        out(Packet::Status(self.status()));
+        self.reply_owed = true;
     }
 }

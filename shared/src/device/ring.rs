@@ -64,28 +64,65 @@ impl<const N: usize> Ring<N> {
         (first, last)
     }
 
-    /// Send samples `from_seq ..` (at most `count`) again as replay batches. Refused with
-    /// `NotInRing` when the first wanted sample has left the ring (what is still held is
-    /// sent all the same).
-    pub fn replay(
-        &self,
-        from_seq: u32,
-        count: u16,
+    /// A replay of samples `from_seq ..` (at most `count`), sent by [`Replay::send`] as the
+    /// link has room; and whether the ring still holds the first wanted sample (refused
+    /// with `NotInRing` if not; what is still held is sent all the same).
+    pub fn replay(&self, from_seq: u32, count: u16) -> (Replay, Result<(), CommandError>) {
+        let replay = Replay {
+            next: from_seq,
+            end: from_seq.wrapping_add(u32::from(count)),
+            batches: Packetiser::new(true),
+        };
+        let held = self.iter().any(|e| e.sample.seq == from_seq);
+        let result = if held || count == 0 {
+            Ok(())
+        } else {
+            Err(CommandError::NotInRing)
+        };
+        (replay, result)
+    }
+}
+
+/// A backfill being sent, batch by batch: the samples still to go are those from `next`
+/// up to `end` that the ring holds when their turn comes.
+#[derive(Clone, Copy, Debug)]
+pub struct Replay {
+    next: u32,
+    end: u32,
+    batches: Packetiser,
+}
+
+impl Replay {
+    /// Send at most `room` packets of the replay; true once it is all sent.
+    pub fn send<const N: usize>(
+        &mut self,
+        ring: &Ring<N>,
+        mut room: usize,
         out: &mut impl FnMut(Packet),
-    ) -> Result<(), CommandError> {
-        let end = from_seq.wrapping_add(u32::from(count));
-        let wanted = |seq: u32| seq.wrapping_sub(from_seq) < end.wrapping_sub(from_seq);
-        let mut p = Packetiser::new(true);
-        let mut first_sent = None;
-        for e in self.iter().filter(|e| wanted(e.sample.seq)) {
-            first_sent.get_or_insert(e.sample.seq);
-            p.push(&e.sample, e.condition, out);
+    ) -> bool {
+        let (start, end) = (self.next, self.end);
+        let wanted = |seq: u32| seq.wrapping_sub(start) < end.wrapping_sub(start);
+        let mut pending = ring.iter().filter(|e| wanted(e.sample.seq));
+        while room > 0 {
+            let mut sent = 0usize;
+            let mut count = |p: Packet| {
+                sent += 1;
+                out(p);
+            };
+            // Each sample closes at most one batch, so this never sends beyond the room.
+            match pending.next() {
+                Some(e) => {
+                    self.batches.push(&e.sample, e.condition, &mut count);
+                    self.next = e.sample.seq.wrapping_add(1);
+                }
+                None => {
+                    self.batches.flush(&mut count);
+                    self.next = self.end;
+                    return true;
+                }
+            }
+            room = room.saturating_sub(sent);
         }
-        p.flush(out);
-        match first_sent {
-            Some(s) if s == from_seq => Ok(()),
-            _ if count == 0 => Ok(()),
-            _ => Err(CommandError::NotInRing),
-        }
+        false
     }
 }
