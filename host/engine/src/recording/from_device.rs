@@ -11,6 +11,7 @@
 //! [`Recorder::missing`] lists and gives up what its ring no longer holds.
 
 use crate::recording::{Columns, Metadata, Row, Writer, TICK_HZ_KEY};
+use rotacal_shared::device::route::Characteristic;
 use rotacal_shared::packet::{FitReport, Packet, QuickLook};
 use rotacal_shared::{Aperture, Condition, Ticks};
 use serde::{Deserialize, Serialize};
@@ -30,16 +31,15 @@ pub enum Channel {
 
 impl Channel {
     /// The characteristic on which the device sends `p` (none for a command, which the
-    /// host writes to the control characteristic).
+    /// host writes to the control characteristic): the firmware's routing
+    /// ([`Characteristic::of`]), so the host's emulated device and the BlueZ stand-in send
+    /// what the board would.
     pub fn of(p: &Packet) -> Option<Channel> {
-        match p {
-            Packet::Samples(_) | Packet::Averages(_) | Packet::Temperature(_) => {
-                Some(Channel::Stream)
-            }
-            Packet::Info(_) => Some(Channel::Info),
-            Packet::Fit(_) | Packet::QuickLook(_) | Packet::Status(_) => Some(Channel::Results),
-            Packet::Command(_) => None,
-        }
+        Characteristic::of(p).map(|c| match c {
+            Characteristic::Stream => Channel::Stream,
+            Characteristic::Results => Channel::Results,
+            Characteristic::Info => Channel::Info,
+        })
     }
 
     /// One letter, for the capture file.

@@ -4,8 +4,13 @@
 //! simulated [`Link`](../../../rotacal/link/trait.Link.html) on tokio's clock, and the
 //! BlueZ stand-in (`host/bluez-standin`) on the wall clock behind D-Bus.
 //!
-//! Faults on demand: link outages (the device keeps sampling; what it sends meanwhile is
-//! lost, as when the firmware's queue finds no connection), dropped notifications (one at
+//! Packets leave through the firmware's own routing and queues (`rotacal_shared::device::
+//! route`): as deep as the board's, drained one notification at a time at the link's pace,
+//! kept while the link is down, and a backfill and its status reply offered only the room
+//! there is ([`Device::pump`]).
+//!
+//! Faults on demand: link outages (the device keeps sampling; what it sends meanwhile waits
+//! in the queues while they have room, and the rest is dropped), dropped notifications (one at
 //! a time or in bursts), garbage notifications, a wrong firmware or protocol version, a
 //! different unit after the first outage, and a device that stops answering commands.
 
@@ -14,6 +19,7 @@ use crate::simulate::device::Conversion;
 use crate::simulate::Simulation;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
+use rotacal_shared::device::route::{Room, RESULTS_QUEUE, STREAM_QUEUE};
 use rotacal_shared::device::{Config, Device, RING};
 use rotacal_shared::packet::{Chip, Command, Packet, RunState};
 use rotacal_shared::Condition;
@@ -69,6 +75,10 @@ const COUNTER_MASK: u64 = 0xFFFF_FFFF;
 /// How often the firmware reads the die temperature, and polls for aged batches.
 const TEMPERATURE_EVERY: Duration = Duration::from_secs(1);
 const POLL_EVERY: Duration = Duration::from_millis(100);
+/// One notification leaves the firmware's queues this often while connected: a 30 ms
+/// connection interval (BlueZ's and Apple's usual) with three notifications an event. The
+/// live stream needs about 2.3 a second; a 20 s backfill (46 batches) about half a second.
+const NOTIFY_EVERY: Duration = Duration::from_millis(10);
 
 /// See the module documentation. Device time runs from the first connection.
 pub struct EmulatedDevice {
@@ -84,6 +94,13 @@ pub struct EmulatedDevice {
     running: Option<(Condition, Duration, usize)>,
     next_temperature: Duration,
     next_poll: Duration,
+    /// The firmware's notification queues (stream, results), as deep as its own
+    /// ([`STREAM_QUEUE`], [`RESULTS_QUEUE`]): kept while the link is down, a packet
+    /// offered to a full one is dropped.
+    queues: [VecDeque<(Channel, Vec<u8>)>; 2],
+    /// When the next notification may leave them.
+    next_notify: Duration,
+    /// Delivered to the host, in order.
     out: VecDeque<(Channel, Vec<u8>)>,
     notifications: u64,
     /// In a burst of lost notifications.
@@ -106,6 +123,8 @@ impl EmulatedDevice {
             running: None,
             next_temperature: Duration::ZERO,
             next_poll: Duration::ZERO,
+            queues: [VecDeque::new(), VecDeque::new()],
+            next_notify: Duration::ZERO,
             out: VecDeque::new(),
             notifications: 0,
             losing: false,
@@ -170,14 +189,63 @@ impl EmulatedDevice {
         }
     }
 
+    /// A packet from the device logic into its characteristic's queue, as the firmware
+    /// routes it (a full queue drops it; the info value is set, not queued).
     fn send(&mut self, p: Packet) {
         let Some(ch) = Channel::of(&p) else {
             return;
         };
-        if !self.connected || (ch == Channel::Stream && self.lost()) {
+        let v = self.encode(&p);
+        let (queue, depth) = match ch {
+            Channel::Stream => (0, STREAM_QUEUE),
+            Channel::Results => (1, RESULTS_QUEUE),
+            Channel::Info => return,
+        };
+        if self.queued() == 0 {
+            self.next_notify = self.next_notify.max(self.now);
+        }
+        if let Some(q) = self.queues.get_mut(queue) {
+            if q.len() < depth {
+                q.push_back((ch, v));
+            }
+        }
+    }
+
+    /// Packets waiting in the queues.
+    fn queued(&self) -> usize {
+        self.queues.iter().map(VecDeque::len).sum()
+    }
+
+    /// The queues' free places.
+    fn room(&self) -> Room {
+        let free = |i: usize, depth: usize| {
+            depth.saturating_sub(self.queues.get(i).map_or(depth, VecDeque::len))
+        };
+        Room {
+            stream: free(0, STREAM_QUEUE),
+            results: free(1, RESULTS_QUEUE),
+        }
+    }
+
+    /// What the device logic owes (a backfill, a status reply), offered the free places.
+    fn pump(&mut self) {
+        let mut packets = Vec::new();
+        self.device.pump(self.room(), &mut |p| packets.push(p));
+        for p in packets {
+            self.send(p);
+        }
+    }
+
+    /// One notification leaves the queues (the stream's first, as the firmware's BLE task
+    /// selects it first); a stream notification may be lost on the air.
+    fn notify(&mut self) {
+        let Some((ch, v)) = self.queues.iter_mut().find_map(VecDeque::pop_front) else {
+            return;
+        };
+        if ch == Channel::Stream && self.lost() {
             return;
         }
-        self.out.push_back((ch, self.encode(&p)));
+        self.out.push_back((ch, v));
         self.notifications += 1;
         if let Some(n) = self.faults.garbage_every {
             if n > 0 && self.notifications % u64::from(n) == 0 {
@@ -204,7 +272,8 @@ impl EmulatedDevice {
                 let x = self.streams.get(c.index())?.get(k)?;
                 Some(start + Duration::from_secs_f64(x.t))
             });
-            let next = [Some(self.next_poll), conv]
+            let notify = (self.connected && self.queued() > 0).then_some(self.next_notify);
+            let next = [Some(self.next_poll), conv, notify]
                 .into_iter()
                 .flatten()
                 .chain(self.running.map(|_| self.next_temperature))
@@ -216,7 +285,12 @@ impl EmulatedDevice {
             self.now = next;
             self.connected &= self.outage_at(next).is_none();
             let mut packets = Vec::new();
-            if conv == Some(next) {
+            if notify == Some(next) {
+                if self.connected {
+                    self.notify();
+                }
+                self.next_notify = next + NOTIFY_EVERY;
+            } else if conv == Some(next) {
                 if let Some((c, start, k)) = self.running {
                     if let Some(x) = self.streams.get(c.index()).and_then(|s| s.get(k)).copied() {
                         self.device
@@ -246,18 +320,21 @@ impl EmulatedDevice {
             for p in packets {
                 self.send(p);
             }
+            self.pump();
         }
         self.now = self.now.max(t);
         self.connected &= self.outage_at(t).is_none();
     }
 
     /// Connect at `t` (after [`advance`](Self::advance) to it): the device-info value, or
-    /// `None` while the device is out of reach. Nothing sent before is delivered.
+    /// `None` while the device is out of reach. What was in flight on the old link is
+    /// gone; what waits in the firmware's queues goes out on the new one.
     pub fn connect(&mut self, t: Duration) -> Option<Vec<u8>> {
         if !self.reachable(t) {
             return None;
         }
         self.connected = true;
+        self.next_notify = self.next_notify.max(t);
         self.out.clear();
         let info = self.device.info(Chip::Lsm6ds33, self.firmware_at(t));
         Some(self.encode(&Packet::Info(info)))
@@ -284,7 +361,7 @@ impl EmulatedDevice {
         };
         let before = self.device.status().state;
         let mut packets = Vec::new();
-        self.device.on_command(cmd, &mut |p| packets.push(p));
+        self.device.command(cmd, &mut |p| packets.push(p));
         let status = self.device.status();
         if let Command::Start { condition, .. } = cmd {
             if status.state != before && status.last_error.is_none() {
@@ -297,6 +374,7 @@ impl EmulatedDevice {
         for p in packets {
             self.send(p);
         }
+        self.pump();
         true
     }
 
