@@ -9,7 +9,7 @@ use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::signal::Signal;
 use rotacal_shared::device::route::{Characteristic, Room};
 use rotacal_shared::device::{Config, Device, RING};
-use rotacal_shared::packet::{Packet, RunState};
+use rotacal_shared::packet::{ClockSource, Packet, RunState};
 
 /// The latest device-info value, for the BLE side to publish.
 pub static INFO: Signal<CriticalSectionRawMutex, Encoded> = Signal::new();
@@ -61,9 +61,14 @@ fn room() -> Room {
 }
 
 /// The device's state, 12 KiB with its ring: a static of its own rather than part of
-/// the task's future, which lives in the executor's small arena.
-pub fn device() -> Option<&'static mut Device<RING>> {
-    cortex_m::singleton!(: Device<RING> = Device::new(Config::FEATHER))
+/// the task's future, which lives in the executor's small arena. `clock` is what the
+/// timestamps run on, as the device info reports it.
+pub fn device(clock: ClockSource) -> Option<&'static mut Device<RING>> {
+    let cfg = Config {
+        clock_source: clock,
+        ..Config::FEATHER
+    };
+    cortex_m::singleton!(: Device<RING> = Device::new(cfg))
 }
 
 /// See the module documentation. `led` (red, P1.09) lights when x, y and z are done.

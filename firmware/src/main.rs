@@ -21,9 +21,11 @@ use embassy_nrf::gpiote::{InputChannel, InputChannelPolarity};
 use embassy_nrf::interrupt::{self, InterruptExt, Priority};
 use embassy_nrf::peripherals::TWISPI0;
 use embassy_nrf::ppi::Ppi;
-use embassy_nrf::timer::{Frequency, Timer};
+use embassy_nrf::timer::{Frequency, Timer as HwTimer};
 use embassy_nrf::{bind_interrupts, twim};
+use embassy_time::Timer;
 use nrf_softdevice::{raw, RawError, Softdevice};
+use rotacal_shared::packet::ClockSource;
 use {defmt_rtt as _, panic_probe as _};
 
 bind_interrupts!(struct Irqs {
@@ -50,7 +52,7 @@ async fn main(spawner: Spawner) {
     // edge on P1.11 triggers CAPTURE[0] through PPI channel 0 (0–16 are ours). embassy-nrf
     // 0.2's task_capture() always names CAPTURE[0] whatever n is, so CC[0] it is; CC[1]
     // takes software "now" readings.
-    let timer = Timer::new(p.TIMER1);
+    let timer = HwTimer::new(p.TIMER1);
     timer.set_frequency(Frequency::F1MHz);
     timer.clear();
     let drdy = InputChannel::new(
@@ -134,7 +136,8 @@ async fn main(spawner: Spawner) {
         }
     };
     let sd: &'static Softdevice = sd;
-    let Some(device) = logic::device() else {
+    let clock = hfxo().await;
+    let Some(device) = logic::device(clock) else {
         error!("device state already taken");
         return;
     };
@@ -149,15 +152,28 @@ async fn main(spawner: Spawner) {
         return;
     }
 
-    // TIMER1 counts HFCLK: put it on the 32 MHz crystal (±20–40 ppm) rather than the
-    // internal RC, so that timestamps hold the rate (method.md §7).
+    ble::run(sd, &server).await
+}
+
+/// TIMER1 counts HFCLK: put it on the 32 MHz crystal (±20–40 ppm) rather than the internal
+/// RC, so that timestamps hold the rate. What the timestamps run on is what the device info
+/// reports: the crystal only once it runs (it starts in well under a millisecond; 10 ms are
+/// allowed), else the internal oscillator, which the host warns of.
+async fn hfxo() -> ClockSource {
     // SAFETY: a SoftDevice call with no pointer arguments, made after it is enabled.
     if let Err(e) = RawError::convert(unsafe { raw::sd_clock_hfclk_request() }) {
-        warn!(
-            "HFXO request failed: {}; timestamps run on the RC oscillator",
-            e
-        );
+        warn!("HFXO request failed: {}; timestamps run on HFINT", e);
+        return ClockSource::TimerHfint;
     }
-
-    ble::run(sd, &server).await
+    for _ in 0..10 {
+        let mut running: u32 = 0;
+        // SAFETY: the SoftDevice writes one u32 through a pointer to a live local.
+        let ret = unsafe { raw::sd_clock_hfclk_is_running(&mut running) };
+        if RawError::convert(ret).is_ok() && running != 0 {
+            return ClockSource::TimerHfxo;
+        }
+        Timer::after_millis(1).await;
+    }
+    warn!("HFXO did not start within 10 ms; timestamps run on HFINT");
+    ClockSource::TimerHfint
 }

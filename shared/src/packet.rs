@@ -310,6 +310,9 @@ pub enum ClockSource {
     TimerHfxo,
     /// The RTC on the low-frequency RC oscillator (±500 ppm).
     RtcLfrc,
+    /// A TIMER on the internal 64 MHz RC oscillator (HFINT): the crystal did not start, so
+    /// the timestamps' rate is far less certain than the crystal's tens of ppm.
+    TimerHfint,
 }
 
 /// Static facts about the device (the device-info value).
@@ -755,6 +758,7 @@ impl Packet {
                 o.u8(match i.clock {
                     ClockSource::TimerHfxo => 0,
                     ClockSource::RtcLfrc => 1,
+                    ClockSource::TimerHfint => 2,
                 });
                 o.u32(i.tick_hz);
                 o.u32(i.sensor_odr_mhz);
@@ -987,6 +991,7 @@ fn decode_info(i: &mut In<'_>, h: Head) -> Result<Packet, DecodeError> {
     let clock = match i.u8() {
         0 => ClockSource::TimerHfxo,
         1 => ClockSource::RtcLfrc,
+        2 => ClockSource::TimerHfint,
         _ => return Err(i.field("clock source")),
     };
     Ok(Packet::Info(DeviceInfo {

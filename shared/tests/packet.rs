@@ -135,7 +135,11 @@ fn packet() -> impl Strategy<Value = Packet> {
                 Just(Chip::Lsm6ds33),
                 Just(Chip::Lsm6ds3trc)
             ],
-            prop_oneof![Just(ClockSource::TimerHfxo), Just(ClockSource::RtcLfrc)],
+            prop_oneof![
+                Just(ClockSource::TimerHfxo),
+                Just(ClockSource::RtcLfrc),
+                Just(ClockSource::TimerHfint)
+            ],
             prop::array::uniform3(any::<u32>()),
             any::<u8>(),
             any::<u16>(),

@@ -15,7 +15,7 @@ use crate::link::{Channel, Link, LinkError};
 use crate::record::capture::{CaptureWriter, Entry};
 use crate::recording::from_device::{RecordSummary, Recorder};
 use rotacal_shared::packet::{
-    Command, CommandError, DeviceInfo, Packet, RunState, SensorStatus, Status, VERSION,
+    ClockSource, Command, CommandError, DeviceInfo, Packet, RunState, SensorStatus, Status, VERSION,
 };
 use rotacal_shared::Condition;
 use std::fs::File;
@@ -226,6 +226,26 @@ pub fn check_info(bytes: &[u8]) -> Result<DeviceInfo, RecordError> {
                 bytes
             ))),
         },
+    }
+}
+
+/// A warning when the device's timestamps do not run on its crystal (as its device info
+/// says), so that the rate and the times of a recording are less certain than the
+/// documented timing assumes (docs/recording.md).
+pub fn clock_warning(info: &DeviceInfo) -> Option<String> {
+    match info.clock {
+        ClockSource::TimerHfxo => None,
+        ClockSource::TimerHfint => Some(
+            "warning: the device's crystal did not start, so its timestamps run on its \
+             internal RC oscillator: the rate and the times are far less certain than with \
+             the crystal; power-cycle the board and record again"
+                .into(),
+        ),
+        ClockSource::RtcLfrc => Some(
+            "warning: the device's timestamps run on its RTC and the low-frequency RC \
+             oscillator (±500 ppm), not on its crystal"
+                .into(),
+        ),
     }
 }
 
@@ -654,7 +674,13 @@ pub async fn connect<L: Link>(
     let since = Instant::now();
     loop {
         match link.connect().await {
-            Ok(bytes) => return Ok((check_info(&bytes)?, bytes)),
+            Ok(bytes) => {
+                let info = check_info(&bytes)?;
+                if let Some(w) = clock_warning(&info) {
+                    obs.message(&w);
+                }
+                return Ok((info, bytes));
+            }
             Err(LinkError::Disconnected(why)) if since.elapsed() < opts.reconnect_for => {
                 obs.message(&format!("{}: {why}; retrying", link.describe()));
                 tokio::time::sleep(Duration::from_secs(1)).await;

@@ -349,3 +349,28 @@ fn an_outage_as_long_as_the_ring_loses_nothing() {
     crosscheck_passes(&r);
     rebuild_matches(&r);
 }
+
+#[test]
+fn a_device_whose_crystal_did_not_start_is_named() {
+    use rotacal_shared::packet::{Chip, ClockSource, DeviceInfo, Packet};
+    let info = |clock| DeviceInfo {
+        firmware: rotacal::link::simulated::FIRMWARE,
+        chip: Chip::Lsm6ds33,
+        clock,
+        tick_hz: 1_000_000,
+        sensor_odr_mhz: 104_000,
+        sample_rate_mhz: 16_000,
+        full_scale_g: 2,
+        ring_capacity: 320,
+    };
+    // The device info as the board sends it, read back as the recorder reads it.
+    let read = |clock| {
+        let bytes = rotacal::recording::from_device::encode(&Packet::Info(info(clock)));
+        record::check_info(&bytes).unwrap()
+    };
+    assert_eq!(record::clock_warning(&read(ClockSource::TimerHfxo)), None);
+    let w = record::clock_warning(&read(ClockSource::TimerHfint)).unwrap();
+    assert!(w.contains("crystal did not start"), "{w}");
+    let w = record::clock_warning(&read(ClockSource::RtcLfrc)).unwrap();
+    assert!(w.contains("±500 ppm"), "{w}");
+}
