@@ -71,6 +71,16 @@ async fn main(spawner: Spawner) {
     let mut twim_config = twim::Config::default();
     twim_config.frequency = twim::Frequency::K400;
     let bus = twim::Twim::new(p.TWISPI0, Irqs, p.P0_12, p.P0_11, twim_config);
+    // nRF52840 erratum 219: at 400 kHz the TWIM's SCL low time is below the I²C minimum
+    // (1.3 µs); Nordic's workaround is 390 kHz, FREQUENCY = 0x06200000, which embassy-nrf
+    // 0.2's Frequency does not offer. Written once, after Twim::new set 400 kHz and before
+    // any transfer.
+    // SAFETY: TWIM0 is ours (TWISPI0, taken above) and idle; FREQUENCY takes any value.
+    unsafe {
+        (*embassy_nrf::pac::TWIM0::ptr())
+            .frequency
+            .write(|w| w.frequency().bits(0x0620_0000));
+    }
     let led = Output::new(p.P1_09, Level::Low, OutputDrive::Standard);
 
     let sd_config = nrf_softdevice::Config {
