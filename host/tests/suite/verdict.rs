@@ -199,3 +199,26 @@ fn effects_outside_the_catalogue_are_unexplained_where_they_are() {
         },
     );
 }
+
+/// A temperature that is exactly a straight line in time (as a file of interpolated
+/// readings has it) makes the generic fit singular with it; the channel is then scanned
+/// without it, and a 5th harmonic is still found where it is (with the singular design the
+/// scan was skipped).
+#[test]
+fn a_temperature_ramp_does_not_hide_a_harmonic() {
+    let toml = format!("{}{}", trials::SINGLE_RATE, Outside::Order5.toml());
+    let mut cfg = Config::from_toml(&toml).unwrap();
+    cfg.seed = 3;
+    let mut rec = Simulation::new(cfg).unwrap().recording().unwrap();
+    for g in &mut rec.groups {
+        g.temp_c = Some(g.t_s.iter().map(|t| 25.0 + 1e-3 * t).collect());
+    }
+    let a: Analysis = rotacal::discrepancy::run(&rec, &Default::default()).unwrap();
+    assert!(!a.verdict.explained, "{}", a.verdict.summary);
+    let first = a.verdict.unexplained.first().unwrap();
+    assert!(
+        Outside::Order5.located(&first.at.to_string(), &first.what),
+        "{}",
+        a.verdict.summary
+    );
+}

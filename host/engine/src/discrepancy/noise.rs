@@ -436,23 +436,38 @@ pub fn estimate(data: &Data) -> Result<(Vec<[NoiseModel; 3]>, Generic), NoiseEst
         tests.push(Channel::ALL.map(|ch| {
             let y = ch.of(&g.y);
             let flagged = noise::clipped(y);
-            let rows = DesignRows::new(&g.tau, g.omega(), temp, &[]);
-            // A singular generic fit has no residuals to scan (its noise model reports it).
-            ols(&rows, y, &flagged).map_or_else(Vec::new, |fit| {
-                let e = ols_residuals(&rows, &fit, y, &flagged);
-                structure::harmonics(&e, sample_interval(&g.tau), g.rate_hz)
-            })
+            let scan = |temp| {
+                let rows = DesignRows::new(&g.tau, g.omega(), temp, &[]);
+                ols(&rows, y, &flagged).map(|fit| {
+                    let e = ols_residuals(&rows, &fit, y, &flagged);
+                    structure::harmonics(&e, sample_interval(&g.tau), g.rate_hz)
+                })
+            };
+            // The temperature is left out of this channel's generic fit where it makes it
+            // singular (a temperature that is a straight line in time); a fit singular
+            // without it too has no residuals to scan (its noise model reports it).
+            match scan(temp) {
+                Some(found) => (found, temp),
+                None => (scan(None).unwrap_or_default(), None),
+            }
         }));
     }
-    let count = tests.iter().flatten().map(Vec::len).sum::<usize>().max(1) as f64;
+    let count = tests
+        .iter()
+        .flatten()
+        .map(|(found, _)| found.len())
+        .sum::<usize>()
+        .max(1) as f64;
     let channels = (3 * data.groups.len()).max(1) as f64;
     let mut generic = Generic::default();
     let mut models = Vec::new();
     for (g, found) in data.groups.iter().zip(&tests) {
-        let temp = varying_temperature(g);
         let mut extras: [Vec<Extra>; 3] = Default::default();
         let mut group_models = Vec::new();
-        for ((channel, found), extras) in Channel::ALL.into_iter().zip(found).zip(&mut extras) {
+        for ((channel, (found, temp)), extras) in
+            Channel::ALL.into_iter().zip(found).zip(&mut extras)
+        {
+            let temp = *temp;
             let at = Place::Group {
                 condition: g.condition,
                 rate_hz: g.rate_hz,
