@@ -226,8 +226,9 @@ pub(super) fn kept(p: usize, flagged: &[bool]) -> Vec<bool> {
         .collect()
 }
 
-/// Σ of squared whitened residuals and the rows kept (`r` is whitened in place).
-fn whitened_ss(m: &NoiseModel, r: &mut [f64], flagged: &[bool]) -> (f64, usize) {
+/// Σ of squared whitened residuals and the rows kept (`r` is whitened in place). What a
+/// reading flagged in `flagged` holds never counts: every window that touches it is left out.
+pub(super) fn whitened_ss(m: &NoiseModel, r: &mut [f64], flagged: &[bool]) -> (f64, usize) {
     let keep = kept(m.order(), flagged);
     whiten(m, r, &keep);
     (
@@ -369,6 +370,18 @@ struct Eval {
     sin: f64,
     cos: f64,
     clipped: bool,
+}
+
+impl Eval {
+    /// dy/dδ (the Jacobian's column for the rate error) with A, B `ab` at sensitivity `sj`,
+    /// ω and τ; 0 for a reading at a rail (fixed by the rail).
+    fn d_delta(&self, sj: f64, [a_amp, b_amp]: [f64; 2], (omega, tau): (f64, f64)) -> f64 {
+        if self.clipped {
+            return 0.0;
+        }
+        let h = self.dyda / sj; // dy/d(amplitude in output units)
+        h * (a_amp * self.cos - b_amp * self.sin) * omega * tau
+    }
 }
 
 /// Channel `ch`'s prediction at `row` of group `g`, whose A and B for the channel are
@@ -812,12 +825,7 @@ fn factor_group(
             }
             if with_delta {
                 if let Some(x) = values.next() {
-                    *x = if e.clipped {
-                        0.0
-                    } else {
-                        let h = e.dyda / sj; // dy/d(amplitude in output units)
-                        h * (a_amp * e.cos - b_amp * e.sin) * omega * tau
-                    };
+                    *x = e.d_delta(sj, [a_amp, b_amp], (omega, tau));
                 }
             }
             if let Some(x) = values.next() {
@@ -892,9 +900,8 @@ fn whitened_system(
             .collect();
         let zg = take_rows(&mut z_rest, n);
         for (zv, (row, e)) in zg.iter_mut().zip(&rows) {
-            if with_delta && !e.clipped {
-                let h = e.dyda / sj; // dy/d(amplitude in output units)
-                *zv = h * (a_amp * e.cos - b_amp * e.sin) * omega * row.tau;
+            if with_delta {
+                *zv = e.d_delta(sj, [a_amp, b_amp], (omega, row.tau));
             }
         }
         let clipped: Vec<bool> = rows.iter().map(|(_, e)| e.clipped).collect();

@@ -154,9 +154,7 @@ impl<'a> DesignRows<'a> {
             }
         }
     }
-}
 
-impl DesignRows<'_> {
     /// Row `i` as [x | y] (cols + 1 values), all zero where `skip` (a reading at a rail:
     /// never in a kept whitened window).
     fn augmented(&self, i: usize, y: f64, skip: bool, buf: &mut [f64]) {
@@ -241,8 +239,13 @@ fn design(
     x
 }
 
+/// A generic fit and its residuals, made once and handed on to what uses the same design
+/// (the step scan, the noise model).
+type Fitted = (Ols, Vec<f64>);
+
 /// An ordinary least-squares fit of `y` on the design's rows, rows in `flagged` left out:
 /// its triangle R (q × q, RᵀR = XᵀX) and coefficients.
+#[derive(Clone)]
 struct Ols {
     r: DMatrix<f64>,
     beta: DVector<f64>,
@@ -381,12 +384,20 @@ fn model_of(
     (tau, omega): (&[f64], f64),
     temp: Option<&[f64]>,
     flagged: &[bool],
-    extras: &[Extra],
+    (extras, fitted): (&[Extra], Option<Fitted>),
 ) -> Result<(NoiseModel, usize, usize, Halves), ChannelNoiseError> {
     let rows = DesignRows::new(tau, omega, temp, extras);
     let q = rows.cols;
-    let fit = ols(&rows, y, flagged).ok_or(NoiseError::Singular)?;
-    let m = NoiseModel::estimate(&ols_residuals(&rows, &fit, y, flagged), flagged)?;
+    let (fit, e) = match fitted {
+        Some(f) => f,
+        None => {
+            let fit = ols(&rows, y, flagged).ok_or(NoiseError::Singular)?;
+            let e = ols_residuals(&rows, &fit, y, flagged);
+            (fit, e)
+        }
+    };
+    let m = NoiseModel::estimate(&e, flagged)?;
+    drop(e);
     let m = match m.rescaled_white(q) {
         Some(white) => white?,
         // A correlated model's rescaling needs the regressors themselves, row by row.
@@ -440,22 +451,28 @@ pub fn estimate(data: &Data) -> Result<(Vec<[NoiseModel; 3]>, Generic), NoiseEst
                 let rows = DesignRows::new(&g.tau, g.omega(), temp, &[]);
                 ols(&rows, y, &flagged).map(|fit| {
                     let e = ols_residuals(&rows, &fit, y, &flagged);
-                    structure::harmonics(&e, sample_interval(&g.tau), g.rate_hz)
+                    let found = structure::harmonics(&e, sample_interval(&g.tau), g.rate_hz);
+                    (found, fit)
                 })
             };
             // The temperature is left out of this channel's generic fit where it makes it
             // singular (a temperature that is a straight line in time); a fit singular
-            // without it too has no residuals to scan (its noise model reports it).
+            // without it too has no residuals to scan (its noise model reports it). The fit
+            // is kept (its residuals are not: rows each) for the step scan below, which
+            // uses the same design when no harmonic is found.
             match scan(temp) {
-                Some(found) => (found, temp),
-                None => (scan(None).unwrap_or_default(), None),
+                Some((found, fit)) => (found, temp, Some(fit)),
+                None => match scan(None) {
+                    Some((found, fit)) => (found, None, Some(fit)),
+                    None => (Vec::new(), None, None),
+                },
             }
         }));
     }
     let count = tests
         .iter()
         .flatten()
-        .map(|(found, _)| found.len())
+        .map(|(found, _, _)| found.len())
         .sum::<usize>()
         .max(1) as f64;
     let channels = (3 * data.groups.len()).max(1) as f64;
@@ -464,7 +481,7 @@ pub fn estimate(data: &Data) -> Result<(Vec<[NoiseModel; 3]>, Generic), NoiseEst
     for (g, found) in data.groups.iter().zip(&tests) {
         let mut extras: [Vec<Extra>; 3] = Default::default();
         let mut group_models = Vec::new();
-        for ((channel, (found, temp)), extras) in
+        for ((channel, (found, temp, plain)), extras) in
             Channel::ALL.into_iter().zip(found).zip(&mut extras)
         {
             let temp = *temp;
@@ -488,11 +505,24 @@ pub fn estimate(data: &Data) -> Result<(Vec<[NoiseModel; 3]>, Generic), NoiseEst
             }
             let y = channel.of(&g.y);
             let flagged = noise::clipped(y);
-            let found = step_scan(
-                DesignRows::new(&g.tau, g.omega(), temp, extras),
-                y,
-                &flagged,
-            );
+            // The generic fit with the harmonics found (without any, the first scan's), its
+            // residuals scanned for a step, and both handed on to the noise model.
+            let (mut fitted, found) = {
+                let rows = DesignRows::new(&g.tau, g.omega(), temp, extras);
+                let fit = if extras.is_empty() {
+                    plain.clone()
+                } else {
+                    ols(&rows, y, &flagged)
+                };
+                let fitted = fit.map(|fit| {
+                    let e = ols_residuals(&rows, &fit, y, &flagged);
+                    (fit, e)
+                });
+                let found = fitted
+                    .as_ref()
+                    .and_then(|(fit, e)| step_scan(&rows, fit, e, &flagged));
+                (fitted, found)
+            };
             if let Some(s) = found {
                 let p = (s.p_single * channels).min(1.0);
                 if p < super::ALPHA {
@@ -500,9 +530,15 @@ pub fn estimate(data: &Data) -> Result<(Vec<[NoiseModel; 3]>, Generic), NoiseEst
                     // Its height refitted with the step in the design: the scan's own
                     // reading (Frisch–Waugh) is the same value to rounding, but under slow
                     // noise it moved the proofs' witness sessions beyond their tolerance.
+                    // That fit is the noise model's.
                     let rows = DesignRows::new(&g.tau, g.omega(), temp, extras);
-                    let size = ols(&rows, y, &flagged)
-                        .and_then(|f| f.beta.iter().next_back().copied())
+                    fitted = ols(&rows, y, &flagged).map(|fit| {
+                        let e = ols_residuals(&rows, &fit, y, &flagged);
+                        (fit, e)
+                    });
+                    let size = fitted
+                        .as_ref()
+                        .and_then(|(f, _)| f.beta.iter().next_back().copied())
                         .unwrap_or(s.size);
                     generic.structure.push(Structure {
                         at,
@@ -517,10 +553,11 @@ pub fn estimate(data: &Data) -> Result<(Vec<[NoiseModel; 3]>, Generic), NoiseEst
                 }
             }
             // Without the temperature if it makes the fit singular (a temperature that is
-            // a straight line in time).
-            let fit = |temp| model_of(y, (&g.tau, g.omega()), temp, &flagged, extras);
-            let (m, kept, q, halves) = fit(temp)
-                .or_else(|e| temp.map_or(Err(e), |_| fit(None)))
+            // a straight line in time, with the scan's regressors beside it).
+            let fit =
+                |temp, fitted| model_of(y, (&g.tau, g.omega()), temp, &flagged, (extras, fitted));
+            let (m, kept, q, halves) = fit(temp, fitted)
+                .or_else(|e| temp.map_or(Err(e), |_| fit(None, None)))
                 .map_err(|cause| NoiseEstimateError::Channel {
                     condition: g.condition,
                     rate_hz: g.rate_hz,
@@ -554,13 +591,17 @@ pub fn estimate(data: &Data) -> Result<(Vec<[NoiseModel; 3]>, Generic), NoiseEst
     Ok((models, generic))
 }
 
-/// The step scan ([`structure::step_by`]) of the generic fit's residuals, its orthonormal
-/// basis rows made from the design's rows and R (q_t = R⁻ᵀx_t) as the scan asks for them.
-fn step_scan(rows: DesignRows, y: &[f64], flagged: &[bool]) -> Option<structure::StepTest> {
-    let fit = ols(&rows, y, flagged)?;
-    let e = ols_residuals(&rows, &fit, y, flagged);
+/// The step scan ([`structure::step_by`]) of the generic fit's residuals `e`, its
+/// orthonormal basis rows made from the design's rows and R (q_t = R⁻ᵀx_t) as the scan asks
+/// for them.
+fn step_scan(
+    rows: &DesignRows,
+    fit: &Ols,
+    e: &[f64],
+    flagged: &[bool],
+) -> Option<structure::StepTest> {
     let rt = fit.r.transpose();
-    structure::step_by(&e, rows.cols, |t, row| {
+    structure::step_by(e, rows.cols, |t, row| {
         if flagged.get(t).copied().unwrap_or(true) {
             row.fill(0.0);
         } else {
@@ -633,14 +674,7 @@ pub(super) fn chi2_on_generic_rows(
     mut residual: Vec<f64>,
 ) -> f64 {
     let flagged = noise::clipped(ch.of(&g.y).as_slice());
-    let keep = whiten_keep(m, &flagged);
-    for (r, f) in residual.iter_mut().zip(&flagged) {
-        if *f {
-            *r = 0.0;
-        }
-    }
-    super::model::whiten(m, &mut residual, &keep);
-    residual.iter().map(|v| v * v).sum()
+    super::model::whitened_ss(m, &mut residual, &flagged).0
 }
 
 /// One part of the generic fit, measured in a physical model's residuals.
@@ -753,7 +787,7 @@ pub(super) fn components(
     let parts = component_parts(g, temp.is_some(), extras);
     // Each coefficient's weights on the whitened rows are the rows of X̃·cov: a second pass
     // over the rows, only where they are asked for (the slow terms' share).
-    let hat = with_weights.then(|| {
+    let mut hat = with_weights.then(|| {
         let wanted: Vec<usize> = parts.iter().flat_map(|(_, c, _)| c.clone()).collect();
         let mut cols: Vec<Vec<f64>> = vec![Vec::with_capacity(flagged.len()); wanted.len()];
         let mut whitener = Whitener::new(m, q + 1);
@@ -798,9 +832,13 @@ pub(super) fn components(
             // A pair's amplitude; one coefficient's value (the trend's regressor is τ/span,
             // so its coefficient is the change over the group; the temperature's, per °C).
             let size = if cols.len() == 2 { b.norm() } else { b.sum() };
-            let weights = hat.as_ref().map_or_else(Vec::new, |hat| {
+            // The parts' columns are disjoint: each column's weights move to its part.
+            let weights = hat.as_mut().map_or_else(Vec::new, |hat| {
                 cols.iter()
-                    .filter_map(|c| hat.iter().find(|(j, _)| j == c).map(|(_, w)| w.clone()))
+                    .filter_map(|c| {
+                        let (_, w) = hat.iter_mut().find(|(j, _)| j == c)?;
+                        Some(std::mem::take(w))
+                    })
                     .collect()
             });
             Some(Component {

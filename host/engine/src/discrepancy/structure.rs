@@ -6,7 +6,7 @@ use super::place::Place;
 use serde::Serialize;
 use std::fmt;
 
-pub use crate::fit::structure::{harmonics, scan_max_p, step, step_by, StepTest};
+pub use crate::fit::structure::{harmonics, scan_max_p, step_by, StepTest};
 
 /// What was found.
 #[derive(Clone, Copy, Debug, PartialEq)]

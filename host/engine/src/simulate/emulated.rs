@@ -79,6 +79,12 @@ const POLL_EVERY: Duration = Duration::from_millis(100);
 /// connection interval (BlueZ's and Apple's usual) with three notifications an event. The
 /// live stream needs about 2.3 a second; a 20 s backfill (46 batches) about half a second.
 const NOTIFY_EVERY: Duration = Duration::from_millis(10);
+/// The firmware's notification queues, in the order its BLE task serves them, with their
+/// depths: [`EmulatedDevice::queues`] holds them in this order.
+const QUEUES: [(Channel, usize); 2] = [
+    (Channel::Stream, STREAM_QUEUE),
+    (Channel::Results, RESULTS_QUEUE),
+];
 
 /// See the module documentation. Device time runs from the first connection.
 pub struct EmulatedDevice {
@@ -94,9 +100,8 @@ pub struct EmulatedDevice {
     running: Option<(Condition, Duration, usize)>,
     next_temperature: Duration,
     next_poll: Duration,
-    /// The firmware's notification queues (stream, results), as deep as its own
-    /// ([`STREAM_QUEUE`], [`RESULTS_QUEUE`]): kept while the link is down, a packet
-    /// offered to a full one is dropped.
+    /// The firmware's notification queues ([`QUEUES`]), as deep as its own: kept while the
+    /// link is down, a packet offered to a full one is dropped.
     queues: [VecDeque<(Channel, Vec<u8>)>; 2],
     /// When the next notification may leave them.
     next_notify: Duration,
@@ -195,20 +200,24 @@ impl EmulatedDevice {
         let Some(ch) = Channel::of(&p) else {
             return;
         };
-        let v = self.encode(&p);
-        let (queue, depth) = match ch {
-            Channel::Stream => (0, STREAM_QUEUE),
-            Channel::Results => (1, RESULTS_QUEUE),
-            Channel::Info => return,
+        let Some(queue) = QUEUES.iter().position(|(c, _)| *c == ch) else {
+            return;
         };
         if self.queued() == 0 {
             self.next_notify = self.next_notify.max(self.now);
         }
-        if let Some(q) = self.queues.get_mut(queue) {
-            if q.len() < depth {
+        if self.free(queue) > 0 {
+            let v = self.encode(&p);
+            if let Some(q) = self.queues.get_mut(queue) {
                 q.push_back((ch, v));
             }
         }
+    }
+
+    /// Free places in queue `i` of [`QUEUES`].
+    fn free(&self, i: usize) -> usize {
+        let depth = QUEUES.get(i).map_or(0, |(_, d)| *d);
+        depth.saturating_sub(self.queues.get(i).map_or(depth, VecDeque::len))
     }
 
     /// Packets waiting in the queues.
@@ -218,12 +227,9 @@ impl EmulatedDevice {
 
     /// The queues' free places.
     fn room(&self) -> Room {
-        let free = |i: usize, depth: usize| {
-            depth.saturating_sub(self.queues.get(i).map_or(depth, VecDeque::len))
-        };
         Room {
-            stream: free(0, STREAM_QUEUE),
-            results: free(1, RESULTS_QUEUE),
+            stream: self.free(0),
+            results: self.free(1),
         }
     }
 
