@@ -200,6 +200,46 @@ pub fn session_config(seed: u64) -> anyhow::Result<Config> {
     Ok(cfg)
 }
 
+/// Record x, y and z from `device` into `paths` on a paused clock (the emulated device
+/// runs on tokio's time, so a session of minutes takes seconds), `duration` each at
+/// 0.01 Hz and 16 Hz.
+pub fn record_session(
+    device: &mut SimulatedDevice,
+    paths: &Paths,
+    meta: &Metadata,
+    duration: Duration,
+) -> anyhow::Result<Vec<(Condition, Outcome)>> {
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_time()
+        .start_paused(true)
+        .build()?;
+    let opts = Options {
+        sync: false,
+        ..Options::default()
+    };
+    rt.block_on(async {
+        let mut obs = Quiet::default();
+        let (info, info_bytes) = record::connect(device, &opts, &mut obs).await?;
+        let mut recorded = Vec::new();
+        for (i, condition) in Condition::ALL.into_iter().enumerate() {
+            let files =
+                record::open_files(paths, meta, &info_bytes, info.tick_hz, condition, i > 0)?;
+            let plan = Plan {
+                condition,
+                rate_uhz: 10_000,
+                duration,
+                sample_rate_mhz: Some(16_000),
+                restart: false,
+            };
+            let out = record::record(device, info, files, plan, opts, &mut obs)
+                .await
+                .map_err(|(e, _)| anyhow::anyhow!("recording {}: {e}", condition.letter()))?;
+            recorded.push((condition, out));
+        }
+        anyhow::Ok(recorded)
+    })
+}
+
 /// Run the chain, writing into `dir` (created if missing), with `inject`'s fault if any.
 pub fn run(seed: u64, dir: &Path, inject: Option<Inject>) -> anyhow::Result<Demo> {
     std::fs::create_dir_all(dir).map_err(|e| anyhow::anyhow!("{}: {e}", dir.display()))?;
@@ -228,35 +268,8 @@ pub fn run(seed: u64, dir: &Path, inject: Option<Inject>) -> anyhow::Result<Demo
         device: Some("simulated Feather nRF52840 Sense (rotacal demo)".into()),
         other: Default::default(),
     };
-    let rt = tokio::runtime::Builder::new_current_thread()
-        .enable_time()
-        .start_paused(true)
-        .build()?;
-    let opts = Options {
-        sync: false,
-        ..Options::default()
-    };
-    let recorded = rt.block_on(async {
-        let mut obs = Quiet::default();
-        let (info, info_bytes) = record::connect(&mut device, &opts, &mut obs).await?;
-        let mut recorded = Vec::new();
-        for (i, condition) in Condition::ALL.into_iter().enumerate() {
-            let files =
-                record::open_files(&paths, &meta, &info_bytes, info.tick_hz, condition, i > 0)?;
-            let plan = Plan {
-                condition,
-                rate_uhz: 10_000,
-                duration: Duration::from_secs_f64(conversions as f64 / sensor_hz),
-                sample_rate_mhz: Some(16_000),
-                restart: false,
-            };
-            let out = record::record(&mut device, info, files, plan, opts, &mut obs)
-                .await
-                .map_err(|(e, _)| anyhow::anyhow!("recording {}: {e}", condition.letter()))?;
-            recorded.push((condition, out));
-        }
-        anyhow::Ok(recorded)
-    })?;
+    let duration = Duration::from_secs_f64(conversions as f64 / sensor_hz);
+    let recorded = record_session(&mut device, &paths, &meta, duration)?;
     let (rec_path, fits_path) = (&paths.recording, &paths.fits);
     if inject == Some(Inject::CorruptDeviceFit) {
         corrupt_first_fit(fits_path)?;

@@ -29,6 +29,26 @@ pub const MAX_SAMPLES: usize = 20;
 /// Largest packet, bytes.
 pub const MAX_PACKET: usize = 16 + 11 * MAX_SAMPLES;
 
+/// Bytes of an [`AverageBatch`] of `n` samples.
+pub const fn averages_len(n: usize) -> usize {
+    size::SAMPLES_HEAD + size::AVERAGE * n
+}
+
+/// Largest packet the device notifies other than a sample batch: a fit report.
+pub const MAX_RESULT: usize = {
+    const fn max(a: usize, b: usize) -> usize {
+        if a > b {
+            a
+        } else {
+            b
+        }
+    }
+    max(
+        max(size::FIT, size::QUICK_LOOK),
+        max(size::STATUS, size::TEMPERATURE),
+    )
+};
+
 /// One accelerometer sample as the device sends it.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -431,6 +451,9 @@ pub enum CommandError {
     NotInRing = 5,
     /// Stop found no fit result (too few samples or periods); nothing was recorded.
     FitFailed = 6,
+    /// The link's ATT MTU is below [`crate::device::route::MIN_MTU`]: a fit report would
+    /// not fit one notification (BLE's default of 23 when the central never asked for more).
+    MtuTooSmall = 7,
 }
 
 /// Everything that travels between device and host.
@@ -1046,6 +1069,7 @@ fn decode_status(i: &mut In<'_>, h: Head) -> Result<Packet, DecodeError> {
         4 => Some(CommandError::SensorFault),
         5 => Some(CommandError::NotInRing),
         6 => Some(CommandError::FitFailed),
+        7 => Some(CommandError::MtuTooSmall),
         _ => {
             return Err(DecodeError::Field {
                 offset: 4,

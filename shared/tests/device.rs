@@ -15,8 +15,14 @@ use rotacal_shared::{Aperture, Condition, FitConfig, Param, PhaseStep, SineFit, 
 const RING: usize = rotacal_shared::device::RING;
 
 fn run_paper() -> (Vec<Packet>, Device<RING>) {
+    run_paper_at(rotacal_shared::device::route::MAX_MTU)
+}
+
+/// The paper session over a link of ATT MTU `mtu`.
+fn run_paper_at(mtu: u16) -> (Vec<Packet>, Device<RING>) {
     let mut dev = Device::<RING>::new(Config::FEATHER);
     let mut packets = Vec::new();
+    dev.set_link_mtu(mtu, &mut |p| packets.push(p));
     SessionSpec::PAPER.run(&mut dev, &mut |p| {
         // Every packet crosses the wire: encode, decode, compare bytes.
         let mut buf = [0u8; MAX_PACKET];
@@ -252,13 +258,23 @@ fn last_status(p: &[Packet]) -> Status {
     }
 }
 
+/// The packets a Backfill of `count` samples from `from_seq` brings.
+fn backfill(dev: &mut Device<RING>, from_seq: u32, count: u16) -> Vec<Packet> {
+    collect(dev, |d, o| {
+        d.on_command(Command::Backfill { from_seq, count }, &mut |x| o(x))
+    })
+}
+
+/// Start condition x at 0.01 Hz.
+const START_X: Command = Command::Start {
+    condition: Condition::X,
+    rate_uhz: 10_000,
+};
+
 #[test]
 fn commands_are_checked_and_refusals_reported() {
     let mut dev = Device::<RING>::new(Config::FEATHER);
-    let start = Command::Start {
-        condition: Condition::X,
-        rate_uhz: 10_000,
-    };
+    let start = START_X;
     let p = collect(&mut dev, |d, o| d.on_command(Command::Stop, &mut |x| o(x)));
     assert_eq!(last_status(&p).last_error, Some(CommandError::NotRunning));
     let p = collect(&mut dev, |d, o| {
@@ -324,16 +340,8 @@ fn commands_are_checked_and_refusals_reported() {
 
 #[test]
 fn backfill_resends_from_the_ring() {
-    let (_, mut dev) = run_paper();
-    let p = collect(&mut dev, |d, o| {
-        d.on_command(
-            Command::Backfill {
-                from_seq: 12_500,
-                count: 60,
-            },
-            &mut |x| o(x),
-        )
-    });
+    let (live, mut dev) = run_paper();
+    let p = backfill(&mut dev, 12_500, 60);
     assert_eq!(last_status(&p).last_error, None);
     let seqs: Vec<u32> = p
         .iter()
@@ -348,17 +356,21 @@ fn backfill_resends_from_the_ring() {
         .flat_map(|b| b.iter().map(|(s, _, _)| s).collect::<Vec<_>>())
         .collect();
     assert_eq!(seqs, (12_500..12_560).collect::<Vec<_>>());
+    // The ring's packed entries give back the live samples exactly.
+    let replayed: Vec<_> = p
+        .iter()
+        .filter_map(|x| match x {
+            Packet::Averages(b) => Some(b),
+            _ => None,
+        })
+        .flat_map(|b| b.iter().map(|(seq, ap, s)| (seq, ap, s.sums, b.condition)))
+        .collect();
+    let sent = samples(&live);
+    let from = sent.iter().position(|x| x.0 == 12_500).unwrap();
+    assert_eq!(replayed, sent[from..from + 60]);
     // Older than the ring holds: what is left is sent, and the refusal says so.
     let oldest = STREAMED - RING as u32;
-    let p = collect(&mut dev, |d, o| {
-        d.on_command(
-            Command::Backfill {
-                from_seq: oldest - 10,
-                count: 20,
-            },
-            &mut |x| o(x),
-        )
-    });
+    let p = backfill(&mut dev, oldest - 10, 20);
     assert_eq!(last_status(&p).last_error, Some(CommandError::NotInRing));
     let n: usize = p
         .iter()
@@ -503,4 +515,79 @@ fn a_part_filled_batch_waits_at_most_max_batch_age() {
         last.flags,
         SampleFlags::CLIPPED | SampleFlags::LATE_TIMESTAMP
     );
+}
+
+#[test]
+fn batches_are_sized_to_the_links_mtu_and_carry_the_same_samples() {
+    use rotacal_shared::device::route::{batch_len, payload, MIN_MTU};
+    let (full, _) = run_paper_at(247);
+    for mtu in [185, 158, MIN_MTU] {
+        let (p, _) = run_paper_at(mtu);
+        let n = batch_len(mtu).unwrap();
+        for x in &p {
+            assert!(x.encoded_len() <= payload(mtu), "MTU {mtu}: {x:?}");
+            if let Packet::Averages(b) = x {
+                assert!(b.len() <= n, "MTU {mtu}: {} samples", b.len());
+            }
+        }
+        assert!(
+            p.iter()
+                .any(|x| matches!(x, Packet::Averages(b) if b.len() == n)),
+            "MTU {mtu}: full batches of {n}"
+        );
+        assert_eq!(samples(&p), samples(&full), "MTU {mtu}");
+    }
+}
+
+#[test]
+fn a_smaller_mtu_splits_the_open_batch_and_below_the_least_work_is_refused() {
+    use rotacal_shared::device::route::MIN_MTU;
+    let mut dev = Device::<RING>::new(Config::FEATHER);
+    let start = START_X;
+    let p = collect(&mut dev, |d, o| d.on_command(start, &mut |x| o(x)));
+    assert_eq!(last_status(&p).last_error, None);
+    // Six 16 Hz samples into the open batch (seven close it at MTU 247).
+    let mut live = Vec::new();
+    let mut t = 1_000u64;
+    while samples(&live).len() + open_len(&mut dev) < 6 {
+        dev.on_sample(t, [100, -200, 300], false, &mut |x| live.push(x));
+        t += 9_615;
+    }
+    assert!(live.is_empty(), "{live:?}");
+    // MTU 158 carries 4: a batch of 4 goes, 2 stay open, and go at the next flush.
+    let split = collect(&mut dev, |d, o| d.set_link_mtu(158, &mut |x| o(x)));
+    let lens: Vec<usize> = split
+        .iter()
+        .map(|x| match x {
+            Packet::Averages(b) => b.len(),
+            other => panic!("{other:?}"),
+        })
+        .collect();
+    assert_eq!(lens, [4]);
+    let rest = collect(&mut dev, |d, o| d.on_command(Command::Stop, &mut |x| o(x)));
+    let all: Vec<_> = samples(&split).into_iter().chain(samples(&rest)).collect();
+    assert_eq!(
+        all.iter().map(|s| s.0).collect::<Vec<_>>(),
+        (0..6).collect::<Vec<_>>()
+    );
+
+    // Below MIN_MTU: Start and Backfill are refused, and say why.
+    for mtu in [MIN_MTU - 1, 23] {
+        let p = collect(&mut dev, |d, o| {
+            d.set_link_mtu(mtu, &mut |x| o(x));
+            d.on_command(start, &mut |x| o(x));
+        });
+        assert_eq!(last_status(&p).last_error, Some(CommandError::MtuTooSmall));
+        let p = backfill(&mut dev, 0, 6);
+        assert_eq!(last_status(&p).last_error, Some(CommandError::MtuTooSmall));
+        assert_eq!(p.len(), 1, "only the status: {p:?}");
+    }
+}
+
+/// Samples in the device's open live batch: those a Stop-less flush would send.
+fn open_len(dev: &mut Device<RING>) -> usize {
+    let mut probe = dev.clone();
+    let mut v = Vec::new();
+    probe.poll(u64::MAX / 2, &mut |x| v.push(x));
+    samples(&v).len()
 }

@@ -279,6 +279,14 @@ impl Server {
             return;
         };
         if u.epoch.is_some() {
+            // The firmware notifies only what the client has subscribed to (CCCD) on this
+            // link, and keeps the rest queued until it does.
+            u.unit
+                .device
+                .subscribe(Characteristic::Stream, u.notifying_stream);
+            u.unit
+                .device
+                .subscribe(Characteristic::Results, u.notifying_results);
             let t = u.time(now);
             u.unit.device.advance(t);
         }
@@ -512,7 +520,7 @@ impl Server {
         }
         let t = u.time(now);
         u.unit.device.advance(t);
-        let info = u.unit.device.connect(t)?;
+        let info = u.unit.device.connect(t, self.options.mtu)?;
         u.info = info;
         u.radio = Radio::Up;
         let path = u.path.clone();

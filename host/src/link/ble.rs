@@ -241,6 +241,11 @@ impl Link for BleLink {
         }
     }
 
+    fn mtu(&self) -> u16 {
+        // BlueZ's value for the connection (btleplug: 23 when it has none).
+        self.peripheral.as_ref().map_or(23, |p| p.mtu())
+    }
+
     fn describe(&self) -> String {
         match (&self.peripheral, &self.target) {
             (Some(p), _) => format!("BLE device {}", p.address()),

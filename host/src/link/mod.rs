@@ -47,4 +47,6 @@ pub trait Link {
     async fn close(&mut self);
     /// What the link is, for messages (name and address).
     fn describe(&self) -> String;
+    /// The current connection's ATT MTU, as the central agreed it with the device.
+    fn mtu(&self) -> u16;
 }

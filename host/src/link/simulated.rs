@@ -16,6 +16,8 @@ const CONNECT_ATTEMPT: Duration = Duration::from_secs(2);
 /// See the module documentation.
 pub struct SimulatedDevice {
     device: EmulatedDevice,
+    /// The ATT MTU each connection gets ([`Faults::mtu`]).
+    mtu: u16,
     /// Set at the first connection; device time runs from it.
     epoch: Option<Instant>,
 }
@@ -25,6 +27,7 @@ impl SimulatedDevice {
     /// output rate (104 Hz for the Feather's LSM6DS33), in counts, within i16.
     pub fn new(sim: &Simulation, faults: Faults) -> anyhow::Result<Self> {
         Ok(SimulatedDevice {
+            mtu: faults.mtu,
             device: EmulatedDevice::new(sim, faults)?,
             epoch: None,
         })
@@ -48,8 +51,12 @@ impl Link for SimulatedDevice {
             self.epoch = Some(Instant::now());
         }
         let t = self.sync();
-        match self.device.connect(t) {
-            Some(info) => Ok(info),
+        match self.device.connect(t, self.mtu) {
+            Some(info) => {
+                self.device.subscribe(Channel::Stream, true);
+                self.device.subscribe(Channel::Results, true);
+                Ok(info)
+            }
             None => {
                 tokio::time::sleep(CONNECT_ATTEMPT).await;
                 self.sync();
@@ -99,5 +106,9 @@ impl Link for SimulatedDevice {
 
     fn describe(&self) -> String {
         "simulated device (the firmware's logic on this host)".into()
+    }
+
+    fn mtu(&self) -> u16 {
+        self.mtu
     }
 }

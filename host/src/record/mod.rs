@@ -178,7 +178,7 @@ impl From<io::Error> for RecordError {
     }
 }
 
-fn refusal(e: CommandError) -> String {
+fn refusal(e: CommandError, mtu: u16) -> String {
     match e {
         CommandError::Busy => {
             "busy: it is already running a condition (another host, or a recording that was \
@@ -190,6 +190,12 @@ fn refusal(e: CommandError) -> String {
         CommandError::SensorFault => "its accelerometer is absent or failing".into(),
         CommandError::NotInRing => "the samples have left its ring buffer".into(),
         CommandError::FitFailed => "too few samples or periods for a fit".into(),
+        CommandError::MtuTooSmall => format!(
+            "the link's ATT MTU is {mtu} bytes and the device needs at least {} (a fit report \
+             in one notification); the central must ask for a larger MTU: BlueZ and \
+             CoreBluetooth do so themselves, on Android call requestMtu(247)",
+            rotacal_shared::device::route::MIN_MTU
+        ),
     }
 }
 
@@ -529,6 +535,14 @@ impl<L: Link, W: Durable, F: Durable, C: Durable, O: Observer> Session<'_, L, W,
         let s = self
             .command(Command::Backfill { from_seq: a, count })
             .await?;
+        if s.last_error == Some(CommandError::MtuTooSmall) {
+            // A reconnection to a central that did not ask for a large MTU: nothing can
+            // be fetched or streamed over it.
+            return Err(RecordError::Refused {
+                command: "backfill".into(),
+                reason: refusal(CommandError::MtuTooSmall, self.link.mtu()),
+            });
+        }
         if s.last_error == Some(CommandError::NotInRing) {
             self.obs.message(&format!(
                 "samples from {a} have left the device's ring (it holds {}–{}); those \
@@ -593,10 +607,10 @@ async fn run<L: Link, W: Durable, F: Durable, C: Durable, O: Observer>(
     s: &mut Session<'_, L, W, F, C, O>,
     plan: Plan,
 ) -> Result<(), RecordError> {
-    let check = |cmd: &str, st: Status| match st.last_error {
+    let check = |cmd: &str, st: Status, mtu: u16| match st.last_error {
         Some(e) => Err(RecordError::Refused {
             command: cmd.into(),
-            reason: refusal(e),
+            reason: refusal(e, mtu),
         }),
         None => Ok(st),
     };
@@ -606,7 +620,7 @@ async fn run<L: Link, W: Durable, F: Durable, C: Durable, O: Observer>(
     }
     if let Some(mhz) = plan.sample_rate_mhz {
         let st = s.command(Command::SetSampleRate { mhz }).await?;
-        check("the sample rate", st)?;
+        check("the sample rate", st, s.link.mtu())?;
     }
     let st = s
         .command(Command::Start {
@@ -614,7 +628,7 @@ async fn run<L: Link, W: Durable, F: Durable, C: Durable, O: Observer>(
             rate_uhz: plan.rate_uhz,
         })
         .await?;
-    check("start", st)?;
+    check("start", st, s.link.mtu())?;
     s.started = true;
     s.start_time = Instant::now();
     s.obs.message(&format!(
@@ -647,7 +661,7 @@ async fn run<L: Link, W: Durable, F: Durable, C: Durable, O: Observer>(
              fit report",
         );
     } else {
-        check("stop", st)?;
+        check("stop", st, s.link.mtu())?;
     }
     // The tail: samples the device took but whose notifications were lost.
     s.files.recorder.expect_through(st.ring_newest);

@@ -26,6 +26,7 @@ mod imucal;
 mod intrinsic;
 mod malformed;
 mod mounting;
+mod mtu;
 mod noise;
 mod orientation;
 mod record;

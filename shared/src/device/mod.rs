@@ -22,13 +22,15 @@ use crate::packet::{
 use crate::time::TickRate;
 use packetiser::Packetiser;
 use ring::{Replay, Ring};
-use route::Room;
+use route::{Room, MAX_MTU};
 use sampler::{Sampler, StreamSample};
 use session::Session;
 
-/// Samples the Feather keeps for backfill: 20 s at 16 Hz, 15 KiB of RAM (48 bytes each:
-/// an averaged sample carries its sums and its conversions' instants).
-pub const RING: usize = 320;
+/// Samples the Feather keeps for backfill: 40 s at 16 Hz, 17.5 KiB of RAM (28 bytes
+/// each, [`ring`]). An outage loses nothing when the ring still holds its first sample as
+/// the host asks again: the outage, plus the link's supervision timeout, the reconnection
+/// and the batches in flight as the link dropped (docs/recording.md).
+pub const RING: usize = 640;
 
 /// How the device is set up.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -86,6 +88,19 @@ pub struct Device<const RING: usize> {
     replay: Option<Replay>,
     /// A command's status reply is owed: it goes once any replay is sent.
     reply_owed: bool,
+    /// The link's ATT MTU ([`Device::set_link_mtu`]).
+    mtu: u16,
+}
+
+/// `out`, less what would not fit one notification at `mtu`: below [`route::MIN_MTU`]
+/// nothing runs, and a batch sized for an earlier link is not sent truncated (the host
+/// fetches its samples again).
+fn link(mtu: u16, out: &mut impl FnMut(Packet)) -> impl FnMut(Packet) + '_ {
+    move |p| {
+        if route::fits(&p, mtu) {
+            out(p);
+        }
+    }
 }
 
 impl<const RING: usize> Device<RING> {
@@ -95,7 +110,7 @@ impl<const RING: usize> Device<RING> {
             cfg,
             sampler: Sampler::new(&cfg),
             ring: Ring::new(),
-            live: Packetiser::new(false),
+            live: Packetiser::new(false, route::batch_len(MAX_MTU).unwrap_or(1)),
             session: Session::new(cfg.clock, cfg.publish_every, cfg.g_loc),
             sensor: SensorStatus::Ok,
             lost: 0,
@@ -103,7 +118,31 @@ impl<const RING: usize> Device<RING> {
             latest: None,
             replay: None,
             reply_owed: false,
+            mtu: MAX_MTU,
         }
+    }
+
+    /// The link's ATT MTU, as the central and the device agreed it (the device asks for
+    /// [`MAX_MTU`], which is also what it assumes until told): batches are sized to it
+    /// ([`route::batch_len`]), and below [`route::MIN_MTU`] Start and Backfill are refused
+    /// with [`CommandError::MtuTooSmall`]. A part-filled batch too long for a smaller MTU
+    /// is split.
+    pub fn set_link_mtu(&mut self, mtu: u16, out: &mut impl FnMut(Packet)) {
+        if mtu == self.mtu {
+            return;
+        }
+        self.mtu = mtu;
+        let out = &mut link(mtu, out);
+        let n = route::batch_len(mtu).unwrap_or(1);
+        self.live.set_max(n, out);
+        if let Some(r) = &mut self.replay {
+            r.set_max(n, out);
+        }
+    }
+
+    /// The link's ATT MTU as last set.
+    pub fn link_mtu(&self) -> u16 {
+        self.mtu
     }
 
     /// The device-info value.
@@ -154,6 +193,7 @@ impl<const RING: usize> Device<RING> {
         late: bool,
         out: &mut impl FnMut(Packet),
     ) {
+        let out = &mut link(self.mtu, out);
         let running = self.session.state() == RunState::Running;
         let Some(s) = self.sampler.accept(capture, counts, late, running) else {
             return;
@@ -176,7 +216,7 @@ impl<const RING: usize> Device<RING> {
             return;
         }
         if let Some(s) = self.latest {
-            out(Packet::Temperature(Temperature {
+            link(self.mtu, out)(Packet::Temperature(Temperature {
                 seq: s.seq,
                 centi_c,
             }));
@@ -200,6 +240,7 @@ impl<const RING: usize> Device<RING> {
     /// part-filled batch once its oldest sample is `max_batch_age` old.
     pub fn poll(&mut self, now_capture: u64, out: &mut impl FnMut(Packet)) {
         let now = self.sampler.peek_time(now_capture);
+        let out = &mut link(self.mtu, out);
         self.live.flush_if_older(now, self.cfg.max_batch_age, out);
     }
 
@@ -215,6 +256,7 @@ impl<const RING: usize> Device<RING> {
     /// it reads the reply). Call after every event, with the queues' free places. True when
     /// nothing is owed any more.
     pub fn pump(&mut self, room: Room, out: &mut impl FnMut(Packet)) -> bool {
+        let out = &mut link(self.mtu, out);
         if let Some(r) = &mut self.replay {
             if r.send(&self.ring, room.stream, out) {
                 self.replay = None;
@@ -232,6 +274,8 @@ impl<const RING: usize> Device<RING> {
     /// [`Device::pump`]. Refusals set `last_error` and are reported in the status. A
     /// backfill replaces one still being sent (the host asks again when a reply is late).
     pub fn command(&mut self, cmd: Command, out: &mut impl FnMut(Packet)) {
+        let out = &mut link(self.mtu, out);
+        let batch = route::batch_len(self.mtu);
         let result = match cmd {
             Command::Start {
                 condition,
@@ -239,6 +283,8 @@ impl<const RING: usize> Device<RING> {
             } => {
                 if self.sensor != SensorStatus::Ok {
                     Err(CommandError::SensorFault)
+                } else if batch.is_none() {
+                    Err(CommandError::MtuTooSmall)
                 } else {
                     self.session.start(condition, rate_uhz)
                 }
@@ -263,11 +309,14 @@ impl<const RING: usize> Device<RING> {
                 self.lost = 0;
                 Ok(())
             }
-            Command::Backfill { from_seq, count } => {
-                let (replay, result) = self.ring.replay(from_seq, count);
-                self.replay = Some(replay);
-                result
-            }
+            Command::Backfill { from_seq, count } => match batch {
+                Some(n) => {
+                    let (replay, result) = self.ring.replay(from_seq, count, n);
+                    self.replay = Some(replay);
+                    result
+                }
+                None => Err(CommandError::MtuTooSmall),
+            },
         };
         self.last_error = result.err();
         self.reply_owed = true;

@@ -3,7 +3,7 @@
 //! has waited long enough.
 
 use super::sampler::StreamSample;
-use crate::packet::{AverageBatch, Packet};
+use crate::packet::{AverageBatch, Packet, MAX_AVERAGES};
 use crate::time::Ticks;
 use crate::Condition;
 
@@ -11,15 +11,41 @@ use crate::Condition;
 #[derive(Clone, Copy, Debug)]
 pub struct Packetiser {
     replay: bool,
+    /// Samples per batch, 1 to [`MAX_AVERAGES`]: what one notification carries.
+    max: usize,
     batch: Option<AverageBatch>,
 }
 
 impl Packetiser {
-    /// Live batches, or replay batches (flagged as such) for backfill.
-    pub const fn new(replay: bool) -> Self {
+    /// Live batches, or replay batches (flagged as such) for backfill, of at most `max`
+    /// samples (1 to [`MAX_AVERAGES`]; [`super::route::batch_len`]).
+    pub const fn new(replay: bool, max: usize) -> Self {
         Packetiser {
             replay,
+            max: clamp_len(max),
             batch: None,
+        }
+    }
+
+    /// Change the batch length (the link's MTU changed): a part-filled batch longer than
+    /// the new length is split, and what fills a batch is sent.
+    pub fn set_max(&mut self, max: usize, out: &mut impl FnMut(Packet)) {
+        self.max = clamp_len(max);
+        let Some(b) = self.batch else {
+            return;
+        };
+        if b.len() <= self.max {
+            return;
+        }
+        self.batch = None;
+        for (seq, aperture, a) in b.iter() {
+            let s = StreamSample {
+                seq,
+                aperture,
+                sums: a.sums,
+                flags: a.flags,
+            };
+            self.push(&s, b.condition, out);
         }
     }
 
@@ -29,9 +55,10 @@ impl Packetiser {
             let next_seq = b.first_seq.wrapping_add(b.len() as u32);
             let joins = b.condition == condition
                 && next_seq == s.seq
+                && b.len() < self.max
                 && b.push(&s.aperture, s.sums, s.flags).is_ok();
             if joins {
-                if b.is_full() {
+                if b.len() >= self.max {
                     self.flush(out);
                 }
                 return;
@@ -42,6 +69,9 @@ impl Packetiser {
         // A fresh batch always takes its first sample (dt = 0).
         let _ = b.push(&s.aperture, s.sums, s.flags);
         self.batch = Some(b);
+        if self.max == 1 {
+            self.flush(out);
+        }
     }
 
     /// Send the part-filled batch, if any.
@@ -60,5 +90,15 @@ impl Packetiser {
                 self.flush(out);
             }
         }
+    }
+}
+
+const fn clamp_len(n: usize) -> usize {
+    if n == 0 {
+        1
+    } else if n > MAX_AVERAGES {
+        MAX_AVERAGES
+    } else {
+        n
     }
 }

@@ -3,7 +3,7 @@
 //! firmware, the host's emulated device and the BlueZ stand-in all route through this, so
 //! a test of the host sees what the board would send (docs/protocol.md).
 
-use crate::packet::Packet;
+use crate::packet::{averages_len, Packet, MAX_AVERAGES, MAX_RESULT};
 
 /// A characteristic the device notifies on.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -58,4 +58,36 @@ impl Room {
         stream: usize::MAX,
         results: usize::MAX,
     };
+}
+
+/// Bytes of an ATT notification that are not the value: a notification carries MTU − 3.
+pub const ATT_OVERHEAD: u16 = 3;
+
+/// The ATT MTU the device asks for and grants: a batch of [`MAX_AVERAGES`] (226 bytes).
+pub const MAX_MTU: u16 = 247;
+
+/// The smallest ATT MTU the device works over: a fit report (148 bytes, the largest
+/// packet but a sample batch) in one notification. Below it, Start and Backfill are
+/// refused with [`crate::packet::CommandError::MtuTooSmall`].
+pub const MIN_MTU: u16 = MAX_RESULT as u16 + ATT_OVERHEAD;
+
+/// Bytes of value one notification carries at ATT MTU `mtu`.
+pub const fn payload(mtu: u16) -> usize {
+    mtu.saturating_sub(ATT_OVERHEAD) as usize
+}
+
+/// Samples per batch at ATT MTU `mtu`: as many as fit one notification, at most
+/// [`MAX_AVERAGES`] (247: 7, 185: 5, 158: 4); `None` below [`MIN_MTU`].
+pub fn batch_len(mtu: u16) -> Option<usize> {
+    if mtu < MIN_MTU {
+        return None;
+    }
+    (1..=MAX_AVERAGES)
+        .rev()
+        .find(|n| averages_len(*n) <= payload(mtu))
+}
+
+/// True when `p` fits one notification at ATT MTU `mtu`.
+pub fn fits(p: &Packet, mtu: u16) -> bool {
+    p.encoded_len() <= payload(mtu)
 }

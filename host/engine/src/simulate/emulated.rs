@@ -7,7 +7,10 @@
 //! Packets leave through the firmware's own routing and queues (`rotacal_shared::device::
 //! route`): as deep as the board's, drained one notification at a time at the link's pace,
 //! kept while the link is down, and a backfill and its status reply offered only the room
-//! there is ([`Device::pump`]).
+//! there is ([`Device::pump`]). As the firmware's BLE task does, a notification waits in
+//! its queue until the host has subscribed to its characteristic on the current link, and
+//! one longer than the link's MTU allows is dropped (its samples are fetched again); the
+//! device logic sizes batches to the MTU of each connection ([`Device::set_link_mtu`]).
 //!
 //! Faults on demand: link outages (the device keeps sampling; what it sends meanwhile waits
 //! in the queues while they have room, and the rest is dropped), dropped notifications (one at
@@ -19,7 +22,7 @@ use crate::simulate::device::Conversion;
 use crate::simulate::Simulation;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use rotacal_shared::device::route::{Room, RESULTS_QUEUE, STREAM_QUEUE};
+use rotacal_shared::device::route::{self, Room, RESULTS_QUEUE, STREAM_QUEUE};
 use rotacal_shared::device::{Config, Device, RING};
 use rotacal_shared::packet::{Chip, Command, Packet, RunState};
 use rotacal_shared::Condition;
@@ -48,6 +51,8 @@ pub struct Faults {
     pub mute_after: Option<u32>,
     /// Seed of the drops and the garbage.
     pub seed: u64,
+    /// The ATT MTU the central agrees with the device (247 unless it asks for less).
+    pub mtu: u16,
 }
 
 impl Default for Faults {
@@ -62,6 +67,7 @@ impl Default for Faults {
             replaced: None,
             mute_after: None,
             seed: 1,
+            mtu: route::MAX_MTU,
         }
     }
 }
@@ -103,6 +109,12 @@ pub struct EmulatedDevice {
     /// The firmware's notification queues ([`QUEUES`]), as deep as its own: kept while the
     /// link is down, a packet offered to a full one is dropped.
     queues: [VecDeque<(Channel, Vec<u8>)>; 2],
+    /// Whether the host has subscribed to each queue's characteristic on this link.
+    subscribed: [bool; 2],
+    /// The link's MTU.
+    mtu: u16,
+    /// Notifications dropped for being longer than the link's MTU allows.
+    oversize: u64,
     /// When the next notification may leave them.
     next_notify: Duration,
     /// Delivered to the host, in order.
@@ -129,6 +141,9 @@ impl EmulatedDevice {
             next_temperature: Duration::ZERO,
             next_poll: Duration::ZERO,
             queues: [VecDeque::new(), VecDeque::new()],
+            subscribed: [false; 2],
+            mtu: route::MAX_MTU,
+            oversize: 0,
             next_notify: Duration::ZERO,
             out: VecDeque::new(),
             notifications: 0,
@@ -225,6 +240,16 @@ impl EmulatedDevice {
         self.queues.iter().map(VecDeque::len).sum()
     }
 
+    /// Packets waiting in the queues whose characteristic the host subscribed to.
+    fn deliverable(&self) -> usize {
+        self.queues
+            .iter()
+            .zip(self.subscribed)
+            .filter(|(_, on)| *on)
+            .map(|(q, _)| q.len())
+            .sum()
+    }
+
     /// The queues' free places.
     fn room(&self) -> Room {
         Room {
@@ -245,9 +270,19 @@ impl EmulatedDevice {
     /// One notification leaves the queues (the stream's first, as the firmware's BLE task
     /// selects it first); a stream notification may be lost on the air.
     fn notify(&mut self) {
-        let Some((ch, v)) = self.queues.iter_mut().find_map(VecDeque::pop_front) else {
+        let Some((ch, v)) = self
+            .queues
+            .iter_mut()
+            .zip(self.subscribed)
+            .filter(|(_, on)| *on)
+            .find_map(|(q, _)| q.pop_front())
+        else {
             return;
         };
+        if v.len() > route::payload(self.mtu) {
+            self.oversize += 1;
+            return;
+        }
         if ch == Channel::Stream && self.lost() {
             return;
         }
@@ -278,7 +313,7 @@ impl EmulatedDevice {
                 let x = self.streams.get(c.index())?.get(k)?;
                 Some(start + Duration::from_secs_f64(x.t))
             });
-            let notify = (self.connected && self.queued() > 0).then_some(self.next_notify);
+            let notify = (self.connected && self.deliverable() > 0).then_some(self.next_notify);
             let next = [Some(self.next_poll), conv, notify]
                 .into_iter()
                 .flatten()
@@ -332,18 +367,45 @@ impl EmulatedDevice {
         self.connected &= self.outage_at(t).is_none();
     }
 
-    /// Connect at `t` (after [`advance`](Self::advance) to it): the device-info value, or
-    /// `None` while the device is out of reach. What was in flight on the old link is
-    /// gone; what waits in the firmware's queues goes out on the new one.
-    pub fn connect(&mut self, t: Duration) -> Option<Vec<u8>> {
+    /// Connect at `t` (after [`advance`](Self::advance) to it) with ATT MTU `mtu`: the
+    /// device-info value, or `None` while the device is out of reach. What was in flight
+    /// on the old link is gone; what waits in the firmware's queues goes out on the new
+    /// one once the host subscribes ([`subscribe`](Self::subscribe)).
+    pub fn connect(&mut self, t: Duration, mtu: u16) -> Option<Vec<u8>> {
         if !self.reachable(t) {
             return None;
         }
         self.connected = true;
+        self.subscribed = [false; 2];
+        self.mtu = mtu;
+        let mut packets = Vec::new();
+        self.device.set_link_mtu(mtu, &mut |p| packets.push(p));
+        for p in packets {
+            self.send(p);
+        }
         self.next_notify = self.next_notify.max(t);
         self.out.clear();
         let info = self.device.info(Chip::Lsm6ds33, self.firmware_at(t));
         Some(self.encode(&Packet::Info(info)))
+    }
+
+    /// The host subscribes to (or unsubscribes from) `ch`'s notifications on this link.
+    pub fn subscribe(&mut self, ch: Channel, on: bool) {
+        let Some(i) = QUEUES.iter().position(|(c, _)| *c == ch) else {
+            return;
+        };
+        if self.deliverable() == 0 {
+            // Nothing was waiting to go: the next notification may leave at once.
+            self.next_notify = self.next_notify.max(self.now);
+        }
+        if let Some(s) = self.subscribed.get_mut(i) {
+            *s = on;
+        }
+    }
+
+    /// Notifications dropped because they were longer than the link's MTU allows.
+    pub fn oversize(&self) -> u64 {
+        self.oversize
     }
 
     /// The link closed by the host.
@@ -418,7 +480,7 @@ pub enum FaultsError {
     /// A key that names no fault.
     #[error(
         "'{key}': unknown fault (outage, drop, burst, garbage, firmware, protocol, replaced, \
-         mute_after, seed)"
+         mute_after, seed, mtu)"
     )]
     UnknownFault {
         /// The key.
@@ -441,7 +503,7 @@ impl std::str::FromStr for Faults {
 
     /// `outage=AT:LEN` (seconds; repeatable), `drop=P`, `burst=L`, `garbage=N`,
     /// `firmware=A.B.C`, `protocol=V`, `replaced=A.B.C`, `mute_after=N`, `seed=N`,
-    /// comma-separated.
+    /// `mtu=N` (the ATT MTU of the simulated link, 23 to 517), comma-separated.
     fn from_str(s: &str) -> Result<Self, FaultsError> {
         let mut f = Faults::default();
         for item in s.split(',').map(str::trim).filter(|i| !i.is_empty()) {
@@ -494,6 +556,13 @@ impl std::str::FromStr for Faults {
                     f.mute_after = Some(v.parse().map_err(|_| bad("expected a whole number"))?)
                 }
                 "seed" => f.seed = v.parse().map_err(|_| bad("expected a whole number"))?,
+                "mtu" => {
+                    f.mtu = v
+                        .parse()
+                        .ok()
+                        .filter(|m| (23..=517).contains(m))
+                        .ok_or_else(|| bad("an ATT MTU from 23 to 517"))?
+                }
                 _ => return Err(FaultsError::UnknownFault { key: k.into() }),
             }
         }
