@@ -1,12 +1,12 @@
 //! What the tasks tell each other: sensor and BLE events into the logic task, encoded
 //! packets out of it.
 
-use core::sync::atomic::{AtomicU32, Ordering};
+use core::sync::atomic::{AtomicU16, AtomicU32, Ordering};
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::channel::Channel;
 use heapless::Vec;
 use rotacal_sensor::Chip;
-use rotacal_shared::device::route::{RESULTS_QUEUE, STREAM_QUEUE};
+use rotacal_shared::device::route::{MAX_MTU, RESULTS_QUEUE, STREAM_QUEUE};
 use rotacal_shared::packet::{Command, SensorStatus};
 
 /// Into the logic task.
@@ -51,4 +51,18 @@ pub fn note_overflow() {
 /// Events dropped since the last call.
 pub fn take_overflows() -> u32 {
     OVERFLOWS.swap(0, Ordering::Relaxed)
+}
+
+/// The current link's ATT MTU, as the BLE task last read it (the device logic sizes its
+/// batches to it).
+pub static LINK_MTU: AtomicU16 = AtomicU16::new(MAX_MTU);
+
+/// Set the link's MTU.
+pub fn set_link_mtu(mtu: u16) {
+    LINK_MTU.store(mtu, Ordering::Relaxed);
+}
+
+/// The link's MTU.
+pub fn link_mtu() -> u16 {
+    LINK_MTU.load(Ordering::Relaxed)
 }

@@ -1,7 +1,7 @@
 //! The logic task: owns the hardware-independent [`Device`] (rotacal-shared), feeds it the
 //! sensor's and the host's events, and routes what it sends to the BLE characteristics.
 
-use crate::events::{take_overflows, Encoded, Event, EVENTS, RESULTS, STREAM};
+use crate::events::{link_mtu, take_overflows, Encoded, Event, EVENTS, RESULTS, STREAM};
 use crate::sampling::chip_code;
 use defmt::{info, warn};
 use embassy_nrf::gpio::Output;
@@ -78,6 +78,8 @@ pub async fn logic_task(dev: &'static mut Device<RING>, mut led: Output<'static>
     let mut out = route;
     loop {
         let ev = EVENTS.receive().await;
+        // Batches are sized to the link the BLE task reports (a no-op when unchanged).
+        dev.set_link_mtu(link_mtu(), &mut out);
         let lost = take_overflows();
         if lost > 0 {
             dev.on_lost(lost);
