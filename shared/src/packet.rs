@@ -70,8 +70,22 @@ impl SampleFlags {
     /// The data-ready edge was not captured for this sample (the timestamp is the
     /// read time and may be up to one sensor period late: method.md §7).
     pub const LATE_TIMESTAMP: u8 = 1 << 1;
+    /// Bits 2–4: conversions the sensor made in this sample's slot that the device did
+    /// not read (0 to 7; [`SampleFlags::missed`]). The sample averages the others.
+    pub const MISSED: u8 = 0b111 << 2;
     /// Every defined bit.
-    pub const ALL: u8 = Self::CLIPPED | Self::LATE_TIMESTAMP;
+    pub const ALL: u8 = Self::CLIPPED | Self::LATE_TIMESTAMP | Self::MISSED;
+
+    /// The missed conversions a flags byte counts.
+    pub const fn missed(flags: u8) -> u8 {
+        (flags & Self::MISSED) >> 2
+    }
+
+    /// `flags` counting `n` missed conversions (at most 7).
+    pub const fn with_missed(flags: u8, n: u8) -> u8 {
+        let n = if n > 7 { 7 } else { n };
+        (flags & !Self::MISSED) | (n << 2)
+    }
 }
 
 /// A sample kind a [`Batch`] holds.
@@ -395,7 +409,9 @@ pub struct Status {
     pub sensor: SensorStatus,
     /// Active (or last) condition, if any.
     pub condition: Option<Condition>,
-    /// Samples lost on the device (sensor overruns, full queues) since start.
+    /// Conversions lost on the device since start: read too late or not at all (a late or
+    /// stuck read, counted from the hardware edge count and the time between reads), or
+    /// dropped from a full event queue.
     pub lost: u32,
     /// Oldest and newest sequence numbers in the ring buffer (equal when empty).
     pub ring_oldest: u32,

@@ -93,6 +93,14 @@ pub const CASES: &[Case] = &[
         name: "intrinsic_gram_exact_when_tilted",
         run: intrinsic_gram_exact_when_tilted,
     },
+    Case {
+        name: "device_counts_missed_conversions",
+        run: device_counts_missed_conversions,
+    },
+    Case {
+        name: "reads_are_paired_with_their_instants",
+        run: reads_are_paired_with_their_instants,
+    },
 ];
 
 fn check(ok: bool, what: &'static str) -> Result<(), &'static str> {
@@ -502,6 +510,168 @@ fn intrinsic_gram_exact_when_tilted() -> Result<(), &'static str> {
     }
     for (e, t) in r.angle_deg.iter().zip([90.077, 90.095, 89.910]) {
         check(close(e.value, t, 1e-9), "angle not exact")?;
+    }
+    Ok(())
+}
+
+/// What a run of [`missed_run`] saw.
+struct MissedRun {
+    /// Conversions the sensor made that were not read.
+    skipped: u32,
+    /// The device's status `lost`.
+    lost: u32,
+    /// Missed conversions the samples' flags count.
+    flagged: u32,
+    /// Samples whose slot holds other than 6 or 7 conversions, read and missed.
+    bad_slots: u32,
+    samples: u32,
+}
+
+/// A condition streamed from a sensor converting `odr_ppm` off 104 Hz, whose conversions
+/// `skip` are not read; `hardware_count`: the board counts every data-ready edge (pulsed
+/// data-ready), else one edge per read (latched, as on the LSM6DS33).
+fn missed_run(skip: fn(u32) -> bool, odr_ppm: i64, hardware_count: bool) -> MissedRun {
+    use crate::device::sampler::Conversion;
+    use crate::device::{Config, Device};
+    use crate::packet::{Command, Packet, SampleFlags};
+    let mut dev = Device::<16>::new(Config::FEATHER);
+    let start = Command::Start {
+        condition: crate::Condition::X,
+        rate_uhz: 10_000,
+    };
+    dev.on_command(start, &mut |_| {});
+    let (mut flagged, mut bad_slots, mut samples) = (0u32, 0u32, 0u32);
+    let mut tally = |p: Packet| {
+        if let Packet::Averages(b) = p {
+            for (_, ap, a) in b.iter() {
+                let m = u32::from(SampleFlags::missed(a.flags));
+                flagged += m;
+                samples += 1;
+                if !(6..=7).contains(&(ap.len() as u32 + m)) {
+                    bad_slots += 1;
+                }
+            }
+        }
+    };
+    // Conversion k at k / (104 Hz · (1 + odr_ppm·1e-6)), in 1 MHz ticks.
+    let period_pico = 1_000_000_000_000i64 * 1_000_000 / (104 * (1_000_000 + odr_ppm));
+    let (mut skipped, mut reads) = (0u32, 0u32);
+    for k in 0..6000u32 {
+        if skip(k) {
+            skipped += 1;
+            continue;
+        }
+        reads += 1;
+        let t = 1_000 + (i64::from(k) * period_pico / 1_000_000) as u64;
+        let c = Conversion {
+            capture: t,
+            counts: [100, -200, 300],
+            late: false,
+            edges: Some(if hardware_count { k } else { reads }),
+        };
+        dev.on_conversion(&c, &mut tally);
+    }
+    dev.on_command(Command::Stop, &mut tally);
+    MissedRun {
+        skipped,
+        lost: dev.status().lost,
+        flagged,
+        bad_slots,
+        samples,
+    }
+}
+
+/// Late and stuck reads, with and without a hardware edge count, the sensor on time and
+/// 2 % fast: every conversion not read is counted in the status, and, where a sample's slot
+/// holds it, in that sample's flags, so that each sample accounts for the 6 or 7
+/// conversions of its slot.
+fn device_counts_missed_conversions() -> Result<(), &'static str> {
+    // Single late reads and runs of up to 5: every slot keeps a read conversion.
+    fn short(k: u32) -> bool {
+        k % 97 == 5 || k % 389 == 11 || (1000..1003).contains(&k) || (2500..2505).contains(&k)
+    }
+    // Stuck reads of 100 and 300 ms: whole slots without a read conversion.
+    fn stuck(k: u32) -> bool {
+        short(k) || (3000..3010).contains(&k) || (4000..4031).contains(&k)
+    }
+    for hardware_count in [true, false] {
+        for odr_ppm in [0, 20_000, -20_000] {
+            let r = missed_run(short, odr_ppm, hardware_count);
+            check(r.samples > 900, "a condition's samples streamed")?;
+            check(r.lost == r.skipped, "lost counts every conversion not read")?;
+            check(r.flagged == r.skipped, "each one is in its sample's flags")?;
+            check(
+                r.bad_slots == 0,
+                "each sample accounts for its 6 or 7 conversions",
+            )?;
+            let r = missed_run(stuck, odr_ppm, hardware_count);
+            check(
+                r.lost == r.skipped,
+                "stuck: lost counts every conversion not read",
+            )?;
+            check(
+                r.flagged <= r.skipped && r.skipped - r.flagged <= 41,
+                "stuck: only those of slots without a read are in no sample's flags",
+            )?;
+            check(r.bad_slots == 0, "stuck: each sample accounts for its slot")?;
+        }
+    }
+    Ok(())
+}
+
+/// [`crate::device::pairing::pair`]: an on-time read keeps its edge's instant; a late read
+/// of a latched line takes the latest conversion's instant and is flagged; an edge during
+/// the read flags the sample; counters and timers wrap.
+fn reads_are_paired_with_their_instants() -> Result<(), &'static str> {
+    use crate::device::pairing::{pair, Read};
+    const P: u32 = 9615;
+    let on_time = Read {
+        capture: u32::MAX - 1000,
+        capture_after: u32::MAX - 1000,
+        read_start: 1999, // 3000 ticks after the capture, across the wrap
+        edges: 41,
+        edges_after: 41,
+        counts: [1, 2, 3],
+        latched: true,
+    };
+    let c = pair(&on_time, P);
+    check(
+        c.capture == u64::from(u32::MAX - 1000) && !c.late && c.edges.is_none(),
+        "latched, on time: the edge's instant",
+    )?;
+    // Read 2.5 periods after the edge: two newer conversions overwrote it.
+    let late = Read {
+        read_start: on_time.capture.wrapping_add(P * 5 / 2),
+        ..on_time
+    };
+    let c = pair(&late, P);
+    check(
+        c.capture == u64::from(on_time.capture.wrapping_add(2 * P)) && c.late,
+        "latched, late: the latest conversion's instant, flagged",
+    )?;
+    let pulsed = Read {
+        latched: false,
+        read_start: on_time.capture.wrapping_add(P * 5 / 2),
+        ..on_time
+    };
+    let c = pair(&pulsed, P);
+    check(
+        c.capture == u64::from(on_time.capture) && !c.late && c.edges == Some(41),
+        "pulsed: the capture is the latest edge's, with the count",
+    )?;
+    for during in [
+        Read {
+            capture_after: pulsed.capture.wrapping_add(P),
+            edges_after: 42,
+            ..pulsed
+        },
+        Read {
+            capture_after: on_time.capture.wrapping_add(P),
+            edges_after: 42,
+            ..on_time
+        },
+    ] {
+        check(pair(&during, P).late, "an edge during the read flags it")?;
     }
     Ok(())
 }

@@ -9,6 +9,7 @@
 //! Output goes through a callback, so nothing here allocates or blocks.
 
 pub mod packetiser;
+pub mod pairing;
 pub mod ring;
 pub mod route;
 pub mod sampler;
@@ -23,7 +24,7 @@ use crate::time::TickRate;
 use packetiser::Packetiser;
 use ring::{Replay, Ring};
 use route::{Room, MAX_MTU};
-use sampler::{Sampler, StreamSample};
+use sampler::{Conversion, Sampler, StreamSample};
 use session::Session;
 
 /// Samples the Feather keeps for backfill: 40 s at 16 Hz, 17.5 KiB of RAM (28 bytes
@@ -184,8 +185,8 @@ impl<const RING: usize> Device<RING> {
     }
 
     /// A data-ready edge captured at raw counter value `capture`, and the conversion read
-    /// after it. `late`: the edge was missed and `capture` is the read time. Every
-    /// conversion goes in; a stream sample comes out when one closes a slot.
+    /// after it. `late`: the edge was missed and `capture` is the read time. As
+    /// [`Device::on_conversion`] without a hardware edge count.
     pub fn on_sample(
         &mut self,
         capture: u64,
@@ -193,9 +194,25 @@ impl<const RING: usize> Device<RING> {
         late: bool,
         out: &mut impl FnMut(Packet),
     ) {
+        let c = Conversion {
+            capture,
+            counts,
+            late,
+            edges: None,
+        };
+        self.on_conversion(&c, out);
+    }
+
+    /// A conversion read. Every one goes in; a stream sample comes out when one closes a
+    /// slot. Conversions the sensor made that were not read (a late or stuck read) are
+    /// counted: in the status's `lost` and in the flags of the sample whose slot they fell
+    /// in ([`crate::packet::SampleFlags::MISSED`]).
+    pub fn on_conversion(&mut self, c: &Conversion, out: &mut impl FnMut(Packet)) {
         let out = &mut link(self.mtu, out);
         let running = self.session.state() == RunState::Running;
-        let Some(s) = self.sampler.accept(capture, counts, late, running) else {
+        let (sample, missed) = self.sampler.accept(c, running);
+        self.lost = self.lost.saturating_add(missed);
+        let Some(s) = sample else {
             return;
         };
         let Some(cond) = self.session.condition() else {
@@ -223,7 +240,7 @@ impl<const RING: usize> Device<RING> {
         }
     }
 
-    /// Samples lost before they reached the device logic (sensor overrun, full queue).
+    /// Conversions lost before they reached the device logic (a full event queue).
     pub fn on_lost(&mut self, n: u32) {
         self.lost = self.lost.saturating_add(n);
     }

@@ -14,6 +14,22 @@ use super::Config;
 use crate::packet::{CommandError, SampleFlags};
 use crate::time::{Aperture, TickExtender, Ticks, MAX_CONVERSIONS};
 
+/// A sensor conversion as the firmware read it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Conversion {
+    /// Raw counter value at its data-ready edge (the read time when `late`).
+    pub capture: u64,
+    /// Raw counts u, v, w.
+    pub counts: [i16; 3],
+    /// The timestamp may not be this conversion's: its edge was not captured, or another
+    /// edge came while it was being read.
+    pub late: bool,
+    /// Data-ready edges counted in hardware up to this one (a TIMER in counter mode on a
+    /// PPI fork of the edge), when the board counts them.
+    pub edges: Option<u32>,
+}
+
 /// A sample of the stream: the sum of the conversions in one slot.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -41,6 +57,7 @@ impl StreamSample {
 struct Open {
     aperture: Aperture,
     sums: [i32; 3],
+    /// [`SampleFlags`], the missed conversions among them.
     flags: u8,
     /// End of the slot, ticks × 1000.
     end_milli: u64,
@@ -60,6 +77,30 @@ pub struct Sampler {
     /// stream paused.
     last_end_milli: Option<u64>,
     next_seq: u32,
+    /// The sensor's conversion period, ticks × 1000: nominal at first, then measured from
+    /// the gaps between consecutive conversions (its oscillator is good to a few %).
+    conversion_milli: u64,
+    /// The previous conversion streamed: its time and its hardware edge count.
+    previous: Option<(Ticks, Option<u32>)>,
+}
+
+/// Conversions the sensor made between two that were read: from the hardware edge count
+/// when there is one, and from the time between them (`gap_milli`, ticks × 1000) over the
+/// conversion period, rounded, whichever is larger (a latched data-ready line gives one
+/// edge per read, so its count cannot see what was skipped; the time can). The instants
+/// are the conversions' own, or estimated to well within half a period
+/// ([`super::pairing`]).
+pub fn missed_between(gap_milli: u64, conversion_milli: u64, edges: Option<(u32, u32)>) -> u32 {
+    let p = conversion_milli.max(1);
+    let periods = (gap_milli + p / 2) / p;
+    let by_time = u32::try_from(periods.saturating_sub(1)).unwrap_or(u32::MAX);
+    // A count that ran backwards or jumped by more than a minute of conversions is a
+    // fault of the counter, not conversions: the time decides.
+    let by_count = edges
+        .map(|(now, before)| now.wrapping_sub(before).saturating_sub(1))
+        .filter(|n| *n < 1 << 16)
+        .unwrap_or(0);
+    by_time.max(by_count)
 }
 
 impl Sampler {
@@ -74,6 +115,12 @@ impl Sampler {
             open: None,
             last_end_milli: None,
             next_seq: 0,
+            conversion_milli: if cfg.sensor_odr_mhz == 0 {
+                0
+            } else {
+                clock_hz * 1_000_000 / u64::from(cfg.sensor_odr_mhz)
+            },
+            previous: None,
         };
         if s.set_sample_rate(cfg.sample_rate_mhz, cfg.sensor_odr_mhz)
             .is_err()
@@ -115,6 +162,7 @@ impl Sampler {
     pub fn discard(&mut self) {
         self.open = None;
         self.last_end_milli = None;
+        self.previous = None;
     }
 
     /// The 64-bit time of a raw counter value read now (for timeouts); it also keeps the
@@ -126,63 +174,101 @@ impl Sampler {
     /// A sensor conversion. It joins the open slot if its edge falls in it; otherwise it
     /// closes that slot, which is returned as a stream sample, and opens the next. While
     /// not `streaming` nothing is kept (sequence numbers advance only for streamed
-    /// samples, so the host sees a gap only where a sample was lost).
-    pub fn accept(
-        &mut self,
-        capture: u64,
-        counts: [i16; 3],
-        late: bool,
-        streaming: bool,
-    ) -> Option<StreamSample> {
-        let t = self.extender.extend(capture);
+    /// samples, so the host sees a gap only where a sample was lost). Also returned: the
+    /// conversions the sensor made since the previous one that were not read
+    /// ([`missed_between`]); each is counted in the flags of the sample whose slot it
+    /// fell in (one in a slot that no read conversion opened is counted only here).
+    pub fn accept(&mut self, c: &Conversion, streaming: bool) -> (Option<StreamSample>, u32) {
+        let t = self.extender.extend(c.capture);
         if !streaming {
             self.discard();
-            return None;
+            return (None, 0);
         }
         let mut flags = 0;
-        if counts.iter().any(|c| *c == i16::MIN || *c == i16::MAX) {
+        if c.counts.iter().any(|v| *v == i16::MIN || *v == i16::MAX) {
             flags |= SampleFlags::CLIPPED;
         }
-        if late {
+        if c.late {
             flags |= SampleFlags::LATE_TIMESTAMP;
         }
         let t_milli = t.0.saturating_mul(1000);
+        // Conversions skipped since the previous one, at evenly spaced instants between.
+        let (missed, previous_milli) = match self.previous {
+            Some((tp, ep)) if tp <= t => {
+                let gap = (t.0 - tp.0).saturating_mul(1000);
+                let n = missed_between(gap, self.conversion_milli, c.edges.zip(ep));
+                if n == 0 && !c.late && gap < self.conversion_milli.saturating_mul(3) / 2 {
+                    // One period: the measured conversion period follows it (1/16).
+                    self.conversion_milli =
+                        self.conversion_milli - self.conversion_milli / 16 + gap / 16;
+                }
+                (n, tp.0.saturating_mul(1000))
+            }
+            _ => (0, t_milli),
+        };
+        self.previous = Some((t, c.edges));
+        let missed_at = |j: u32| {
+            let span = t_milli.saturating_sub(previous_milli);
+            previous_milli + span * u64::from(j) / (u64::from(missed) + 1)
+        };
         if let Some(o) = &mut self.open {
             if t_milli < o.end_milli {
                 let gap = t
                     .since(o.aperture.last())
                     .and_then(|d| u16::try_from(d).ok());
                 if let Some(Ok(())) = gap.map(|g| o.aperture.push_gap(g)) {
-                    for (s, c) in o.sums.iter_mut().zip(counts) {
-                        *s = s.saturating_add(i32::from(c));
+                    for (s, v) in o.sums.iter_mut().zip(c.counts) {
+                        *s = s.saturating_add(i32::from(v));
                     }
-                    o.flags |= flags;
-                    return None;
+                    // Every skipped conversion was before this one, so in this slot.
+                    let m = SampleFlags::missed(o.flags).saturating_add(clamp_u8(missed));
+                    o.flags = SampleFlags::with_missed(o.flags | flags, m);
+                    return (None, missed);
                 }
             }
         }
         // A new slot: the next of the grid, or, after a pause (or a conversion the open
         // slot could not take), a grid restarted here.
-        let closed = self.open.take();
+        let mut closed = self.open.take();
         let start = match closed.map(|o| o.end_milli).or(self.last_end_milli) {
             Some(end) if t_milli >= end && t_milli < end.saturating_add(self.period_milli) => end,
             _ => t_milli,
         };
+        let (mut in_closed, mut in_new) = (0u32, 0u32);
+        for j in 1..=missed {
+            let tj = missed_at(j);
+            match &closed {
+                Some(o) if tj < o.end_milli => in_closed += 1,
+                _ if tj >= start => in_new += 1,
+                _ => {}
+            }
+        }
+        if let Some(o) = &mut closed {
+            let m = SampleFlags::missed(o.flags).saturating_add(clamp_u8(in_closed));
+            o.flags = SampleFlags::with_missed(o.flags, m);
+        }
         self.open = Some(Open {
             aperture: Aperture::point(t),
-            sums: counts.map(i32::from),
-            flags,
+            sums: c.counts.map(i32::from),
+            flags: SampleFlags::with_missed(flags, clamp_u8(in_new)),
             end_milli: start.saturating_add(self.period_milli),
         });
-        let o = closed?;
+        let Some(o) = closed else {
+            return (None, missed);
+        };
         self.last_end_milli = Some(o.end_milli);
         let seq = self.next_seq;
         self.next_seq = self.next_seq.wrapping_add(1);
-        Some(StreamSample {
+        let sample = StreamSample {
             seq,
             aperture: o.aperture,
             sums: o.sums,
             flags: o.flags,
-        })
+        };
+        (Some(sample), missed)
     }
+}
+
+fn clamp_u8(n: u32) -> u8 {
+    u8::try_from(n).unwrap_or(u8::MAX)
 }
