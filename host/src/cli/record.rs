@@ -209,7 +209,8 @@ async fn session<L: Link>(link: &mut L, a: &Args, plan: Plan, opts: Options) -> 
             let s = &o.summary;
             println!(
                 "recorded condition {}: {} samples ({} recovered by replay, {} received twice, \
-                 {} lost{}), {} fit-log lines, {} link drop(s), {} undecodable value(s){}\n\
+                 {} lost{}), {} fit-log lines, {} link drop(s), {} undecodable value(s), {} \
+                 conversion(s) lost on the device{}\n\
                  files: {files}",
                 plan.condition.letter(),
                 s.rows,
@@ -224,6 +225,7 @@ async fn session<L: Link>(link: &mut L, a: &Args, plan: Plan, opts: Options) -> 
                 s.fit_lines,
                 o.link_drops,
                 o.undecodable,
+                o.device_lost,
                 if o.final_fit {
                     ""
                 } else {

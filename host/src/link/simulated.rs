@@ -33,6 +33,12 @@ impl SimulatedDevice {
         })
     }
 
+    /// Conversions the emulated sensor made that its firmware did not read (faults `late`,
+    /// `stuck`): what the device must count.
+    pub fn unread(&self) -> u64 {
+        self.device.unread()
+    }
+
     fn elapsed(&self) -> Duration {
         self.epoch.map_or(Duration::ZERO, |e| Instant::now() - e)
     }

@@ -146,6 +146,9 @@ pub struct Outcome {
     pub link_drops: u32,
     /// The condition's final fit report arrived.
     pub final_fit: bool,
+    /// Conversions lost on the device during the recording (not read in time, or dropped
+    /// from its event queue), from its status: also counted per sample in `conv_missed`.
+    pub device_lost: u32,
 }
 
 /// Why recording failed. What was received up to then is in the files.
@@ -276,6 +279,8 @@ struct Session<'a, L: Link, W: Durable, F: Durable, C: Durable, O: Observer> {
     link_drops: u32,
     connected: bool,
     last_status: Option<Status>,
+    /// The device's `lost` count at the first and the latest status.
+    device_lost: Option<(u32, u32)>,
     /// The sensor was OK at the last status (to report a change once).
     sensor_ok: bool,
     final_fit: bool,
@@ -385,6 +390,8 @@ impl<L: Link, W: Durable, F: Durable, C: Durable, O: Observer> Session<'_, L, W,
                 if s.last_error == Some(CommandError::NotInRing) {
                     self.files.recorder.give_up_before(s.ring_oldest)?;
                 }
+                let first = self.device_lost.map_or(s.lost, |(f, _)| f);
+                self.device_lost = Some((first, s.lost));
                 self.last_status = Some(s);
             }
             Packet::Fit(f) if f.is_final && f.condition == self.plan.condition => {
@@ -576,6 +583,7 @@ pub async fn record<L: Link, W: Durable, F: Durable, C: Durable, O: Observer>(
         link_drops: 0,
         connected: true,
         last_status: None,
+        device_lost: None,
         sensor_ok: true,
         final_fit: false,
         plan,
@@ -589,6 +597,7 @@ pub async fn record<L: Link, W: Durable, F: Durable, C: Durable, O: Observer>(
     let undecodable = s.undecodable;
     let link_drops = s.link_drops;
     let final_fit = s.final_fit;
+    let device_lost = s.device_lost.map_or(0, |(a, b)| b.saturating_sub(a));
     let _ = s.flush();
     let summary = s.files.recorder.finish();
     match (result, summary) {
@@ -597,6 +606,7 @@ pub async fn record<L: Link, W: Durable, F: Durable, C: Durable, O: Observer>(
             undecodable,
             link_drops,
             final_fit,
+            device_lost,
         }),
         (Err(e), sum) => Err((e, sum.ok())),
         (Ok(()), Err(e)) => Err((e.into(), None)),
@@ -833,7 +843,12 @@ pub fn open_files(
         let mut capture = CaptureWriter::append(open(&paths.capture)?);
         capture.entry(&Entry::Value(Channel::Info, info_bytes.to_vec()))?;
         Ok(Files {
-            recorder: Recorder::append(open(&paths.recording)?, open(&paths.fits)?, tick_hz)?,
+            recorder: Recorder::append(
+                open(&paths.recording)?,
+                open(&paths.fits)?,
+                tick_hz,
+                rec.groups.iter().all(|g| g.missed.is_some()),
+            )?,
             capture,
         })
     } else {

@@ -917,6 +917,8 @@ fn case() -> impl Strategy<Value = Case> {
                 rate_hz,
                 // Averaged rows' conversions, in some of the cases.
                 conv_gaps: seq && temp_c,
+                // Missed conversions with them, in some of those.
+                conv_missed: seq && temp_c && rate_hz,
                 ..Columns::default()
             };
             let method = match m {
@@ -1003,6 +1005,12 @@ fn case() -> impl Strategy<Value = Case> {
                                     .collect();
                                 Aperture::new(Ticks(0), &gaps).expect("at most 6 gaps, none 0")
                             }),
+                            // Empty (not counted) or 0 to 7, from the seq's bits.
+                            conv_missed: if columns.conv_missed {
+                                Some(((s >> 5) % 9) as u8).filter(|m| *m < 8)
+                            } else {
+                                None
+                            },
                         }
                     })
                     .collect();
@@ -1043,6 +1051,7 @@ fn expected_groups(case: &Case, header_line: u64) -> Vec<Group> {
                     temp_c: case.columns.temp_c.then(Vec::new),
                     unc: None,
                     conversions: case.columns.conv_gaps.then(Vec::new),
+                    missed: case.columns.conv_missed.then(Vec::new),
                     first_line: header_line + 1 + i as u64,
                 });
                 groups.last_mut().expect("just pushed")
@@ -1061,6 +1070,9 @@ fn expected_groups(case: &Case, header_line: u64) -> Vec<Group> {
         }
         if let (Some(v), Some(a)) = (g.conversions.as_mut(), row.conv_gaps) {
             v.push(a);
+        }
+        if let Some(v) = g.missed.as_mut() {
+            v.push(row.conv_missed);
         }
     }
     groups

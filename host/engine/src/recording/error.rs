@@ -126,6 +126,8 @@ pub enum RecordingErrorKind {
     NeedsConditionsFree(String),
     /// A `conv_gaps` field that is not a list of up to six tick counts from 1 to 65535.
     BadConversions(String),
+    /// A `conv_missed` field that is neither empty nor a whole number from 0 to 7.
+    BadMissed(String),
     /// A condition has no rows (at some rate, for a multi-rate file).
     MissingCondition {
         /// The missing condition.
@@ -223,6 +225,11 @@ impl fmt::Display for RecordingErrorKind {
             ),
             K::BadPose(why) => write!(f, "column pose: {why}"),
             K::BadConversions(what) => write!(f, "conv_gaps {what}"),
+            K::BadMissed(text) => write!(
+                f,
+                "conv_missed {text:?}: expected a whole number of conversions from 0 to 7, \
+                 or nothing"
+            ),
             K::NeedsConditions(what) => write!(
                 f,
                 "{what} needs conditions x, y, z; this file gives gravity directions (gx, gy, \

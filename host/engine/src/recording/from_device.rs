@@ -12,7 +12,7 @@
 
 use crate::recording::{Columns, Metadata, Row, Writer, TICK_HZ_KEY};
 use rotacal_shared::device::route::Characteristic;
-use rotacal_shared::packet::{FitReport, Packet, QuickLook};
+use rotacal_shared::packet::{FitReport, Packet, QuickLook, SampleFlags};
 use rotacal_shared::{Aperture, Condition, Ticks};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
@@ -204,6 +204,7 @@ pub const COLUMNS: Columns = Columns {
     pose: false,
     unc: false,
     conv_gaps: true,
+    conv_missed: true,
 };
 
 impl<W: Write, F: Write> Recorder<W, F> {
@@ -216,9 +217,14 @@ impl<W: Write, F: Write> Recorder<W, F> {
         Self::with_writer(Writer::new(rows, &meta, &COLUMNS)?, fits, tick_hz)
     }
 
-    /// Continue a recording whose preamble and header `rows` already hold.
-    pub fn append(rows: W, fits: F, tick_hz: u32) -> io::Result<Self> {
-        Self::with_writer(Writer::append(rows, &COLUMNS), fits, tick_hz)
+    /// Continue a recording whose preamble and header `rows` already hold; `missed`: the
+    /// header has the `conv_missed` column (recordings before rotacal 0.3 do not).
+    pub fn append(rows: W, fits: F, tick_hz: u32, missed: bool) -> io::Result<Self> {
+        let columns = Columns {
+            conv_missed: missed,
+            ..COLUMNS
+        };
+        Self::with_writer(Writer::append(rows, &columns), fits, tick_hz)
     }
 
     fn with_writer(rows: Writer<W>, fits: F, tick_hz: u32) -> io::Result<Self> {
@@ -370,6 +376,7 @@ impl<W: Write, F: Write> Recorder<W, F> {
                     row.seq = Some(u64::from(seq));
                     row.t_s = Some(ap.first().0 as f64 / f64::from(self.tick_hz));
                     row.conv_gaps = Some(ap);
+                    row.conv_missed = Some(SampleFlags::missed(s.flags));
                     self.sample(seq, row, b.replay)?;
                 }
             }

@@ -220,6 +220,9 @@ pub struct Group {
     /// `conv_gaps` column, if the file has one: the conversions each row averages, in
     /// device ticks (`tick_hz`) with the first at tick 0 (it is `t_s`).
     pub conversions: Option<Vec<Aperture>>,
+    /// `conv_missed` column, if the file has one: conversions in each row's slot that the
+    /// device did not read (`None` for a row that does not say: an empty field).
+    pub missed: Option<Vec<Option<u8>>>,
     /// 1-based file line of the group's first row (for messages).
     pub first_line: u64,
 }
@@ -320,7 +323,7 @@ pub(crate) fn same_rate(a: Option<f64>, b: Option<f64>) -> bool {
 }
 
 /// The column names formats.md defines.
-pub const COLUMN_NAMES: [&str; 17] = [
+pub const COLUMN_NAMES: [&str; 18] = [
     "condition",
     "t_s",
     "angle_deg",
@@ -338,6 +341,7 @@ pub const COLUMN_NAMES: [&str; 17] = [
     "v_unc",
     "w_unc",
     "conv_gaps",
+    "conv_missed",
 ];
 
 /// The metadata key giving the device clock's ticks per second, which `conv_gaps` counts
@@ -458,8 +462,10 @@ pub struct Columns {
     /// `u_unc, v_unc, w_unc` after `w`: standard uncertainties of calibrated readings
     /// (`rotacal apply`; other readers ignore them).
     pub unc: bool,
-    /// `conv_gaps`, last: the conversions each row averages (needs `tick_hz` metadata).
+    /// `conv_gaps`: the conversions each row averages (needs `tick_hz` metadata).
     pub conv_gaps: bool,
+    /// `conv_missed`, last: conversions in each row's slot the device did not read.
+    pub conv_missed: bool,
 }
 
 impl Columns {
@@ -474,6 +480,7 @@ impl Columns {
         pose: false,
         unc: false,
         conv_gaps: false,
+        conv_missed: false,
     };
     /// A plain rotation file: `condition,t_s,u,v,w`.
     pub const ROTATION: Columns = Columns {
@@ -520,6 +527,9 @@ impl Columns {
         if self.conv_gaps {
             out.push("conv_gaps");
         }
+        if self.conv_missed {
+            out.push("conv_missed");
+        }
         out
     }
 }
@@ -554,6 +564,9 @@ pub struct Row<'a> {
     /// The conversions the row averages (only the gaps are written: the first is `t_s`),
     /// in device ticks of the file's `tick_hz`.
     pub conv_gaps: Option<Aperture>,
+    /// Conversions in the row's slot the device did not read; `None` writes an empty
+    /// field (a device that does not count them).
+    pub conv_missed: Option<u8>,
 }
 
 impl Row<'static> {
@@ -573,6 +586,7 @@ impl Row<'static> {
             pose: None,
             unc: None,
             conv_gaps: None,
+            conv_missed: None,
         }
     }
 }

@@ -250,6 +250,12 @@ impl<W: Write> Writer<W> {
                 let _ = write!(line, "{g}");
             }
         }
+        if c.conv_missed {
+            line.push(',');
+            if let Some(m) = row.conv_missed {
+                let _ = write!(line, "{m}");
+            }
+        }
         line.push('\n');
         self.out.write_all(line.as_bytes())
     }

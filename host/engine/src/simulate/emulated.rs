@@ -12,6 +12,11 @@
 //! one longer than the link's MTU allows is dropped (its samples are fetched again); the
 //! device logic sizes batches to the MTU of each connection ([`Device::set_link_mtu`]).
 //!
+//! The sensor is an LSM6DS33, whose data-ready line is latched: a read that comes late
+//! (faults `late=P`, `stuck=AT:MS`) finds newer conversions in the registers, and goes
+//! through the firmware's own pairing (`rotacal_shared::device::pairing`) and counting of
+//! the conversions not read.
+//!
 //! Faults on demand: link outages (the device keeps sampling; what it sends meanwhile waits
 //! in the queues while they have room, and the rest is dropped), dropped notifications (one at
 //! a time or in bursts), garbage notifications, a wrong firmware or protocol version, a
@@ -22,7 +27,9 @@ use crate::simulate::device::Conversion;
 use crate::simulate::Simulation;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
+use rotacal_shared::device::pairing::{pair, Read};
 use rotacal_shared::device::route::{self, Room, RESULTS_QUEUE, STREAM_QUEUE};
+use rotacal_shared::device::sampler::Conversion as ConversionRead;
 use rotacal_shared::device::{Config, Device, RING};
 use rotacal_shared::packet::{Chip, Command, Packet, RunState};
 use rotacal_shared::Condition;
@@ -53,6 +60,12 @@ pub struct Faults {
     pub seed: u64,
     /// The ATT MTU the central agrees with the device (247 unless it asks for less).
     pub mtu: u16,
+    /// Fraction of the sensor's conversions whose read comes after the next conversion
+    /// (each such conversion is overwritten, never read).
+    pub late_probability: f64,
+    /// Reads stuck (start, length): no conversion in the window is read, seconds after the
+    /// first connection.
+    pub stuck: Vec<(f64, f64)>,
 }
 
 impl Default for Faults {
@@ -68,6 +81,8 @@ impl Default for Faults {
             mute_after: None,
             seed: 1,
             mtu: route::MAX_MTU,
+            late_probability: 0.0,
+            stuck: Vec::new(),
         }
     }
 }
@@ -78,6 +93,15 @@ pub const FIRMWARE: [u8; 3] = [0, 2, 0];
 /// The counter value at the first connection: near 2³² so the 32-bit TIMER wraps early.
 const COUNTER_START: u64 = 0xFFF0_0000;
 const COUNTER_MASK: u64 = 0xFFFF_FFFF;
+/// The sensor's conversion period in timestamp ticks, as the firmware reckons it.
+fn conversion_ticks() -> u32 {
+    let c = Config::FEATHER;
+    let ticks = u64::from(c.clock.hz()) * 1000 / u64::from(c.sensor_odr_mhz.max(1));
+    u32::try_from(ticks).unwrap_or(u32::MAX)
+}
+
+/// How long after a conversion the firmware's read of it begins (task latency).
+const READ_LATENCY: Duration = Duration::from_micros(150);
 /// How often the firmware reads the die temperature, and polls for aged batches.
 const TEMPERATURE_EVERY: Duration = Duration::from_secs(1);
 const POLL_EVERY: Duration = Duration::from_millis(100);
@@ -115,6 +139,13 @@ pub struct EmulatedDevice {
     mtu: u16,
     /// Notifications dropped for being longer than the link's MTU allows.
     oversize: u64,
+    /// The first conversion not read since the last read: where the latched data-ready
+    /// line rose.
+    unread_since: Option<Duration>,
+    /// Conversions the sensor made that the firmware did not read (late or stuck reads).
+    unread: u64,
+    /// Draws the late reads (apart from the link's faults, so that they do not move).
+    read_rng: ChaCha8Rng,
     /// When the next notification may leave them.
     next_notify: Duration,
     /// Delivered to the host, in order.
@@ -134,6 +165,7 @@ impl EmulatedDevice {
             device: Device::new(Config::FEATHER),
             streams,
             rng: ChaCha8Rng::seed_from_u64(faults.seed),
+            read_rng: ChaCha8Rng::seed_from_u64(faults.seed ^ 0x1A7E_5EAD),
             faults,
             connected: false,
             now: Duration::ZERO,
@@ -144,6 +176,8 @@ impl EmulatedDevice {
             subscribed: [false; 2],
             mtu: route::MAX_MTU,
             oversize: 0,
+            unread_since: None,
+            unread: 0,
             next_notify: Duration::ZERO,
             out: VecDeque::new(),
             notifications: 0,
@@ -188,6 +222,42 @@ impl EmulatedDevice {
 
     fn capture(t: Duration) -> u64 {
         (COUNTER_START + t.as_micros() as u64) & COUNTER_MASK
+    }
+
+    /// The firmware's read of the conversion made at `t`, or `None` when it comes too
+    /// late (a newer conversion overwrites it) or reads are stuck.
+    fn read(&mut self, t: Duration, counts: [i16; 3]) -> Option<ConversionRead> {
+        let s = t.as_secs_f64();
+        let stuck = self
+            .faults
+            .stuck
+            .iter()
+            .any(|&(a, len)| s >= a && s < a + len);
+        let late = self.faults.late_probability > 0.0
+            && self.read_rng.gen::<f64>() < self.faults.late_probability;
+        if stuck || late {
+            self.unread += 1;
+            self.unread_since.get_or_insert(t);
+            return None;
+        }
+        // The latched line rose at the first conversion since the last read.
+        let edge = self.unread_since.take().unwrap_or(t);
+        let raw = |t: Duration| Self::capture(t) as u32;
+        let read = Read {
+            capture: raw(edge),
+            capture_after: raw(edge),
+            read_start: raw(t + READ_LATENCY),
+            edges: 0,
+            edges_after: 0,
+            counts,
+            latched: true,
+        };
+        Some(pair(&read, conversion_ticks()))
+    }
+
+    /// Conversions the sensor made that the firmware did not read.
+    pub fn unread(&self) -> u64 {
+        self.unread
     }
 
     fn lost(&mut self) -> bool {
@@ -334,10 +404,9 @@ impl EmulatedDevice {
             } else if conv == Some(next) {
                 if let Some((c, start, k)) = self.running {
                     if let Some(x) = self.streams.get(c.index()).and_then(|s| s.get(k)).copied() {
-                        self.device
-                            .on_sample(Self::capture(next), x.counts, false, &mut |p| {
-                                packets.push(p)
-                            });
+                        if let Some(conv) = self.read(next, x.counts) {
+                            self.device.on_conversion(&conv, &mut |p| packets.push(p));
+                        }
                         self.running = Some((c, start, k + 1));
                     }
                 }
@@ -438,6 +507,7 @@ impl EmulatedDevice {
         }
         if status.state != RunState::Running {
             self.running = None;
+            self.unread_since = None;
         }
         for p in packets {
             self.send(p);
@@ -480,7 +550,7 @@ pub enum FaultsError {
     /// A key that names no fault.
     #[error(
         "'{key}': unknown fault (outage, drop, burst, garbage, firmware, protocol, replaced, \
-         mute_after, seed, mtu)"
+         mute_after, seed, mtu, late, stuck)"
     )]
     UnknownFault {
         /// The key.
@@ -503,7 +573,9 @@ impl std::str::FromStr for Faults {
 
     /// `outage=AT:LEN` (seconds; repeatable), `drop=P`, `burst=L`, `garbage=N`,
     /// `firmware=A.B.C`, `protocol=V`, `replaced=A.B.C`, `mute_after=N`, `seed=N`,
-    /// `mtu=N` (the ATT MTU of the simulated link, 23 to 517), comma-separated.
+    /// `mtu=N` (the ATT MTU of the simulated link, 23 to 517), `late=P` (a fraction of
+    /// the sensor's conversions read too late, so never read), `stuck=AT:MS` (reads stuck
+    /// for MS milliseconds from AT seconds; repeatable), comma-separated.
     fn from_str(s: &str) -> Result<Self, FaultsError> {
         let mut f = Faults::default();
         for item in s.split(',').map(str::trim).filter(|i| !i.is_empty()) {
@@ -520,18 +592,21 @@ impl std::str::FromStr for Faults {
                     .filter(|x| x.is_finite() && *x >= 0.0)
                     .ok_or_else(|| bad("not a non-negative number"))
             };
+            let probability = |x: &str| -> Result<f64, FaultsError> {
+                num(x).and_then(|p| {
+                    if p < 1.0 {
+                        Ok(p)
+                    } else {
+                        Err(bad("a probability below 1"))
+                    }
+                })
+            };
             match k {
                 "outage" => {
                     let (a, l) = v.split_once(':').ok_or_else(|| bad("expected AT:LEN"))?;
                     f.outages.push((num(a)?, num(l)?));
                 }
-                "drop" => {
-                    let p = num(v)?;
-                    if p >= 1.0 {
-                        return Err(bad("a probability below 1"));
-                    }
-                    f.drop_probability = p;
-                }
+                "drop" => f.drop_probability = probability(v)?,
                 "burst" => {
                     let l = num(v)?;
                     if l < 1.0 {
@@ -556,6 +631,11 @@ impl std::str::FromStr for Faults {
                     f.mute_after = Some(v.parse().map_err(|_| bad("expected a whole number"))?)
                 }
                 "seed" => f.seed = v.parse().map_err(|_| bad("expected a whole number"))?,
+                "late" => f.late_probability = probability(v)?,
+                "stuck" => {
+                    let (a, l) = v.split_once(':').ok_or_else(|| bad("expected AT:MS"))?;
+                    f.stuck.push((num(a)?, num(l)? / 1000.0));
+                }
                 "mtu" => {
                     f.mtu = v
                         .parse()

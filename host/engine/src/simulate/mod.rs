@@ -321,6 +321,7 @@ impl Simulation {
             pose: false,
             unc: false,
             conv_gaps: false,
+            conv_missed: false,
         }
     }
 }

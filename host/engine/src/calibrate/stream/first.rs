@@ -309,6 +309,7 @@ impl GroupState {
                 temp_c: None,
                 unc: None,
                 conversions: None,
+                missed: None,
                 first_line,
             }),
             moments: nominal.map(|(_, s)| Moments::new(s, CLOCK)),

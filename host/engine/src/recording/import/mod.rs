@@ -356,6 +356,7 @@ fn columns(spec: &ImportSpec) -> Columns {
         pose: spec.poses.is_some(),
         unc: false,
         conv_gaps: false,
+        conv_missed: false,
     }
 }
 

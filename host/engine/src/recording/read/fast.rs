@@ -8,7 +8,7 @@ use rotacal_shared::Condition;
 
 use super::head::{ColumnIndex, Parser, Res};
 use super::number::{field_end, leading_decimal, leading_digits};
-use super::row::{parse_gaps, parse_row, Fields};
+use super::row::{parse_gaps, parse_missed, parse_row, Fields};
 use super::{GroupSink, Parse, Router};
 use crate::recording::{Metadata, Method, Recording, RecordingErrorKind, Row};
 
@@ -153,6 +153,7 @@ enum Plain {
     Number(Slot),
     Seq,
     Gaps,
+    Missed,
     /// A column this reading does not use.
     Skip,
 }
@@ -191,6 +192,7 @@ fn plain_plan(cols: &ColumnIndex, columns: Parse) -> Option<Vec<Plain>> {
     set(cols.temp_c.filter(|_| all), Plain::Number(Slot::Temp));
     set(cols.rate_hz, Plain::Number(Slot::Rate));
     set(cols.conv_gaps, Plain::Gaps);
+    set(cols.conv_missed, Plain::Missed);
     plan.contains(&Plain::Condition).then_some(plan)
 }
 
@@ -238,10 +240,13 @@ fn plain_row(plan: &[Plain], data: &[u8], at: usize, row: &mut Row<'static>) -> 
                 row.seq = Some(seq);
                 len
             }
-            Plain::Gaps | Plain::Skip => {
+            Plain::Gaps | Plain::Missed | Plain::Skip => {
                 let len = field_end(rest);
-                if *part == Plain::Gaps {
-                    row.conv_gaps = Some(parse_gaps(rest.get(..len)?.trim_ascii()).ok()?);
+                let f = rest.get(..len)?;
+                match part {
+                    Plain::Gaps => row.conv_gaps = Some(parse_gaps(f.trim_ascii()).ok()?),
+                    Plain::Missed => row.conv_missed = parse_missed(f).ok()?,
+                    _ => {}
                 }
                 len
             }
@@ -377,10 +382,11 @@ mod tests {
     use rotacal_shared::Condition;
 
     /// The columns of a rotation recording (`condition,seq,t_s,u,v,w,temp_c`), with
-    /// `rate_hz`, `conv_gaps` and a column of no meaning after them when `more`.
+    /// `rate_hz`, `conv_gaps`, `conv_missed` and a column of no meaning after them when
+    /// `more`.
     fn columns(more: bool) -> ColumnIndex {
         ColumnIndex {
-            n: if more { 10 } else { 7 },
+            n: if more { 11 } else { 7 },
             condition: Some(0),
             gravity: None,
             pose: None,
@@ -394,6 +400,7 @@ mod tests {
             temp_c: Some(6),
             rate_hz: more.then_some(7),
             conv_gaps: more.then_some(8),
+            conv_missed: more.then_some(9),
         }
     }
 
@@ -446,6 +453,7 @@ mod tests {
             fields in prop::collection::vec(field(), 8),
             off in prop_oneof![6 => Just(0usize), 1 => Just(1usize), 1 => Just(2usize)],
             gaps in prop::sample::select(vec!["", "9600", "9600 9600", "0", "x", " 9600"]),
+            missed in prop::sample::select(vec!["", "0", "3", "7", "8", " 1", "x", "-1"]),
             end in prop::sample::select(vec!["\n", "\r\n", "", "\nx,1,2,3,4,5,6\n"]),
             more in proptest::bool::ANY,
             all in proptest::bool::ANY,
@@ -461,6 +469,7 @@ mod tests {
             parts.extend(fields.into_iter().take(numbers));
             if more {
                 parts.push(gaps.to_string());
+                parts.push(missed.to_string());
                 parts.push("note".to_string());
             }
             let text = parts.join(",") + end;

@@ -28,6 +28,7 @@ pub(super) struct ColumnIndex {
     pub(super) temp_c: Option<usize>,
     pub(super) rate_hz: Option<usize>,
     pub(super) conv_gaps: Option<usize>,
+    pub(super) conv_missed: Option<usize>,
 }
 
 pub(super) struct Parser<'a> {
@@ -308,6 +309,7 @@ impl Parser<'_> {
                 temp_c: idx("temp_c"),
                 rate_hz: idx("rate_hz"),
                 conv_gaps,
+                conv_missed: idx("conv_missed"),
             },
             method,
         ))

@@ -138,6 +138,7 @@ fn empty_group(condition: Condition, rate_hz: Option<f64>, cols: &ColumnIndex, l
         temp_c: cols.temp_c.map(|_| Vec::new()),
         unc: cols.unc.map(|_| Vec::new()),
         conversions: cols.conv_gaps.map(|_| Vec::new()),
+        missed: cols.conv_missed.map(|_| Vec::new()),
         first_line: line,
     }
 }
@@ -186,6 +187,9 @@ impl GroupSink for Vec<Group> {
         }
         if let (Some(a), Some(v)) = (row.conv_gaps, g.conversions.as_mut()) {
             v.push(a);
+        }
+        if let Some(v) = g.missed.as_mut() {
+            v.push(row.conv_missed);
         }
     }
 }
@@ -259,6 +263,7 @@ impl<F: FnMut(Scanned)> GroupSink for ScanSink<F> {
                 pose: cols.pose.is_some(),
                 unc: cols.unc.is_some(),
                 conv_gaps: cols.conv_gaps.is_some(),
+                conv_missed: cols.conv_missed.is_some(),
             },
         });
     }

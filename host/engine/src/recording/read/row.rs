@@ -126,6 +126,10 @@ pub(super) fn parse_row<'r, F: Fields + ?Sized>(
         Some(i) => Some(parse_gaps(field(rec, i))?),
         None => None,
     };
+    let conv_missed = match cols.conv_missed {
+        Some(i) => parse_missed(field(rec, i))?,
+        None => None,
+    };
     if let Some(r) = rate_hz {
         if r <= 0.0 {
             return Err(RecordingErrorKind::NotPositive {
@@ -147,6 +151,7 @@ pub(super) fn parse_row<'r, F: Fields + ?Sized>(
         gravity,
         pose,
         conv_gaps,
+        conv_missed,
         unc: match cols.unc.filter(|_| all) {
             Some([a, b, c]) => Some([
                 parse_f64(rec, a, "u_unc")?,
@@ -156,6 +161,21 @@ pub(super) fn parse_row<'r, F: Fields + ?Sized>(
             None => None,
         },
     })
+}
+
+/// A `conv_missed` field: a whole number of conversions from 0 to 7, or empty (not
+/// counted).
+pub(super) fn parse_missed(f: &[u8]) -> Result<Option<u8>, RecordingErrorKind> {
+    let f = f.trim_ascii();
+    if f.is_empty() {
+        return Ok(None);
+    }
+    std::str::from_utf8(f)
+        .ok()
+        .and_then(|s| s.parse::<u8>().ok())
+        .filter(|m| *m <= 7)
+        .map(Some)
+        .ok_or_else(|| RecordingErrorKind::BadMissed(snippet(f)))
 }
 
 /// A `conv_gaps` field: tick counts separated by single spaces (empty: one conversion).
