@@ -7,20 +7,14 @@ use embassy_sync::channel::Channel;
 use heapless::Vec;
 use rotacal_sensor::Chip;
 use rotacal_shared::device::route::{MAX_MTU, RESULTS_QUEUE, STREAM_QUEUE};
+use rotacal_shared::device::sampler::Conversion;
 use rotacal_shared::packet::{Command, SensorStatus};
 
 /// Into the logic task.
 #[derive(Clone, Copy, defmt::Format)]
 pub enum Event {
-    /// A sample: TIMER1 value at its data-ready edge, raw counts, edge missed.
-    Sample {
-        /// Raw 32-bit capture.
-        capture: u32,
-        /// u, v, w.
-        counts: [i16; 3],
-        /// The edge was missed; `capture` is the read time.
-        late: bool,
-    },
+    /// A conversion read, paired with its instant (rotacal-shared's `pairing`).
+    Sample(Conversion),
     /// Die temperature, hundredths of °C.
     Temperature(i16),
     /// Sensor health, and the chip once known.

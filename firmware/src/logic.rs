@@ -85,13 +85,9 @@ pub async fn logic_task(dev: &'static mut Device<RING>, mut led: Output<'static>
             dev.on_lost(lost);
         }
         match ev {
-            Event::Sample {
-                capture,
-                counts,
-                late,
-            } => {
-                dev.on_sample(u64::from(capture), counts, late, &mut out);
-                dev.poll(u64::from(capture), &mut out);
+            Event::Sample(c) => {
+                dev.on_conversion(&c, &mut out);
+                dev.poll(c.capture, &mut out);
             }
             Event::Temperature(t) => dev.on_temperature(t, &mut out),
             Event::Sensor(status, c) => {

@@ -1,9 +1,10 @@
 //! rotacal firmware for the Adafruit Feather nRF52840 Sense: thin glue around
 //! `rotacal_shared::device` (the logic, tested on the host and under QEMU).
 //!
-//! Tasks: `sampling` (data-ready edge captured by GPIOTE → PPI → TIMER1, sample read over
-//! I²C), `logic` (the shared `Device`: stream, ring, fits, quick-look), and the BLE loop
-//! in `main` (`ble`: one GATT service, docs/protocol.md). Interrupts run at P2, as the
+//! Tasks: `sampling` (data-ready edge captured by GPIOTE → PPI → TIMER1 and counted by
+//! TIMER2 on the channel's fork, sample read over I²C), `logic` (the shared `Device`:
+//! stream, ring, fits, quick-look), and the BLE loop in `main` (`ble`: one GATT service,
+//! docs/protocol.md). Interrupts run at P2, as the
 //! SoftDevice requires; the LF clock is the RC oscillator (the board has no crystal).
 
 #![no_std]
@@ -55,16 +56,26 @@ async fn main(spawner: Spawner) {
     let timer = HwTimer::new(p.TIMER1);
     timer.set_frequency(Frequency::F1MHz);
     timer.clear();
+    // TIMER2 counts the edges on the channel's fork, so that a conversion that is never
+    // read is still counted.
+    let counter = HwTimer::new_counter(p.TIMER2);
+    counter.clear();
     let drdy = InputChannel::new(
         p.GPIOTE_CH0,
         Input::new(p.P1_11, Pull::None),
         InputChannelPolarity::LoToHi,
     );
-    let mut ppi = Ppi::new_one_to_one(p.PPI_CH0, drdy.event_in(), timer.cc(0).task_capture());
+    let mut ppi = Ppi::new_one_to_two(
+        p.PPI_CH0,
+        drdy.event_in(),
+        timer.cc(0).task_capture(),
+        counter.task_count(),
+    );
     ppi.enable();
     // Dropping the Ppi would unwire the channel; it must live for ever.
     core::mem::forget(ppi);
     timer.start();
+    counter.start();
 
     // Twim::new enables its interrupt at priority 0 unless set before.
     interrupt::SPIM0_SPIS0_TWIM0_TWIS0_SPI0_TWI0.set_priority(Priority::P2);
@@ -153,7 +164,7 @@ async fn main(spawner: Spawner) {
     };
     let spawned = [
         spawner.spawn(softdevice_task(sd)),
-        spawner.spawn(sampling::sensor_task(timer, drdy, bus)),
+        spawner.spawn(sampling::sensor_task(timer, counter, drdy, bus)),
         spawner.spawn(logic::logic_task(device, led)),
     ];
     if spawned.iter().any(Result::is_err) {

@@ -1,23 +1,42 @@
-//! The sensor side: the data-ready edge on INT1 (P1.11) is latched in hardware by
-//! GPIOTE → PPI → TIMER1 CAPTURE[0], so a sample's time is its conversion time whatever
-//! the task latency (method.md §7). TIMER1 runs at 1 MHz from HFCLK, which main() puts on
-//! the crystal. The task reads the sample over I²C and hands (capture, counts) to the
-//! logic task.
+//! The sensor side: the data-ready edge on INT1 (P1.11) goes through GPIOTE and PPI
+//! channel 0 to TIMER1 CAPTURE[0] (1 MHz from HFCLK, which main() puts on the crystal), so a
+//! sample's time is its conversion's whatever the task latency (method.md §7), and on the
+//! channel's fork to TIMER2 in counter mode, which counts every edge. The task reads the
+//! sample over I²C, noting the timer and the count before and after, and
+//! `rotacal_shared::device::pairing` decides which instant the data belong to; the logic
+//! task's device counts the conversions that were not read.
+//!
+//! An edge is looked for in the count, not only awaited: embassy-nrf's
+//! `InputChannel::wait()` clears an event that came before it was armed, and the
+//! LSM6DS33's latched line gives no new edge until it is read, so a wait alone could sit
+//! out its timeout while a conversion waited.
 
 use crate::events::{Event, EVENTS};
 use defmt::{info, warn};
 use embassy_nrf::gpiote::InputChannel;
-use embassy_nrf::peripherals::{TIMER1, TWISPI0};
+use embassy_nrf::peripherals::{TIMER1, TIMER2, TWISPI0};
 use embassy_nrf::timer::Timer;
 use embassy_nrf::twim::{self, Twim};
 use embassy_time::{with_timeout, Duration, Timer as Delay};
 use rotacal_sensor::{Accelerometer, Chip, Error};
+use rotacal_shared::device::pairing::{pair, Read};
+use rotacal_shared::device::Config;
 use rotacal_shared::packet::SensorStatus;
 
 /// Temperature every this many sensor samples (about 1 s at 104 Hz).
 const TEMPERATURE_EVERY: u32 = 104;
+/// Look at the edge count at least this often while waiting (a little over one
+/// conversion period at 104 Hz).
+const LOOK_EVERY: Duration = Duration::from_millis(12);
 /// No edge for this long (about 10 sensor periods) means the sensor stopped.
 const DRDY_TIMEOUT: Duration = Duration::from_millis(100);
+
+/// The sensor's conversion period in timestamp ticks (9615 at 104 Hz and 1 MHz).
+fn conversion_ticks() -> u32 {
+    let c = Config::FEATHER;
+    let ticks = u64::from(c.clock.hz()) * 1000 / u64::from(c.sensor_odr_mhz.max(1));
+    u32::try_from(ticks).unwrap_or(u32::MAX)
+}
 
 fn status_of(e: Error<twim::Error>) -> SensorStatus {
     match e {
@@ -28,8 +47,8 @@ fn status_of(e: Error<twim::Error>) -> SensorStatus {
 }
 
 fn send(e: Event) {
-    // A full queue loses this event; the logic task counts samples it never saw as lost
-    // from the gap it leaves (the ring and the sequence numbers make that visible).
+    // A full queue loses this event; the device counts a conversion it never saw from the
+    // time to the next one.
     if EVENTS.try_send(e).is_err() {
         crate::events::note_overflow();
     }
@@ -40,9 +59,11 @@ fn send(e: Event) {
 #[embassy_executor::task]
 pub async fn sensor_task(
     timer: Timer<'static, TIMER1>,
+    counter: Timer<'static, TIMER2>,
     drdy: InputChannel<'static>,
     mut bus: Twim<'static, TWISPI0>,
 ) {
+    let period = conversion_ticks();
     loop {
         let mut acc = match Accelerometer::detect(bus) {
             Ok(a) => a,
@@ -55,42 +76,55 @@ pub async fn sensor_task(
             }
         };
         let chip = acc.chip();
+        let latched = chip == Chip::Lsm6ds33;
         info!("accelerometer {} at {:#x}", chip, acc.address());
         send(Event::Sensor(SensorStatus::Ok, Some(chip)));
-        // A latched data-ready line (LSM6DS33) stays high until the outputs are read:
-        // read once so that the first edge comes.
+        // A latched data-ready line stays high until the outputs are read: read once so
+        // that the first edge comes.
         let _ = acc.read_counts();
+        let mut seen = counter.cc(0).capture();
         let mut n: u32 = 0;
+        let mut quiet = Duration::from_ticks(0);
         let mut stalled = false;
         let failure = loop {
-            let waited = with_timeout(DRDY_TIMEOUT, drdy.wait()).await;
-            let late = waited.is_err();
-            if late && !drdy_high(&drdy) {
-                if !stalled {
-                    stalled = true;
-                    send(Event::Sensor(SensorStatus::NoDataReady, Some(chip)));
+            let edges = counter.cc(0).capture();
+            if edges == seen {
+                if with_timeout(LOOK_EVERY, drdy.wait()).await.is_err() {
+                    quiet += LOOK_EVERY;
+                    if quiet >= DRDY_TIMEOUT {
+                        quiet = Duration::from_ticks(0);
+                        if !stalled {
+                            stalled = true;
+                            send(Event::Sensor(SensorStatus::NoDataReady, Some(chip)));
+                        }
+                        send(Event::Poll(timer.cc(1).capture()));
+                    }
                 }
-                send(Event::Poll(timer.cc(1).capture()));
                 continue;
             }
+            quiet = Duration::from_ticks(0);
             if stalled {
                 stalled = false;
                 send(Event::Sensor(SensorStatus::Ok, Some(chip)));
             }
-            // CAPTURE[0] holds the edge's time (PPI); with a missed edge, read the time now.
-            let capture = if late {
-                timer.cc(1).capture()
-            } else {
-                timer.cc(0).read()
-            };
-            match acc.read_counts() {
-                Ok(counts) => send(Event::Sample {
-                    capture,
-                    counts,
-                    late,
-                }),
+            let capture = timer.cc(0).read();
+            let read_start = timer.cc(1).capture();
+            let counts = match acc.read_counts() {
+                Ok(c) => c,
                 Err(e) => break e,
-            }
+            };
+            let read = Read {
+                capture,
+                capture_after: timer.cc(0).read(),
+                read_start,
+                edges,
+                edges_after: counter.cc(0).capture(),
+                counts,
+                latched,
+            };
+            // Edges during the read are handled next time round.
+            seen = edges;
+            send(Event::Sample(pair(&read, period)));
             n = n.wrapping_add(1);
             if n % TEMPERATURE_EVERY == 0 {
                 match acc.read_temperature_centi_c() {
@@ -104,10 +138,6 @@ pub async fn sensor_task(
         bus = acc.release();
         Delay::after_millis(200).await;
     }
-}
-
-fn drdy_high(drdy: &InputChannel<'static>) -> bool {
-    embedded_hal::digital::v2::InputPin::is_high(drdy).unwrap_or(false)
 }
 
 /// Chip code for the device info.
