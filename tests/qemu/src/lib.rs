@@ -112,3 +112,46 @@ pub fn spin(n: u32) {
         );
     }
 }
+
+/// The deepest the stack went below a point: paint the stack below the caller's frame with
+/// a pattern, run the code, and find the lowest word it overwrote.
+pub mod stack {
+    const PATTERN: u32 = 0x5A5A_A5A5;
+    /// Bytes painted below the painter's frame.
+    const SPAN: usize = 48 * 1024;
+    /// Left alone just below the painter's own stack pointer (its frame and calls).
+    const GUARD: usize = 256;
+
+    /// A painted stack below the current frame.
+    pub struct Painted {
+        top: usize,
+    }
+
+    /// Paint [`SPAN`] bytes of the stack below the current one.
+    #[inline(never)]
+    pub fn paint() -> Painted {
+        let top = cortex_m::register::msp::read() as usize - GUARD;
+        let mut p = top - SPAN;
+        while p < top {
+            // SAFETY: the words lie below the live stack (MSP less a guard) and inside the
+            // emulated RAM (4 MiB, the stack at its top), and nothing else runs.
+            unsafe { core::ptr::write_volatile(p as *mut u32, PATTERN) };
+            p += 4;
+        }
+        Painted { top }
+    }
+
+    impl Painted {
+        /// Bytes below the painted top that were written since: how deep the code went,
+        /// beyond the frame that painted (at most [`SPAN`]; SPAN means it may have gone
+        /// further).
+        pub fn used(&self) -> usize {
+            let mut p = self.top - SPAN;
+            // SAFETY: the same words [`paint`] wrote, read back.
+            while p < self.top && unsafe { core::ptr::read_volatile(p as *const u32) } == PATTERN {
+                p += 4;
+            }
+            self.top - p + GUARD
+        }
+    }
+}

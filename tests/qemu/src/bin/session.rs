@@ -22,6 +22,9 @@ fn main() -> ! {
     let mut dev = Device::<RING>::new(Config::FEATHER);
     let mut count = 0u32;
     let mut ok = true;
+    // How deep the device logic takes the stack below this frame (the firmware's budget
+    // for it: scripts/fw-size). The printing closure's buffers are counted too.
+    let painted = rotacal_qemu_tests::stack::paint();
     SessionSpec::PAPER.run(&mut dev, &mut |p: Packet| {
         let mut bytes = [0u8; MAX_PACKET];
         let Ok(n) = p.encode(&mut bytes) else {
@@ -43,6 +46,7 @@ fn main() -> ! {
         }
         count += 1;
     });
+    hprintln!("session stack={} bytes", painted.used());
     hprintln!("session done packets={}", count);
     exit(ok)
 }
