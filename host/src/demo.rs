@@ -250,14 +250,7 @@ pub fn run(seed: u64, dir: &Path, inject: Option<Inject>) -> anyhow::Result<Demo
     let mut device = SimulatedDevice::new(&sim, Faults::default())?;
     let paths = Paths::beside(&dir.join("recording.csv"));
     // The demo's own folder: a previous run's recording is replaced.
-    for p in [&paths.recording, &paths.fits, &paths.capture] {
-        match std::fs::remove_file(p) {
-            Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
-                anyhow::bail!("{}: {e}", p.display())
-            }
-            _ => {}
-        }
-    }
+    paths.remove()?;
     let meta = Metadata {
         method: Some(Method::Rotation),
         rate_hz: Some(0.01),

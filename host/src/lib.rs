@@ -14,6 +14,7 @@ pub use rotacal_engine::{
     allan, calibrate, correct, discrepancy, fit, recording, reference, simulate, verify,
 };
 
+pub mod check_board;
 pub mod demo;
 pub mod link;
 pub mod output;

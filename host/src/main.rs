@@ -35,6 +35,9 @@ enum Command {
     /// Record one condition from a device over BLE (or a simulated one): the recording,
     /// its fit log (.fits.jsonl) and a capture of every value received (.capture).
     Record(cli::record::Args),
+    /// The first day with a board: find it, read its info and status, record it lying
+    /// still and check its clock, link, conversions, noise and fit (docs/first-board.md).
+    CheckBoard(cli::check_board::Args),
     /// Find where the model and the measurement disagree, name the missing effects,
     /// and show the gap shrink as each is added (docs/discrepancy.md).
     Discrepancy(cli::discrepancy::Args),
@@ -60,6 +63,7 @@ fn main() -> ExitCode {
         Command::Crosscheck(a) => cli::crosscheck::run(a),
         Command::Import(a) => cli::import::run(a),
         Command::Record(a) => cli::record::run(a),
+        Command::CheckBoard(a) => cli::check_board::run(a),
         Command::Discrepancy(a) => cli::discrepancy::run(a),
         Command::Decode(a) => cli::decode::run(a),
         Command::Simulate(a) => cli::simulate::run(a),

@@ -6,6 +6,7 @@ use clap::ValueEnum;
 pub mod allan;
 pub mod apply;
 pub mod calibrate;
+pub mod check_board;
 pub mod crosscheck;
 pub mod decode;
 pub mod demo;

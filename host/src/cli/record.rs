@@ -12,20 +12,33 @@ use rotacal_shared::Condition;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
-/// The command line of `rotacal record`.
+/// The device to talk to: over BLE by name or address, or the firmware's logic on this
+/// host (`record`, `check-board`).
 #[derive(clap::Args)]
-pub struct Args {
+pub struct DeviceArgs {
     /// The device's advertised name or Bluetooth address.
     #[arg(long, default_value = "rotacal", conflicts_with = "simulate")]
     pub device: String,
-    /// Record a simulated device instead (the firmware's logic on this host, in real
-    /// time), fed by a simulator preset or TOML file: a dry run of the set-up.
+    /// A simulated device instead (the firmware's logic on this host, in real time), fed
+    /// by a simulator preset or TOML file: a dry run of the set-up.
     #[arg(long, value_name = "CONFIG")]
     pub simulate: Option<String>,
     /// Faults for the simulated device, e.g. outage=60:5,drop=0.01,burst=3,garbage=100
-    /// (also firmware=, protocol=, replaced=, mute_after=, seed=; docs/recording.md).
+    /// (also firmware=, protocol=, replaced=, mute_after=, seed=, mtu=, late=, stuck=;
+    /// docs/recording.md).
     #[arg(long, requires = "simulate")]
     pub faults: Option<Faults>,
+    /// How long to scan for the device per attempt, e.g. 20s.
+    #[arg(long, default_value = "20s", value_parser = rotacal::record::parse_duration)]
+    pub scan_timeout: Duration,
+}
+
+/// The command line of `rotacal record`.
+#[derive(clap::Args)]
+pub struct Args {
+    /// Which device, or a simulated one.
+    #[command(flatten)]
+    pub link: DeviceArgs,
     /// The platter axis the table turns about: x, y or z.
     #[arg(long)]
     pub condition: char,
@@ -53,9 +66,6 @@ pub struct Args {
     /// Give up when the link stays down this long, e.g. 60s.
     #[arg(long, default_value = "60s", value_parser = rotacal::record::parse_duration)]
     pub reconnect_for: Duration,
-    /// How long to scan for the device per attempt, e.g. 20s.
-    #[arg(long, default_value = "20s", value_parser = rotacal::record::parse_duration)]
-    pub scan_timeout: Duration,
 }
 
 /// The recording finished, but not everything the device sent is in it: exit status 3
@@ -143,17 +153,17 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     let rt = tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()?;
-    match &a.simulate {
+    match &a.link.simulate {
         Some(cfg) => {
             let sim = rotacal::simulate::Simulation::new(rotacal::simulate::Config::load(cfg)?)?;
-            let mut link = SimulatedDevice::new(&sim, a.faults.clone().unwrap_or_default())?;
+            let mut link = SimulatedDevice::new(&sim, a.link.faults.clone().unwrap_or_default())?;
             rt.block_on(closing(&mut link, &a, plan, opts))
         }
         // The link is made and dropped inside the runtime: bluez-async's streams remove
         // their D-Bus match rules in a task when dropped, which panics (and, in a
         // destructor, aborts the process) outside a runtime.
         None => rt.block_on(async {
-            let mut link = BleLink::new(Target::parse(&a.device), a.scan_timeout);
+            let mut link = BleLink::new(Target::parse(&a.link.device), a.link.scan_timeout);
             closing(&mut link, &a, plan, opts).await
         }),
     }

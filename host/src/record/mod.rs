@@ -734,6 +734,20 @@ impl Paths {
             capture: recording.with_extension("capture"),
         }
     }
+
+    /// Remove the three files where they exist (a tool's own folder, whose previous run is
+    /// replaced).
+    pub fn remove(&self) -> io::Result<()> {
+        for p in [&self.recording, &self.fits, &self.capture] {
+            match std::fs::remove_file(p) {
+                Err(e) if e.kind() != io::ErrorKind::NotFound => {
+                    return Err(io::Error::new(e.kind(), format!("{}: {e}", p.display())))
+                }
+                _ => {}
+            }
+        }
+        Ok(())
+    }
 }
 
 fn named(p: &std::path::Path, e: io::Error) -> RecordError {

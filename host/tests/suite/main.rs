@@ -14,6 +14,7 @@ mod averaging;
 mod bluez;
 mod budget;
 mod calibrate_cli;
+mod check_board;
 mod common;
 mod coverage;
 mod crosscheck_cli;

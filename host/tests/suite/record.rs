@@ -48,11 +48,7 @@ fn run_with(name: &str, faults: &str, opts: Options) -> Result<Run, RecordError>
     let d = dir(name);
     let paths = Paths::beside(&d.join("rec.csv"));
     let mut dev = SimulatedDevice::new(&sim(), faults.parse::<Faults>().unwrap()).unwrap();
-    let rt = tokio::runtime::Builder::new_current_thread()
-        .enable_time()
-        .start_paused(true)
-        .build()
-        .unwrap();
+    let rt = crate::common::paused_runtime();
     let meta = Metadata {
         method: Some(Method::Rotation),
         rate_hz: Some(0.01),

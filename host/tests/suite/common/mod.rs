@@ -43,3 +43,13 @@ pub const PROPERTY_KEYS: [(&str, &str); 9] = [
     ("offset", "v"),
     ("offset", "w"),
 ];
+
+/// A single-threaded tokio runtime on a paused clock: the emulated device's minutes of
+/// recording take a fraction of a second.
+pub fn paused_runtime() -> tokio::runtime::Runtime {
+    tokio::runtime::Builder::new_current_thread()
+        .enable_time()
+        .start_paused(true)
+        .build()
+        .unwrap()
+}
