@@ -5,6 +5,7 @@ use crate::events::{link_mtu, take_overflows, Encoded, Event, EVENTS, RESULTS, S
 use crate::sampling::chip_code;
 use defmt::{info, warn};
 use embassy_nrf::gpio::Output;
+use embassy_nrf::wdt::WatchdogHandle;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::signal::Signal;
 use rotacal_shared::device::route::{Characteristic, Room};
@@ -71,13 +72,22 @@ pub fn device(clock: ClockSource) -> Option<&'static mut Device<RING>> {
     cortex_m::singleton!(: Device<RING> = Device::new(cfg))
 }
 
-/// See the module documentation. `led` (red, P1.09) lights when x, y and z are done.
+/// See the module documentation. `led` (red, P1.09) lights when x, y and z are done. The
+/// watchdog is petted at every event: the sensor task sends one at least every second
+/// while the executor runs.
 #[embassy_executor::task]
-pub async fn logic_task(dev: &'static mut Device<RING>, mut led: Output<'static>) {
+pub async fn logic_task(
+    dev: &'static mut Device<RING>,
+    mut led: Output<'static>,
+    mut watchdog: Option<WatchdogHandle>,
+) {
     let mut chip = None;
     let mut out = route;
     loop {
         let ev = EVENTS.receive().await;
+        if let Some(w) = &mut watchdog {
+            w.pet();
+        }
         // Batches are sized to the link the BLE task reports (a no-op when unchanged).
         dev.set_link_mtu(link_mtu(), &mut out);
         let lost = take_overflows();

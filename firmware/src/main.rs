@@ -11,11 +11,13 @@
 #![no_main]
 
 mod ble;
+mod bus;
 mod events;
 mod logic;
 mod sampling;
 
 use defmt::{error, info, warn};
+use defmt_rtt as _;
 use embassy_executor::Spawner;
 use embassy_nrf::gpio::{Input, Level, Output, OutputDrive, Pull};
 use embassy_nrf::gpiote::{InputChannel, InputChannelPolarity};
@@ -23,11 +25,22 @@ use embassy_nrf::interrupt::{self, InterruptExt, Priority};
 use embassy_nrf::peripherals::TWISPI0;
 use embassy_nrf::ppi::Ppi;
 use embassy_nrf::timer::{Frequency, Timer as HwTimer};
+use embassy_nrf::wdt::{self, Watchdog};
 use embassy_nrf::{bind_interrupts, twim};
 use embassy_time::Timer;
 use nrf_softdevice::{raw, RawError, Softdevice};
 use rotacal_shared::packet::ClockSource;
-use {defmt_rtt as _, panic_probe as _};
+#[cfg(all(feature = "panic-probe", feature = "panic-reset"))]
+compile_error!("one panic handler: panic-probe (with a probe) or panic-reset (without)");
+#[cfg(feature = "panic-probe")]
+use panic_probe as _;
+#[cfg(feature = "panic-reset")]
+use panic_reset as _;
+
+/// The watchdog resets the board when the logic task has had no event for this long, in
+/// 32 768 Hz ticks (4 s): a working sensor sends 104 a second, a stalled one a poll every
+/// 100 ms, a missing one a status every second; none for 4 s means the executor is stuck.
+const WATCHDOG_TICKS: u32 = 4 * 32_768;
 
 bind_interrupts!(struct Irqs {
     SPIM0_SPIS0_TWIM0_TWIS0_SPI0_TWI0 => twim::InterruptHandler<TWISPI0>;
@@ -81,7 +94,13 @@ async fn main(spawner: Spawner) {
     interrupt::SPIM0_SPIS0_TWIM0_TWIS0_SPI0_TWI0.set_priority(Priority::P2);
     let mut twim_config = twim::Config::default();
     twim_config.frequency = twim::Frequency::K400;
-    let bus = twim::Twim::new(p.TWISPI0, Irqs, p.P0_12, p.P0_11, twim_config);
+    let bus = bus::Bus(twim::Twim::new(
+        p.TWISPI0,
+        Irqs,
+        p.P0_12,
+        p.P0_11,
+        twim_config,
+    ));
     // nRF52840 erratum 219: at 400 kHz the TWIM's SCL low time is below the I²C minimum
     // (1.3 µs); Nordic's workaround is 390 kHz, FREQUENCY = 0x06200000, which embassy-nrf
     // 0.2's Frequency does not offer. Written once, after Twim::new set 400 kHz and before
@@ -93,6 +112,20 @@ async fn main(spawner: Spawner) {
             .write(|w| w.frequency().bits(0x0620_0000));
     }
     let led = Output::new(p.P1_09, Level::Low, OutputDrive::Standard);
+    let mut wdt_config = wdt::Config::default();
+    wdt_config.timeout_ticks = WATCHDOG_TICKS;
+    wdt_config.run_during_sleep = true;
+    // A debugger's halt is not a hang.
+    wdt_config.run_during_debug_halt = false;
+    let watchdog = match Watchdog::try_new::<1>(p.WDT, wdt_config) {
+        Ok((_, [handle])) => Some(handle),
+        Err(_) => {
+            // Started before us (by a bootloader) with another configuration, which
+            // cannot be changed until reset: it then resets the board unpetted.
+            warn!("the watchdog runs with another configuration; not petting it");
+            None
+        }
+    };
 
     let sd_config = nrf_softdevice::Config {
         // The board has no 32.768 kHz crystal: use the LF RC oscillator, recalibrated
@@ -165,7 +198,7 @@ async fn main(spawner: Spawner) {
     let spawned = [
         spawner.spawn(softdevice_task(sd)),
         spawner.spawn(sampling::sensor_task(timer, counter, drdy, bus)),
-        spawner.spawn(logic::logic_task(device, led)),
+        spawner.spawn(logic::logic_task(device, led, watchdog)),
     ];
     if spawned.iter().any(Result::is_err) {
         // Only possible if a task were spawned twice.

@@ -11,12 +11,13 @@
 //! LSM6DS33's latched line gives no new edge until it is read, so a wait alone could sit
 //! out its timeout while a conversion waited.
 
+use crate::bus::Bus;
 use crate::events::{Event, EVENTS};
 use defmt::{info, warn};
 use embassy_nrf::gpiote::InputChannel;
-use embassy_nrf::peripherals::{TIMER1, TIMER2, TWISPI0};
+use embassy_nrf::peripherals::{TIMER1, TIMER2};
 use embassy_nrf::timer::Timer;
-use embassy_nrf::twim::{self, Twim};
+use embassy_nrf::twim;
 use embassy_time::{with_timeout, Duration, Timer as Delay};
 use rotacal_sensor::{Accelerometer, Chip, Error};
 use rotacal_shared::device::pairing::{pair, Read};
@@ -61,7 +62,7 @@ pub async fn sensor_task(
     timer: Timer<'static, TIMER1>,
     counter: Timer<'static, TIMER2>,
     drdy: InputChannel<'static>,
-    mut bus: Twim<'static, TWISPI0>,
+    mut bus: Bus,
 ) {
     let period = conversion_ticks();
     loop {
