@@ -202,6 +202,25 @@ fn refusal(e: CommandError, mtu: u16) -> String {
     }
 }
 
+/// Why the device is no longer running, from its status and the newest sample received: a
+/// device whose newest sample is older than ours has started afresh (sequence numbers count
+/// from power-up), so it was reset (its watchdog, a panic, its power); otherwise another
+/// host stopped it.
+pub fn stopped(st: &Status, newest: Option<u32>) -> String {
+    match newest {
+        Some(n) if st.ring_newest < n => format!(
+            "the device restarted (its newest sample is seq {}, ours {n}: it counts from a \
+             new power-up; a watchdog, a panic or its power reset it). The rows up to seq \
+             {n} are kept; record the condition again",
+            st.ring_newest
+        ),
+        _ => format!(
+            "the device stopped running (state {:?}, sensor {:?}): stopped by another host",
+            st.state, st.sensor
+        ),
+    }
+}
+
 /// Check the device-info value.
 pub fn check_info(bytes: &[u8]) -> Result<DeviceInfo, RecordError> {
     match Packet::decode(bytes) {
@@ -281,6 +300,12 @@ struct Session<'a, L: Link, W: Durable, F: Durable, C: Durable, O: Observer> {
     last_status: Option<Status>,
     /// The device's `lost` count at the first and the latest status.
     device_lost: Option<(u32, u32)>,
+    /// A status that found the device not running after our Start (whatever command it
+    /// answered): the device was stopped or reset.
+    idle: Option<Status>,
+    /// Reconnected: ask the device for its status (a board that reset streams nothing, so
+    /// no gap would ever show it).
+    ask_status: bool,
     /// The sensor was OK at the last status (to report a change once).
     sensor_ok: bool,
     final_fit: bool,
@@ -392,6 +417,9 @@ impl<L: Link, W: Durable, F: Durable, C: Durable, O: Observer> Session<'_, L, W,
                 }
                 let first = self.device_lost.map_or(s.lost, |(f, _)| f);
                 self.device_lost = Some((first, s.lost));
+                if self.started && s.state != RunState::Running {
+                    self.idle.get_or_insert(s);
+                }
                 self.last_status = Some(s);
             }
             Packet::Fit(f) if f.is_final && f.condition == self.plan.condition => {
@@ -493,6 +521,7 @@ impl<L: Link, W: Durable, F: Durable, C: Durable, O: Observer> Session<'_, L, W,
                         since.elapsed().as_secs_f64()
                     ));
                     self.asked = None;
+                    self.ask_status = true;
                     return Ok(());
                 }
                 Err(LinkError::Disconnected(why)) => {
@@ -584,6 +613,8 @@ pub async fn record<L: Link, W: Durable, F: Durable, C: Durable, O: Observer>(
         connected: true,
         last_status: None,
         device_lost: None,
+        idle: None,
+        ask_status: false,
         sensor_ok: true,
         final_fit: false,
         plan,
@@ -648,14 +679,24 @@ async fn run<L: Link, W: Durable, F: Durable, C: Durable, O: Observer>(
     ));
     while s.start_time.elapsed() < plan.duration {
         s.receive(Duration::from_millis(200)).await?;
-        if let Some(st) = s.last_status.take() {
+        if let Some(st) = s
+            .last_status
+            .take()
+            .filter(|st| st.state != RunState::Running)
+        {
+            s.idle.get_or_insert(st);
+        }
+        if s.ask_status && s.connected {
+            s.ask_status = false;
+            // A replay of nothing: its status reply says whether the device still runs.
+            let from_seq = s.files.recorder.newest().map_or(0, |n| n.wrapping_add(1));
+            let st = s.command(Command::Backfill { from_seq, count: 0 }).await?;
             if st.state != RunState::Running {
-                return Err(RecordError::Device(format!(
-                    "the device stopped running (state {:?}, sensor {:?}): restarted or \
-                     stopped by another host",
-                    st.state, st.sensor
-                )));
+                s.idle.get_or_insert(st);
             }
+        }
+        if let Some(st) = s.idle.take() {
+            return Err(RecordError::Device(stopped(&st, s.files.recorder.newest())));
         }
         if s.connected {
             s.backfill().await?;

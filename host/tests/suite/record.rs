@@ -427,3 +427,30 @@ fn conversions_the_device_did_not_read_are_counted() {
     crosscheck_passes(&r);
     rebuild_matches(&r);
 }
+
+/// A board that resets mid-recording (its watchdog, a panic) comes back idle and counting
+/// from zero: the recorder says it restarted, keeps the rows before, and the file reads
+/// back. (Carrying the recording across the reset is not done: issue 32, proof point 4.)
+#[test]
+fn a_device_that_restarts_is_named_and_the_rows_before_are_kept() {
+    let r = run("reset", "reset=100");
+    let e = r.result.as_ref().err().map(|(e, _)| e.to_string()).unwrap();
+    println!("{e}");
+    assert!(e.contains("the device restarted"), "{e}");
+    let q = seqs(&r.paths.recording);
+    // About 100 s at 16 Hz, every seq once and in order.
+    assert!((1500..=1610).contains(&q.len()), "{} rows", q.len());
+    assert_eq!(q, (0..q.len() as u64).collect::<Vec<_>>());
+    // And a stop by another host is named as such.
+    let st = rotacal_shared::packet::Status {
+        state: rotacal_shared::packet::RunState::Idle,
+        sensor: rotacal_shared::packet::SensorStatus::Ok,
+        condition: Some(Condition::X),
+        lost: 0,
+        ring_oldest: 900,
+        ring_newest: 1539,
+        last_error: None,
+    };
+    assert!(record::stopped(&st, Some(1539)).contains("stopped by another host"));
+    assert!(record::stopped(&st, Some(1540)).contains("restarted"));
+}

@@ -300,6 +300,14 @@ impl<W: Write, F: Write> Recorder<W, F> {
         self.drain()
     }
 
+    /// The newest sequence number received (written or held), if any.
+    pub fn newest(&self) -> Option<u32> {
+        let held = self.held.keys().next_back().copied();
+        let written = self.next_seq.map(|n| n.wrapping_sub(1));
+        held.max(written)
+            .filter(|_| self.summary.rows > 0 || !self.held.is_empty())
+    }
+
     /// The seq ranges [first, last] not yet received before the newest sample held (or
     /// the newest the device said it has): what to ask the device to replay.
     pub fn missing(&self) -> Vec<(u32, u32)> {

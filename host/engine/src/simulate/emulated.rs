@@ -66,6 +66,9 @@ pub struct Faults {
     /// Reads stuck (start, length): no conversion in the window is read, seconds after the
     /// first connection.
     pub stuck: Vec<(f64, f64)>,
+    /// The board resets (a watchdog or a panic) at these times, seconds after the first
+    /// connection: its logic starts afresh, idle, and its radio is silent for a second.
+    pub resets: Vec<f64>,
 }
 
 impl Default for Faults {
@@ -83,6 +86,7 @@ impl Default for Faults {
             mtu: route::MAX_MTU,
             late_probability: 0.0,
             stuck: Vec::new(),
+            resets: Vec::new(),
         }
     }
 }
@@ -146,6 +150,8 @@ pub struct EmulatedDevice {
     unread: u64,
     /// Draws the late reads (apart from the link's faults, so that they do not move).
     read_rng: ChaCha8Rng,
+    /// Resets done so far ([`Faults::resets`]).
+    resets_done: usize,
     /// When the next notification may leave them.
     next_notify: Duration,
     /// Delivered to the host, in order.
@@ -178,6 +184,7 @@ impl EmulatedDevice {
             oversize: 0,
             unread_since: None,
             unread: 0,
+            resets_done: 0,
             next_notify: Duration::ZERO,
             out: VecDeque::new(),
             notifications: 0,
@@ -253,6 +260,28 @@ impl EmulatedDevice {
             latched: true,
         };
         Some(pair(&read, conversion_ticks()))
+    }
+
+    /// The board's reset, if one is due by `t`: the device logic starts afresh (idle,
+    /// sequence numbers and device time from zero, an empty ring) and what waited in the
+    /// queues is gone.
+    fn reset_if_due(&mut self, t: Duration) {
+        let due = self
+            .faults
+            .resets
+            .get(self.resets_done)
+            .is_some_and(|at| t.as_secs_f64() >= *at);
+        if !due {
+            return;
+        }
+        self.resets_done += 1;
+        self.device = Device::new(Config::FEATHER);
+        let mut packets = Vec::new();
+        self.device.set_link_mtu(self.mtu, &mut |p| packets.push(p));
+        self.queues = [VecDeque::new(), VecDeque::new()];
+        self.running = None;
+        self.unread_since = None;
+        self.connected = false;
     }
 
     /// Conversions the sensor made that the firmware did not read.
@@ -394,6 +423,7 @@ impl EmulatedDevice {
                 break;
             }
             self.now = next;
+            self.reset_if_due(next);
             self.connected &= self.outage_at(next).is_none();
             let mut packets = Vec::new();
             if notify == Some(next) {
@@ -550,7 +580,7 @@ pub enum FaultsError {
     /// A key that names no fault.
     #[error(
         "'{key}': unknown fault (outage, drop, burst, garbage, firmware, protocol, replaced, \
-         mute_after, seed, mtu, late, stuck)"
+         mute_after, seed, mtu, late, stuck, reset)"
     )]
     UnknownFault {
         /// The key.
@@ -575,7 +605,8 @@ impl std::str::FromStr for Faults {
     /// `firmware=A.B.C`, `protocol=V`, `replaced=A.B.C`, `mute_after=N`, `seed=N`,
     /// `mtu=N` (the ATT MTU of the simulated link, 23 to 517), `late=P` (a fraction of
     /// the sensor's conversions read too late, so never read), `stuck=AT:MS` (reads stuck
-    /// for MS milliseconds from AT seconds; repeatable), comma-separated.
+    /// for MS milliseconds from AT seconds; repeatable), `reset=AT` (the board resets at AT
+    /// seconds; repeatable), comma-separated.
     fn from_str(s: &str) -> Result<Self, FaultsError> {
         let mut f = Faults::default();
         for item in s.split(',').map(str::trim).filter(|i| !i.is_empty()) {
@@ -632,6 +663,12 @@ impl std::str::FromStr for Faults {
                 }
                 "seed" => f.seed = v.parse().map_err(|_| bad("expected a whole number"))?,
                 "late" => f.late_probability = probability(v)?,
+                "reset" => {
+                    let at = num(v)?;
+                    f.resets.push(at);
+                    // Booting and advertising again take about a second.
+                    f.outages.push((at, 1.0));
+                }
                 "stuck" => {
                     let (a, l) = v.split_once(':').ok_or_else(|| bad("expected AT:MS"))?;
                     f.stuck.push((num(a)?, num(l)? / 1000.0));
