@@ -37,10 +37,9 @@ use panic_probe as _;
 #[cfg(feature = "panic-reset")]
 use panic_reset as _;
 
-/// The watchdog resets the board when the logic task has had no event for this long, in
-/// 32 768 Hz ticks (4 s): a working sensor sends 104 a second, a stalled one a poll every
-/// 100 ms, a missing one a status every second; none for 4 s means the executor is stuck.
-const WATCHDOG_TICKS: u32 = 4 * 32_768;
+/// The watchdog's period in its 32 768 Hz ticks (rotacal-shared's `WATCHDOG_MS`, which says
+/// why 4 s).
+const WATCHDOG_TICKS: u32 = rotacal_shared::device::WATCHDOG_MS / 1000 * 32_768;
 
 bind_interrupts!(struct Irqs {
     SPIM0_SPIS0_TWIM0_TWIS0_SPI0_TWI0 => twim::InterruptHandler<TWISPI0>;

@@ -33,6 +33,12 @@ use session::Session;
 /// and the batches in flight as the link dropped (docs/recording.md).
 pub const RING: usize = 640;
 
+/// The firmware's watchdog resets the board when its logic has taken no event for this
+/// long, ms. The sensor sends 104 events a second while converting, a poll every 100 ms
+/// while its data-ready line is quiet and a status every second while it is missing, so a
+/// silence this long means the executor is stuck.
+pub const WATCHDOG_MS: u32 = 4000;
+
 /// How the device is set up.
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]

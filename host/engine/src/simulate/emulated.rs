@@ -30,7 +30,7 @@ use rand_chacha::ChaCha8Rng;
 use rotacal_shared::device::pairing::{pair, Read};
 use rotacal_shared::device::route::{self, Room, RESULTS_QUEUE, STREAM_QUEUE};
 use rotacal_shared::device::sampler::Conversion as ConversionRead;
-use rotacal_shared::device::{Config, Device, RING};
+use rotacal_shared::device::{Config, Device, RING, WATCHDOG_MS};
 use rotacal_shared::packet::{Chip, Command, Packet, RunState};
 use rotacal_shared::Condition;
 use std::collections::VecDeque;
@@ -69,6 +69,10 @@ pub struct Faults {
     /// The board resets (a watchdog or a panic) at these times, seconds after the first
     /// connection: its logic starts afresh, idle, and its radio is silent for a second.
     pub resets: Vec<f64>,
+    /// The firmware's executor hangs at these times (start, length): no event is handled,
+    /// no notification sent, no command taken, while the SoftDevice keeps the link; the
+    /// watchdog then resets the board.
+    pub hangs: Vec<(f64, f64)>,
 }
 
 impl Default for Faults {
@@ -87,6 +91,7 @@ impl Default for Faults {
             late_probability: 0.0,
             stuck: Vec::new(),
             resets: Vec::new(),
+            hangs: Vec::new(),
         }
     }
 }
@@ -103,6 +108,9 @@ fn conversion_ticks() -> u32 {
     let ticks = u64::from(c.clock.hz()) * 1000 / u64::from(c.sensor_odr_mhz.max(1));
     u32::try_from(ticks).unwrap_or(u32::MAX)
 }
+
+/// Seconds from a reset until the board advertises again.
+const BOOT_S: f64 = 1.0;
 
 /// How long after a conversion the firmware's read of it begins (task latency).
 const READ_LATENCY: Duration = Duration::from_micros(150);
@@ -260,6 +268,15 @@ impl EmulatedDevice {
             latched: true,
         };
         Some(pair(&read, conversion_ticks()))
+    }
+
+    /// Whether the firmware's executor is hung at `t` ([`Faults::hangs`]).
+    fn hung_at(&self, t: Duration) -> bool {
+        let s = t.as_secs_f64();
+        self.faults
+            .hangs
+            .iter()
+            .any(|&(a, len)| s >= a && s < a + len)
     }
 
     /// The board's reset, if one is due by `t`: the device logic starts afresh (idle,
@@ -426,26 +443,29 @@ impl EmulatedDevice {
             self.reset_if_due(next);
             self.connected &= self.outage_at(next).is_none();
             let mut packets = Vec::new();
+            let hung = self.hung_at(next);
             if notify == Some(next) {
-                if self.connected {
+                if self.connected && !hung {
                     self.notify();
                 }
                 self.next_notify = next + NOTIFY_EVERY;
             } else if conv == Some(next) {
                 if let Some((c, start, k)) = self.running {
                     if let Some(x) = self.streams.get(c.index()).and_then(|s| s.get(k)).copied() {
-                        if let Some(conv) = self.read(next, x.counts) {
+                        if let Some(conv) = self.read(next, x.counts).filter(|_| !hung) {
                             self.device.on_conversion(&conv, &mut |p| packets.push(p));
                         }
                         self.running = Some((c, start, k + 1));
                     }
                 }
             } else if next == self.next_poll {
-                self.device
-                    .poll(Self::capture(next), &mut |p| packets.push(p));
+                if !hung {
+                    self.device
+                        .poll(Self::capture(next), &mut |p| packets.push(p));
+                }
                 self.next_poll += POLL_EVERY;
             } else {
-                if let Some((c, _, k)) = self.running {
+                if let Some((c, _, k)) = self.running.filter(|_| !hung) {
                     if let Some(x) = self
                         .streams
                         .get(c.index())
@@ -460,7 +480,9 @@ impl EmulatedDevice {
             for p in packets {
                 self.send(p);
             }
-            self.pump();
+            if !hung {
+                self.pump();
+            }
         }
         self.now = self.now.max(t);
         self.connected &= self.outage_at(t).is_none();
@@ -519,7 +541,8 @@ impl EmulatedDevice {
             return false;
         }
         self.commands += 1;
-        if self.faults.mute_after.is_some_and(|n| self.commands > n) {
+        // A hung executor never takes the command the SoftDevice received.
+        if self.faults.mute_after.is_some_and(|n| self.commands > n) || self.hung_at(self.now) {
             return true;
         }
         // The firmware ignores (and logs) a write that isn't a command.
@@ -580,7 +603,7 @@ pub enum FaultsError {
     /// A key that names no fault.
     #[error(
         "'{key}': unknown fault (outage, drop, burst, garbage, firmware, protocol, replaced, \
-         mute_after, seed, mtu, late, stuck, reset)"
+         mute_after, seed, mtu, late, stuck, reset, panic, hang)"
     )]
     UnknownFault {
         /// The key.
@@ -606,7 +629,8 @@ impl std::str::FromStr for Faults {
     /// `mtu=N` (the ATT MTU of the simulated link, 23 to 517), `late=P` (a fraction of
     /// the sensor's conversions read too late, so never read), `stuck=AT:MS` (reads stuck
     /// for MS milliseconds from AT seconds; repeatable), `reset=AT` (the board resets at AT
-    /// seconds; repeatable), comma-separated.
+    /// seconds; repeatable; `panic=AT` the same, from a panic), `hang=AT` (the logic stops
+    /// at AT and the watchdog resets the board [`WATCHDOG_MS`] later), comma-separated.
     fn from_str(s: &str) -> Result<Self, FaultsError> {
         let mut f = Faults::default();
         for item in s.split(',').map(str::trim).filter(|i| !i.is_empty()) {
@@ -663,11 +687,21 @@ impl std::str::FromStr for Faults {
                 }
                 "seed" => f.seed = v.parse().map_err(|_| bad("expected a whole number"))?,
                 "late" => f.late_probability = probability(v)?,
-                "reset" => {
+                // A panic resets the board at once (the build for boards without a probe).
+                "reset" | "panic" => {
                     let at = num(v)?;
                     f.resets.push(at);
                     // Booting and advertising again take about a second.
-                    f.outages.push((at, 1.0));
+                    f.outages.push((at, BOOT_S));
+                }
+                // The logic stops taking events, and the watchdog, no longer petted, resets
+                // the board WATCHDOG_MS later.
+                "hang" => {
+                    let at = num(v)?;
+                    let watchdog = f64::from(WATCHDOG_MS) / 1000.0;
+                    f.hangs.push((at, watchdog));
+                    f.resets.push(at + watchdog);
+                    f.outages.push((at + watchdog, BOOT_S));
                 }
                 "stuck" => {
                     let (a, l) = v.split_once(':').ok_or_else(|| bad("expected AT:MS"))?;
@@ -683,6 +717,7 @@ impl std::str::FromStr for Faults {
                 _ => return Err(FaultsError::UnknownFault { key: k.into() }),
             }
         }
+        f.resets.sort_by(f64::total_cmp);
         Ok(f)
     }
 }
