@@ -129,8 +129,8 @@ impl<const RING: usize> Device<RING> {
         }
     }
 
-    /// The link's ATT MTU, as the central and the device agreed it (the device asks for
-    /// [`MAX_MTU`], which is also what it assumes until told): batches are sized to it
+    /// The link's ATT MTU, as the central and the device agreed it (the device assumes
+    /// [`MAX_MTU`], the most it grants, until told): batches are sized to it
     /// ([`route::batch_len`]), and below [`route::MIN_MTU`] Start and Backfill are refused
     /// with [`CommandError::MtuTooSmall`]. A part-filled batch too long for a smaller MTU
     /// is split.

@@ -63,7 +63,8 @@ impl Room {
 /// Bytes of an ATT notification that are not the value: a notification carries MTU − 3.
 pub const ATT_OVERHEAD: u16 = 3;
 
-/// The ATT MTU the device asks for and grants: a batch of [`MAX_AVERAGES`] (226 bytes).
+/// The largest ATT MTU the device grants: a batch of [`MAX_AVERAGES`] (226 bytes) in one
+/// notification.
 pub const MAX_MTU: u16 = 247;
 
 /// The smallest ATT MTU the device works over: a fit report (148 bytes, the largest
