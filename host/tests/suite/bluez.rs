@@ -56,9 +56,14 @@ impl Rig {
 
     /// As [`Rig::new`], with the stand-in's `options`.
     fn with(name: &str, seed: u64, units: &[(&str, &str)], options: Options) -> Rig {
+        Rig::with_config(name, &config_text(seed), units, options)
+    }
+
+    /// As [`Rig::with`], with the simulator configuration `text`.
+    fn with_config(name: &str, text: &str, units: &[(&str, &str)], options: Options) -> Rig {
         let dir = dir(name);
         let config = dir.join("session.toml");
-        std::fs::write(&config, config_text(seed)).unwrap();
+        std::fs::write(&config, text).unwrap();
         let sim = Simulation::new(Config::load(config.to_str().unwrap()).unwrap()).unwrap();
         let units = units
             .iter()
@@ -421,6 +426,32 @@ fn the_links_mtu_sizes_the_batches_or_is_named_in_the_refusal() {
     println!("{}\n{}", r.out, r.err);
     assert_eq!(r.code, 1, "{}", r.err);
     assert!(r.err.contains("ATT MTU is 23 bytes"), "{}", r.err);
+}
+
+/// Issue 32, proof point 6, through btleplug and BlueZ's interfaces: `rotacal check-board`
+/// finds the stand-in's advertisement, records the board lying still (the table at 1 mHz,
+/// which the noise estimate's second differences do not see) and passes every check.
+#[test]
+fn check_board_finds_a_good_board_and_passes_it() {
+    let still = "preset = \"paper-10mhz\"\nseed = 18\n[timing]\nsample_rate_hz = 104.0\n\
+                 tick_hz = 1e6\n[table]\nrates_hz = [0.001]\nsamples_per_condition = 4680\n";
+    let mut rig = Rig::with_config("checkboard", still, &[(ADDRESS, "")], Options::default());
+    let r = rig.rotacal(&[
+        "check-board",
+        "--device",
+        "rotacal",
+        "--duration",
+        "35s",
+        "--out",
+        "chk",
+        "--scan-timeout",
+        "5s",
+    ]);
+    let report = rig.stop();
+    println!("{}\n{}\nstand-in: {report:?}", r.out, r.err);
+    assert_eq!(r.code, 0, "{}\n{}", r.out, r.err);
+    assert!(r.out.contains("All 8 checks passed."), "{}", r.out);
+    assert!(r.out.contains("BLE device F1:23:45:67:89:AB"), "{}", r.out);
 }
 
 /// The whole number just before `tail` in `text` (its first occurrence).
