@@ -49,7 +49,7 @@ pub fn take_overflows() -> u32 {
 
 /// The current link's ATT MTU, as the BLE task last read it (the device logic sizes its
 /// batches to it).
-pub static LINK_MTU: AtomicU16 = AtomicU16::new(MAX_MTU);
+static LINK_MTU: AtomicU16 = AtomicU16::new(MAX_MTU);
 
 /// Set the link's MTU.
 pub fn set_link_mtu(mtu: u16) {

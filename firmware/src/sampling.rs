@@ -32,13 +32,6 @@ const LOOK_EVERY: Duration = Duration::from_millis(12);
 /// No edge for this long (about 10 sensor periods) means the sensor stopped.
 const DRDY_TIMEOUT: Duration = Duration::from_millis(100);
 
-/// The sensor's conversion period in timestamp ticks (9615 at 104 Hz and 1 MHz).
-fn conversion_ticks() -> u32 {
-    let c = Config::FEATHER;
-    let ticks = u64::from(c.clock.hz()) * 1000 / u64::from(c.sensor_odr_mhz.max(1));
-    u32::try_from(ticks).unwrap_or(u32::MAX)
-}
-
 fn status_of(e: Error<twim::Error>) -> SensorStatus {
     match e {
         Error::Bus(_) => SensorStatus::BusError,
@@ -64,7 +57,7 @@ pub async fn sensor_task(
     drdy: InputChannel<'static>,
     mut bus: Bus,
 ) {
-    let period = conversion_ticks();
+    let period = Config::FEATHER.conversion_ticks();
     loop {
         let mut acc = match Accelerometer::detect(bus) {
             Ok(a) => a,

@@ -679,21 +679,12 @@ async fn run<L: Link, W: Durable, F: Durable, C: Durable, O: Observer>(
     ));
     while s.start_time.elapsed() < plan.duration {
         s.receive(Duration::from_millis(200)).await?;
-        if let Some(st) = s
-            .last_status
-            .take()
-            .filter(|st| st.state != RunState::Running)
-        {
-            s.idle.get_or_insert(st);
-        }
         if s.ask_status && s.connected {
             s.ask_status = false;
-            // A replay of nothing: its status reply says whether the device still runs.
+            // A replay of nothing: its status reply says whether the device still runs
+            // (every status goes through `packet`, which notes one that is not running).
             let from_seq = s.files.recorder.newest().map_or(0, |n| n.wrapping_add(1));
-            let st = s.command(Command::Backfill { from_seq, count: 0 }).await?;
-            if st.state != RunState::Running {
-                s.idle.get_or_insert(st);
-            }
+            s.command(Command::Backfill { from_seq, count: 0 }).await?;
         }
         if let Some(st) = s.idle.take() {
             return Err(RecordError::Device(stopped(&st, s.files.recorder.newest())));

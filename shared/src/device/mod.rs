@@ -64,6 +64,26 @@ pub struct Config {
 }
 
 impl Config {
+    /// The sensor's conversion period in ticks of the timestamp clock, × 1000 (0 for a
+    /// rate of 0).
+    pub const fn conversion_milli(&self) -> u64 {
+        if self.sensor_odr_mhz == 0 {
+            0
+        } else {
+            self.clock.hz() as u64 * 1_000_000 / self.sensor_odr_mhz as u64
+        }
+    }
+
+    /// The sensor's conversion period in whole ticks (9615 at 104 Hz and 1 MHz).
+    pub const fn conversion_ticks(&self) -> u32 {
+        let t = self.conversion_milli() / 1000;
+        if t > u32::MAX as u64 {
+            u32::MAX
+        } else {
+            t as u32
+        }
+    }
+
     /// The Feather nRF52840 Sense: TIMER at 1 MHz on the crystal, sensor at 104 Hz,
     /// 16 Hz stream, a fit report every 10 s, batches at most 1 s old, ±2 g.
     pub const FEATHER: Config = Config {

@@ -191,10 +191,15 @@ impl<const N: usize> Ring<N> {
 
     /// Entries oldest first.
     pub fn iter(&self) -> impl Iterator<Item = Entry> + '_ {
+        self.iter_skip(0)
+    }
+
+    /// Entries oldest first, less the `skip` oldest (only those are unpacked).
+    fn iter_skip(&self, skip: usize) -> impl Iterator<Item = Entry> + '_ {
         let first_seq = self
             .newest_seq
             .wrapping_sub((self.len as u32).wrapping_sub(1));
-        (0..self.len).filter_map(move |i| {
+        (skip.min(self.len)..self.len).filter_map(move |i| {
             self.slot(i)?
                 .unpack(first_seq.wrapping_add(i as u32), self.base)
         })
@@ -260,7 +265,15 @@ impl Replay {
     ) -> bool {
         let (start, end) = (self.next, self.end);
         let wanted = |seq: u32| seq.wrapping_sub(start) < end.wrapping_sub(start);
-        let mut pending = ring.iter().filter(|e| wanted(e.sample.seq));
+        // Seqs are consecutive in the ring: start at the first wanted one rather than
+        // unpacking the whole ring at every pump of a replay.
+        let oldest = ring.span().0;
+        let skip = if wanted(oldest) {
+            0
+        } else {
+            usize::try_from(start.wrapping_sub(oldest)).unwrap_or(usize::MAX)
+        };
+        let mut pending = ring.iter_skip(skip).filter(|e| wanted(e.sample.seq));
         while room > 0 {
             let mut sent = 0usize;
             let mut count = |p: Packet| {

@@ -115,11 +115,7 @@ impl Sampler {
             open: None,
             last_end_milli: None,
             next_seq: 0,
-            conversion_milli: if cfg.sensor_odr_mhz == 0 {
-                0
-            } else {
-                clock_hz * 1_000_000 / u64::from(cfg.sensor_odr_mhz)
-            },
+            conversion_milli: cfg.conversion_milli(),
             previous: None,
         };
         if s.set_sample_rate(cfg.sample_rate_mhz, cfg.sensor_odr_mhz)

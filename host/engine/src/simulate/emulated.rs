@@ -102,13 +102,6 @@ pub const FIRMWARE: [u8; 3] = [0, 2, 0];
 /// The counter value at the first connection: near 2³² so the 32-bit TIMER wraps early.
 const COUNTER_START: u64 = 0xFFF0_0000;
 const COUNTER_MASK: u64 = 0xFFFF_FFFF;
-/// The sensor's conversion period in timestamp ticks, as the firmware reckons it.
-fn conversion_ticks() -> u32 {
-    let c = Config::FEATHER;
-    let ticks = u64::from(c.clock.hz()) * 1000 / u64::from(c.sensor_odr_mhz.max(1));
-    u32::try_from(ticks).unwrap_or(u32::MAX)
-}
-
 /// Seconds from a reset until the board advertises again.
 const BOOT_S: f64 = 1.0;
 
@@ -267,7 +260,7 @@ impl EmulatedDevice {
             counts,
             latched: true,
         };
-        Some(pair(&read, conversion_ticks()))
+        Some(pair(&read, Config::FEATHER.conversion_ticks()))
     }
 
     /// Whether the firmware's executor is hung at `t` ([`Faults::hangs`]).
