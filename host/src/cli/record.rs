@@ -220,7 +220,7 @@ async fn session<L: Link>(link: &mut L, a: &Args, plan: Plan, opts: Options) -> 
             println!(
                 "recorded condition {}: {} samples ({} recovered by replay, {} received twice, \
                  {} lost{}), {} fit-log lines, {} link drop(s), {} undecodable value(s), {} \
-                 conversion(s) lost on the device{}\n\
+                 conversion(s) lost on the device{}{}\n\
                  files: {files}",
                 plan.condition.letter(),
                 s.rows,
@@ -240,6 +240,15 @@ async fn session<L: Link>(link: &mut L, a: &Args, plan: Plan, opts: Options) -> 
                     ""
                 } else {
                     "; the final fit report is missing"
+                },
+                match o.restarts {
+                    0 => String::new(),
+                    n => format!(
+                        "; the device restarted {n} time(s) (a watchdog, a panic or its power): \
+                         the condition's rows are in {} boots, which calibrate joins; lost seqs \
+                         are numbered in their boot",
+                        n + 1
+                    ),
                 }
             );
             if s.lost.is_empty() && o.undecodable == 0 {

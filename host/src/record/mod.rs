@@ -13,7 +13,7 @@ pub mod capture;
 
 use crate::link::{Channel, Link, LinkError};
 use crate::record::capture::{CaptureWriter, Entry};
-use crate::recording::from_device::{RecordSummary, Recorder};
+use crate::recording::from_device::{RecordSummary, Recorder, Resume};
 use rotacal_shared::packet::{
     ClockSource, Command, CommandError, DeviceInfo, Packet, RunState, SensorStatus, Status, VERSION,
 };
@@ -149,6 +149,9 @@ pub struct Outcome {
     /// Conversions lost on the device during the recording (not read in time, or dropped
     /// from its event queue), from its status: also counted per sample in `conv_missed`.
     pub device_lost: u32,
+    /// Times the device restarted (a watchdog, a panic, its power) and the condition was
+    /// started again: the recording's rows are in boots 0 to this.
+    pub restarts: u32,
 }
 
 /// Why recording failed. What was received up to then is in the files.
@@ -202,23 +205,26 @@ fn refusal(e: CommandError, mtu: u16) -> String {
     }
 }
 
-/// Why the device is no longer running, from its status and the newest sample received: a
-/// device whose newest sample is older than ours has started afresh (sequence numbers count
-/// from power-up), so it was reset (its watchdog, a panic, its power); otherwise another
-/// host stopped it.
-pub fn stopped(st: &Status, newest: Option<u32>) -> String {
-    match newest {
-        Some(n) if st.ring_newest < n => format!(
-            "the device restarted (its newest sample is seq {}, ours {n}: it counts from a \
-             new power-up; a watchdog, a panic or its power reset it). The rows up to seq \
-             {n} are kept; record the condition again",
-            st.ring_newest
-        ),
-        _ => format!(
-            "the device stopped running (state {:?}, sensor {:?}): stopped by another host",
-            st.state, st.sensor
-        ),
-    }
+/// Why the device is no longer running when it did not restart (a restart shows as its
+/// newest sample going back: [`Recorder`] starts a new boot): another host stopped it.
+pub fn stopped(st: &Status) -> String {
+    format!(
+        "the device stopped running (state {:?}, sensor {:?}): stopped by another host",
+        st.state, st.sensor
+    )
+}
+
+/// What the recorder says when the device restarted: `st` the status that showed it,
+/// `newest` the newest seq received before, `boot` the boot the rows go on in.
+pub fn restarted(st: &Status, newest: Option<u32>, boot: u32) -> String {
+    let before = newest.map_or(String::new(), |n| format!(", ours {n}"));
+    format!(
+        "the device restarted (its newest sample is seq {}{before}: it counts from a new \
+         power-up; a watchdog, a panic or its power reset it). The rows before are kept; \
+         the condition is started again and its rows go on in boot {boot}, whose time \
+         starts afresh (calibrate joins the boots)",
+        st.ring_newest
+    )
 }
 
 /// Check the device-info value.
@@ -298,8 +304,15 @@ struct Session<'a, L: Link, W: Durable, F: Durable, C: Durable, O: Observer> {
     link_drops: u32,
     connected: bool,
     last_status: Option<Status>,
-    /// The device's `lost` count at the first and the latest status.
+    /// The device's `lost` count at the first and the latest status of its boot, and
+    /// what its earlier boots lost.
     device_lost: Option<(u32, u32)>,
+    lost_before: u32,
+    /// The recorder's boot at the last status: one more means the device restarted.
+    boot_seen: u32,
+    /// The status that showed a restart, until the condition is started again.
+    rebooted: Option<(Status, Option<u32>)>,
+    restarts: u32,
     /// A status that found the device not running after our Start (whatever command it
     /// answered): the device was stopped or reset.
     idle: Option<Status>,
@@ -393,6 +406,7 @@ impl<L: Link, W: Durable, F: Durable, C: Durable, O: Observer> Session<'_, L, W,
         // Before our Start is acknowledged (e.g. the tail of a condition stopped with
         // --restart), or of another condition, data are not this recording's; they stay in
         // the capture.
+        let newest = self.files.recorder.newest();
         let ours = match &p {
             Packet::Samples(b) => self.started && b.condition == self.plan.condition,
             Packet::Averages(b) => self.started && b.condition == self.plan.condition,
@@ -414,6 +428,15 @@ impl<L: Link, W: Durable, F: Durable, C: Durable, O: Observer> Session<'_, L, W,
                 self.sensor_ok = s.sensor == SensorStatus::Ok;
                 if s.last_error == Some(CommandError::NotInRing) {
                     self.files.recorder.give_up_before(s.ring_oldest)?;
+                }
+                if self.files.recorder.boot() != self.boot_seen {
+                    // A new boot counts its losses afresh.
+                    self.boot_seen = self.files.recorder.boot();
+                    self.lost_before = self
+                        .lost_before
+                        .saturating_add(self.device_lost.map_or(0, |(a, b)| b.saturating_sub(a)));
+                    self.device_lost = None;
+                    self.rebooted = Some((s, newest));
                 }
                 let first = self.device_lost.map_or(s.lost, |(f, _)| f);
                 self.device_lost = Some((first, s.lost));
@@ -590,6 +613,39 @@ impl<L: Link, W: Durable, F: Durable, C: Durable, O: Observer> Session<'_, L, W,
     }
 }
 
+/// `st`, or the refusal it reports of `cmd`.
+fn check(cmd: &str, st: Status, mtu: u16) -> Result<Status, RecordError> {
+    match st.last_error {
+        Some(e) => Err(RecordError::Refused {
+            command: cmd.into(),
+            reason: refusal(e, mtu),
+        }),
+        None => Ok(st),
+    }
+}
+
+/// Set the sample rate (if the plan says) and start the condition.
+async fn start<L: Link, W: Durable, F: Durable, C: Durable, O: Observer>(
+    s: &mut Session<'_, L, W, F, C, O>,
+    plan: Plan,
+) -> Result<(), RecordError> {
+    if let Some(mhz) = plan.sample_rate_mhz {
+        let st = s.command(Command::SetSampleRate { mhz }).await?;
+        check("the sample rate", st, s.link.mtu())?;
+    }
+    let st = s
+        .command(Command::Start {
+            condition: plan.condition,
+            rate_uhz: plan.rate_uhz,
+        })
+        .await?;
+    check("start", st, s.link.mtu())?;
+    s.started = true;
+    // Running now: the replies before the Start (a device not yet started) say nothing.
+    s.idle = None;
+    Ok(())
+}
+
 /// Requests for one missing range before it is reported lost.
 pub const BACKFILL_TRIES: u32 = 3;
 
@@ -613,6 +669,10 @@ pub async fn record<L: Link, W: Durable, F: Durable, C: Durable, O: Observer>(
         connected: true,
         last_status: None,
         device_lost: None,
+        lost_before: 0,
+        boot_seen: 0,
+        rebooted: None,
+        restarts: 0,
         idle: None,
         ask_status: false,
         sensor_ok: true,
@@ -628,7 +688,10 @@ pub async fn record<L: Link, W: Durable, F: Durable, C: Durable, O: Observer>(
     let undecodable = s.undecodable;
     let link_drops = s.link_drops;
     let final_fit = s.final_fit;
-    let device_lost = s.device_lost.map_or(0, |(a, b)| b.saturating_sub(a));
+    let device_lost = s
+        .lost_before
+        .saturating_add(s.device_lost.map_or(0, |(a, b)| b.saturating_sub(a)));
+    let restarts = s.restarts;
     let _ = s.flush();
     let summary = s.files.recorder.finish();
     match (result, summary) {
@@ -638,6 +701,7 @@ pub async fn record<L: Link, W: Durable, F: Durable, C: Durable, O: Observer>(
             link_drops,
             final_fit,
             device_lost,
+            restarts,
         }),
         (Err(e), sum) => Err((e, sum.ok())),
         (Ok(()), Err(e)) => Err((e.into(), None)),
@@ -648,29 +712,12 @@ async fn run<L: Link, W: Durable, F: Durable, C: Durable, O: Observer>(
     s: &mut Session<'_, L, W, F, C, O>,
     plan: Plan,
 ) -> Result<(), RecordError> {
-    let check = |cmd: &str, st: Status, mtu: u16| match st.last_error {
-        Some(e) => Err(RecordError::Refused {
-            command: cmd.into(),
-            reason: refusal(e, mtu),
-        }),
-        None => Ok(st),
-    };
     if plan.restart {
         // Refused (not running) is fine: the point is that it isn't running afterwards.
         s.command(Command::Stop).await?;
     }
-    if let Some(mhz) = plan.sample_rate_mhz {
-        let st = s.command(Command::SetSampleRate { mhz }).await?;
-        check("the sample rate", st, s.link.mtu())?;
-    }
-    let st = s
-        .command(Command::Start {
-            condition: plan.condition,
-            rate_uhz: plan.rate_uhz,
-        })
-        .await?;
-    check("start", st, s.link.mtu())?;
-    s.started = true;
+    s.boot_seen = s.files.recorder.boot();
+    start(s, plan).await?;
     s.start_time = Instant::now();
     s.obs.message(&format!(
         "recording condition {} for {:.0} s",
@@ -687,7 +734,17 @@ async fn run<L: Link, W: Durable, F: Durable, C: Durable, O: Observer>(
             s.command(Command::Backfill { from_seq, count: 0 }).await?;
         }
         if let Some(st) = s.idle.take() {
-            return Err(RecordError::Device(stopped(&st, s.files.recorder.newest())));
+            let Some((at, newest)) = s.rebooted.take() else {
+                return Err(RecordError::Device(stopped(&st)));
+            };
+            // The table turns on: so does the recording, in the next boot, to the end of
+            // the planned duration.
+            s.restarts += 1;
+            s.obs
+                .message(&restarted(&at, newest, s.files.recorder.boot()));
+            s.asked = None;
+            start(s, plan).await?;
+            continue;
         }
         if s.connected {
             s.backfill().await?;
@@ -888,12 +945,26 @@ pub fn open_files(
         };
         let mut capture = CaptureWriter::append(open(&paths.capture)?);
         capture.entry(&Entry::Value(Channel::Info, info_bytes.to_vec()))?;
+        // Conditions are appended one after another: the last group holds the last row.
+        let last = rec.groups.last();
         Ok(Files {
             recorder: Recorder::append(
                 open(&paths.recording)?,
                 open(&paths.fits)?,
                 tick_hz,
-                rec.groups.iter().all(|g| g.missed.is_some()),
+                Resume {
+                    missed: rec.groups.iter().all(|g| g.missed.is_some()),
+                    boot: match rec.groups.iter().all(|g| g.boot.is_some()) {
+                        true => Some(
+                            last.and_then(|g| g.boot.as_ref()?.last().copied())
+                                .unwrap_or(0),
+                        ),
+                        false => None,
+                    },
+                    newest: last
+                        .and_then(|g| g.seq.as_ref()?.last().copied())
+                        .and_then(|s| u32::try_from(s).ok()),
+                },
             )?,
             capture,
         })

@@ -297,7 +297,11 @@ fn series(rec: &Recording, g: &Group, entry: &RateJson) -> Result<Series, Report
     let (title, stem) = names(cond, entry.rate_hz);
     let mut s = Series::new(title, stem, x_label(rotation), rotation);
     let samples = if rotation {
-        calibrate::samples(rec, g)?
+        // A condition in several boots, joined as its calibration joined it.
+        match entry.rate_hz {
+            Some(r) => calibrate::joined(rec, g, r)?.0,
+            None => calibrate::samples(rec, g)?,
+        }
     } else {
         Vec::new()
     };

@@ -12,6 +12,7 @@ mod allan_cli;
 mod apply;
 mod averaging;
 mod bluez;
+mod boots;
 mod budget;
 mod calibrate_cli;
 mod check_board;

@@ -22,7 +22,8 @@ fn dir(name: &str) -> PathBuf {
     d
 }
 
-fn meta(sim: &Simulation) -> Metadata {
+/// The demo's recording metadata for `sim`.
+pub(crate) fn meta(sim: &Simulation) -> Metadata {
     Metadata {
         method: Some(Method::Rotation),
         g_loc: Some(sim.config().g_loc),

@@ -429,26 +429,53 @@ fn conversions_the_device_did_not_read_are_counted() {
 }
 
 /// A board that resets mid-recording comes back idle and counting from zero: the recorder
-/// says it restarted, keeps the rows before, and the file reads back. Three ways: a reset; a
-/// panic (the build for boards without a probe resets at once); a hang of the firmware's
-/// executor, which takes no event and sends nothing while the SoftDevice keeps the link,
-/// until the watchdog resets the board 4 s later. (Carrying the recording across the reset
-/// is not done: issue 32, proof point 4.)
+/// says it restarted, keeps the rows before, starts the condition again and records on in
+/// boot 1 to the planned end; the file reads back, the capture rebuilds it, and the device's
+/// fit agrees with the rows of its own boot. Three ways: a reset; a panic (the build for
+/// boards without a probe resets at once); a hang of the firmware's executor, which takes no
+/// event and sends nothing while the SoftDevice keeps the link, until the watchdog resets
+/// the board 4 s later.
 #[test]
-fn a_device_that_restarts_is_named_and_the_rows_before_are_kept() {
+fn a_device_that_restarts_is_named_and_the_recording_goes_on_in_a_new_boot() {
     for fault in ["reset=100", "panic=100", "hang=100"] {
         let r = run(&fault.replace('=', "-"), fault);
-        let e = r.result.as_ref().err().map(|(e, _)| e.to_string()).unwrap();
-        println!("{fault}: {e}");
-        assert!(e.contains("the device restarted"), "{fault}: {e}");
-        let q = seqs(&r.paths.recording);
-        // About 100 s at 16 Hz, every seq once and in order.
+        let o = r.result.as_ref().unwrap();
+        println!("{fault}: {:?}; {:?}", o.summary, r.messages);
+        assert_eq!(o.restarts, 1, "{fault}");
         assert!(
-            (1500..=1610).contains(&q.len()),
-            "{fault}: {} rows",
-            q.len()
+            r.messages
+                .iter()
+                .any(|m| m.contains("the device restarted") && m.contains("boot 1")),
+            "{fault}: {:?}",
+            r.messages
         );
-        assert_eq!(q, (0..q.len() as u64).collect::<Vec<_>>(), "{fault}");
+        let rec = recording::read_in_progress(&r.paths.recording).unwrap();
+        let g = &rec.groups[0];
+        let (boot, seq) = (g.boot.as_ref().unwrap(), g.seq.as_ref().unwrap());
+        let before = boot.iter().filter(|b| **b == 0).count();
+        // About 100 s at 16 Hz before the restart, every seq once and in order; after it
+        // the table's remaining time less the restart's (the board boots in 1 s, a hang
+        // waits for the watchdog first), every seq of the new boot once and in order.
+        assert!((1500..=1610).contains(&before), "{fault}: {before} rows");
+        assert_eq!(&seq[..before], &(0..before as u64).collect::<Vec<_>>()[..]);
+        let after = &seq[before..];
+        assert!(boot[before..].iter().all(|b| *b == 1));
+        assert!(after.windows(2).all(|w| w[1] == w[0] + 1), "{fault}");
+        assert!(
+            (2400..=2600).contains(&after.len()),
+            "{fault}: {} rows",
+            after.len()
+        );
+        // Time starts afresh in the new boot.
+        assert!(g.t_s[before] < g.t_s[before - 1]);
+        // Nothing invented: what the restart cost is counted lost, and only that.
+        assert!(
+            o.summary.lost_samples() <= 16 * 8,
+            "{fault}: {:?}",
+            o.summary.lost
+        );
+        rebuild_matches(&r);
+        crosscheck_passes_in_boots(&r);
     }
     // And a stop by another host is named as such.
     let st = rotacal_shared::packet::Status {
@@ -460,6 +487,62 @@ fn a_device_that_restarts_is_named_and_the_rows_before_are_kept() {
         ring_newest: 1539,
         last_error: None,
     };
-    assert!(record::stopped(&st, Some(1539)).contains("stopped by another host"));
-    assert!(record::stopped(&st, Some(1540)).contains("restarted"));
+    assert!(record::stopped(&st).contains("stopped by another host"));
+}
+
+/// The device's fits agree with the recording's rows of their boot.
+fn crosscheck_passes_in_boots(r: &Run) {
+    let rec = recording::read_in_progress(&r.paths.recording).unwrap();
+    let log = rotacal::recording::from_device::read_fit_log(
+        &std::fs::read_to_string(&r.paths.fits).unwrap(),
+        "fits",
+    )
+    .unwrap();
+    let x = rotacal::verify::recorded::crosscheck(&rec, &log, 1e-5).unwrap();
+    assert!(x.passed, "{}", rotacal::verify::recorded::render(&x));
+    let boots: Vec<u32> = log
+        .iter()
+        .filter_map(|l| match l {
+            rotacal::recording::from_device::LogLine::Fit(f) => Some(f.boot),
+            _ => None,
+        })
+        .collect();
+    // Boot 0's 100 s are too short for a periodic report (1.5 periods): boot 1's final
+    // one, whose seqs boot 0 has too, is checked against boot 1's rows alone.
+    assert_eq!(boots, [1]);
+}
+
+#[test]
+fn a_session_with_a_restart_calibrates_within_u() {
+    use rotacal::calibrate::json::PROPERTY_NAMES;
+    use rotacal::demo::{record_session, session_config, TRUTH_LIMIT_U};
+    // The watchdog resets the board 100 s into condition y (262.5 s each).
+    let sim = Simulation::new(session_config(2022).unwrap()).unwrap();
+    let mut dev = SimulatedDevice::new(&sim, "hang=362.5".parse::<Faults>().unwrap()).unwrap();
+    let d = dir("restart-session");
+    let paths = Paths::beside(&d.join("rec.csv"));
+    let meta = crate::mtu::meta(&sim);
+    let outcomes = record_session(&mut dev, &paths, &meta, Duration::from_secs_f64(262.5)).unwrap();
+    let restarts: Vec<u32> = outcomes.iter().map(|(_, o)| o.restarts).collect();
+    assert_eq!(restarts, [0, 1, 0]);
+    let rec = recording::read(&paths.recording).unwrap();
+    let boots = |c: Condition| {
+        let g = rec.groups.iter().find(|g| g.condition == c).unwrap();
+        let b = g.boot.as_ref().unwrap();
+        (b[0], b[b.len() - 1])
+    };
+    // x in the first boot, y across the restart, z (appended) in the second.
+    assert_eq!(Condition::ALL.map(boots), [(0, 0), (0, 1), (1, 1)]);
+    let cal =
+        rotacal::calibrate::stream::calibrate_file(&paths.recording, &Default::default()).unwrap();
+    let ours = cal.by_rate[0].intrinsic.quantities();
+    for ((name, q), t) in PROPERTY_NAMES
+        .iter()
+        .zip(ours)
+        .zip(sim.truth().properties())
+    {
+        let r = (q.value - t).abs() / q.expanded_unc;
+        println!("{name}: |Δ| = {r:.2} U");
+        assert!(r <= TRUTH_LIMIT_U, "{name}: {r:.2} U from the truth");
+    }
 }

@@ -919,6 +919,8 @@ fn case() -> impl Strategy<Value = Case> {
                 conv_gaps: seq && temp_c,
                 // Missed conversions with them, in some of those.
                 conv_missed: seq && temp_c && rate_hz,
+                // One boot (the device's clock never restarted), with them.
+                boot: seq && temp_c && rate_hz,
                 ..Columns::default()
             };
             let method = match m {
@@ -1011,6 +1013,7 @@ fn case() -> impl Strategy<Value = Case> {
                             } else {
                                 None
                             },
+                            boot: columns.boot.then_some(0),
                         }
                     })
                     .collect();
@@ -1052,6 +1055,7 @@ fn expected_groups(case: &Case, header_line: u64) -> Vec<Group> {
                     unc: None,
                     conversions: case.columns.conv_gaps.then(Vec::new),
                     missed: case.columns.conv_missed.then(Vec::new),
+                    boot: case.columns.boot.then(Vec::new),
                     first_line: header_line + 1 + i as u64,
                 });
                 groups.last_mut().expect("just pushed")
@@ -1073,6 +1077,9 @@ fn expected_groups(case: &Case, header_line: u64) -> Vec<Group> {
         }
         if let Some(v) = g.missed.as_mut() {
             v.push(row.conv_missed);
+        }
+        if let (Some(v), Some(b)) = (g.boot.as_mut(), row.boot) {
+            v.push(b);
         }
     }
     groups

@@ -120,7 +120,15 @@ pub fn series_of(
                 .map(|((u, v), w)| [*u, *v, *w])
                 .collect();
         let t = (!g.t_s.is_empty()).then_some(g.t_s.as_slice());
-        if g.angle_deg.is_empty() {
+        let boots = g.boot.as_ref().filter(|_| g.in_several_boots());
+        if let (Some(b), true) = (boots, g.angle_deg.is_empty()) {
+            // Each boot's clock starts afresh: one record per boot.
+            let labels: Vec<String> = b
+                .iter()
+                .map(|k| format!("{} boot {k}", g.condition))
+                .collect();
+            push_runs(&mut raw, "condition", &labels, &y, t, None);
+        } else if g.angle_deg.is_empty() {
             raw.push((name, t.map(<[f64]>::to_vec), y, None));
         } else {
             // A stepped group is still only at each table angle: one record per step.

@@ -16,23 +16,73 @@ use std::f64::consts::TAU;
 /// A group's samples: the instants of the conversions each row averages, in ticks of the
 /// 1 MHz clock from its first row (one, at `t_s`, without a `conv_gaps` column), and
 /// [u, v, w]. The times and phases every rotation fit here uses.
+///
+/// A group recorded in several segments (a `boot` column: each boot's rows are a segment) has each segment's from its
+/// own first row: [`joined`] puts them on one time line.
 pub fn samples(rec: &Recording, g: &Group) -> Result<Vec<batch::Sample>, CalibrateError> {
-    let t0 = g.t_s.first().copied().unwrap_or(0.0);
+    let starts = segment_starts(g);
     // conv_gaps count device ticks; here they become ticks of CLOCK (exact at 1 MHz).
     let scale = crate::recording::tick_scale(&rec.meta, CLOCK);
     let mut out = Vec::with_capacity(g.len());
+    let mut t0 = g.t_s.first().copied().unwrap_or(0.0);
     for (i, (t, (u, (v, w)))) in g
         .t_s
         .iter()
         .zip(g.u.iter().zip(g.v.iter().zip(g.w.iter())))
         .enumerate()
     {
+        if starts.contains(&i) {
+            t0 = *t;
+        }
         let gaps = g.conversions.as_ref().and_then(|c| c.get(i));
         let ap = crate::recording::row_aperture(*t, t0, gaps, scale, CLOCK)
             .map_err(|m| err(rec, Some(g.first_line), CalibrateErrorKind::Row(m)))?;
         out.push((ap, [*u, *v, *w]));
     }
     Ok(out)
+}
+
+/// The index of the first row of each of `g`'s segments after its first (none for a group
+/// without a `boot` column or in one segment).
+pub fn segment_starts(g: &Group) -> Vec<usize> {
+    let Some(seg) = g.boot.as_ref() else {
+        return Vec::new();
+    };
+    seg.windows(2)
+        .enumerate()
+        .filter(|(_, w)| matches!(w, [a, b] if a != b))
+        .map(|(i, _)| i + 1)
+        .collect()
+}
+
+/// The phase step of `nominal_hz`, or the error that names `g`'s rate as unusable.
+fn nominal_step(rec: &Recording, g: &Group, nominal_hz: f64) -> Result<PhaseStep, CalibrateError> {
+    PhaseStep::from_hz(nominal_hz, CLOCK).ok_or_else(|| {
+        err(
+            rec,
+            Some(g.first_line),
+            CalibrateErrorKind::UnusableRate(nominal_hz),
+        )
+    })
+}
+
+/// A group's samples on one time line: [`samples`], with a group in several segments
+/// joined at the rate fitted with their phases free ([`crate::fit::segments`]), and that
+/// rate fit (`None` for one segment).
+pub fn joined(
+    rec: &Recording,
+    g: &Group,
+    nominal_hz: f64,
+) -> Result<(Vec<batch::Sample>, Option<batch::FourParamFit>), CalibrateError> {
+    let mut s = samples(rec, g)?;
+    let starts = segment_starts(g);
+    if starts.is_empty() {
+        return Ok((s, None));
+    }
+    let nominal = nominal_step(rec, g, nominal_hz)?;
+    let four = crate::fit::segments::join(&mut s, &starts, nominal, CLOCK)
+        .map_err(|e| GroupError::RateFit(e).of(rec, Some(g.first_line), g.condition))?;
+    Ok((s, Some(four)))
 }
 
 /// One condition's fit at one rate: the coefficients of the streaming fit in f64, and
@@ -66,6 +116,8 @@ pub struct GroupFit {
     /// The structure scan of each channel's widened-fit residuals; none for a group
     /// calibrated from a streamed file's sums.
     pub scan: Option<[ChannelScan; 3]>,
+    /// The device's boots the condition was recorded in (1 but for a restart).
+    pub boots: usize,
 }
 
 impl GroupFit {
@@ -97,6 +149,7 @@ impl GroupFit {
             pending: None,
             omega_per_sample,
             scan: None,
+            boots: 1,
         }
     }
 
@@ -896,20 +949,21 @@ pub(crate) fn fit_group(
     s: &[batch::Sample],
     nominal_hz: f64,
     slow: bool,
+    joint: Option<&batch::FourParamFit>,
 ) -> Result<GroupFit, CalibrateError> {
     let fail = |e: GroupError| e.of(rec, Some(g.first_line), g.condition);
-    let nominal = PhaseStep::from_hz(nominal_hz, CLOCK).ok_or_else(|| {
-        err(
-            rec,
-            Some(g.first_line),
-            CalibrateErrorKind::UnusableRate(nominal_hz),
-        )
-    })?;
+    let nominal = nominal_step(rec, g, nominal_hz)?;
     // Fitted first at the nominal rate: this also checks the span, so a short record gets
     // the plain 'too few periods' message rather than a failure of the rate fit.
     let at_nominal = fit_at(s, nominal).map_err(|e| fail(e.into()))?;
-    let four =
-        batch::fit_four_param(s, nominal, CLOCK).map_err(|e| fail(GroupError::RateFit(e)))?;
+    // Segments joined: their rate fit, whose phases were free (a fit of the joined record
+    // would take the joins as known and understate the rate's uncertainty).
+    let four = match joint {
+        Some(f) => f.clone(),
+        None => {
+            batch::fit_four_param(s, nominal, CLOCK).map_err(|e| fail(GroupError::RateFit(e)))?
+        }
+    };
     let fitted_step = PhaseStep::from_hz(four.rate_hz, CLOCK).ok_or_else(|| {
         err(
             rec,
@@ -995,6 +1049,7 @@ pub(crate) fn fit_group(
     );
     f.pending = pending.map(std::sync::Arc::new);
     f.scan = Some(scan);
+    f.boots = segment_starts(g).len() + 1;
     Ok(f)
 }
 

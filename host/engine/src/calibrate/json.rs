@@ -278,7 +278,7 @@ pub struct MatrixJson {
 }
 
 /// One entry of `fits`.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Serialize)]
 pub struct FitJson {
     /// x, y or z.
     pub condition: Condition,
@@ -308,6 +308,33 @@ pub struct FitJson {
     pub rms_residual: f64,
     /// The rotation rate the fit used when it was estimated from the data (Hz).
     pub rate_hz_fitted: Option<f64>,
+    /// The device's boots the condition was recorded in, joined by the fit (absent for
+    /// one: docs/calibration.md, "A condition in several boots").
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub boots: Option<usize>,
+}
+
+// As derived, but `boots` only where the JSON has it: the statistical proofs' witnesses
+// (bench/proofs) digest this text, and a condition in one boot is what it was.
+impl std::fmt::Debug for FitJson {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let mut d = f.debug_struct("FitJson");
+        d.field("condition", &self.condition)
+            .field("channel", &self.channel)
+            .field("a", &self.a)
+            .field("b", &self.b)
+            .field("c", &self.c)
+            .field("se_a", &self.se_a)
+            .field("se_b", &self.se_b)
+            .field("se_c", &self.se_c)
+            .field("n", &self.n)
+            .field("rms_residual", &self.rms_residual)
+            .field("rate_hz_fitted", &self.rate_hz_fitted);
+        if let Some(b) = self.boots {
+            d.field("boots", &b);
+        }
+        d.finish()
+    }
 }
 
 /// One entry of `by_rate`.
@@ -801,6 +828,7 @@ pub fn static_entry(
                 n: f.n as u64,
                 rms_residual: f.rms_residual,
                 rate_hz_fitted: None,
+                boots: None,
             });
         }
     }

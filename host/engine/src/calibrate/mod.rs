@@ -48,7 +48,7 @@ pub const NOISE_MODEL_MIN: usize = 100;
 pub(crate) use error::err;
 pub use error::{CalibrateError, CalibrateErrorKind, GroupError, RateError};
 pub use free_method::{detection_summary, segments, Segment};
-pub use group::{samples, GroupFit};
+pub use group::{joined, samples, GroupFit};
 pub use rotation::rotation_correction;
 pub use stepped::{static_budget, static_correction};
 

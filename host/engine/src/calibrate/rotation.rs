@@ -3,7 +3,7 @@
 //! assembly of the entries for both: budgets, corrections, offsets at rest.
 
 use super::budget::{Budget, KFrom, Kind};
-use super::group::{fit_group, pool_slow, samples, GroupFit, Refit, SlowStatus};
+use super::group::{fit_group, joined, pool_slow, GroupFit, Refit, SlowStatus};
 use super::json::{self, CalibrationJson, CorrectionJson, FitJson, NoiseJson};
 use super::sources::{gravity_source, new_budget, values6, variances6};
 use super::{
@@ -85,8 +85,8 @@ pub(super) fn held(
     if group.t_s.len() != group.u.len() {
         return Err(err(rec, Some(group.first_line), CalibrateErrorKind::NoTime));
     }
-    let s = samples(rec, group)?;
-    let fit = fit_group(rec, group, &s, nominal_hz, slow)?;
+    let (s, joint) = joined(rec, group, nominal_hz)?;
+    let fit = fit_group(rec, group, &s, nominal_hz, slow, joint.as_ref())?;
     Ok(FittedGroup {
         fit,
         refit: Box::new(s),
@@ -290,6 +290,7 @@ fn fit_json(f: &GroupFit) -> Vec<FitJson> {
                 n: u64::from(f.fit.n),
                 rms_residual: channel.of(&f.fit.channels).rms_residual,
                 rate_hz_fitted: f.rate_fitted,
+                boots: (f.boots > 1).then_some(f.boots),
             }
         })
         .into()

@@ -499,5 +499,18 @@ fn render_fitted_rates(fits: &[json::FitJson]) -> String {
             fitted.join(", ")
         );
     }
+    let joined: Vec<String> = fits
+        .iter()
+        .filter(|f| f.channel == Channel::U)
+        .filter_map(|f| f.boots.map(|b| format!("{} in {b}", f.condition)))
+        .collect();
+    if !joined.is_empty() {
+        let _ = writeln!(
+            o,
+            "  recorded across restarts of the device, each boot's phase fitted with the rate \
+             (JSON fits.boots): {} boots",
+            joined.join(", ")
+        );
+    }
     o
 }

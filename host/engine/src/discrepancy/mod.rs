@@ -75,6 +75,20 @@ pub enum DiscrepancyError {
         /// The recording.
         source_name: String,
     },
+    /// A condition recorded in several boots of the device: the workflow's models run on
+    /// one time line per condition, and a restart leaves the phase between boots unknown.
+    #[error(
+        "{source_name}: condition {} was recorded in several boots of the device (its `boot` \
+         column): the discrepancy workflow needs each condition in one; calibrate joins \
+         boots, the discrepancy workflow does not",
+        condition.letter()
+    )]
+    SeveralBoots {
+        /// The recording.
+        source_name: String,
+        /// The condition.
+        condition: Condition,
+    },
     /// A group whose rate neither the file nor the options give.
     #[error("{source_name}: rotation rate unknown: give --rate-hz")]
     NoRate {
@@ -377,6 +391,12 @@ pub fn rows_from(rec: Recording, opts: &Options) -> Result<Data, DiscrepancyErro
         .ok_or_else(|| DiscrepancyError::NoGravity {
             source_name: rec.source.clone(),
         })?;
+    if let Some(g) = rec.groups.iter().find(|g| g.in_several_boots()) {
+        return Err(DiscrepancyError::SeveralBoots {
+            source_name: rec.source.clone(),
+            condition: g.condition,
+        });
+    }
     let t_mean = {
         let (s, n) = rec
             .groups

@@ -332,12 +332,7 @@ pub fn fit_four_param(
         let mut joint = IncrementalQr::new(10);
         for (ap, v) in samples {
             let w = root_weight(ap);
-            // Averages over the conversions of sin, cos, τ·sin and τ·cos.
-            let [s, c, ts, tc] = mean_over(ap, |t| {
-                let (s, c) = step.phase_at(t).sin_cos::<f64>();
-                let tau = seconds_between(t, t_mid, clock);
-                [s.hi, c.hi, tau * s.hi, tau * c.hi]
-            });
+            let [s, c, ts, tc] = rate_terms(ap, step, t_mid, clock);
             for ((ch, [a, b]), y) in Channel::ALL.into_iter().zip(ab).zip(v) {
                 let h = joint_row(ch, [w * s, w * c, w], w * (a * tc - b * ts));
                 joint.push(&h, w * y);
@@ -363,6 +358,16 @@ pub fn fit_four_param(
         }
     }
     Err(BatchError::NoConvergence(MAX_ITER))
+}
+
+/// The averages over `ap`'s conversions of sin α, cos α, τ·sin α and τ·cos α (τ in seconds
+/// from `t_mid`): a row of the IEEE 1057 rate fit.
+pub fn rate_terms(ap: &Aperture, step: PhaseStep, t_mid: Ticks, clock: TickRate) -> [f64; 4] {
+    mean_over(ap, |t| {
+        let (s, c) = step.phase_at(t).sin_cos::<f64>();
+        let tau = seconds_between(t, t_mid, clock);
+        [s.hi, c.hi, tau * s.hi, tau * c.hi]
+    })
 }
 
 /// A and B of each channel of a sine fit (three channels, coefficients A, B, C).

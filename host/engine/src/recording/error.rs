@@ -113,6 +113,15 @@ pub enum RecordingErrorKind {
         /// This row's time.
         got: f64,
     },
+    /// Rotation: `boot` decreased within one condition's rows.
+    BootWentBackwards {
+        /// The group's condition.
+        condition: Condition,
+        /// The previous row's boot.
+        previous: u32,
+        /// This row's.
+        got: u32,
+    },
     /// `gx, gy, gz` that are not a unit vector.
     NotUnitVector {
         /// Their length.
@@ -214,6 +223,16 @@ impl fmt::Display for RecordingErrorKind {
                 "time went backwards in condition {}{}: t_s={got} after t_s={previous}",
                 condition.letter(),
                 rate_suffix(*rate_hz)
+            ),
+            K::BootWentBackwards {
+                condition,
+                previous,
+                got,
+            } => write!(
+                f,
+                "boot went backwards in condition {}: {got} after {previous} (a condition's \
+                 boots follow each other in the file)",
+                condition.letter()
             ),
             K::TimeWentBackwardsFree { previous, got } => {
                 write!(f, "time went backwards: t_s={got} after t_s={previous}")

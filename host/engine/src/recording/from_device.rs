@@ -9,10 +9,15 @@
 //!
 //! Gaps: see [`Recorder`]. The BLE recorder (`record`) asks the device to replay what
 //! [`Recorder::missing`] lists and gives up what its ring no longer holds.
+//!
+//! Restarts: a status of an idle device whose newest sample is older than the newest
+//! received in this boot shows that the device restarted (its sequence numbers and clock count from power-up).
+//! What was missing is given up, and the rows that follow are in the next `boot`, whose
+//! time starts afresh (docs/recording.md).
 
 use crate::recording::{Columns, Metadata, Row, Writer, TICK_HZ_KEY};
 use rotacal_shared::device::route::Characteristic;
-use rotacal_shared::packet::{FitReport, Packet, QuickLook, SampleFlags};
+use rotacal_shared::packet::{FitReport, Packet, QuickLook, RunState, SampleFlags};
 use rotacal_shared::{Aperture, Condition, Ticks};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
@@ -89,10 +94,17 @@ pub struct FitLine {
     pub se: [[f64; 3]; 3],
     /// Residual RMS per channel, counts.
     pub rms: [f64; 3],
+    /// The device's boot the window is in (the recording's `boot`); absent for the first.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub boot: u32,
+}
+
+fn is_zero(x: &u32) -> bool {
+    *x == 0
 }
 
 impl FitLine {
-    /// From a report, with the device's tick rate.
+    /// From a report, with the device's tick rate, in the device's first boot.
     pub fn new(f: &FitReport, tick_hz: u32) -> Self {
         FitLine {
             condition: f.condition,
@@ -106,6 +118,7 @@ impl FitLine {
             coef: f.coef,
             se: f.se.map(|r| r.map(f64::from)),
             rms: f.rms.map(f64::from),
+            boot: 0,
         }
     }
 }
@@ -190,7 +203,25 @@ pub struct Recorder<W: Write, F: Write> {
     /// Samples known to exist up to this seq (from the device's status), so that a gap at
     /// the end of the stream shows in `missing`.
     expected_through: Option<u32>,
+    /// The device's boot the rows are in (0 the first), written when the file has the
+    /// `boot` column.
+    boot: u32,
+    boot_column: bool,
+    /// The newest seq received in this boot.
+    boot_newest: Option<u32>,
     summary: RecordSummary,
+}
+
+/// Where an appended recording left off.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Resume {
+    /// The header has the `conv_missed` column (recordings before rotacal 0.3 do not).
+    pub missed: bool,
+    /// The header has the `boot` column (recordings before rotacal 0.4 do not), and the
+    /// last row's boot.
+    pub boot: Option<u32>,
+    /// The last row's seq: a device whose newest sample is older has restarted since.
+    pub newest: Option<u32>,
 }
 
 /// The recording's columns.
@@ -205,6 +236,7 @@ pub const COLUMNS: Columns = Columns {
     unc: false,
     conv_gaps: true,
     conv_missed: true,
+    boot: true,
 };
 
 impl<W: Write, F: Write> Recorder<W, F> {
@@ -217,14 +249,19 @@ impl<W: Write, F: Write> Recorder<W, F> {
         Self::with_writer(Writer::new(rows, &meta, &COLUMNS)?, fits, tick_hz)
     }
 
-    /// Continue a recording whose preamble and header `rows` already hold; `missed`: the
-    /// header has the `conv_missed` column (recordings before rotacal 0.3 do not).
-    pub fn append(rows: W, fits: F, tick_hz: u32, missed: bool) -> io::Result<Self> {
+    /// Continue a recording whose preamble and header `rows` already hold, from where
+    /// `resume` says it left off.
+    pub fn append(rows: W, fits: F, tick_hz: u32, resume: Resume) -> io::Result<Self> {
         let columns = Columns {
-            conv_missed: missed,
+            conv_missed: resume.missed,
+            boot: resume.boot.is_some(),
             ..COLUMNS
         };
-        Self::with_writer(Writer::append(rows, &columns), fits, tick_hz)
+        let mut r = Self::with_writer(Writer::append(rows, &columns), fits, tick_hz)?;
+        r.boot = resume.boot.unwrap_or(0);
+        r.boot_column = resume.boot.is_some();
+        r.boot_newest = resume.newest;
+        Ok(r)
     }
 
     fn with_writer(rows: Writer<W>, fits: F, tick_hz: u32) -> io::Result<Self> {
@@ -243,6 +280,9 @@ impl<W: Write, F: Write> Recorder<W, F> {
             next_seq: None,
             held: BTreeMap::new(),
             expected_through: None,
+            boot: 0,
+            boot_column: true,
+            boot_newest: None,
             summary: RecordSummary::default(),
         })
     }
@@ -285,7 +325,9 @@ impl<W: Write, F: Write> Recorder<W, F> {
         Ok(())
     }
 
-    fn sample(&mut self, seq: u32, row: Row<'static>, replay: bool) -> io::Result<()> {
+    fn sample(&mut self, seq: u32, mut row: Row<'static>, replay: bool) -> io::Result<()> {
+        row.boot = self.boot_column.then_some(self.boot);
+        self.boot_newest = Some(self.boot_newest.map_or(seq, |n| n.max(seq)));
         let next = *self.next_seq.get_or_insert(seq);
         // Sequence numbers are u32 from the device's start: 8.5 years at 16 Hz, so
         // "before" is a plain comparison within one recording.
@@ -395,9 +437,23 @@ impl<W: Write, F: Write> Recorder<W, F> {
                     self.emit(seq, row)?;
                 }
             }
-            Packet::Fit(f) => self.log(&LogLine::Fit(FitLine::new(f, self.tick_hz)))?,
+            Packet::Fit(f) => {
+                let line = FitLine {
+                    boot: self.boot,
+                    ..FitLine::new(f, self.tick_hz)
+                };
+                self.log(&LogLine::Fit(line))?
+            }
             Packet::QuickLook(q) => self.log(&LogLine::quick_look(q))?,
-            Packet::Info(_) | Packet::Status(_) | Packet::Command(_) => {}
+            Packet::Status(s) => {
+                // A running device's status may be older than the samples streamed after
+                // it (another queue); one that restarted is idle and makes none.
+                let idle = s.state != RunState::Running;
+                if idle && self.boot_newest.is_some_and(|n| s.ring_newest < n) {
+                    self.new_boot()?;
+                }
+            }
+            Packet::Info(_) | Packet::Command(_) => {}
         }
         Ok(())
     }
@@ -420,6 +476,22 @@ impl<W: Write, F: Write> Recorder<W, F> {
         self.next_seq = None;
         self.expected_through = None;
         Ok(())
+    }
+
+    /// The device restarted: what is missing of its last boot is given up (its ring went
+    /// with it), and sequence numbers, temperatures and time are followed afresh, in the
+    /// next boot.
+    fn new_boot(&mut self) -> io::Result<()> {
+        self.restart_sequence()?;
+        self.temps.clear();
+        self.boot = self.boot.saturating_add(1);
+        self.boot_newest = None;
+        Ok(())
+    }
+
+    /// The device's boot the rows are in now (0 the first of this recording).
+    pub fn boot(&self) -> u32 {
+        self.boot
     }
 
     /// Samples missing now.

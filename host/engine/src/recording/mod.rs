@@ -223,6 +223,9 @@ pub struct Group {
     /// `conv_missed` column, if the file has one: conversions in each row's slot that the
     /// device did not read (`None` for a row that does not say: an empty field).
     pub missed: Option<Vec<Option<u8>>>,
+    /// `boot` column, if the file has one: rows of different boots have time origins of
+    /// their own (the device restarted between them).
+    pub boot: Option<Vec<u32>>,
     /// 1-based file line of the group's first row (for messages).
     pub first_line: u64,
 }
@@ -231,6 +234,13 @@ impl Group {
     /// Number of rows.
     pub fn len(&self) -> usize {
         self.u.len()
+    }
+
+    /// Whether the rows are in more than one boot of the device (`boot`).
+    pub fn in_several_boots(&self) -> bool {
+        self.boot
+            .as_ref()
+            .is_some_and(|b| b.first().is_some_and(|f| b.iter().any(|x| x != f)))
     }
 
     /// Row `i`'s conversions with the first at `first`, their gaps counted in a clock
@@ -323,7 +333,7 @@ pub(crate) fn same_rate(a: Option<f64>, b: Option<f64>) -> bool {
 }
 
 /// The column names formats.md defines.
-pub const COLUMN_NAMES: [&str; 18] = [
+pub const COLUMN_NAMES: [&str; 19] = [
     "condition",
     "t_s",
     "angle_deg",
@@ -342,6 +352,7 @@ pub const COLUMN_NAMES: [&str; 18] = [
     "w_unc",
     "conv_gaps",
     "conv_missed",
+    "boot",
 ];
 
 /// The metadata key giving the device clock's ticks per second, which `conv_gaps` counts
@@ -464,8 +475,10 @@ pub struct Columns {
     pub unc: bool,
     /// `conv_gaps`: the conversions each row averages (needs `tick_hz` metadata).
     pub conv_gaps: bool,
-    /// `conv_missed`, last: conversions in each row's slot the device did not read.
+    /// `conv_missed`: conversions in each row's slot the device did not read.
     pub conv_missed: bool,
+    /// `boot`, last: the device's power-up a row was recorded in (its clock restarts).
+    pub boot: bool,
 }
 
 impl Columns {
@@ -481,6 +494,7 @@ impl Columns {
         unc: false,
         conv_gaps: false,
         conv_missed: false,
+        boot: false,
     };
     /// A plain rotation file: `condition,t_s,u,v,w`.
     pub const ROTATION: Columns = Columns {
@@ -530,6 +544,9 @@ impl Columns {
         if self.conv_missed {
             out.push("conv_missed");
         }
+        if self.boot {
+            out.push("boot");
+        }
         out
     }
 }
@@ -567,6 +584,8 @@ pub struct Row<'a> {
     /// Conversions in the row's slot the device did not read; `None` writes an empty
     /// field (a device that does not count them).
     pub conv_missed: Option<u8>,
+    /// The device's power-up the row was recorded in (`boot`).
+    pub boot: Option<u32>,
 }
 
 impl Row<'static> {
@@ -587,6 +606,7 @@ impl Row<'static> {
             unc: None,
             conv_gaps: None,
             conv_missed: None,
+            boot: None,
         }
     }
 }

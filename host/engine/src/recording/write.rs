@@ -256,6 +256,9 @@ impl<W: Write> Writer<W> {
                 let _ = write!(line, "{m}");
             }
         }
+        if let Some(s) = opt(c.boot, "boot", row.boot)? {
+            let _ = write!(line, ",{s}");
+        }
         line.push('\n');
         self.out.write_all(line.as_bytes())
     }

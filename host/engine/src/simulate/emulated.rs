@@ -151,8 +151,13 @@ pub struct EmulatedDevice {
     unread: u64,
     /// Draws the late reads (apart from the link's faults, so that they do not move).
     read_rng: ChaCha8Rng,
-    /// Resets done so far ([`Faults::resets`]).
+    /// Resets done so far ([`Faults::resets`]), and when the last one was.
     resets_done: usize,
+    boot_at: Duration,
+    /// The condition the table turns, since when: it turns on through a reset, so a
+    /// condition started again after one goes on where the table is.
+    table: Option<(Condition, Duration)>,
+    reset_since_start: bool,
     /// When the next notification may leave them.
     next_notify: Duration,
     /// Delivered to the host, in order.
@@ -186,6 +191,9 @@ impl EmulatedDevice {
             unread_since: None,
             unread: 0,
             resets_done: 0,
+            boot_at: Duration::ZERO,
+            table: None,
+            reset_since_start: false,
             next_notify: Duration::ZERO,
             out: VecDeque::new(),
             notifications: 0,
@@ -228,8 +236,10 @@ impl EmulatedDevice {
         }
     }
 
-    fn capture(t: Duration) -> u64 {
-        (COUNTER_START + t.as_micros() as u64) & COUNTER_MASK
+    /// The TIMER's count at `t`: it starts afresh at each boot, as the board's does.
+    fn capture(&self, t: Duration) -> u64 {
+        let since_boot = t.saturating_sub(self.boot_at);
+        (COUNTER_START + since_boot.as_micros() as u64) & COUNTER_MASK
     }
 
     /// The firmware's read of the conversion made at `t`, or `None` when it comes too
@@ -250,7 +260,7 @@ impl EmulatedDevice {
         }
         // The latched line rose at the first conversion since the last read.
         let edge = self.unread_since.take().unwrap_or(t);
-        let raw = |t: Duration| Self::capture(t) as u32;
+        let raw = |t: Duration| self.capture(t) as u32;
         let read = Read {
             capture: raw(edge),
             capture_after: raw(edge),
@@ -285,6 +295,8 @@ impl EmulatedDevice {
             return;
         }
         self.resets_done += 1;
+        self.boot_at = t;
+        self.reset_since_start = true;
         self.device = Device::new(Config::FEATHER);
         let mut packets = Vec::new();
         self.device.set_link_mtu(self.mtu, &mut |p| packets.push(p));
@@ -454,7 +466,7 @@ impl EmulatedDevice {
             } else if next == self.next_poll {
                 if !hung {
                     self.device
-                        .poll(Self::capture(next), &mut |p| packets.push(p));
+                        .poll(self.capture(next), &mut |p| packets.push(p));
                 }
                 self.next_poll += POLL_EVERY;
             } else {
@@ -571,8 +583,19 @@ impl EmulatedDevice {
         // The stream starts on a whole microsecond (a tick of the 1 MHz clock), so the
         // conversions' ticks relative to it do not depend on the moment the Start came.
         let start = Duration::from_micros(self.now.as_nanos().div_ceil(1000) as u64);
-        self.running = Some((condition, start, 0));
         self.next_temperature = start + TEMPERATURE_EVERY / 2;
+        match self.table {
+            Some((c, since)) if c == condition && self.reset_since_start => {
+                let stream = self.streams.get(c.index()).map_or(&[][..], Vec::as_slice);
+                let k = stream.partition_point(|x| since + Duration::from_secs_f64(x.t) < start);
+                self.running = Some((condition, since, k));
+            }
+            _ => {
+                self.running = Some((condition, start, 0));
+                self.table = Some((condition, start));
+            }
+        }
+        self.reset_since_start = false;
     }
 }
 

@@ -322,6 +322,7 @@ impl Simulation {
             unc: false,
             conv_gaps: false,
             conv_missed: false,
+            boot: false,
         }
     }
 }

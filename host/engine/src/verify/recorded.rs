@@ -61,7 +61,12 @@ fn check_one(rec: &Recording, f: &FitLine, threshold: f64) -> Result<FitCheck, V
         })?;
         let readings = g.u.iter().zip(&g.v).zip(&g.w);
         for (i, (s, ((&u, &v), &w))) in seq.iter().zip(readings).enumerate() {
-            if (u64::from(f.first_seq)..=u64::from(f.last_seq)).contains(s) {
+            // Sequence numbers start afresh in each boot of the device.
+            let boot = g
+                .boot
+                .as_ref()
+                .map_or(0, |b| b.get(i).copied().unwrap_or(0));
+            if boot == f.boot && (u64::from(f.first_seq)..=u64::from(f.last_seq)).contains(s) {
                 let t = *g.t_s.get(i).ok_or(VerifyError::NoTime)?;
                 let ticks = (t * f64::from(f.tick_hz)).round();
                 if !(0.0..1.8e19).contains(&ticks) {

@@ -236,14 +236,21 @@ pub(super) struct PassOne<'a> {
     pub(super) method: Method,
     pub(super) meta: Option<Box<recording::Metadata>>,
     pub(super) groups: Vec<GroupState>,
+    /// The file has a `boot` column.
+    pub(super) segmented: bool,
 }
 
 impl PassOne<'_> {
     pub(super) fn take(&mut self, ev: Scanned) {
         match ev {
-            Scanned::Start { meta, method, .. } => {
+            Scanned::Start {
+                meta,
+                method,
+                columns,
+            } => {
                 // The start of a reading (a second one starts afresh).
                 self.groups.clear();
+                self.segmented = columns.boot;
                 self.method = self.opts.method.unwrap_or(method);
                 self.scale = recording::tick_scale(&meta, CLOCK);
                 self.meta = Some(meta);
@@ -310,6 +317,7 @@ impl GroupState {
                 unc: None,
                 conversions: None,
                 missed: None,
+                boot: None,
                 first_line,
             }),
             moments: nominal.map(|(_, s)| Moments::new(s, CLOCK)),

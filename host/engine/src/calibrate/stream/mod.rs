@@ -108,9 +108,11 @@ fn calibrate_file_as(
     }
     // The file in two parts, one per core; else (a quote, a problem to name) in one.
     let parts = Parts::open(path, opts.method)?;
+    // A file in segments is calibrated with its rows in hand: the joins need them
+    // (docs/streaming.md).
     if parts
         .as_ref()
-        .is_some_and(|p| p.method() != Method::Rotation)
+        .is_some_and(|p| p.method() != Method::Rotation || p.segmented())
     {
         return whole();
     }
@@ -141,12 +143,13 @@ fn calibrate_file_as(
                 method: Method::Rotation,
                 meta: None,
                 groups: Vec::new(),
+                segmented: false,
             };
             let Some(mut rec) = read_pass(path, opts.method, Parse::All, |ev| first.take(ev))?
             else {
                 return whole();
             };
-            if first.method != Method::Rotation {
+            if first.method != Method::Rotation || first.segmented {
                 return whole();
             }
             if let Some(meta) = first.meta.take() {

@@ -357,6 +357,7 @@ fn columns(spec: &ImportSpec) -> Columns {
         unc: false,
         conv_gaps: false,
         conv_missed: false,
+        boot: false,
     }
 }
 

@@ -8,7 +8,7 @@ use rotacal_shared::Condition;
 
 use super::head::{ColumnIndex, Parser, Res};
 use super::number::{field_end, leading_decimal, leading_digits};
-use super::row::{parse_gaps, parse_missed, parse_row, Fields};
+use super::row::{parse_boot, parse_gaps, parse_missed, parse_row, Fields};
 use super::{GroupSink, Parse, Router};
 use crate::recording::{Metadata, Method, Recording, RecordingErrorKind, Row};
 
@@ -154,6 +154,7 @@ enum Plain {
     Seq,
     Gaps,
     Missed,
+    Boot,
     /// A column this reading does not use.
     Skip,
 }
@@ -193,6 +194,7 @@ fn plain_plan(cols: &ColumnIndex, columns: Parse) -> Option<Vec<Plain>> {
     set(cols.rate_hz, Plain::Number(Slot::Rate));
     set(cols.conv_gaps, Plain::Gaps);
     set(cols.conv_missed, Plain::Missed);
+    set(cols.boot, Plain::Boot);
     plan.contains(&Plain::Condition).then_some(plan)
 }
 
@@ -240,12 +242,13 @@ fn plain_row(plan: &[Plain], data: &[u8], at: usize, row: &mut Row<'static>) -> 
                 row.seq = Some(seq);
                 len
             }
-            Plain::Gaps | Plain::Missed | Plain::Skip => {
+            Plain::Gaps | Plain::Missed | Plain::Boot | Plain::Skip => {
                 let len = field_end(rest);
                 let f = rest.get(..len)?;
                 match part {
                     Plain::Gaps => row.conv_gaps = Some(parse_gaps(f.trim_ascii()).ok()?),
                     Plain::Missed => row.conv_missed = parse_missed(f).ok()?,
+                    Plain::Boot => row.boot = Some(parse_boot(f).ok()?),
                     _ => {}
                 }
                 len
@@ -382,11 +385,11 @@ mod tests {
     use rotacal_shared::Condition;
 
     /// The columns of a rotation recording (`condition,seq,t_s,u,v,w,temp_c`), with
-    /// `rate_hz`, `conv_gaps`, `conv_missed` and a column of no meaning after them when
-    /// `more`.
+    /// `rate_hz`, `conv_gaps`, `conv_missed`, `boot` and a column of no meaning after
+    /// them when `more`.
     fn columns(more: bool) -> ColumnIndex {
         ColumnIndex {
-            n: if more { 11 } else { 7 },
+            n: if more { 12 } else { 7 },
             condition: Some(0),
             gravity: None,
             pose: None,
@@ -401,6 +404,7 @@ mod tests {
             rate_hz: more.then_some(7),
             conv_gaps: more.then_some(8),
             conv_missed: more.then_some(9),
+            boot: more.then_some(10),
         }
     }
 
@@ -454,6 +458,7 @@ mod tests {
             off in prop_oneof![6 => Just(0usize), 1 => Just(1usize), 1 => Just(2usize)],
             gaps in prop::sample::select(vec!["", "9600", "9600 9600", "0", "x", " 9600"]),
             missed in prop::sample::select(vec!["", "0", "3", "7", "8", " 1", "x", "-1"]),
+            boot in prop::sample::select(vec!["0", "1", "4294967295", "4294967296", "", " 2", "-1"]),
             end in prop::sample::select(vec!["\n", "\r\n", "", "\nx,1,2,3,4,5,6\n"]),
             more in proptest::bool::ANY,
             all in proptest::bool::ANY,
@@ -470,6 +475,7 @@ mod tests {
             if more {
                 parts.push(gaps.to_string());
                 parts.push(missed.to_string());
+                parts.push(boot.to_string());
                 parts.push("note".to_string());
             }
             let text = parts.join(",") + end;

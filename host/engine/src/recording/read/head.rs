@@ -29,6 +29,7 @@ pub(super) struct ColumnIndex {
     pub(super) rate_hz: Option<usize>,
     pub(super) conv_gaps: Option<usize>,
     pub(super) conv_missed: Option<usize>,
+    pub(super) boot: Option<usize>,
 }
 
 pub(super) struct Parser<'a> {
@@ -310,6 +311,7 @@ impl Parser<'_> {
                 rate_hz: idx("rate_hz"),
                 conv_gaps,
                 conv_missed: idx("conv_missed"),
+                boot: idx("boot"),
             },
             method,
         ))

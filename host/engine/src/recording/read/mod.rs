@@ -139,6 +139,7 @@ fn empty_group(condition: Condition, rate_hz: Option<f64>, cols: &ColumnIndex, l
         unc: cols.unc.map(|_| Vec::new()),
         conversions: cols.conv_gaps.map(|_| Vec::new()),
         missed: cols.conv_missed.map(|_| Vec::new()),
+        boot: cols.boot.map(|_| Vec::new()),
         first_line: line,
     }
 }
@@ -190,6 +191,9 @@ impl GroupSink for Vec<Group> {
         }
         if let Some(v) = g.missed.as_mut() {
             v.push(row.conv_missed);
+        }
+        if let (Some(s), Some(v)) = (row.boot, g.boot.as_mut()) {
+            v.push(s);
         }
     }
 }
@@ -264,6 +268,7 @@ impl<F: FnMut(Scanned)> GroupSink for ScanSink<F> {
                 unc: cols.unc.is_some(),
                 conv_gaps: cols.conv_gaps.is_some(),
                 conv_missed: cols.conv_missed.is_some(),
+                boot: cols.boot.is_some(),
             },
         });
     }
@@ -330,9 +335,9 @@ fn open(path: &Path) -> Result<File, RecordingError> {
 /// rows do not go back in time within a group; every rate has all three conditions.
 struct Router {
     rotation: bool,
-    /// Each group's (condition, rate bits), and the time of its last row.
+    /// Each group's (condition, rate bits), and the boot and time of its last row.
     keys: Vec<(Condition, Option<u64>)>,
-    last_t: Vec<Option<f64>>,
+    last_t: Vec<(Option<u32>, Option<f64>)>,
     /// (condition, rate bits) of the group the previous row went to, and its index.
     last: Option<(Condition, Option<u64>, usize)>,
 }
@@ -366,7 +371,7 @@ impl Router {
                     None => {
                         sink.open(row.condition, rate, cols, line);
                         self.keys.push((row.condition, key));
-                        self.last_t.push(None);
+                        self.last_t.push((None, None));
                         self.keys.len() - 1
                     }
                 };
@@ -374,7 +379,23 @@ impl Router {
                 i
             }
         };
-        if let (Some(t), Some(prev)) = (row.t_s, self.last_t.get_mut(gi)) {
+        if let Some((boot, prev)) = self.last_t.get_mut(gi) {
+            // A new boot restarts the time (the device's clock started afresh).
+            if let (Some(s), Some(before)) = (row.boot, *boot) {
+                if s < before {
+                    return Err(RecordingErrorKind::BootWentBackwards {
+                        condition: row.condition,
+                        previous: before,
+                        got: s,
+                    });
+                }
+                if s > before {
+                    *prev = None;
+                }
+            }
+            *boot = row.boot.or(*boot);
+        }
+        if let (Some(t), Some((_, prev))) = (row.t_s, self.last_t.get_mut(gi)) {
             if self.rotation {
                 if let Some(p) = *prev {
                     if t < p {

@@ -85,6 +85,12 @@ impl Parts {
         self.method
     }
 
+    /// Whether the file has a `boot` column (its conditions may be in several runs of
+    /// the device's clock, which a fit joins with their rows in hand).
+    pub fn segmented(&self) -> bool {
+        self.cols.boot.is_some()
+    }
+
     /// The header's line number: the first part's lines follow it.
     pub fn header_line(&self) -> u64 {
         self.line

@@ -130,6 +130,10 @@ pub(super) fn parse_row<'r, F: Fields + ?Sized>(
         Some(i) => parse_missed(field(rec, i))?,
         None => None,
     };
+    let boot = match cols.boot {
+        Some(i) => Some(parse_boot(field(rec, i))?),
+        None => None,
+    };
     if let Some(r) = rate_hz {
         if r <= 0.0 {
             return Err(RecordingErrorKind::NotPositive {
@@ -152,6 +156,7 @@ pub(super) fn parse_row<'r, F: Fields + ?Sized>(
         pose,
         conv_gaps,
         conv_missed,
+        boot,
         unc: match cols.unc.filter(|_| all) {
             Some([a, b, c]) => Some([
                 parse_f64(rec, a, "u_unc")?,
@@ -176,6 +181,17 @@ pub(super) fn parse_missed(f: &[u8]) -> Result<Option<u8>, RecordingErrorKind> {
         .filter(|m| *m <= 7)
         .map(Some)
         .ok_or_else(|| RecordingErrorKind::BadMissed(snippet(f)))
+}
+
+/// A `boot` field: a whole number (0 to 2³² − 1).
+pub(super) fn parse_boot(f: &[u8]) -> Result<u32, RecordingErrorKind> {
+    std::str::from_utf8(f.trim_ascii())
+        .ok()
+        .and_then(|s| s.parse::<u32>().ok())
+        .ok_or_else(|| RecordingErrorKind::NotAnInteger {
+            column: "boot",
+            text: snippet(f),
+        })
 }
 
 /// A `conv_gaps` field: tick counts separated by single spaces (empty: one conversion).
