@@ -91,25 +91,7 @@ async fn main(spawner: Spawner) {
 
     // Twim::new enables its interrupt at priority 0 unless set before.
     interrupt::SPIM0_SPIS0_TWIM0_TWIS0_SPI0_TWI0.set_priority(Priority::P2);
-    let mut twim_config = twim::Config::default();
-    twim_config.frequency = twim::Frequency::K400;
-    let bus = bus::Bus(twim::Twim::new(
-        p.TWISPI0,
-        Irqs,
-        p.P0_12,
-        p.P0_11,
-        twim_config,
-    ));
-    // nRF52840 erratum 219: at 400 kHz the TWIM's SCL low time is below the I²C minimum
-    // (1.3 µs); Nordic's workaround is 390 kHz, FREQUENCY = 0x06200000, which embassy-nrf
-    // 0.2's Frequency does not offer. Written once, after Twim::new set 400 kHz and before
-    // any transfer.
-    // SAFETY: TWIM0 is ours (TWISPI0, taken above) and idle; FREQUENCY takes any value.
-    unsafe {
-        (*embassy_nrf::pac::TWIM0::ptr())
-            .frequency
-            .write(|w| w.frequency().bits(0x0620_0000));
-    }
+    let bus = bus::Bus::new(p.TWISPI0, p.P0_12, p.P0_11);
     let led = Output::new(p.P1_09, Level::Low, OutputDrive::Standard);
     let mut wdt_config = wdt::Config::default();
     wdt_config.timeout_ticks = WATCHDOG_TICKS;

@@ -20,6 +20,7 @@ use embassy_nrf::timer::Timer;
 use embassy_nrf::twim;
 use embassy_time::{with_timeout, Duration, Timer as Delay};
 use rotacal_sensor::{Accelerometer, Chip, Error};
+use rotacal_shared::device::bus_recovery::Recovery;
 use rotacal_shared::device::pairing::{pair, Read};
 use rotacal_shared::device::Config;
 use rotacal_shared::packet::SensorStatus;
@@ -64,7 +65,11 @@ pub async fn sensor_task(
             Err((b, e)) => {
                 warn!("accelerometer: {}", e);
                 bus = b;
+                let bus_fault = matches!(e, Error::Bus(_));
                 send(Event::Sensor(status_of(e), None));
+                if bus_fault {
+                    bus = clear(bus);
+                }
                 Delay::after_secs(1).await;
                 continue;
             }
@@ -128,10 +133,25 @@ pub async fn sensor_task(
             }
         };
         warn!("accelerometer failed: {}", failure);
+        let bus_fault = matches!(failure, Error::Bus(_));
         send(Event::Sensor(status_of(failure), Some(chip)));
         bus = acc.release();
+        if bus_fault {
+            bus = clear(bus);
+        }
         Delay::after_millis(200).await;
     }
+}
+
+/// Clear a bus that failed (a transfer timed out or was not acknowledged): a sensor may hold
+/// SDA low in the middle of a byte.
+fn clear(bus: Bus) -> Bus {
+    let (bus, found) = bus.clear();
+    match found {
+        Recovery::WasFree | Recovery::Freed { .. } => info!("I2C bus clear: {}", found),
+        Recovery::SdaStuck | Recovery::SclStuck => warn!("I2C bus clear: {}", found),
+    }
+    bus
 }
 
 /// Chip code for the device info.

@@ -8,6 +8,7 @@
 //! → [`session`] (the condition's streaming fit, fit reports, the quick-look).
 //! Output goes through a callback, so nothing here allocates or blocks.
 
+pub mod bus_recovery;
 pub mod packetiser;
 pub mod pairing;
 pub mod ring;
