@@ -510,7 +510,7 @@ pub fn checks(d: &Demo) -> Vec<Check> {
         claim: "cross-check: the device's fits match f64 re-fits".into(),
         passed: x.passed,
         measured: format!(
-            "{} of {} fits outside the threshold; max |Δ| = {:.1e} σ_CRLB, threshold {}",
+            "{} of {} fits outside the threshold; max |Δ| = {:.1e} σ_CRLB, threshold {:e}",
             x.fits.iter().filter(|f| !f.passed).count(),
             x.fits.len(),
             x.max_delta_crlb,
@@ -672,7 +672,7 @@ pub fn render(d: &Demo) -> String {
     let _ = writeln!(
         o,
         "Cross-check: {} device fits (the firmware's f32 fit, run on this host) against f64 re-fits\n\
-         of the same samples: max |Δ| = {:.1e} σ_CRLB (threshold {}): {}.",
+         of the same samples: max |Δ| = {:.1e} σ_CRLB (threshold {:e}): {}.",
         x.fits.len(),
         x.max_delta_crlb,
         x.threshold,

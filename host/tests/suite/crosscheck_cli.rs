@@ -92,32 +92,35 @@ fn the_devices_fits_match_the_recording() {
     assert!(ok, "{out}\n{err}");
     assert!(out.contains("s_u"));
 
-    // One count changed inside the final x window: that fit no longer matches.
+    // One count changed in one conversion of one sample (the row's mean moves by 1/n for
+    // its n conversions), at the first, a middle and the last sample of each condition and
+    // in each channel: the default threshold (1e-5 σ_CRLB) sees every one.
     let text = std::fs::read_to_string(&rec).unwrap();
-    let changed: String = text
-        .lines()
-        .map(|l| {
-            if l.starts_with("x,2000,") {
-                let mut f: Vec<String> = l.split(',').map(String::from).collect();
-                let u: f64 = f[3].parse().unwrap();
-                f[3] = format!("{:?}", u + 40.0);
-                f.join(",")
-            } else {
-                l.to_string()
-            }
-        })
-        .collect::<Vec<_>>()
-        .join("\n")
-        + "\n";
-    assert_ne!(changed, text);
-    let bad = d.join("changed.csv");
-    std::fs::write(&bad, &changed).unwrap();
-    let (ok, out, err) = run(&[Path::new("crosscheck"), &bad, &fits]);
-    assert!(!ok);
-    assert!(
-        out.contains("FAIL") && err.contains("do not match"),
-        "{out}\n{err}"
-    );
+    let lines: Vec<&str> = text.lines().collect();
+    for (cond, col) in [("x,", 3), ("y,", 4), ("z,", 5)] {
+        let rows: Vec<usize> = (0..lines.len())
+            .filter(|i| lines[*i].starts_with(cond))
+            .collect();
+        for at in [rows[0], rows[rows.len() / 2], rows[rows.len() - 1]] {
+            let mut f: Vec<String> = lines[at].split(',').map(String::from).collect();
+            let n = f[7].split(' ').filter(|g| !g.is_empty()).count() + 1;
+            let y: f64 = f[col].parse().unwrap();
+            f[col] = format!("{:?}", y + 1.0 / n as f64);
+            let mut changed: Vec<String> = lines.iter().map(|l| l.to_string()).collect();
+            changed[at] = f.join(",");
+            let changed = changed.join("\n") + "\n";
+            let prefix = &lines[at][..12];
+            assert_ne!(changed, text);
+            let bad = d.join("changed.csv");
+            std::fs::write(&bad, &changed).unwrap();
+            let (ok, out, err) = run(&[Path::new("crosscheck"), &bad, &fits]);
+            assert!(!ok, "{prefix}: passed\n{out}");
+            assert!(
+                out.contains("FAIL") && err.contains("do not match"),
+                "{out}\n{err}"
+            );
+        }
+    }
 
     // A missing row: the window is incomplete.
     let dropped: String = text

@@ -4,8 +4,14 @@
 //!
 //! Pass: every A, B, C of every report within `threshold` σ_CRLB of the host's value,
 //! with σ_CRLB = √(2σ̂²/N) for A and B and √(σ̂²/N) for C (σ̂ the host fit's residual
-//! standard deviation), and every window complete. The default threshold, 0.01, is the
-//! accuracy issue 2 requires of the device's f32 fit.
+//! standard deviation), and every window complete.
+//!
+//! The default threshold, 10⁻⁵ σ_CRLB, is set by what the check must see: one count changed
+//! in one conversion of one sample moves the row's mean by 1/n (n ≤ 7 conversions), and the
+//! fitted offset C of every window holding it by 1/(nN) counts, which is 1/(n·σ̂·√N) in
+//! units of σ_CRLB(C) = σ̂/√N: about 5·10⁻⁴ for the demo's final windows (N = 4199, σ̂ ≈ 4.2
+//! counts per averaged sample), 50 times the threshold. The device's f32 fit and the host's f64 re-fit
+//! agree to 1.4–2.2·10⁻⁷ σ_CRLB on the demo's session, 45 times below it (docs/protocol.md).
 
 use crate::recording::from_device::{FitLine, LogLine};
 use crate::recording::Recording;
@@ -15,7 +21,7 @@ use serde::Serialize;
 use std::fmt::Write as _;
 
 /// The default pass threshold, in σ_CRLB.
-pub const DEFAULT_THRESHOLD: f64 = 0.01;
+pub const DEFAULT_THRESHOLD: f64 = 1e-5;
 
 /// One device fit against the host's.
 #[derive(Clone, Debug, Serialize)]
@@ -151,7 +157,7 @@ pub fn render(r: &CrosscheckReport) -> String {
     }
     let _ = writeln!(
         o,
-        "{} device fits; worst |device − host f64| = {:.2e} σ_CRLB (threshold {}): {}",
+        "{} device fits; worst |device − host f64| = {:.2e} σ_CRLB (threshold {:e}): {}",
         r.fits.len(),
         r.max_delta_crlb,
         r.threshold,
