@@ -163,6 +163,14 @@ pub enum RecordError {
     /// The device is not one this rotacal can talk to.
     #[error("{0}")]
     Device(String),
+    /// No status reply to a command in time.
+    #[error("no status reply to {command:?} within {wait_s:.0} s")]
+    NoReply {
+        /// The command.
+        command: Command,
+        /// How long the recorder waited, s.
+        wait_s: f64,
+    },
     /// The device refused a command.
     #[error("the device refused {command}: {reason}")]
     Refused {
@@ -495,10 +503,10 @@ impl<L: Link, W: Durable, F: Durable, C: Durable, O: Observer> Session<'_, L, W,
                     return Ok(st);
                 }
             }
-            return Err(RecordError::Device(format!(
-                "no status reply to {cmd:?} within {:.0} s",
-                self.opts.reply_wait.as_secs_f64()
-            )));
+            return Err(RecordError::NoReply {
+                command: cmd,
+                wait_s: self.opts.reply_wait.as_secs_f64(),
+            });
         }
     }
 
@@ -564,7 +572,10 @@ impl<L: Link, W: Durable, F: Durable, C: Durable, O: Observer> Session<'_, L, W,
     }
 
     /// Ask for the first missing range again; ask once more when the replay is overdue
-    /// (replays can be lost too), and give the range up after [`BACKFILL_TRIES`].
+    /// (replays can be lost too), and give the range up after [`BACKFILL_TRIES`] requests
+    /// that brought nothing: a request that brought samples (the first missing one moved
+    /// on) starts a fresh budget. A request whose status reply does not come counts as one
+    /// that brought nothing, and is asked again.
     async fn backfill(&mut self) -> Result<(), RecordError> {
         let Some((a, b)) = self.files.recorder.missing().into_iter().next() else {
             self.asked = None;
@@ -575,7 +586,10 @@ impl<L: Link, W: Durable, F: Durable, C: Durable, O: Observer> Session<'_, L, W,
                 if at.elapsed() < self.opts.backfill_wait {
                     return Ok(());
                 }
-                if tries >= BACKFILL_TRIES {
+                if a > qa {
+                    // Progress: what is left is asked for afresh.
+                    1
+                } else if tries >= BACKFILL_TRIES {
                     let end = b.min(qb);
                     self.obs.message(&format!(
                         "samples {a}–{end} did not come back after {tries} requests; \
@@ -584,16 +598,22 @@ impl<L: Link, W: Durable, F: Durable, C: Durable, O: Observer> Session<'_, L, W,
                     self.files.recorder.give_up_before(end + 1)?;
                     self.asked = None;
                     return Ok(());
+                } else {
+                    tries + 1
                 }
-                tries + 1
             }
             _ => 1,
         };
         let count = u16::try_from(b - a + 1).unwrap_or(u16::MAX);
         self.asked = Some((a, a + u32::from(count) - 1, Instant::now(), tries));
-        let s = self
-            .command(Command::Backfill { from_seq: a, count })
-            .await?;
+        let s = match self.command(Command::Backfill { from_seq: a, count }).await {
+            Ok(s) => s,
+            Err(e @ RecordError::NoReply { .. }) => {
+                self.obs.message(&format!("{e}; it will be asked again"));
+                return Ok(());
+            }
+            Err(e) => return Err(e),
+        };
         if s.last_error == Some(CommandError::MtuTooSmall) {
             // A reconnection to a central that did not ask for a large MTU: nothing can
             // be fetched or streamed over it.
@@ -731,7 +751,15 @@ async fn run<L: Link, W: Durable, F: Durable, C: Durable, O: Observer>(
             // A replay of nothing: its status reply says whether the device still runs
             // (every status goes through `packet`, which notes one that is not running).
             let from_seq = s.files.recorder.newest().map_or(0, |n| n.wrapping_add(1));
-            s.command(Command::Backfill { from_seq, count: 0 }).await?;
+            match s.command(Command::Backfill { from_seq, count: 0 }).await {
+                Ok(_) => {}
+                // Asked again at the next turn: the reply, not the device, was lost.
+                Err(e @ RecordError::NoReply { .. }) => {
+                    s.obs.message(&format!("{e}; it will be asked again"));
+                    s.ask_status = true;
+                }
+                Err(e) => return Err(e),
+            }
         }
         if let Some(st) = s.idle.take() {
             let Some((at, newest)) = s.rebooted.take() else {

@@ -156,6 +156,26 @@ fn an_outage_shorter_than_the_ring_is_backfilled() {
 }
 
 #[test]
+fn outages_of_5_15_and_30_s_lose_nothing() {
+    // Through the firmware's own queues (the stream queue's STREAM_QUEUE batches wait
+    // through an outage, the results queue paces the replays): issue 33's outages.
+    for secs in [5, 15, 30] {
+        let r = run(&format!("outage-{secs}"), &format!("outage=100:{secs}"));
+        let o = r.result.as_ref().unwrap();
+        assert_eq!(o.link_drops, 1, "{secs} s");
+        assert!(
+            o.summary.lost.is_empty(),
+            "{secs} s: lost {:?}",
+            o.summary.lost
+        );
+        assert_eq!(o.summary.rows, N, "{secs} s: {:?}", r.messages);
+        assert_eq!(seqs(&r.paths.recording), (0..N).collect::<Vec<_>>());
+        crosscheck_passes(&r);
+        rebuild_matches(&r);
+    }
+}
+
+#[test]
 fn an_outage_longer_than_the_ring_loses_only_what_left_it() {
     // 60 s down: the device keeps the last RING samples (32 s); the rest is reported lost.
     let ring = rotacal_shared::device::RING as u64;
@@ -544,5 +564,32 @@ fn a_session_with_a_restart_calibrates_within_u() {
         let r = (q.value - t).abs() / q.expanded_unc;
         println!("{name}: |Δ| = {r:.2} U");
         assert!(r <= TRUTH_LIMIT_U, "{name}: {r:.2} U from the truth");
+    }
+}
+
+#[test]
+fn a_lost_status_reply_is_asked_for_again_and_nothing_is_lost() {
+    // After a 10 s outage the recorder asks for the device's status, then for the gap: the
+    // first two status notifications from 110 s are lost on the air (issue 33: a Backfill
+    // whose reply is lost ended the session with exit 1). And one lost in a live stream
+    // with dropped notifications.
+    for faults in [
+        "outage=100:10,lost_status=110,lost_status=110",
+        "drop=0.02,lost_status=50,lost_status=50,lost_status=150",
+    ] {
+        let r = run("lost-status", faults);
+        let o = r.result.as_ref().unwrap();
+        println!("{faults}: {:?}", r.messages);
+        assert!(o.summary.lost.is_empty(), "{faults}: {:?}", o.summary.lost);
+        assert_eq!(o.summary.rows, N, "{faults}");
+        assert!(
+            r.messages
+                .iter()
+                .any(|m| m.contains("no status reply") && m.contains("asked again")),
+            "{faults}: {:?}",
+            r.messages
+        );
+        assert_eq!(seqs(&r.paths.recording), (0..N).collect::<Vec<_>>());
+        rebuild_matches(&r);
     }
 }

@@ -73,6 +73,9 @@ pub struct Faults {
     /// no notification sent, no command taken, while the SoftDevice keeps the link; the
     /// watchdog then resets the board.
     pub hangs: Vec<(f64, f64)>,
+    /// The first status notification at or after each of these times (seconds after the
+    /// first connection) is lost on the air: a command's reply that never comes.
+    pub lost_statuses: Vec<f64>,
 }
 
 impl Default for Faults {
@@ -92,6 +95,7 @@ impl Default for Faults {
             stuck: Vec::new(),
             resets: Vec::new(),
             hangs: Vec::new(),
+            lost_statuses: Vec::new(),
         }
     }
 }
@@ -151,6 +155,8 @@ pub struct EmulatedDevice {
     unread: u64,
     /// Draws the late reads (apart from the link's faults, so that they do not move).
     read_rng: ChaCha8Rng,
+    /// Status notifications lost so far ([`Faults::lost_statuses`]).
+    statuses_lost: usize,
     /// Resets done so far ([`Faults::resets`]), and when the last one was.
     resets_done: usize,
     boot_at: Duration,
@@ -191,6 +197,7 @@ impl EmulatedDevice {
             unread_since: None,
             unread: 0,
             resets_done: 0,
+            statuses_lost: 0,
             boot_at: Duration::ZERO,
             table: None,
             reset_since_start: false,
@@ -407,6 +414,15 @@ impl EmulatedDevice {
         if ch == Channel::Stream && self.lost() {
             return;
         }
+        let due = self
+            .faults
+            .lost_statuses
+            .get(self.statuses_lost)
+            .is_some_and(|at| self.now.as_secs_f64() >= *at);
+        if due && matches!(Packet::decode(&v), Ok(Packet::Status(_))) {
+            self.statuses_lost += 1;
+            return;
+        }
         self.out.push_back((ch, v));
         self.notifications += 1;
         if let Some(n) = self.faults.garbage_every {
@@ -619,7 +635,7 @@ pub enum FaultsError {
     /// A key that names no fault.
     #[error(
         "'{key}': unknown fault (outage, drop, burst, garbage, firmware, protocol, replaced, \
-         mute_after, seed, mtu, late, stuck, reset, panic, hang)"
+         mute_after, seed, mtu, late, stuck, reset, panic, hang, lost_status)"
     )]
     UnknownFault {
         /// The key.
@@ -646,7 +662,8 @@ impl std::str::FromStr for Faults {
     /// the sensor's conversions read too late, so never read), `stuck=AT:MS` (reads stuck
     /// for MS milliseconds from AT seconds; repeatable), `reset=AT` (the board resets at AT
     /// seconds; repeatable; `panic=AT` the same, from a panic), `hang=AT` (the logic stops
-    /// at AT and the watchdog resets the board [`WATCHDOG_MS`] later), comma-separated.
+    /// at AT and the watchdog resets the board [`WATCHDOG_MS`] later), `lost_status=AT` (the
+    /// first status notification from AT seconds is lost; repeatable), comma-separated.
     fn from_str(s: &str) -> Result<Self, FaultsError> {
         let mut f = Faults::default();
         for item in s.split(',').map(str::trim).filter(|i| !i.is_empty()) {
@@ -702,6 +719,7 @@ impl std::str::FromStr for Faults {
                     f.mute_after = Some(v.parse().map_err(|_| bad("expected a whole number"))?)
                 }
                 "seed" => f.seed = v.parse().map_err(|_| bad("expected a whole number"))?,
+                "lost_status" => f.lost_statuses.push(num(v)?),
                 "late" => f.late_probability = probability(v)?,
                 // A panic resets the board at once (the build for boards without a probe).
                 "reset" | "panic" => {
@@ -734,6 +752,7 @@ impl std::str::FromStr for Faults {
             }
         }
         f.resets.sort_by(f64::total_cmp);
+        f.lost_statuses.sort_by(f64::total_cmp);
         Ok(f)
     }
 }
