@@ -322,7 +322,32 @@ impl<W: Write, F: Write> Recorder<W, F> {
             self.emit(next, row)?;
             self.next_seq = Some(next.wrapping_add(1));
         }
+        self.prune_temperatures();
         Ok(())
+    }
+
+    /// Forget the temperatures no row can take any more: every row still to come has a seq
+    /// of at least `next_seq` and takes the latest temperature at or before it, so none
+    /// before that latest one is needed (the map would otherwise grow by one entry a
+    /// second for as long as the recording runs).
+    fn prune_temperatures(&mut self) {
+        let Some(next) = self.next_seq else {
+            return;
+        };
+        if !self.pending.is_empty() {
+            return;
+        }
+        if let Some(keep) = self.temps.range(..=next).next_back().map(|(k, _)| *k) {
+            if self.temps.keys().next().is_some_and(|first| *first < keep) {
+                self.temps = self.temps.split_off(&keep);
+            }
+        }
+    }
+
+    /// Entries held besides the rows written: temperatures, rows after a gap and rows
+    /// waiting for the first temperature. What the recorder's memory grows with.
+    pub fn held_entries(&self) -> usize {
+        self.temps.len() + self.held.len() + self.pending.len()
     }
 
     fn sample(&mut self, seq: u32, mut row: Row<'static>, replay: bool) -> io::Result<()> {
@@ -614,4 +639,58 @@ pub fn read_fit_log(text: &str, source: &str) -> Result<Vec<LogLine>, FitLogErro
             Ok(line)
         })
         .collect()
+}
+
+#[cfg(test)]
+#[allow(clippy::indexing_slicing)]
+mod tests {
+    use super::*;
+    use rotacal_shared::packet::{AverageBatch, Temperature};
+
+    /// Ten hours of device time at 16 Hz in batches of 7, a temperature a second, with a
+    /// gap every 10 minutes filled by a replay a batch later: what the recorder holds
+    /// besides the rows it wrote stays a few entries, as after the first minute.
+    #[test]
+    fn what_the_recorder_holds_does_not_grow_with_the_session() {
+        let meta = crate::recording::Metadata::default();
+        let mut r = Recorder::new(io::sink(), io::sink(), &meta, 1_000_000).unwrap();
+        let batch = |first: u32, replay: bool| {
+            let mut b = AverageBatch::new(Condition::X, replay, first, u64::from(first) * 62_500);
+            for k in 0..7u32 {
+                let t = u64::from(first + k) * 62_500;
+                b.push(&Aperture::point(Ticks(t)), [1, 2, 3], 0).unwrap();
+            }
+            Packet::Averages(b)
+        };
+        let samples = 10 * 3600 * 16;
+        let mut most_after_a_minute = 0;
+        let mut most = 0;
+        let mut lost_batch = None;
+        for first in (0..samples).step_by(7) {
+            if first % 16 < 7 {
+                r.packet(&Packet::Temperature(Temperature {
+                    seq: first,
+                    centi_c: 2500,
+                }))
+                .unwrap();
+            }
+            if first % 9600 < 7 && first > 0 {
+                lost_batch = Some(first);
+                continue;
+            }
+            r.packet(&batch(first, false)).unwrap();
+            if let Some(l) = lost_batch.take() {
+                r.packet(&batch(l, true)).unwrap();
+            }
+            most = most.max(r.held_entries());
+            if first < 16 * 60 {
+                most_after_a_minute = most;
+            }
+        }
+        let s = r.finish().unwrap();
+        assert!(s.lost.is_empty());
+        assert_eq!(s.rows, u64::from(samples.div_ceil(7) * 7));
+        assert!(most_after_a_minute > 0);
+        assert_eq!(most, most_after_a_minute, "held entries grew to {most}");
+    }
 }
