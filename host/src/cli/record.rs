@@ -217,6 +217,11 @@ async fn session<L: Link>(link: &mut L, a: &Args, plan: Plan, opts: Options) -> 
     match result {
         Ok(o) => {
             let s = &o.summary;
+            // Exit 0 only for files that read back as calibrate reads them.
+            let written = s.rows;
+            record::check_reads_back(&paths, plan.condition, written).map_err(|e| {
+                anyhow::anyhow!("the recording does not read back: {e}\nfiles: {files}")
+            })?;
             println!(
                 "recorded condition {}: {} samples ({} recovered by replay, {} received twice, \
                  {} lost{}), {} fit-log lines, {} link drop(s), {} undecodable value(s), {} \
@@ -255,8 +260,8 @@ async fn session<L: Link>(link: &mut L, a: &Args, plan: Plan, opts: Options) -> 
                 Ok(())
             } else {
                 Err(Incomplete(format!(
-                    "the recording is usable but incomplete: {} sample(s) lost, {} value(s) \
-                     from the device did not decode",
+                    "the recording reads back but is incomplete: {} sample(s) lost, {} \
+                     value(s) from the device did not decode",
                     s.lost_samples(),
                     o.undecodable
                 ))
@@ -266,7 +271,14 @@ async fn session<L: Link>(link: &mut L, a: &Args, plan: Plan, opts: Options) -> 
         Err((e, summary)) => {
             let kept = summary.map_or_else(
                 || "what arrived is in the capture (rotacal decode rebuilds from it)".into(),
-                |s| format!("{} samples kept", s.rows),
+                |s| match record::check_reads_back(&paths, plan.condition, s.rows) {
+                    Ok(()) => format!("{} samples kept in a file that reads back", s.rows),
+                    Err(why) => format!(
+                        "{} samples kept, but the file does not read back ({why}); the capture \
+                         holds what arrived (rotacal decode rebuilds from it)",
+                        s.rows
+                    ),
+                },
             );
             anyhow::bail!("{e}\n{kept}; files: {files}")
         }

@@ -867,6 +867,31 @@ impl Paths {
     }
 }
 
+/// Read the files back as `calibrate` and `crosscheck` read them: the recording (conditions
+/// may still be missing) must hold `rows` rows of `condition`, and the fit log must read.
+/// A recorder that says it is done has checked this (docs/recording.md).
+pub fn check_reads_back(paths: &Paths, condition: Condition, rows: u64) -> Result<(), String> {
+    let rec = crate::recording::read_in_progress(&paths.recording).map_err(|e| e.to_string())?;
+    let found: u64 = rec
+        .groups
+        .iter()
+        .filter(|g| g.condition == condition)
+        .map(|g| g.len() as u64)
+        .sum();
+    if found != rows {
+        return Err(format!(
+            "{}: {found} rows of condition {} read back, {rows} were written",
+            paths.recording.display(),
+            condition.letter()
+        ));
+    }
+    let text = std::fs::read_to_string(&paths.fits)
+        .map_err(|e| format!("{}: {e}", paths.fits.display()))?;
+    crate::recording::from_device::read_fit_log(&text, &paths.fits.display().to_string())
+        .map_err(|e| e.to_string())?;
+    Ok(())
+}
+
 fn named(p: &std::path::Path, e: io::Error) -> RecordError {
     RecordError::Io(io::Error::new(e.kind(), format!("{}: {e}", p.display())))
 }

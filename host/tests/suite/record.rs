@@ -593,3 +593,23 @@ fn a_lost_status_reply_is_asked_for_again_and_nothing_is_lost() {
         rebuild_matches(&r);
     }
 }
+
+#[test]
+fn a_finished_recording_is_read_back_before_it_is_called_done() {
+    let r = run("reads-back", "drop=0.01");
+    let o = r.result.as_ref().unwrap();
+    record::check_reads_back(&r.paths, Condition::X, o.summary.rows).unwrap();
+    // A count that is not the file's is named.
+    let e = record::check_reads_back(&r.paths, Condition::X, o.summary.rows + 1).unwrap_err();
+    assert!(
+        e.contains(&format!("{} rows of condition x read back", o.summary.rows)),
+        "{e}"
+    );
+    // A line that does not read is named by its number.
+    let mut text = std::fs::read_to_string(&r.paths.recording).unwrap();
+    let line = text.lines().count() + 1;
+    text.push_str("x,99999,1.0,not-a-number,0,0,25.0,,0,0\n");
+    std::fs::write(&r.paths.recording, text).unwrap();
+    let e = record::check_reads_back(&r.paths, Condition::X, o.summary.rows).unwrap_err();
+    assert!(e.contains(&format!("rec.csv:{line}:")), "{e}");
+}
