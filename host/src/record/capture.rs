@@ -217,11 +217,14 @@ pub fn rebuild<W: Write, F: Write>(cap: &Capture, rows: W, fits: F) -> Result<Re
             },
             // Each condition recorded (appended) starts with a Start.
             Entry::Written(b) => {
-                if let Ok(Packet::Command(rotacal_shared::packet::Command::Start { .. })) =
-                    Packet::decode(b)
+                if let Ok(Packet::Command(rotacal_shared::packet::Command::Start {
+                    condition,
+                    ..
+                })) = Packet::decode(b)
                 {
                     rec.restart_sequence()
                         .map_err(|e| format!("writing: {e}"))?;
+                    rec.start_written(condition);
                 }
             }
             _ => {}

@@ -653,6 +653,7 @@ async fn start<L: Link, W: Durable, F: Durable, C: Durable, O: Observer>(
         let st = s.command(Command::SetSampleRate { mhz }).await?;
         check("the sample rate", st, s.link.mtu())?;
     }
+    s.files.recorder.start_written(plan.condition);
     let st = s
         .command(Command::Start {
             condition: plan.condition,

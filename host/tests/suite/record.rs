@@ -534,8 +534,7 @@ fn crosscheck_passes_in_boots(r: &Run) {
 
 #[test]
 fn a_session_with_a_restart_calibrates_within_u() {
-    use rotacal::calibrate::json::PROPERTY_NAMES;
-    use rotacal::demo::{record_session, session_config, TRUTH_LIMIT_U};
+    use rotacal::demo::{record_session, session_config};
     // The watchdog resets the board 100 s into condition y (262.5 s each).
     let sim = Simulation::new(session_config(2022).unwrap()).unwrap();
     let mut dev = SimulatedDevice::new(&sim, "hang=362.5".parse::<Faults>().unwrap()).unwrap();
@@ -553,8 +552,14 @@ fn a_session_with_a_restart_calibrates_within_u() {
     };
     // x in the first boot, y across the restart, z (appended) in the second.
     assert_eq!(Condition::ALL.map(boots), [(0, 0), (0, 1), (1, 1)]);
-    let cal =
-        rotacal::calibrate::stream::calibrate_file(&paths.recording, &Default::default()).unwrap();
+    calibrates_within_u(&paths.recording, &sim);
+}
+
+/// The recording at `path` calibrates within the demo's bound of `sim`'s truth.
+fn calibrates_within_u(path: &std::path::Path, sim: &Simulation) {
+    use rotacal::calibrate::json::PROPERTY_NAMES;
+    use rotacal::demo::TRUTH_LIMIT_U;
+    let cal = rotacal::calibrate::stream::calibrate_file(path, &Default::default()).unwrap();
     let ours = cal.by_rate[0].intrinsic.quantities();
     for ((name, q), t) in PROPERTY_NAMES
         .iter()
@@ -612,4 +617,43 @@ fn a_finished_recording_is_read_back_before_it_is_called_done() {
     std::fs::write(&r.paths.recording, text).unwrap();
     let e = record::check_reads_back(&r.paths, Condition::X, o.summary.rows).unwrap_err();
     assert!(e.contains(&format!("rec.csv:{line}:")), "{e}");
+}
+
+#[test]
+fn a_conditions_lost_first_batch_is_asked_for_and_recovered() {
+    // The Start's status reply says where the condition starts (issue 33: its first batch
+    // lost was never asked for, and counting began at the first sample received).
+    let r = run("first-batch", "lost_batch=0");
+    let o = r.result.as_ref().unwrap();
+    assert!(o.summary.lost.is_empty(), "{:?}", o.summary.lost);
+    assert_eq!(o.summary.rows, N);
+    assert!(o.summary.recovered >= 7, "{}", o.summary.recovered);
+    assert_eq!(seqs(&r.paths.recording), (0..N).collect::<Vec<_>>());
+    crosscheck_passes(&r);
+    rebuild_matches(&r);
+}
+
+#[test]
+fn the_first_batches_of_appended_conditions_are_recovered_and_calibrate() {
+    use rotacal::demo::{record_session, session_config};
+    // Each condition's first batch lost (x at the session's start, y and z after the
+    // ring already holds the conditions before them).
+    let sim = Simulation::new(session_config(2022).unwrap()).unwrap();
+    let faults = "lost_batch=0,lost_batch=263,lost_batch=526";
+    let mut dev = SimulatedDevice::new(&sim, faults.parse::<Faults>().unwrap()).unwrap();
+    let d = dir("first-batches");
+    let paths = Paths::beside(&d.join("rec.csv"));
+    let outcomes = record_session(
+        &mut dev,
+        &paths,
+        &crate::mtu::meta(&sim),
+        Duration::from_secs_f64(262.5),
+    )
+    .unwrap();
+    for (c, o) in &outcomes {
+        assert!(o.summary.lost.is_empty(), "{c:?}: {:?}", o.summary.lost);
+        assert_eq!(o.summary.rows, N, "{c:?}");
+        assert!(o.summary.recovered >= 7, "{c:?}: {}", o.summary.recovered);
+    }
+    calibrates_within_u(&paths.recording, &sim);
 }

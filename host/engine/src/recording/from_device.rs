@@ -17,7 +17,7 @@
 
 use crate::recording::{Columns, Metadata, Row, Writer, TICK_HZ_KEY};
 use rotacal_shared::device::route::Characteristic;
-use rotacal_shared::packet::{FitReport, Packet, QuickLook, RunState, SampleFlags};
+use rotacal_shared::packet::{FitReport, Packet, QuickLook, RunState, SampleFlags, Status};
 use rotacal_shared::{Aperture, Condition, Ticks};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
@@ -209,6 +209,8 @@ pub struct Recorder<W: Write, F: Write> {
     boot_column: bool,
     /// The newest seq received in this boot.
     boot_newest: Option<u32>,
+    /// A Start was written for this condition: its status reply says where it starts.
+    await_start: Option<Condition>,
     summary: RecordSummary,
 }
 
@@ -283,6 +285,7 @@ impl<W: Write, F: Write> Recorder<W, F> {
             boot: 0,
             boot_column: true,
             boot_newest: None,
+            await_start: None,
             summary: RecordSummary::default(),
         })
     }
@@ -477,6 +480,9 @@ impl<W: Write, F: Write> Recorder<W, F> {
                 if idle && self.boot_newest.is_some_and(|n| s.ring_newest < n) {
                     self.new_boot()?;
                 }
+                if let Some(c) = self.await_start.take() {
+                    self.start_status(c, s);
+                }
             }
             Packet::Info(_) | Packet::Command(_) => {}
         }
@@ -501,6 +507,32 @@ impl<W: Write, F: Write> Recorder<W, F> {
         self.next_seq = None;
         self.expected_through = None;
         Ok(())
+    }
+
+    /// A Start for `condition` was written: the status that answers it says which seq the
+    /// condition starts at, so that a first batch lost or late is seen as a gap.
+    pub fn start_written(&mut self, condition: Condition) {
+        self.await_start = Some(condition);
+    }
+
+    /// The status after a Start: accepted (not a refusal, nor the "busy" answer to a
+    /// repeat), running `condition`, and sent before its first sample, its ring's newest
+    /// sample is the last one before the condition. An empty ring reads (0, 0): the device
+    /// has made no sample since power-up, and the condition starts at 0. (A ring holding
+    /// only seq 0 reads the same: a condition stopped within its first 62.5 ms slot. Its
+    /// sample would then be asked for and reported lost.)
+    fn start_status(&mut self, condition: Condition, s: &Status) {
+        let accepted = s.last_error.is_none()
+            && s.state == RunState::Running
+            && s.condition == Some(condition);
+        if !accepted || self.next_seq.is_some() {
+            return;
+        }
+        let first = match (s.ring_oldest, s.ring_newest) {
+            (0, 0) => 0,
+            (_, newest) => newest.wrapping_add(1),
+        };
+        self.next_seq = Some(first);
     }
 
     /// The device restarted: what is missing of its last boot is given up (its ring went

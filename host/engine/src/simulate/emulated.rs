@@ -76,6 +76,9 @@ pub struct Faults {
     /// The first status notification at or after each of these times (seconds after the
     /// first connection) is lost on the air: a command's reply that never comes.
     pub lost_statuses: Vec<f64>,
+    /// The first sample batch at or after each of these times (seconds after the first
+    /// connection) is lost on the air: at a condition's start, its first batch.
+    pub lost_batches: Vec<f64>,
 }
 
 impl Default for Faults {
@@ -96,6 +99,7 @@ impl Default for Faults {
             resets: Vec::new(),
             hangs: Vec::new(),
             lost_statuses: Vec::new(),
+            lost_batches: Vec::new(),
         }
     }
 }
@@ -155,8 +159,10 @@ pub struct EmulatedDevice {
     unread: u64,
     /// Draws the late reads (apart from the link's faults, so that they do not move).
     read_rng: ChaCha8Rng,
-    /// Status notifications lost so far ([`Faults::lost_statuses`]).
+    /// Status notifications and batches lost so far ([`Faults::lost_statuses`],
+    /// [`Faults::lost_batches`]).
     statuses_lost: usize,
+    batches_lost: usize,
     /// Resets done so far ([`Faults::resets`]), and when the last one was.
     resets_done: usize,
     boot_at: Duration,
@@ -198,6 +204,7 @@ impl EmulatedDevice {
             unread: 0,
             resets_done: 0,
             statuses_lost: 0,
+            batches_lost: 0,
             boot_at: Duration::ZERO,
             table: None,
             reset_since_start: false,
@@ -423,6 +430,20 @@ impl EmulatedDevice {
             self.statuses_lost += 1;
             return;
         }
+        let due = self
+            .faults
+            .lost_batches
+            .get(self.batches_lost)
+            .is_some_and(|at| self.now.as_secs_f64() >= *at);
+        if due
+            && matches!(
+                Packet::decode(&v),
+                Ok(Packet::Averages(_) | Packet::Samples(_))
+            )
+        {
+            self.batches_lost += 1;
+            return;
+        }
         self.out.push_back((ch, v));
         self.notifications += 1;
         if let Some(n) = self.faults.garbage_every {
@@ -635,7 +656,7 @@ pub enum FaultsError {
     /// A key that names no fault.
     #[error(
         "'{key}': unknown fault (outage, drop, burst, garbage, firmware, protocol, replaced, \
-         mute_after, seed, mtu, late, stuck, reset, panic, hang, lost_status)"
+         mute_after, seed, mtu, late, stuck, reset, panic, hang, lost_status, lost_batch)"
     )]
     UnknownFault {
         /// The key.
@@ -663,7 +684,8 @@ impl std::str::FromStr for Faults {
     /// for MS milliseconds from AT seconds; repeatable), `reset=AT` (the board resets at AT
     /// seconds; repeatable; `panic=AT` the same, from a panic), `hang=AT` (the logic stops
     /// at AT and the watchdog resets the board [`WATCHDOG_MS`] later), `lost_status=AT` (the
-    /// first status notification from AT seconds is lost; repeatable), comma-separated.
+    /// first status notification from AT seconds is lost; repeatable), `lost_batch=AT` (the same
+    /// for a sample batch), comma-separated.
     fn from_str(s: &str) -> Result<Self, FaultsError> {
         let mut f = Faults::default();
         for item in s.split(',').map(str::trim).filter(|i| !i.is_empty()) {
@@ -720,6 +742,7 @@ impl std::str::FromStr for Faults {
                 }
                 "seed" => f.seed = v.parse().map_err(|_| bad("expected a whole number"))?,
                 "lost_status" => f.lost_statuses.push(num(v)?),
+                "lost_batch" => f.lost_batches.push(num(v)?),
                 "late" => f.late_probability = probability(v)?,
                 // A panic resets the board at once (the build for boards without a probe).
                 "reset" | "panic" => {
@@ -753,6 +776,7 @@ impl std::str::FromStr for Faults {
         }
         f.resets.sort_by(f64::total_cmp);
         f.lost_statuses.sort_by(f64::total_cmp);
+        f.lost_batches.sort_by(f64::total_cmp);
         Ok(f)
     }
 }
