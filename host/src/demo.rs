@@ -200,6 +200,20 @@ pub fn session_config(seed: u64) -> anyhow::Result<Config> {
     Ok(cfg)
 }
 
+/// A runtime on a paused clock, and recording options for it (nothing synced to disk): the
+/// emulated device runs on tokio's time, so a session of hours takes seconds.
+pub fn paused() -> anyhow::Result<(tokio::runtime::Runtime, Options)> {
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_time()
+        .start_paused(true)
+        .build()?;
+    let opts = Options {
+        sync: false,
+        ..Options::default()
+    };
+    Ok((rt, opts))
+}
+
 /// Record x, y and z from `device` into `paths` on a paused clock (the emulated device
 /// runs on tokio's time, so a session of minutes takes seconds), `duration` each at
 /// 0.01 Hz and 16 Hz.
@@ -209,14 +223,7 @@ pub fn record_session(
     meta: &Metadata,
     duration: Duration,
 ) -> anyhow::Result<Vec<(Condition, Outcome)>> {
-    let rt = tokio::runtime::Builder::new_current_thread()
-        .enable_time()
-        .start_paused(true)
-        .build()?;
-    let opts = Options {
-        sync: false,
-        ..Options::default()
-    };
+    let (rt, opts) = paused()?;
     rt.block_on(async {
         let mut obs = Quiet::default();
         let (info, info_bytes) = record::connect(device, &opts, &mut obs).await?;
