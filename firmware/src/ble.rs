@@ -22,7 +22,7 @@ use rotacal_shared::packet::Packet;
 pub const DEVICE_NAME: &str = "rotacal";
 
 /// Largest ATT MTU the SoftDevice grants: one notification then carries 244 bytes, a
-/// batch of seven averaged samples 226.
+/// batch of seven averaged samples 228 (protocol version 3, its CRC included).
 pub const ATT_MTU: u16 = MAX_MTU;
 
 /// How long a packet too long for the link waits for the central's MTU exchange (which

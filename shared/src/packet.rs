@@ -1,9 +1,12 @@
 //! The BLE packet protocol between the device and the host (docs/protocol.md).
 //!
 //! Every packet is one GATT value: a 4-byte header (protocol version, kind, and two bytes
-//! that depend on the kind), then a fixed layout per kind, little-endian. Packets are
+//! that depend on the kind), then a fixed layout per kind, little-endian, then a CRC-16 of
+//! all the bytes before it (version 3), so that a packet corrupted anywhere between the
+//! device's memory and the host's decoder is refused, not recorded. Packets are
 //! self-contained, so a lost notification loses only its own samples, which the host
-//! fetches again from the device's ring buffer by sequence number.
+//! fetches again from the device's ring buffer by sequence number. Versions 1 and 2 (no
+//! CRC) are still decoded, for captures made with firmware 0.1 and 0.2.
 //!
 //! [`Packet::decode`] accepts exactly the bytes [`Packet::encode`] writes and refuses
 //! everything else with a [`DecodeError`]; it never panics, on any input (property tests
@@ -12,14 +15,34 @@
 use crate::time::{Aperture, Ticks, MAX_CONVERSIONS};
 use crate::Condition;
 
-/// The protocol version of every packet but averaged samples. A decoder refuses others.
-pub const VERSION: u8 = 1;
+/// The protocol version of every packet the device sends now: version 2's layouts (sample
+/// batches averaged) and a CRC-16 after them.
+pub const VERSION: u8 = 3;
 
-/// The protocol version of [`AverageBatch`] (kind 0x01 with the averaged layout). Version
-/// 1 decoders refuse it by its version byte; this decoder reads both sample layouts.
+/// Version 1: the layouts without a CRC, sample batches of single conversions (firmware
+/// 0.1). Decoded, for old captures; [`SampleBatch`] is still encoded so.
+pub const VERSION_1: u8 = 1;
+
+/// Version 2: version 1 with averaged sample batches (firmware 0.2). Decoded, for old
+/// captures.
 pub const VERSION_AVERAGES: u8 = 2;
 
-/// Averaged samples per [`AverageBatch`]: 16 + 30·7 = 226 bytes, inside one notification.
+/// Bytes of the CRC at the end of a version 3 packet. Two, not four: a status (17 bytes)
+/// must still fit the 20 bytes a notification carries at BLE's default MTU of 23, so that
+/// the refusal naming a too-small MTU reaches the host (docs/protocol.md, "Integrity").
+pub const CRC_LEN: usize = 2;
+
+/// The CRC: CRC-16/IBM-SDLC (X.25: polynomial 0x1021 reflected, initial value and final
+/// XOR 0xFFFF), little-endian.
+const CRC16: crc::Crc<u16> = crc::Crc::<u16>::new(&crc::CRC_16_IBM_SDLC);
+
+/// The CRC a version 3 packet carries after `layout` (its bytes before the CRC).
+pub fn checksum(layout: &[u8]) -> u16 {
+    CRC16.checksum(layout)
+}
+
+/// Averaged samples per [`AverageBatch`]: 16 + 30·7 + 2 = 228 bytes, inside one
+/// notification.
 pub const MAX_AVERAGES: usize = 7;
 
 /// Samples per [`SampleBatch`]: 16 + 11·20 = 236 bytes, inside one notification at the
@@ -29,9 +52,9 @@ pub const MAX_SAMPLES: usize = 20;
 /// Largest packet, bytes.
 pub const MAX_PACKET: usize = 16 + 11 * MAX_SAMPLES;
 
-/// Bytes of an [`AverageBatch`] of `n` samples.
+/// Bytes of an [`AverageBatch`] of `n` samples, its CRC included.
 pub const fn averages_len(n: usize) -> usize {
-    size::SAMPLES_HEAD + size::AVERAGE * n
+    size::SAMPLES_HEAD + size::AVERAGE * n + CRC_LEN
 }
 
 /// Largest packet the device notifies other than a sample batch: a fit report.
@@ -46,7 +69,7 @@ pub const MAX_RESULT: usize = {
     max(
         max(size::FIT, size::QUICK_LOOK),
         max(size::STATUS, size::TEMPERATURE),
-    )
+    ) + CRC_LEN
 };
 
 /// One accelerometer sample as the device sends it.
@@ -514,6 +537,13 @@ pub enum DecodeError {
     },
     /// A protocol version this decoder does not speak.
     Version(u8),
+    /// The CRC at the end of a version 3 packet is not that of its bytes: corrupted.
+    Checksum {
+        /// The CRC of the bytes.
+        computed: u16,
+        /// The CRC the packet carries.
+        carried: u16,
+    },
     /// An unknown packet kind.
     Kind(u8),
     /// A field holds a value outside its range.
@@ -537,9 +567,13 @@ impl core::fmt::Display for DecodeError {
             DecodeError::Version(v) => {
                 write!(
                     f,
-                    "protocol version {v}, this decoder speaks {VERSION} ({VERSION_AVERAGES} for averaged samples)"
+                    "protocol version {v}, this decoder speaks {VERSION} (and 1 and 2 of old captures)"
                 )
             }
+            DecodeError::Checksum { computed, carried } => write!(
+                f,
+                "corrupted: its CRC-16 is {carried:04x}, its bytes' {computed:04x}"
+            ),
             DecodeError::Kind(k) => write!(f, "unknown packet kind 0x{k:02x}"),
             DecodeError::Field { offset, name } => {
                 write!(f, "byte {offset}: {name} out of range")
@@ -704,8 +738,17 @@ mod size {
 }
 
 impl Packet {
-    /// Bytes [`Packet::encode`] writes.
+    /// Bytes [`Packet::encode`] writes: the layout, and the CRC but for version 1 sample
+    /// batches.
     pub fn encoded_len(&self) -> usize {
+        match self {
+            Packet::Samples(_) => self.layout_len(),
+            _ => self.layout_len() + CRC_LEN,
+        }
+    }
+
+    /// Bytes of the packet's layout, without a CRC.
+    fn layout_len(&self) -> usize {
         match self {
             Packet::Samples(b) => size::SAMPLES_HEAD + size::SAMPLE * b.len(),
             Packet::Averages(b) => size::SAMPLES_HEAD + size::AVERAGE * b.len(),
@@ -727,10 +770,23 @@ impl Packet {
     /// Write the packet to the front of `buf`; returns the bytes written.
     pub fn encode(&self, buf: &mut [u8]) -> Result<usize, BufferTooSmall> {
         let need = self.encoded_len();
+        let layout = self.layout_len();
         let buf = buf.get_mut(..need).ok_or(BufferTooSmall { need })?;
+        self.encode_layout(buf.get_mut(..layout).unwrap_or(&mut []));
+        if need > layout {
+            let crc = CRC16.checksum(buf.get(..layout).unwrap_or(&[]));
+            if let Some(tail) = buf.get_mut(layout..) {
+                tail.copy_from_slice(&crc.to_le_bytes());
+            }
+        }
+        Ok(need)
+    }
+
+    /// The layout, version byte first, into `buf` (exactly its length).
+    fn encode_layout(&self, buf: &mut [u8]) {
         let mut o = Out { buf, at: 0 };
         o.u8(match self {
-            Packet::Averages(_) => VERSION_AVERAGES,
+            Packet::Samples(_) => VERSION_1,
             _ => VERSION,
         });
         match self {
@@ -845,11 +901,38 @@ impl Packet {
                 }
             },
         }
-        Ok(need)
     }
 
-    /// Read one packet: exactly the bytes of one GATT value.
+    /// Read one packet: exactly the bytes of one GATT value. A version 3 packet's CRC is
+    /// checked before anything else is read.
     pub fn decode(bytes: &[u8]) -> Result<Packet, DecodeError> {
+        if bytes.first() != Some(&VERSION) {
+            return Self::decode_layout(bytes);
+        }
+        let Some(split) = bytes
+            .len()
+            .checked_sub(CRC_LEN)
+            .filter(|n| *n >= size::HEADER)
+        else {
+            return Err(DecodeError::TooShort {
+                need: size::HEADER + CRC_LEN,
+                got: bytes.len(),
+            });
+        };
+        let (layout, tail) = bytes.split_at(split);
+        let carried = match tail.first_chunk::<CRC_LEN>() {
+            Some(t) => u16::from_le_bytes(*t),
+            None => 0,
+        };
+        let computed = CRC16.checksum(layout);
+        if computed != carried {
+            return Err(DecodeError::Checksum { computed, carried });
+        }
+        Self::decode_layout(layout)
+    }
+
+    /// A packet's layout (without its CRC, for version 3).
+    fn decode_layout(bytes: &[u8]) -> Result<Packet, DecodeError> {
         let got = bytes.len();
         let [version, k, b2, b3] = match bytes.first_chunk::<4>() {
             Some(h) => *h,
@@ -860,9 +943,11 @@ impl Packet {
                 })
             }
         };
-        // Version 2 is the averaged samples' layout; every other packet is version 1.
-        let averaged = version == VERSION_AVERAGES && k == kind::SAMPLES;
-        if version != VERSION && !averaged {
+        // Versions 2 and 3 have the averaged samples' layout; every other layout is
+        // version 1's.
+        let averaged = k == kind::SAMPLES && (version == VERSION_AVERAGES || version == VERSION);
+        let known = version == VERSION || version == VERSION_1 || averaged;
+        if !known {
             return Err(DecodeError::Version(version));
         }
         let (sample_size, max_samples) = if averaged {

@@ -195,6 +195,54 @@ fn packet() -> impl Strategy<Value = Packet> {
     ]
 }
 
+/// CRC-16/IBM-SDLC (X.25), bit by bit: an implementation of the version 3 CRC other than
+/// the crc crate's table (check value 0x906E on "123456789").
+fn x25(data: &[u8]) -> u16 {
+    let mut crc = 0xFFFFu16;
+    for &b in data {
+        crc ^= u16::from(b);
+        for _ in 0..8 {
+            crc = if crc & 1 != 0 {
+                (crc >> 1) ^ 0x8408
+            } else {
+                crc >> 1
+            };
+        }
+    }
+    crc ^ 0xFFFF
+}
+
+#[test]
+fn the_crc_is_x25_and_ends_every_version_3_packet() {
+    assert_eq!(x25(b"123456789"), 0x906E);
+    let b = {
+        let mut b = AverageBatch::new(Condition::X, false, 3, 0);
+        b.push(&Aperture::point(Ticks(5)), [1, 2, 3], 0).unwrap();
+        b
+    };
+    for p in [
+        Packet::Averages(b),
+        Packet::Command(Command::Stop),
+        Packet::Status(Status {
+            state: RunState::Idle,
+            sensor: SensorStatus::Ok,
+            condition: None,
+            lost: 0,
+            ring_oldest: 0,
+            ring_newest: 0,
+            last_error: None,
+        }),
+    ] {
+        let bytes = encode(&p);
+        let n = bytes.len() - 2;
+        assert_eq!(bytes[0], 3);
+        assert_eq!(
+            u16::from_le_bytes([bytes[n], bytes[n + 1]]),
+            x25(&bytes[..n])
+        );
+    }
+}
+
 fn encode(p: &Packet) -> Vec<u8> {
     let mut buf = [0u8; MAX_PACKET];
     let n = p.encode(&mut buf).unwrap();
@@ -248,7 +296,12 @@ fn errors_say_what_and_where() {
         Packet::decode(&[]),
         Err(DecodeError::TooShort { need: 4, got: 0 })
     );
-    assert_eq!(Packet::decode(&[3, 1, 1, 1]), Err(DecodeError::Version(3)));
+    assert_eq!(Packet::decode(&[9, 1, 1, 1]), Err(DecodeError::Version(9)));
+    // Version 3 needs its CRC after the header at least.
+    assert_eq!(
+        Packet::decode(&[3, 1, 1, 1]),
+        Err(DecodeError::TooShort { need: 6, got: 4 })
+    );
     // Version 2 is the averaged samples' layout only.
     assert_eq!(Packet::decode(&[2, 3, 1, 1]), Err(DecodeError::Version(2)));
     assert_eq!(
@@ -263,7 +316,34 @@ fn errors_say_what_and_where() {
         condition: Condition::Y,
         rate_uhz: 10_000,
     }));
-    assert_eq!(start, [1, 0x10, 2, 0, 0x10, 0x27, 0, 0]);
+    // Version 3: the layout, then its CRC-16/IBM-SDLC (X.25), little-endian: 0xF8A3, as an
+    // independent bitwise computation gives (its check value on "123456789" is 0x906E).
+    assert_eq!(start, [3, 0x10, 2, 0, 0x10, 0x27, 0, 0, 0xA3, 0xF8]);
+    // Any bit flipped is refused as corrupted, never read as another packet.
+    for i in 0..start.len() * 8 {
+        let mut flipped = start.clone();
+        flipped[i / 8] ^= 1 << (i % 8);
+        // (A flip in the version byte can make it an old version's, whose layout is
+        // then refused by its length.)
+        let got = Packet::decode(&flipped);
+        assert!(got.is_err(), "bit {i}: {got:?}");
+    }
+    assert_eq!(
+        format!(
+            "{}",
+            Packet::decode(&[3, 0x10, 2, 0, 0x10, 0x27, 0, 0, 0, 0]).unwrap_err()
+        ),
+        "corrupted: its CRC-16 is 0000, its bytes' f8a3"
+    );
+    // The layouts' own checks, on version 1 (no CRC, as old captures hold it).
+    let start = vec![1, 0x10, 2, 0, 0x10, 0x27, 0, 0];
+    assert!(matches!(
+        Packet::decode(&start),
+        Ok(Packet::Command(Command::Start {
+            condition: Condition::Y,
+            rate_uhz: 10_000
+        }))
+    ));
     let mut bad = start.clone();
     bad[2] = 4;
     assert_eq!(
@@ -328,8 +408,8 @@ fn an_averaged_batch_has_the_documented_layout() {
     let short = Aperture::new(Ticks(67_600), &[9_615]).unwrap();
     b.push(&short, [-65_536, 0, 1], 0).unwrap();
     let bytes = encode(&Packet::Averages(b));
-    assert_eq!(bytes.len(), 16 + 30 * 2);
-    assert_eq!(&bytes[..4], &[2, 0x01, 2, 0x02]);
+    assert_eq!(bytes.len(), 16 + 30 * 2 + 2);
+    assert_eq!(&bytes[..4], &[3, 0x01, 2, 0x02]);
     assert_eq!(&bytes[4..8], &9u32.to_le_bytes());
     assert_eq!(&bytes[8..16], &5_000u64.to_le_bytes());
     // First sample: dt 100, 7 conversions, flags 1, sums, six gaps.
@@ -349,6 +429,10 @@ fn an_averaged_batch_has_the_documented_layout() {
     let refused = |at: usize, value: &[u8], offset: usize, name: &'static str| {
         let mut bad = bytes.clone();
         bad[at..at + value.len()].copy_from_slice(value);
+        // Changed bytes with a good CRC: what the layout's own checks see.
+        let n = bad.len() - 2;
+        let crc = x25(&bad[..n]);
+        bad[n..].copy_from_slice(&crc.to_le_bytes());
         assert_eq!(
             Packet::decode(&bad),
             Err(DecodeError::Field { offset, name })

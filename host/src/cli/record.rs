@@ -272,6 +272,7 @@ async fn session<L: Link>(link: &mut L, a: &Args, plan: Plan, opts: Options) -> 
             let kept = summary.map_or_else(
                 || "what arrived is in the capture (rotacal decode rebuilds from it)".into(),
                 |s| match record::check_reads_back(&paths, plan.condition, s.rows) {
+                    _ if s.rows == 0 => "no samples were recorded".to_string(),
                     Ok(()) => format!("{} samples kept in a file that reads back", s.rows),
                     Err(why) => format!(
                         "{} samples kept, but the file does not read back ({why}); the capture \

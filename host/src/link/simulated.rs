@@ -39,6 +39,11 @@ impl SimulatedDevice {
         self.device.unread()
     }
 
+    /// Sample batches the device delivered with a bit flipped.
+    pub fn flipped(&self) -> u64 {
+        self.device.flipped()
+    }
+
     fn elapsed(&self) -> Duration {
         self.epoch.map_or(Duration::ZERO, |e| Instant::now() - e)
     }

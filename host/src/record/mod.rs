@@ -462,12 +462,14 @@ impl<L: Link, W: Durable, F: Durable, C: Durable, O: Observer> Session<'_, L, W,
     }
 
     /// Write a command and wait for the status that answers it. If the link drops before
-    /// the answer, the command is written again after reconnecting; a repeat that the
-    /// device refuses only because the first one took effect (Start: busy running this
-    /// condition; Stop: not running) counts as answered.
+    /// the answer, the command is written again after reconnecting, and if no answer comes
+    /// within the reply wait it is written again, [`COMMAND_WRITES`] times in all; a repeat
+    /// that the device refuses only because the first one took effect (Start: busy running
+    /// this condition; Stop: not running) counts as answered.
     async fn command(&mut self, cmd: Command) -> Result<Status, RecordError> {
         let bytes = encode(cmd);
         let mut repeated = false;
+        let mut writes = 0;
         'send: loop {
             self.files.capture.entry(&Entry::Written(bytes.clone()))?;
             self.last_status = None;
@@ -503,9 +505,20 @@ impl<L: Link, W: Durable, F: Durable, C: Durable, O: Observer> Session<'_, L, W,
                     return Ok(st);
                 }
             }
+            // The reply may have been lost (or corrupted) on its way: written again, as a
+            // repeat, before the device is taken to be deaf.
+            writes += 1;
+            if writes < COMMAND_WRITES {
+                self.obs.message(&format!(
+                    "no status reply to {cmd:?} within {:.0} s; writing it again",
+                    self.opts.reply_wait.as_secs_f64()
+                ));
+                repeated = true;
+                continue 'send;
+            }
             return Err(RecordError::NoReply {
                 command: cmd,
-                wait_s: self.opts.reply_wait.as_secs_f64(),
+                wait_s: self.opts.reply_wait.as_secs_f64() * f64::from(COMMAND_WRITES),
             });
         }
     }
@@ -666,6 +679,9 @@ async fn start<L: Link, W: Durable, F: Durable, C: Durable, O: Observer>(
     s.idle = None;
     Ok(())
 }
+
+/// Writes of a command whose status reply does not come before it is given up.
+pub const COMMAND_WRITES: u32 = 3;
 
 /// Requests for one missing range before it is reported lost.
 pub const BACKFILL_TRIES: u32 = 3;

@@ -1,7 +1,7 @@
 //! The link's ATT MTU: the device sizes its batches to it and refuses below the smallest
 //! that carries a fit report, and the recorder names it. The demo's session (x, y, z at
 //! 0.01 Hz, 262.5 s each) on the simulated link, at the MTUs centrals grant: 247 (BlueZ,
-//! Android on request), 185 (CoreBluetooth), 151 (the least the device works over) and 23
+//! Android on request), 185 (CoreBluetooth), 153 (the least the device works over) and 23
 //! (BLE's default, a central that never asks). docs/protocol.md, "The MTU".
 use rotacal::calibrate::json::PROPERTY_NAMES;
 use rotacal::demo::{record_session, session_config, TRUTH_LIMIT_U};
@@ -62,9 +62,9 @@ fn session(mtu: u16) -> (Result<String, String>, Simulation) {
 
 #[test]
 fn batches_follow_the_mtu_and_the_data_do_not() {
-    assert_eq!(MIN_MTU, 151);
+    assert_eq!(MIN_MTU, 153);
     assert_eq!(
-        [247, 185, 158, 151, 150, 23].map(batch_len),
+        [247, 185, 158, 153, 152, 23].map(batch_len),
         [Some(7), Some(5), Some(4), Some(4), None, None]
     );
     let (full, sim) = session(247);
@@ -72,7 +72,7 @@ fn batches_follow_the_mtu_and_the_data_do_not() {
     // 262.5 s at 16 Hz per condition, less the slot open at Stop.
     let rows = |c: &str| full.lines().filter(|l| l.starts_with(c)).count();
     assert_eq!(["x,", "y,", "z,"].map(rows), [4199; 3]);
-    for mtu in [185, 151] {
+    for mtu in [185, 153] {
         let (text, _) = session(mtu);
         // The same samples, conversions and instants, row for row: only the packets
         // that carried them differ.
@@ -98,7 +98,7 @@ fn batches_follow_the_mtu_and_the_data_do_not() {
 
 #[test]
 fn below_the_smallest_mtu_the_device_refuses_and_the_recorder_names_it() {
-    for mtu in [23, 150] {
+    for mtu in [23, 152] {
         let (r, _) = session(mtu);
         let e = r.unwrap_err();
         println!("MTU {mtu}: {e}");

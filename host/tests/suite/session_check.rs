@@ -35,6 +35,13 @@ fn damage_is_found() {
     // matches the reported one exactly.
     let i = packets.iter().position(|p| p[1] == 0x01).unwrap() + 9;
     packets[i][22] ^= 0x40;
+    // Changed on the way (its CRC no longer its bytes'): refused, naming the packet.
+    let e = check(&packets).unwrap_err().to_string();
+    assert!(e.contains("corrupted"), "{e}");
+    // Changed by the device itself (the CRC made over the wrong sum): read, and found.
+    let n = packets[i].len() - 2;
+    let crc = rotacal_shared::packet::checksum(&packets[i][..n]);
+    packets[i][n..].copy_from_slice(&crc.to_le_bytes());
     let rep = check(&packets).unwrap();
     assert!(!rep.bit_identical_to_host);
     assert_eq!(rep.first_difference, Some(i));

@@ -63,11 +63,11 @@ impl Room {
 /// Bytes of an ATT notification that are not the value: a notification carries MTU − 3.
 pub const ATT_OVERHEAD: u16 = 3;
 
-/// The largest ATT MTU the device grants: a batch of [`MAX_AVERAGES`] (226 bytes) in one
+/// The largest ATT MTU the device grants: a batch of [`MAX_AVERAGES`] (228 bytes) in one
 /// notification.
 pub const MAX_MTU: u16 = 247;
 
-/// The smallest ATT MTU the device works over: a fit report (148 bytes, the largest
+/// The smallest ATT MTU the device works over: a fit report (150 bytes with its CRC, the largest
 /// packet but a sample batch) in one notification. Below it, Start and Backfill are
 /// refused with [`crate::packet::CommandError::MtuTooSmall`].
 pub const MIN_MTU: u16 = MAX_RESULT as u16 + ATT_OVERHEAD;

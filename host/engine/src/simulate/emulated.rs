@@ -79,6 +79,9 @@ pub struct Faults {
     /// The first sample batch at or after each of these times (seconds after the first
     /// connection) is lost on the air: at a condition's start, its first batch.
     pub lost_batches: Vec<f64>,
+    /// Fraction of sample batches (live and replayed) delivered with one bit flipped (a
+    /// corruption past the link layer's CRC).
+    pub flip_probability: f64,
 }
 
 impl Default for Faults {
@@ -100,6 +103,7 @@ impl Default for Faults {
             hangs: Vec::new(),
             lost_statuses: Vec::new(),
             lost_batches: Vec::new(),
+            flip_probability: 0.0,
         }
     }
 }
@@ -163,6 +167,8 @@ pub struct EmulatedDevice {
     /// [`Faults::lost_batches`]).
     statuses_lost: usize,
     batches_lost: usize,
+    /// Sample batches delivered with a bit flipped ([`Faults::flip_probability`]).
+    flipped: u64,
     /// Resets done so far ([`Faults::resets`]), and when the last one was.
     resets_done: usize,
     boot_at: Duration,
@@ -205,6 +211,7 @@ impl EmulatedDevice {
             resets_done: 0,
             statuses_lost: 0,
             batches_lost: 0,
+            flipped: 0,
             boot_at: Duration::ZERO,
             table: None,
             reset_since_start: false,
@@ -325,6 +332,11 @@ impl EmulatedDevice {
         self.unread
     }
 
+    /// Sample batches delivered with a bit flipped.
+    pub fn flipped(&self) -> u64 {
+        self.flipped
+    }
+
     fn lost(&mut self) -> bool {
         let p = self.faults.drop_probability;
         if p <= 0.0 {
@@ -405,7 +417,7 @@ impl EmulatedDevice {
     /// One notification leaves the queues (the stream's first, as the firmware's BLE task
     /// selects it first); a stream notification may be lost on the air.
     fn notify(&mut self) {
-        let Some((ch, v)) = self
+        let Some((ch, mut v)) = self
             .queues
             .iter_mut()
             .zip(self.subscribed)
@@ -443,6 +455,17 @@ impl EmulatedDevice {
         {
             self.batches_lost += 1;
             return;
+        }
+        let batch = ch == Channel::Stream && v.get(1) == Some(&0x01);
+        if batch
+            && self.faults.flip_probability > 0.0
+            && self.rng.gen::<f64>() < self.faults.flip_probability
+        {
+            let bit = self.rng.gen_range(0..v.len().max(1) * 8);
+            if let Some(b) = v.get_mut(bit / 8) {
+                *b ^= 1 << (bit % 8);
+                self.flipped += 1;
+            }
         }
         self.out.push_back((ch, v));
         self.notifications += 1;
@@ -656,7 +679,7 @@ pub enum FaultsError {
     /// A key that names no fault.
     #[error(
         "'{key}': unknown fault (outage, drop, burst, garbage, firmware, protocol, replaced, \
-         mute_after, seed, mtu, late, stuck, reset, panic, hang, lost_status, lost_batch)"
+         mute_after, seed, mtu, late, stuck, reset, panic, hang, lost_status, lost_batch, flip)"
     )]
     UnknownFault {
         /// The key.
@@ -685,7 +708,8 @@ impl std::str::FromStr for Faults {
     /// seconds; repeatable; `panic=AT` the same, from a panic), `hang=AT` (the logic stops
     /// at AT and the watchdog resets the board [`WATCHDOG_MS`] later), `lost_status=AT` (the
     /// first status notification from AT seconds is lost; repeatable), `lost_batch=AT` (the same
-    /// for a sample batch), comma-separated.
+    /// for a sample batch), `flip=P` (a fraction of sample batches with one bit flipped),
+    /// comma-separated.
     fn from_str(s: &str) -> Result<Self, FaultsError> {
         let mut f = Faults::default();
         for item in s.split(',').map(str::trim).filter(|i| !i.is_empty()) {
@@ -743,6 +767,7 @@ impl std::str::FromStr for Faults {
                 "seed" => f.seed = v.parse().map_err(|_| bad("expected a whole number"))?,
                 "lost_status" => f.lost_statuses.push(num(v)?),
                 "lost_batch" => f.lost_batches.push(num(v)?),
+                "flip" => f.flip_probability = probability(v)?,
                 "late" => f.late_probability = probability(v)?,
                 // A panic resets the board at once (the build for boards without a probe).
                 "reset" | "panic" => {
