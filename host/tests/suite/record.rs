@@ -735,3 +735,33 @@ fn bits_flipped_past_the_links_crc_invent_nothing() {
     }
     assert!(flipped >= 1000, "{flipped} batches flipped");
 }
+
+#[test]
+fn a_duplicated_or_late_first_batch_is_kept_once_and_in_order() {
+    // Issue 33: a late first batch was dropped and counted "received twice". Each of the
+    // conditions' first batches delivered twice, or after the batch that follows it.
+    for faults in [
+        "twice_batch=0",
+        "late_batch=0",
+        "twice_batch=0,late_batch=100",
+    ] {
+        let r = run(
+            &format!("first-{}", faults.replace([',', '='], "-")),
+            faults,
+        );
+        let o = r.result.as_ref().unwrap();
+        println!("{faults}: {:?}", o.summary);
+        assert!(o.summary.lost.is_empty(), "{faults}: {:?}", o.summary.lost);
+        assert_eq!(o.summary.rows, N, "{faults}");
+        assert_eq!(
+            seqs(&r.paths.recording),
+            (0..N).collect::<Vec<_>>(),
+            "{faults}"
+        );
+        crosscheck_passes(&r);
+        rebuild_matches(&r);
+    }
+    // Delivered twice: the second copy is counted, not written.
+    let r = run("first-twice-count", "twice_batch=0");
+    assert!(r.result.as_ref().unwrap().summary.duplicates >= 7);
+}

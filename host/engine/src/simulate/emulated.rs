@@ -82,6 +82,10 @@ pub struct Faults {
     /// Fraction of sample batches (live and replayed) delivered with one bit flipped (a
     /// corruption past the link layer's CRC).
     pub flip_probability: f64,
+    /// The first sample batch at or after each of these times is delivered twice.
+    pub twice_batches: Vec<f64>,
+    /// The first sample batch at or after each of these times is delivered after the next.
+    pub late_batches: Vec<f64>,
 }
 
 impl Default for Faults {
@@ -104,6 +108,8 @@ impl Default for Faults {
             lost_statuses: Vec::new(),
             lost_batches: Vec::new(),
             flip_probability: 0.0,
+            twice_batches: Vec::new(),
+            late_batches: Vec::new(),
         }
     }
 }
@@ -169,6 +175,11 @@ pub struct EmulatedDevice {
     batches_lost: usize,
     /// Sample batches delivered with a bit flipped ([`Faults::flip_probability`]).
     flipped: u64,
+    /// Batches delivered twice and late so far ([`Faults::twice_batches`],
+    /// [`Faults::late_batches`]), and the one held back to go after the next.
+    twice_done: usize,
+    late_done: usize,
+    held_back: Option<(Channel, Vec<u8>)>,
     /// Resets done so far ([`Faults::resets`]), and when the last one was.
     resets_done: usize,
     boot_at: Duration,
@@ -212,6 +223,9 @@ impl EmulatedDevice {
             statuses_lost: 0,
             batches_lost: 0,
             flipped: 0,
+            twice_done: 0,
+            late_done: 0,
+            held_back: None,
             boot_at: Duration::ZERO,
             table: None,
             reset_since_start: false,
@@ -467,7 +481,23 @@ impl EmulatedDevice {
                 self.flipped += 1;
             }
         }
+        let now = self.now.as_secs_f64();
+        let due = |times: &[f64], done: usize| times.get(done).is_some_and(|at| now >= *at);
+        if batch && due(&self.faults.late_batches, self.late_done) {
+            self.late_done += 1;
+            self.held_back = Some((ch, v));
+            return;
+        }
+        if batch && due(&self.faults.twice_batches, self.twice_done) {
+            self.twice_done += 1;
+            self.out.push_back((ch, v.clone()));
+        }
         self.out.push_back((ch, v));
+        if batch {
+            if let Some(late) = self.held_back.take() {
+                self.out.push_back(late);
+            }
+        }
         self.notifications += 1;
         if let Some(n) = self.faults.garbage_every {
             if n > 0 && self.notifications % u64::from(n) == 0 {
@@ -679,7 +709,7 @@ pub enum FaultsError {
     /// A key that names no fault.
     #[error(
         "'{key}': unknown fault (outage, drop, burst, garbage, firmware, protocol, replaced, \
-         mute_after, seed, mtu, late, stuck, reset, panic, hang, lost_status, lost_batch, flip)"
+         mute_after, seed, mtu, late, stuck, reset, panic, hang, lost_status, lost_batch, flip, twice_batch, late_batch)"
     )]
     UnknownFault {
         /// The key.
@@ -709,7 +739,8 @@ impl std::str::FromStr for Faults {
     /// at AT and the watchdog resets the board [`WATCHDOG_MS`] later), `lost_status=AT` (the
     /// first status notification from AT seconds is lost; repeatable), `lost_batch=AT` (the same
     /// for a sample batch), `flip=P` (a fraction of sample batches with one bit flipped),
-    /// comma-separated.
+    /// `twice_batch=AT` and `late_batch=AT` (the first sample batch from AT delivered twice,
+    /// or after the next one; repeatable), comma-separated.
     fn from_str(s: &str) -> Result<Self, FaultsError> {
         let mut f = Faults::default();
         for item in s.split(',').map(str::trim).filter(|i| !i.is_empty()) {
@@ -768,6 +799,8 @@ impl std::str::FromStr for Faults {
                 "lost_status" => f.lost_statuses.push(num(v)?),
                 "lost_batch" => f.lost_batches.push(num(v)?),
                 "flip" => f.flip_probability = probability(v)?,
+                "twice_batch" => f.twice_batches.push(num(v)?),
+                "late_batch" => f.late_batches.push(num(v)?),
                 "late" => f.late_probability = probability(v)?,
                 // A panic resets the board at once (the build for boards without a probe).
                 "reset" | "panic" => {
@@ -802,6 +835,8 @@ impl std::str::FromStr for Faults {
         f.resets.sort_by(f64::total_cmp);
         f.lost_statuses.sort_by(f64::total_cmp);
         f.lost_batches.sort_by(f64::total_cmp);
+        f.twice_batches.sort_by(f64::total_cmp);
+        f.late_batches.sort_by(f64::total_cmp);
         Ok(f)
     }
 }
