@@ -590,17 +590,29 @@ pub struct BufferTooSmall {
     pub need: usize,
 }
 
-mod kind {
+/// The kind byte (byte 1) of each packet: what a packet is can be told without decoding it.
+pub mod kind {
+    /// Sample batches (averaged or single).
     pub const SAMPLES: u8 = 0x01;
+    /// Temperature.
     pub const TEMPERATURE: u8 = 0x02;
+    /// Fit report.
     pub const FIT: u8 = 0x03;
+    /// Quick-look.
     pub const QUICK_LOOK: u8 = 0x04;
+    /// Device info.
     pub const INFO: u8 = 0x05;
+    /// Status.
     pub const STATUS: u8 = 0x06;
+    /// Command Start.
     pub const START: u8 = 0x10;
+    /// Command Stop.
     pub const STOP: u8 = 0x11;
+    /// Command SetSampleRate.
     pub const SET_SAMPLE_RATE: u8 = 0x12;
+    /// Command Reset.
     pub const RESET: u8 = 0x13;
+    /// Command Backfill.
     pub const BACKFILL: u8 = 0x14;
 }
 

@@ -414,7 +414,11 @@ impl<L: Link, W: Durable, F: Durable, C: Durable, O: Observer> Session<'_, L, W,
         // Before our Start is acknowledged (e.g. the tail of a condition stopped with
         // --restart), or of another condition, data are not this recording's; they stay in
         // the capture.
-        let newest = self.files.recorder.newest();
+        // The newest sample before a status that may show a restart (which clears it).
+        let newest = match &p {
+            Packet::Status(_) => self.files.recorder.newest(),
+            _ => None,
+        };
         let ours = match &p {
             Packet::Samples(b) => self.started && b.condition == self.plan.condition,
             Packet::Averages(b) => self.started && b.condition == self.plan.condition,

@@ -111,15 +111,28 @@ fn rebuild_matches(r: &Run) {
     assert_eq!(fits, std::fs::read(&r.paths.fits).unwrap());
 }
 
-fn crosscheck_passes(r: &Run) {
+/// The cross-check of a run's recording and fit log at the default threshold, which must
+/// pass; the report and the fit log.
+fn crosscheck_of(
+    r: &Run,
+) -> (
+    rotacal::verify::recorded::CrosscheckReport,
+    Vec<rotacal::recording::from_device::LogLine>,
+) {
+    use rotacal::verify::recorded::{crosscheck, render, DEFAULT_THRESHOLD};
     let rec = recording::read_in_progress(&r.paths.recording).unwrap();
     let log = rotacal::recording::from_device::read_fit_log(
         &std::fs::read_to_string(&r.paths.fits).unwrap(),
         "fits",
     )
     .unwrap();
-    let x = rotacal::verify::recorded::crosscheck(&rec, &log, 0.01).unwrap();
-    assert!(x.passed, "{}", rotacal::verify::recorded::render(&x));
+    let x = crosscheck(&rec, &log, DEFAULT_THRESHOLD).unwrap();
+    assert!(x.passed, "{}", render(&x));
+    (x, log)
+}
+
+fn crosscheck_passes(r: &Run) {
+    let (x, _) = crosscheck_of(r);
     // Periodic reports every 160 samples once the fit has a result (1.5 periods), and
     // the final one: 12, as in the QEMU session (36 for three conditions).
     assert_eq!(x.fits.len(), 12);
@@ -516,14 +529,7 @@ fn a_device_that_restarts_is_named_and_the_recording_goes_on_in_a_new_boot() {
 
 /// The device's fits agree with the recording's rows of their boot.
 fn crosscheck_passes_in_boots(r: &Run) {
-    let rec = recording::read_in_progress(&r.paths.recording).unwrap();
-    let log = rotacal::recording::from_device::read_fit_log(
-        &std::fs::read_to_string(&r.paths.fits).unwrap(),
-        "fits",
-    )
-    .unwrap();
-    let x = rotacal::verify::recorded::crosscheck(&rec, &log, 1e-5).unwrap();
-    assert!(x.passed, "{}", rotacal::verify::recorded::render(&x));
+    let (_, log) = crosscheck_of(r);
     let boots: Vec<u32> = log
         .iter()
         .filter_map(|l| match l {

@@ -31,7 +31,7 @@ use rotacal_shared::device::pairing::{pair, Read};
 use rotacal_shared::device::route::{self, Room, RESULTS_QUEUE, STREAM_QUEUE};
 use rotacal_shared::device::sampler::Conversion as ConversionRead;
 use rotacal_shared::device::{Config, Device, RING, WATCHDOG_MS};
-use rotacal_shared::packet::{Chip, Command, Packet, RunState};
+use rotacal_shared::packet::{kind, Chip, Command, Packet, RunState};
 use rotacal_shared::Condition;
 use std::collections::VecDeque;
 use std::io;
@@ -321,15 +321,9 @@ impl EmulatedDevice {
     /// sequence numbers and device time from zero, an empty ring) and what waited in the
     /// queues is gone.
     fn reset_if_due(&mut self, t: Duration) {
-        let due = self
-            .faults
-            .resets
-            .get(self.resets_done)
-            .is_some_and(|at| t.as_secs_f64() >= *at);
-        if !due {
+        if !take_due(&self.faults.resets, &mut self.resets_done, t.as_secs_f64()) {
             return;
         }
-        self.resets_done += 1;
         self.boot_at = t;
         self.reset_since_start = true;
         self.device = Device::new(Config::FEATHER);
@@ -447,30 +441,18 @@ impl EmulatedDevice {
         if ch == Channel::Stream && self.lost() {
             return;
         }
-        let due = self
-            .faults
-            .lost_statuses
-            .get(self.statuses_lost)
-            .is_some_and(|at| self.now.as_secs_f64() >= *at);
-        if due && matches!(Packet::decode(&v), Ok(Packet::Status(_))) {
-            self.statuses_lost += 1;
-            return;
-        }
-        let due = self
-            .faults
-            .lost_batches
-            .get(self.batches_lost)
-            .is_some_and(|at| self.now.as_secs_f64() >= *at);
-        if due
-            && matches!(
-                Packet::decode(&v),
-                Ok(Packet::Averages(_) | Packet::Samples(_))
-            )
+        // Told by the kind byte: no notification is decoded here.
+        let now = self.now.as_secs_f64();
+        let kind = v.get(1).copied();
+        let batch = ch == Channel::Stream && kind == Some(kind::SAMPLES);
+        if kind == Some(kind::STATUS)
+            && take_due(&self.faults.lost_statuses, &mut self.statuses_lost, now)
         {
-            self.batches_lost += 1;
             return;
         }
-        let batch = ch == Channel::Stream && v.get(1) == Some(&0x01);
+        if batch && take_due(&self.faults.lost_batches, &mut self.batches_lost, now) {
+            return;
+        }
         if batch
             && self.faults.flip_probability > 0.0
             && self.rng.gen::<f64>() < self.faults.flip_probability
@@ -481,15 +463,11 @@ impl EmulatedDevice {
                 self.flipped += 1;
             }
         }
-        let now = self.now.as_secs_f64();
-        let due = |times: &[f64], done: usize| times.get(done).is_some_and(|at| now >= *at);
-        if batch && due(&self.faults.late_batches, self.late_done) {
-            self.late_done += 1;
+        if batch && take_due(&self.faults.late_batches, &mut self.late_done, now) {
             self.held_back = Some((ch, v));
             return;
         }
-        if batch && due(&self.faults.twice_batches, self.twice_done) {
-            self.twice_done += 1;
+        if batch && take_due(&self.faults.twice_batches, &mut self.twice_done, now) {
             self.out.push_back((ch, v.clone()));
         }
         self.out.push_back((ch, v));
@@ -687,6 +665,16 @@ impl EmulatedDevice {
         }
         self.reset_since_start = false;
     }
+}
+
+/// Whether the first of `times` (sorted, seconds) after the `done` already taken has come
+/// by `now`; if so it is taken (`done` counts it).
+fn take_due(times: &[f64], done: &mut usize, now: f64) -> bool {
+    let due = times.get(*done).is_some_and(|at| now >= *at);
+    if due {
+        *done += 1;
+    }
+    due
 }
 
 /// Why a `--faults` list is refused; `item` is the `key=value` concerned.
