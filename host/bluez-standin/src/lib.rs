@@ -94,6 +94,8 @@ pub struct Report {
     pub connect_attempts: u64,
     /// Links declared lost (or closed by the client).
     pub disconnections: u64,
+    /// Notifications the units delivered with a bit flipped (their `flip` faults).
+    pub flipped: u64,
 }
 
 /// A running stand-in: it owns `org.bluez` on the bus until [`Standin::stop`] or drop.

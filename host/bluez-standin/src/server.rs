@@ -204,6 +204,7 @@ impl Server {
             self.step(Instant::now());
             self.channel.flush();
         }
+        self.report.flipped = self.units.iter().map(|u| u.unit.device.flipped()).sum();
         Ok(self.report)
     }
 

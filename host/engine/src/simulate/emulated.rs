@@ -73,19 +73,46 @@ pub struct Faults {
     /// no notification sent, no command taken, while the SoftDevice keeps the link; the
     /// watchdog then resets the board.
     pub hangs: Vec<(f64, f64)>,
-    /// The first status notification at or after each of these times (seconds after the
-    /// first connection) is lost on the air: a command's reply that never comes.
-    pub lost_statuses: Vec<f64>,
-    /// The first sample batch at or after each of these times (seconds after the first
-    /// connection) is lost on the air: at a condition's start, its first batch.
-    pub lost_batches: Vec<f64>,
+    /// The first status notification at each of these is lost on the air: a command's
+    /// reply that never comes.
+    pub lost_statuses: Vec<When>,
+    /// The first sample batch at each of these is lost on the air.
+    pub lost_batches: Vec<When>,
     /// Fraction of sample batches (live and replayed) delivered with one bit flipped (a
     /// corruption past the link layer's CRC).
     pub flip_probability: f64,
-    /// The first sample batch at or after each of these times is delivered twice.
-    pub twice_batches: Vec<f64>,
-    /// The first sample batch at or after each of these times is delivered after the next.
-    pub late_batches: Vec<f64>,
+    /// The first sample batch at each of these is delivered with this bit flipped (bit
+    /// `8 k + j` is bit j of byte k, the protocol version's byte being byte 0).
+    pub flipped_bits: Vec<(When, usize)>,
+    /// The first notification on the results characteristic (a fit report, the
+    /// quick-look or a status) at each of these is delivered with a bit flipped.
+    pub flipped_results: Vec<When>,
+    /// The first sample batch at each of these is delivered twice.
+    pub twice_batches: Vec<When>,
+    /// The first sample batch at each of these is delivered after the next.
+    pub late_batches: Vec<When>,
+    /// One notification leaves the firmware's queues this often: a slower link (a longer
+    /// connection interval, fewer notifications an event) replays more slowly.
+    pub notify_every: Duration,
+}
+
+/// When a one-off fault strikes: at the first notification of its kind from a time, or
+/// from a condition's first start (whose first sample batch it then strikes).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum When {
+    /// Seconds after the first connection.
+    From(f64),
+    /// The condition, from its first start.
+    In(Condition),
+}
+
+impl When {
+    fn due(self, now: f64, running: Option<Condition>) -> bool {
+        match self {
+            When::From(at) => now >= at,
+            When::In(c) => running == Some(c),
+        }
+    }
 }
 
 impl Default for Faults {
@@ -108,8 +135,11 @@ impl Default for Faults {
             lost_statuses: Vec::new(),
             lost_batches: Vec::new(),
             flip_probability: 0.0,
+            flipped_bits: Vec::new(),
+            flipped_results: Vec::new(),
             twice_batches: Vec::new(),
             late_batches: Vec::new(),
+            notify_every: NOTIFY_EVERY,
         }
     }
 }
@@ -128,9 +158,10 @@ const READ_LATENCY: Duration = Duration::from_micros(150);
 /// How often the firmware reads the die temperature, and polls for aged batches.
 const TEMPERATURE_EVERY: Duration = Duration::from_secs(1);
 const POLL_EVERY: Duration = Duration::from_millis(100);
-/// One notification leaves the firmware's queues this often while connected: a 30 ms
-/// connection interval (BlueZ's and Apple's usual) with three notifications an event. The
-/// live stream needs about 2.3 a second; a 20 s backfill (46 batches) about half a second.
+/// One notification leaves the firmware's queues this often while connected, unless
+/// [`Faults::notify_every`] says otherwise: a 30 ms connection interval (BlueZ's and
+/// Apple's usual) with three notifications an event. The live stream needs about 2.3 a
+/// second; a 20 s backfill (46 batches) about half a second.
 const NOTIFY_EVERY: Duration = Duration::from_millis(10);
 /// The firmware's notification queues, in the order its BLE task serves them, with their
 /// depths: [`EmulatedDevice::queues`] holds them in this order.
@@ -169,16 +200,19 @@ pub struct EmulatedDevice {
     unread: u64,
     /// Draws the late reads (apart from the link's faults, so that they do not move).
     read_rng: ChaCha8Rng,
-    /// Status notifications and batches lost so far ([`Faults::lost_statuses`],
-    /// [`Faults::lost_batches`]).
-    statuses_lost: usize,
-    batches_lost: usize,
-    /// Sample batches delivered with a bit flipped ([`Faults::flip_probability`]).
+    /// The one-off faults taken so far, by their index in [`Faults::lost_statuses`],
+    /// [`Faults::lost_batches`], [`Faults::flipped_bits`], [`Faults::twice_batches`] and
+    /// [`Faults::late_batches`].
+    statuses_lost: Vec<usize>,
+    batches_lost: Vec<usize>,
+    bits_flipped: Vec<usize>,
+    results_flipped: Vec<usize>,
+    twice_done: Vec<usize>,
+    late_done: Vec<usize>,
+    /// Notifications delivered with a bit flipped ([`Faults::flip_probability`],
+    /// [`Faults::flipped_bits`], [`Faults::flipped_results`]).
     flipped: u64,
-    /// Batches delivered twice and late so far ([`Faults::twice_batches`],
-    /// [`Faults::late_batches`]), and the one held back to go after the next.
-    twice_done: usize,
-    late_done: usize,
+    /// The batch held back to go after the next ([`Faults::late_batches`]).
     held_back: Option<(Channel, Vec<u8>)>,
     /// Resets done so far ([`Faults::resets`]), and when the last one was.
     resets_done: usize,
@@ -220,11 +254,13 @@ impl EmulatedDevice {
             unread_since: None,
             unread: 0,
             resets_done: 0,
-            statuses_lost: 0,
-            batches_lost: 0,
+            statuses_lost: Vec::new(),
+            batches_lost: Vec::new(),
+            bits_flipped: Vec::new(),
+            results_flipped: Vec::new(),
+            twice_done: Vec::new(),
+            late_done: Vec::new(),
             flipped: 0,
-            twice_done: 0,
-            late_done: 0,
             held_back: None,
             boot_at: Duration::ZERO,
             table: None,
@@ -340,7 +376,7 @@ impl EmulatedDevice {
         self.unread
     }
 
-    /// Sample batches delivered with a bit flipped.
+    /// Notifications delivered with a bit flipped.
     pub fn flipped(&self) -> u64 {
         self.flipped
     }
@@ -443,31 +479,70 @@ impl EmulatedDevice {
         }
         // Told by the kind byte: no notification is decoded here.
         let now = self.now.as_secs_f64();
+        let running = self.running.map(|(c, _, _)| c);
         let kind = v.get(1).copied();
         let batch = ch == Channel::Stream && kind == Some(kind::SAMPLES);
         if kind == Some(kind::STATUS)
-            && take_due(&self.faults.lost_statuses, &mut self.statuses_lost, now)
+            && take_when(
+                &self.faults.lost_statuses,
+                &mut self.statuses_lost,
+                now,
+                running,
+            )
         {
             return;
         }
-        if batch && take_due(&self.faults.lost_batches, &mut self.batches_lost, now) {
-            return;
-        }
-        if batch
-            && self.faults.flip_probability > 0.0
-            && self.rng.gen::<f64>() < self.faults.flip_probability
-        {
-            let bit = self.rng.gen_range(0..v.len().max(1) * 8);
-            if let Some(b) = v.get_mut(bit / 8) {
-                *b ^= 1 << (bit % 8);
-                self.flipped += 1;
+        if !batch {
+            if ch == Channel::Results
+                && take_when(
+                    &self.faults.flipped_results,
+                    &mut self.results_flipped,
+                    now,
+                    running,
+                )
+            {
+                // A bit of the first field after the header.
+                self.flipped += u64::from(flip(&mut v, 8 * 4));
             }
+            self.deliver(ch, v, false);
+            return;
         }
-        if batch && take_due(&self.faults.late_batches, &mut self.late_done, now) {
+        if take_when(
+            &self.faults.lost_batches,
+            &mut self.batches_lost,
+            now,
+            running,
+        ) {
+            return;
+        }
+        let p = self.faults.flip_probability;
+        if p > 0.0 && self.rng.gen::<f64>() < p {
+            let bit = self.rng.gen_range(0..v.len().max(1) * 8);
+            self.flipped += u64::from(flip(&mut v, bit));
+        }
+        let bits = &self.faults.flipped_bits;
+        if let Some(i) = take_which(bits, |(w, _)| *w, &mut self.bits_flipped, now, running) {
+            let bit = self.faults.flipped_bits.get(i).map_or(0, |(_, b)| *b);
+            self.flipped += u64::from(flip(&mut v, bit));
+        }
+        if take_when(&self.faults.late_batches, &mut self.late_done, now, running) {
             self.held_back = Some((ch, v));
             return;
         }
-        if batch && take_due(&self.faults.twice_batches, &mut self.twice_done, now) {
+        let twice = take_when(
+            &self.faults.twice_batches,
+            &mut self.twice_done,
+            now,
+            running,
+        );
+        self.deliver(ch, v, twice);
+    }
+
+    /// A notification goes on the air (twice if `twice`), then a batch held back behind
+    /// a sample batch, and now and then one of garbage.
+    fn deliver(&mut self, ch: Channel, v: Vec<u8>, twice: bool) {
+        let batch = ch == Channel::Stream && v.get(1) == Some(&kind::SAMPLES);
+        if twice {
             self.out.push_back((ch, v.clone()));
         }
         self.out.push_back((ch, v));
@@ -521,7 +596,7 @@ impl EmulatedDevice {
                 if self.connected && !hung {
                     self.notify();
                 }
-                self.next_notify = next + NOTIFY_EVERY;
+                self.next_notify = next + self.faults.notify_every;
             } else if conv == Some(next) {
                 if let Some((c, start, k)) = self.running {
                     if let Some(x) = self.streams.get(c.index()).and_then(|s| s.get(k)).copied() {
@@ -677,6 +752,33 @@ fn take_due(times: &[f64], done: &mut usize, now: f64) -> bool {
     due
 }
 
+/// Whether one of `whens` not yet `taken` (indices) is due; if so it is taken.
+fn take_when(whens: &[When], taken: &mut Vec<usize>, now: f64, running: Option<Condition>) -> bool {
+    take_which(whens, |w| *w, taken, now, running).is_some()
+}
+
+/// The index of the first of `faults` not yet `taken` whose time (`when`) is due, now
+/// taken.
+fn take_which<T>(
+    faults: &[T],
+    when: impl Fn(&T) -> When,
+    taken: &mut Vec<usize>,
+    now: f64,
+    running: Option<Condition>,
+) -> Option<usize> {
+    let i = faults
+        .iter()
+        .enumerate()
+        .position(|(i, f)| !taken.contains(&i) && when(f).due(now, running))?;
+    taken.push(i);
+    Some(i)
+}
+
+/// Flips bit `bit` of `v` (bit j of byte k is `8 k + j`); whether it was inside.
+fn flip(v: &mut [u8], bit: usize) -> bool {
+    v.get_mut(bit / 8).map(|b| *b ^= 1 << (bit % 8)).is_some()
+}
+
 /// Why a `--faults` list is refused; `item` is the `key=value` concerned.
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
 pub enum FaultsError {
@@ -697,7 +799,8 @@ pub enum FaultsError {
     /// A key that names no fault.
     #[error(
         "'{key}': unknown fault (outage, drop, burst, garbage, firmware, protocol, replaced, \
-         mute_after, seed, mtu, late, stuck, reset, panic, hang, lost_status, lost_batch, flip, twice_batch, late_batch)"
+         mute_after, seed, mtu, late, stuck, reset, panic, hang, lost_status, lost_batch, flip, \
+         flip_bit, flip_result, twice_batch, late_batch, notify_every)"
     )]
     UnknownFault {
         /// The key.
@@ -725,10 +828,16 @@ impl std::str::FromStr for Faults {
     /// for MS milliseconds from AT seconds; repeatable), `reset=AT` (the board resets at AT
     /// seconds; repeatable; `panic=AT` the same, from a panic), `hang=AT` (the logic stops
     /// at AT and the watchdog resets the board [`WATCHDOG_MS`] later), `lost_status=AT` (the
-    /// first status notification from AT seconds is lost; repeatable), `lost_batch=AT` (the same
+    /// first status notification from AT is lost; repeatable), `lost_batch=AT` (the same
     /// for a sample batch), `flip=P` (a fraction of sample batches with one bit flipped),
-    /// `twice_batch=AT` and `late_batch=AT` (the first sample batch from AT delivered twice,
-    /// or after the next one; repeatable), comma-separated.
+    /// `flip_bit=AT:BIT` (the first sample batch from AT with bit BIT flipped, bit j of byte
+    /// k being 8 k + j), `flip_result=AT` (the same for the first notification on the
+    /// results characteristic, a bit of its first field), `twice_batch=AT` and
+    /// `late_batch=AT` (the first sample batch from AT delivered twice, or after the next
+    /// one); comma-separated. For the one-off faults
+    /// from `lost_status` on, AT is seconds or a condition's letter (from its first start,
+    /// so `lost_batch=y` is y's first batch) and each is repeatable; `notify_every=MS`, one
+    /// notification leaves the queues every MS milliseconds (10 unless said: a slower link).
     fn from_str(s: &str) -> Result<Self, FaultsError> {
         let mut f = Faults::default();
         for item in s.split(',').map(str::trim).filter(|i| !i.is_empty()) {
@@ -744,6 +853,17 @@ impl std::str::FromStr for Faults {
                     .ok()
                     .filter(|x| x.is_finite() && *x >= 0.0)
                     .ok_or_else(|| bad("not a non-negative number"))
+            };
+            // A condition's letter, or seconds after the first connection.
+            let when = |x: &str| -> Result<When, FaultsError> {
+                let mut letters = x.chars();
+                match (
+                    letters.next().and_then(Condition::from_letter),
+                    letters.next(),
+                ) {
+                    (Some(c), None) => Ok(When::In(c)),
+                    _ => num(x).map(When::From),
+                }
             };
             let probability = |x: &str| -> Result<f64, FaultsError> {
                 num(x).and_then(|p| {
@@ -784,11 +904,24 @@ impl std::str::FromStr for Faults {
                     f.mute_after = Some(v.parse().map_err(|_| bad("expected a whole number"))?)
                 }
                 "seed" => f.seed = v.parse().map_err(|_| bad("expected a whole number"))?,
-                "lost_status" => f.lost_statuses.push(num(v)?),
-                "lost_batch" => f.lost_batches.push(num(v)?),
+                "lost_status" => f.lost_statuses.push(when(v)?),
+                "lost_batch" => f.lost_batches.push(when(v)?),
                 "flip" => f.flip_probability = probability(v)?,
-                "twice_batch" => f.twice_batches.push(num(v)?),
-                "late_batch" => f.late_batches.push(num(v)?),
+                "flip_bit" => {
+                    let (w, b) = v.split_once(':').ok_or_else(|| bad("expected AT:BIT"))?;
+                    let bit = b.parse().map_err(|_| bad("a bit number: 8 × byte + bit"))?;
+                    f.flipped_bits.push((when(w)?, bit));
+                }
+                "notify_every" => {
+                    let ms = num(v)?;
+                    if !(1.0..=4000.0).contains(&ms) {
+                        return Err(bad("milliseconds from 1 to 4000"));
+                    }
+                    f.notify_every = Duration::from_secs_f64(ms / 1000.0);
+                }
+                "flip_result" => f.flipped_results.push(when(v)?),
+                "twice_batch" => f.twice_batches.push(when(v)?),
+                "late_batch" => f.late_batches.push(when(v)?),
                 "late" => f.late_probability = probability(v)?,
                 // A panic resets the board at once (the build for boards without a probe).
                 "reset" | "panic" => {
@@ -821,10 +954,6 @@ impl std::str::FromStr for Faults {
             }
         }
         f.resets.sort_by(f64::total_cmp);
-        f.lost_statuses.sort_by(f64::total_cmp);
-        f.lost_batches.sort_by(f64::total_cmp);
-        f.twice_batches.sort_by(f64::total_cmp);
-        f.late_batches.sort_by(f64::total_cmp);
         Ok(f)
     }
 }
