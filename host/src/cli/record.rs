@@ -256,14 +256,17 @@ async fn session<L: Link>(link: &mut L, a: &Args, plan: Plan, opts: Options) -> 
                     ),
                 }
             );
-            if s.lost.is_empty() && o.undecodable == 0 {
+            // A sample batch that did not decode is a gap in the seqs: asked for again,
+            // or among the lost. What the results characteristic carried is not.
+            if s.lost.is_empty() && o.undecodable_results == 0 {
                 Ok(())
             } else {
                 Err(Incomplete(format!(
                     "the recording reads back but is incomplete: {} sample(s) lost, {} \
-                     value(s) from the device did not decode",
+                     value(s) of the results characteristic (fit reports, quick-look, \
+                     status) did not decode",
                     s.lost_samples(),
-                    o.undecodable
+                    o.undecodable_results
                 ))
                 .into())
             }

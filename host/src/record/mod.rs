@@ -142,6 +142,10 @@ pub struct Outcome {
     pub summary: RecordSummary,
     /// Values that did not decode.
     pub undecodable: u64,
+    /// Of those, the values on the results characteristic (fit reports, the quick-look,
+    /// status replies), whose content is not asked for again; a sample batch that did not
+    /// decode leaves a gap in the seqs, asked for again or reported lost.
+    pub undecodable_results: u64,
     /// Times the link was lost.
     pub link_drops: u32,
     /// The condition's final fit report arrived.
@@ -309,6 +313,7 @@ struct Session<'a, L: Link, W: Durable, F: Durable, C: Durable, O: Observer> {
     obs: &'a mut O,
     opts: Options,
     undecodable: u64,
+    undecodable_results: u64,
     link_drops: u32,
     connected: bool,
     last_status: Option<Status>,
@@ -398,6 +403,9 @@ impl<L: Link, W: Durable, F: Durable, C: Durable, O: Observer> Session<'_, L, W,
             Ok(p) => p,
             Err(e) => {
                 self.undecodable += 1;
+                if ch == Channel::Results {
+                    self.undecodable_results += 1;
+                }
                 // The first few in full; then every thousandth, so a babbling device can't
                 // flood the terminal.
                 if self.undecodable <= 3 || self.undecodable % 1000 == 0 {
@@ -488,9 +496,17 @@ impl<L: Link, W: Durable, F: Durable, C: Durable, O: Observer> Session<'_, L, W,
                 Err(e) => return Err(e.into()),
             }
             let drops = self.link_drops;
-            let deadline = Instant::now() + self.opts.reply_wait;
+            let mut deadline = Instant::now() + self.opts.reply_wait;
             while Instant::now() < deadline {
+                let recovered = self.files.recorder.summary().recovered;
                 self.receive(Duration::from_millis(200)).await?;
+                // A backfill's reply follows its replay: while replayed samples come, the
+                // device is answering, however slow the link.
+                if matches!(cmd, Command::Backfill { .. })
+                    && self.files.recorder.summary().recovered > recovered
+                {
+                    deadline = Instant::now() + self.opts.reply_wait;
+                }
                 if self.link_drops != drops {
                     repeated = true;
                     continue 'send;
@@ -598,31 +614,26 @@ impl<L: Link, W: Durable, F: Durable, C: Durable, O: Observer> Session<'_, L, W,
             self.asked = None;
             return Ok(());
         };
-        let tries = match self.asked {
-            Some((qa, qb, at, tries)) if qa <= a && a <= qb => {
-                if at.elapsed() < self.opts.backfill_wait {
-                    return Ok(());
-                }
-                if a > qa {
-                    // Progress: what is left is asked for afresh.
-                    1
-                } else if tries >= BACKFILL_TRIES {
-                    let end = b.min(qb);
-                    self.obs.message(&format!(
-                        "samples {a}–{end} did not come back after {tries} requests; \
-                         reported lost"
-                    ));
-                    self.files.recorder.give_up_before(end + 1)?;
-                    self.asked = None;
-                    return Ok(());
-                } else {
-                    tries + 1
-                }
+        let previous = self
+            .asked
+            .map(|(qa, qb, at, tries)| (qa, qb, at.elapsed() >= self.opts.backfill_wait, tries));
+        let tries = match next_request(previous, a, b) {
+            Request::Wait => return Ok(()),
+            Request::Ask { tries } => tries,
+            Request::GiveUp { through } => {
+                let tries = previous.map_or(0, |p| p.3);
+                self.obs.message(&format!(
+                    "samples {a}–{through} did not come back after {tries} requests; \
+                     reported lost"
+                ));
+                self.files.recorder.give_up_before(through + 1)?;
+                self.asked = None;
+                return Ok(());
             }
-            _ => 1,
         };
         let count = u16::try_from(b - a + 1).unwrap_or(u16::MAX);
         self.asked = Some((a, a + u32::from(count) - 1, Instant::now(), tries));
+        let lost = self.files.recorder.summary().lost_samples();
         let s = match self.command(Command::Backfill { from_seq: a, count }).await {
             Ok(s) => s,
             Err(e @ RecordError::NoReply { .. }) => {
@@ -639,14 +650,55 @@ impl<L: Link, W: Durable, F: Durable, C: Durable, O: Observer> Session<'_, L, W,
                 reason: refusal(CommandError::MtuTooSmall, self.link.mtu()),
             });
         }
-        if s.last_error == Some(CommandError::NotInRing) {
+        // The reply gave up what is still missing below the ring (a request written
+        // again after a link drop may ask for samples that came meanwhile).
+        let given_up = self
+            .files
+            .recorder
+            .summary()
+            .lost_samples()
+            .saturating_sub(lost);
+        if s.last_error == Some(CommandError::NotInRing) && given_up > 0 {
             self.obs.message(&format!(
-                "samples from {a} have left the device's ring (it holds {}–{}); those \
-                 before {} are lost",
+                "samples from {a} have left the device's ring (it holds {}–{}): the {given_up} \
+                 not received before {} are lost",
                 s.ring_oldest, s.ring_newest, s.ring_oldest
             ));
         }
         Ok(())
+    }
+}
+
+/// What to do about the first missing range.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Request {
+    /// The last request may still be under way.
+    Wait,
+    /// Ask for it: the `tries`-th request for what is missing from its first seq.
+    Ask { tries: u32 },
+    /// Report the samples up to `through` lost.
+    GiveUp { through: u32 },
+}
+
+/// The decision of [`Session::backfill`] for the first missing range `a..=b`, given the
+/// previous request (first, last, whether its wait is over, its count of requests): a
+/// range the previous request covers is asked again once its wait is over, and given up
+/// after [`BACKFILL_TRIES`] requests that brought nothing; a request that brought samples
+/// (the first missing seq moved on within it) starts a fresh count.
+fn next_request(previous: Option<(u32, u32, bool, u32)>, a: u32, b: u32) -> Request {
+    match previous {
+        Some((qa, qb, over, tries)) if qa <= a && a <= qb => {
+            if !over {
+                Request::Wait
+            } else if a > qa {
+                Request::Ask { tries: 1 }
+            } else if tries >= BACKFILL_TRIES {
+                Request::GiveUp { through: b.min(qb) }
+            } else {
+                Request::Ask { tries: tries + 1 }
+            }
+        }
+        _ => Request::Ask { tries: 1 },
     }
 }
 
@@ -706,6 +758,7 @@ pub async fn record<L: Link, W: Durable, F: Durable, C: Durable, O: Observer>(
         obs,
         opts,
         undecodable: 0,
+        undecodable_results: 0,
         link_drops: 0,
         connected: true,
         last_status: None,
@@ -726,7 +779,7 @@ pub async fn record<L: Link, W: Durable, F: Durable, C: Durable, O: Observer>(
         start_time: Instant::now(),
     };
     let result = run(&mut s, plan).await;
-    let undecodable = s.undecodable;
+    let (undecodable, undecodable_results) = (s.undecodable, s.undecodable_results);
     let link_drops = s.link_drops;
     let final_fit = s.final_fit;
     let device_lost = s
@@ -739,6 +792,7 @@ pub async fn record<L: Link, W: Durable, F: Durable, C: Durable, O: Observer>(
         (Ok(()), Ok(summary)) => Ok(Outcome {
             summary,
             undecodable,
+            undecodable_results,
             link_drops,
             final_fit,
             device_lost,
@@ -1098,4 +1152,56 @@ pub fn parse_duration(s: &str) -> Result<Duration, String> {
         return Err(format!("'{s}': must be positive and below 10⁹ s"));
     }
     Ok(Duration::from_secs_f64(x * scale))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{next_request, Request, BACKFILL_TRIES};
+
+    #[test]
+    fn a_range_is_asked_for_and_waited_for() {
+        assert_eq!(next_request(None, 10, 20), Request::Ask { tries: 1 });
+        assert_eq!(
+            next_request(Some((10, 20, false, 1)), 10, 20),
+            Request::Wait
+        );
+        // Another range than the one asked for: its own first request.
+        assert_eq!(
+            next_request(Some((10, 20, true, 3)), 30, 40),
+            Request::Ask { tries: 1 }
+        );
+    }
+
+    #[test]
+    fn a_request_that_brought_nothing_counts_and_the_range_is_given_up() {
+        let mut tries = 1;
+        loop {
+            match next_request(Some((10, 20, true, tries)), 10, 20) {
+                Request::Ask { tries: t } => tries = t,
+                Request::GiveUp { through } => {
+                    assert_eq!(through, 20);
+                    break;
+                }
+                Request::Wait => unreachable!(),
+            }
+        }
+        assert_eq!(tries, BACKFILL_TRIES);
+        // What lies beyond the request is not given up with it.
+        assert_eq!(
+            next_request(Some((10, 20, true, BACKFILL_TRIES)), 10, 25),
+            Request::GiveUp { through: 20 }
+        );
+    }
+
+    #[test]
+    fn a_request_that_brought_samples_starts_a_fresh_count() {
+        // Issue 33: a replay cut short (a slow link, a link drop) moved the first missing
+        // seq on: what is left is asked for afresh, however many requests came before.
+        for tries in 1..=BACKFILL_TRIES {
+            assert_eq!(
+                next_request(Some((10, 20, true, tries)), 15, 20),
+                Request::Ask { tries: 1 }
+            );
+        }
+    }
 }

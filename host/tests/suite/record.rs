@@ -192,6 +192,38 @@ fn outages_of_5_15_and_30_s_lose_nothing() {
 }
 
 #[test]
+fn a_slow_replay_is_waited_for_while_its_samples_come() {
+    // A 30 s gap replayed over a slow link (one notification every 150 ms, of which the
+    // live stream takes a third: the replay's 69 batches take about 15 s, and its status
+    // reply follows them). While replayed samples come, the recorder waits for the reply
+    // rather than writing the Backfill again, which would start the replay over (before:
+    // 1442 samples received twice and ten "no status reply" messages). Then the same
+    // with 5 % of notifications lost, and with the replay cut by three 2 s link drops
+    // (each request after one brings part of what is missing: a fresh count of requests,
+    // `record::tests::a_request_that_brought_samples_starts_a_fresh_count`).
+    for faults in [
+        "outage=100:30,notify_every=150",
+        "outage=100:30,notify_every=150,drop=0.05",
+        "outage=100:30,notify_every=150,outage=135:2,outage=141:2,outage=147:2",
+    ] {
+        let r = run("slow-replay", faults);
+        let o = r.result.as_ref().unwrap();
+        println!("{faults}: {:?}\n{:?}", o.summary, r.messages);
+        assert!(o.summary.lost.is_empty(), "{faults}: {:?}", r.messages);
+        assert_eq!(o.summary.rows, N, "{faults}");
+        assert_eq!(seqs(&r.paths.recording), (0..N).collect::<Vec<_>>());
+        assert!(
+            !r.messages.iter().any(|m| m.contains("no status reply")),
+            "{faults}: {:?}",
+            r.messages
+        );
+        if !faults.contains("outage=135") {
+            assert_eq!(o.summary.duplicates, 0, "{faults}");
+        }
+    }
+}
+
+#[test]
 fn an_outage_longer_than_the_ring_loses_only_what_left_it() {
     // 60 s down: the device keeps the last RING samples (32 s); the rest is reported lost.
     let ring = rotacal_shared::device::RING as u64;
