@@ -314,6 +314,9 @@ const BAD_CASES: &[(&str, Option<u64>, &str)] = &[
         "column seq: '1.5' is not a non-negative integer",
     ),
     ("header_only.csv", None, "no data rows"),
+    // What `rotacal record` leaves when the device refused to start (calibrate's
+    // streaming engine called it an empty calibration with exit 0 before).
+    ("header_only_recorder.csv", None, "no data rows"),
     ("inf_value.csv", Some(5), "column t_s: value is not finite"),
     ("invalid_utf8.csv", Some(8), "unknown condition"),
     ("missing_column_u.csv", Some(4), "missing column 'u'"),

@@ -124,6 +124,8 @@ fn calibrate_file_as(
         None => None,
     };
     let (rec, groups, parts) = match split {
+        // No rows: the reader's error names the file and the problem.
+        Some((_, _, groups)) if groups.is_empty() => return whole(),
         Some((p, ranges, groups)) => {
             let rec = Recording {
                 source: path.display().to_string(),
@@ -149,7 +151,7 @@ fn calibrate_file_as(
             else {
                 return whole();
             };
-            if first.method != Method::Rotation || first.segmented {
+            if first.method != Method::Rotation || first.segmented || first.groups.is_empty() {
                 return whole();
             }
             if let Some(meta) = first.meta.take() {
