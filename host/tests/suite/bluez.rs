@@ -394,38 +394,105 @@ fn a_30s_outage_is_replayed_through_the_firmwares_queues_and_loses_nothing() {
     assert!(recovered >= 480 - 84, "{}", r.out);
 }
 
-/// Issue 32, proof point 2, through btleplug: at the MTU CoreBluetooth grants (185) the
-/// device sends batches of 5 (166 bytes), none is cut or dropped and nothing is lost; at
-/// BLE's default of 23 it refuses to start, and the recorder says why, naming the MTU as
-/// BlueZ reports it.
+/// Issue 33, proof point 1: the faults of the issue's table a recording survives, through
+/// btleplug and BlueZ's interfaces, in one session at the MTU CoreBluetooth grants (185,
+/// and issue 32's proof point 2: the device sends batches of 5 samples, none longer than
+/// MTU − 3). In x: its first batch lost, the next with 2²⁰ added to `first_seq` by one
+/// flipped bit, the next with a bit of `t0` flipped, a 15 s link drop at 8 s after which
+/// the first two status replies (to the recorder's Backfill) are lost, and a random bit
+/// flipped in 5 % of all batches; y's first batch delivered twice; z's after the next one.
+/// Each condition ends with exit 0, 0 lost and every seq once, in order; the session
+/// calibrates within U of the truth and the device's fits match the recording.
 #[test]
-fn the_links_mtu_sizes_the_batches_or_is_named_in_the_refusal() {
-    let options = |mtu| Options {
-        mtu,
+fn the_faults_a_recording_survives_lose_nothing_and_calibrate_within_u() {
+    // A sample batch (docs/protocol.md): 4 bytes of header, then `first_seq` (u32) and
+    // `t0` (u64), little-endian; bit j of byte k is 8 k + j.
+    const SEQ_BIT_20: usize = 8 * 4 + 20;
+    const T0_BIT_20: usize = 8 * 8 + 20;
+    let faults = format!(
+        "lost_batch=x,flip_bit=x:{SEQ_BIT_20},flip_bit=x:{T0_BIT_20},outage=8:15,\
+         lost_status=23,lost_status=23,flip=0.05,seed=7,twice_batch=y,late_batch=z"
+    );
+    let options = Options {
+        mtu: 185,
         ..Options::default()
     };
-    let mut rig = Rig::with("mtu185", 16, &[(ADDRESS, "")], options(185));
-    let r = rig.record("rotacal", "x", 17, &[]);
+    let mut rig = Rig::with("survived", 21, &[(ADDRESS, &faults)], options);
+    let mut undecodable = 0;
+    for (c, seconds, extra) in [
+        ("x", 45, &["--reconnect-for", "30s"][..]),
+        ("y", 20, &["--append"][..]),
+        ("z", 20, &["--append"][..]),
+    ] {
+        let r = rig.record("rotacal", c, seconds, extra);
+        println!("{}\n{}", r.out, r.err);
+        assert_eq!(r.code, 0, "condition {c}: {}\n{}", r.out, r.err);
+        assert!(r.out.contains(" 0 lost), "), "{}", r.out);
+        let seq = seqs(&rig.dir.join("rec.csv"), c.chars().next().unwrap());
+        assert_eq!(
+            seq,
+            (seq[0]..seq[0] + seq.len() as u64).collect::<Vec<_>>(),
+            "condition {c}: every seq once, in order"
+        );
+        undecodable += number_before(&r.out, " undecodable value(s)");
+        let twice = number_before(&r.out, " received twice");
+        match c {
+            "x" => {
+                assert!(r.out.contains(" 1 link drop(s)"), "{}", r.out);
+                assert!(r.err.contains("no status reply to Backfill"), "{}", r.err);
+                // The first three batches at least, and what the drop took beyond the
+                // queue's 12 batches.
+                let recovered = number_before(&r.out, " recovered by replay");
+                assert!(recovered >= 15 + 240 - 60, "{}", r.out);
+                assert!((710..=730).contains(&seq.len()), "{} rows", seq.len());
+            }
+            "y" => assert_eq!(twice, 5, "{}", r.out),
+            _ => assert_eq!(twice, 0, "{}", r.out),
+        }
+    }
     let report = rig.stop();
-    println!("{}\n{}\nstand-in: {report:?}", r.out, r.err);
-    assert_eq!(r.code, 0, "{}", r.err);
-    assert!(r.out.contains(" 0 lost"), "{}", r.out);
-    assert!(!r.out.contains("final fit report is missing"), "{}", r.out);
+    println!("stand-in: {report:?}");
     assert_eq!(report.oversize, 0, "{report:?}");
     assert_eq!(
         report.longest,
         rotacal_shared::packet::averages_len(5),
         "{report:?}"
     );
-    let seq = seqs(&rig.dir.join("rec.csv"), 'x');
-    assert_eq!(seq, (seq[0]..seq[0] + seq.len() as u64).collect::<Vec<_>>());
+    // Every batch with a bit flipped was refused by its CRC (and its samples replayed).
+    assert!(report.flipped >= 2, "{report:?}");
+    assert_eq!(undecodable, report.flipped, "{report:?}");
+    println!("{}", check_within_u(&rig, 21));
+    let r = rig.rotacal(&["crosscheck", "rec.csv", "rec.fits.jsonl"]);
+    assert_eq!(r.code, 0, "{}\n{}", r.out, r.err);
+}
 
-    let mut rig = Rig::with("mtu23", 17, &[(ADDRESS, "")], options(23));
+/// Issue 32, proof point 2, and issue 33, proof point 1: at BLE's default MTU of 23 the
+/// device refuses to start, and the recorder says why, naming the MTU as BlueZ reports it
+/// and what to do; nothing was sampled, so nothing is lost, and the file it leaves holds
+/// the metadata and header, which calibrate reads and refuses as empty, by name.
+#[test]
+fn an_mtu_too_small_is_named_with_what_to_do() {
+    let options = Options {
+        mtu: 23,
+        ..Options::default()
+    };
+    let mut rig = Rig::with("mtu23", 17, &[(ADDRESS, "")], options);
     let r = rig.record("rotacal", "x", 5, &[]);
     rig.stop();
     println!("{}\n{}", r.out, r.err);
     assert_eq!(r.code, 1, "{}", r.err);
     assert!(r.err.contains("ATT MTU is 23 bytes"), "{}", r.err);
+    assert!(r.err.contains("requestMtu(247)"), "{}", r.err);
+    assert!(r.err.contains("no samples were recorded"), "{}", r.err);
+    // The file has its metadata and header, and calibrate says there is nothing in it.
+    assert_eq!(seqs(&rig.dir.join("rec.csv"), 'x').len(), 0);
+    let c = rig.rotacal(&["calibrate", "rec.csv"]);
+    assert_eq!(c.code, 1, "{}", c.err);
+    assert!(
+        c.err.contains("rec.csv: no data rows after the header"),
+        "{}",
+        c.err
+    );
 }
 
 /// Issue 32, proof point 6, through btleplug and BlueZ's interfaces: `rotacal check-board`
