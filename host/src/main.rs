@@ -1,13 +1,13 @@
 //! `rotacal`: calibrate triaxial accelerometers by rotation in Earth's gravity.
 //! A thin command-line layer over the `rotacal` library: one file per subcommand in `cli/`.
 
-use clap::{Parser, Subcommand};
+use clap::{CommandFactory, Parser, Subcommand};
 use std::process::ExitCode;
 
 mod cli;
 
 #[derive(Parser)]
-#[command(name = "rotacal", version, about)]
+#[command(name = "rotacal", version, about, disable_help_subcommand = true)]
 struct Cli {
     #[command(subcommand)]
     command: Command,
@@ -16,7 +16,8 @@ struct Cli {
 #[derive(Subcommand)]
 enum Command {
     /// Intrinsic properties (sensitivities, angles, offsets) with uncertainties from a
-    /// recording (the recording CSV: docs/formats.md in rotacal's source).
+    /// recording (the recording CSV: rotacal help formats).
+    #[command(after_long_help = cli::help::RECORDING)]
     Calibrate(cli::calibrate::Args),
     /// Correct readings with a calibration: a = M·(y − O) in m/s², written as a recording
     /// with each value's standard uncertainty from the calibration.
@@ -25,6 +26,7 @@ enum Command {
     Export(cli::export::Args),
     /// A Markdown report with SVG plots: data and fits, residuals, residual spectrum,
     /// the intrinsic properties with U (95 %), properties against rate.
+    #[command(after_long_help = cli::help::RECORDING)]
     Report(cli::report::Args),
     /// Re-fit in f64 exactly the sample windows the device fitted, and compare
     /// (exit 1 if any differs by more than the threshold).
@@ -40,6 +42,7 @@ enum Command {
     CheckBoard(cli::check_board::Args),
     /// Find where the model and the measurement disagree, name the missing effects,
     /// and show the gap shrink as each is added (docs/discrepancy.md).
+    #[command(after_long_help = cli::help::RECORDING)]
     Discrepancy(cli::discrepancy::Args),
     /// Rebuild a recording and its fit log from a capture (after a crash, or to re-decode).
     Decode(cli::decode::Args),
@@ -47,11 +50,15 @@ enum Command {
     Simulate(cli::simulate::Args),
     /// Overlapping Allan deviation of each still record and channel, with 1σ intervals
     /// and the fitted noise terms N, B, K (docs/allan.md).
+    #[command(after_long_help = cli::help::RECORDING)]
     Allan(cli::allan::Args),
-    /// The main job without hardware: simulate seed 000's 10 mHz session, run it through
-    /// the firmware's logic, record its packets, calibrate, cross-check, report; exits
-    /// with status 1 if any of its checks fails.
+    /// The main job without hardware: simulate the 10 mHz session of Gaitan & Geist (2022),
+    /// run it through the firmware's logic, record its packets, calibrate, cross-check,
+    /// report; exits with status 1 if any of its checks fails.
     Demo(cli::demo::Args),
+    /// Help on a subcommand, or on the files rotacal reads and writes: `rotacal help
+    /// formats`.
+    Help(cli::help::Args),
 }
 
 fn main() -> ExitCode {
@@ -69,6 +76,7 @@ fn main() -> ExitCode {
         Command::Simulate(a) => cli::simulate::run(a),
         Command::Allan(a) => cli::allan::run(a),
         Command::Demo(a) => cli::demo::run(a),
+        Command::Help(a) => cli::help::run(a, Cli::command()),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

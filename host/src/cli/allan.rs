@@ -10,10 +10,10 @@ use rotacal::allan::{self, Fit, Point, Scale, TermKind};
 /// `rotacal allan` arguments.
 #[derive(clap::Args)]
 pub struct Args {
-    /// The recording CSV (docs/formats.md); each condition, pose or free series is one
+    /// The recording CSV (rotacal help formats); each condition, pose or free series is one
     /// record, sampled uniformly (a gap is an error).
     pub file: PathBuf,
-    /// Write the numbers as JSON (docs/formats.md, "Allan JSON") here.
+    /// Write the numbers as JSON (rotacal help formats, "Allan JSON") here.
     #[arg(long)]
     pub json: Option<PathBuf>,
     /// Write a log-log plot (SVG) here.

@@ -6,9 +6,9 @@ use std::path::PathBuf;
 /// `--method`.
 #[derive(Clone, Copy, ValueEnum)]
 pub enum MethodArg {
-    /// Constant-rate rotation (seed 000).
+    /// Constant-rate rotation (Gaitan & Geist, 2022).
     Rotation,
-    /// Stepped angles or known orientations (seed 001, poses).
+    /// Stepped angles (Gaitan et al., 2021) or poses of known orientation.
     Static,
     /// Still poses of unknown orientation, found in the readings (|a| = g).
     Free,
@@ -163,7 +163,7 @@ pub struct Args {
     pub file: PathBuf,
     #[command(flatten)]
     pub options: Options,
-    /// Write the result as JSON (docs/formats.md) here.
+    /// Write the result as JSON (its keys: rotacal help formats) here.
     #[arg(long)]
     pub json: Option<PathBuf>,
 }

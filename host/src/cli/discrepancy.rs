@@ -7,7 +7,7 @@ use std::path::PathBuf;
 pub struct Args {
     /// The recording CSV (rotation).
     pub file: PathBuf,
-    /// Write the analysis as JSON (docs/formats.md) here.
+    /// Write the analysis as JSON (its keys: rotacal help formats) here.
     #[arg(long)]
     pub json: Option<PathBuf>,
     /// Write a report folder (Markdown, residual and spectrum plots) here.

@@ -12,6 +12,7 @@ pub mod decode;
 pub mod demo;
 pub mod discrepancy;
 pub mod export;
+pub mod help;
 pub mod import;
 pub mod record;
 pub mod report;
