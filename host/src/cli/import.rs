@@ -1,4 +1,6 @@
-//! `rotacal import`: the command line of `rotacal::recording::import`.
+//! `rotacal import`: the command line of `rotacal::recording::import`. The recording is
+//! written to a temporary file beside `--out` and renamed into place only when the whole
+//! import succeeded: a failure leaves no partial file.
 
 use anyhow::Context;
 use rotacal_shared::Condition;
@@ -7,28 +9,41 @@ use std::path::PathBuf;
 /// `rotacal import` arguments.
 #[derive(clap::Args)]
 pub struct Args {
-    /// The logs, one per condition unless a condition column is mapped.
+    /// The logs, one per condition unless a condition column is mapped: delimited text
+    /// (semicolons, tabs, commas or spaces; a decimal comma where commas do not separate)
+    /// or spreadsheets (.xlsx, .xls, .xlsb, .ods).
     #[arg(required = true)]
     inputs: Vec<PathBuf>,
-    /// Which field holds what, 0-based: t=0,u=1,v=2,w=3[,condition=N][,angle=N][,temp=N][,seq=N].
+    /// Which field holds what, by number from 0 or by the header's name:
+    /// t=0,u=1,v=2,w=3 or t=time,u=ax,v=ay,w=az [,condition=][,angle=][,temp=][,seq=].
+    /// Lines before the first line with a number are a preamble; its last is the header.
     #[arg(long)]
     columns: rotacal::recording::import::ColumnMap,
     /// The condition of each input, in order (x, y, z), e.g. --condition x,y,z.
     #[arg(long, value_delimiter = ',')]
     condition: Vec<char>,
-    /// Header lines to skip at the top of each input.
+    /// Lines to skip at the top of each input (a header is found without it).
     #[arg(long, default_value_t = 0)]
     skip: usize,
     /// Seconds per unit of the time column (e.g. 0.001 for milliseconds).
     #[arg(long, default_value_t = 1.0)]
     time_scale: f64,
+    /// Multiply the readings by this, e.g. 0.000122 to turn an LSM6DS33's counts at ±4 g
+    /// into g; --units then names what they are in.
+    #[arg(long, default_value_t = 1.0, allow_negative_numbers = true)]
+    scale: f64,
+    /// A spreadsheet's sheet to read (default: the first).
+    #[arg(long)]
+    sheet: Option<String>,
     /// Nominal rotation rate, Hz (metadata).
     #[arg(long)]
     rate_hz: Option<f64>,
     /// Local gravity, m/s² (metadata).
     #[arg(long)]
     g_loc: Option<f64>,
-    /// Output units (metadata), e.g. counts or V.
+    /// The units of the readings as written to the recording (after --scale), e.g.
+    /// counts, g, m/s^2 or V: the recording's `units`, which calibrate's sensitivities
+    /// are per m/s² of.
     #[arg(long)]
     units: Option<String>,
     /// Sample rate, Hz (metadata).
@@ -87,24 +102,32 @@ pub fn run(a: Args) -> anyhow::Result<()> {
                 .ok_or_else(|| anyhow::anyhow!("--condition '{c}': expected x, y or z"))
         })
         .collect::<anyhow::Result<Vec<_>>>()?;
-    let mut readers: Vec<(String, Box<dyn std::io::BufRead>)> = Vec::new();
+    let mut readers = Vec::new();
     for p in inputs {
-        let f = std::fs::File::open(p).map_err(|e| anyhow::anyhow!("{}: {e}", p.display()))?;
-        readers.push((
-            p.display().to_string(),
-            Box::new(std::io::BufReader::new(f)),
-        ));
+        readers.push(open(p, a.sheet.as_deref())?);
     }
     let spec = rotacal::recording::import::ImportSpec {
         columns,
         conditions,
         skip,
         time_scale,
+        scale: a.scale,
         meta,
         poses,
     };
-    let file = std::fs::File::create(out).map_err(|e| anyhow::anyhow!("{}: {e}", out.display()))?;
-    let counts = rotacal::recording::import::import(readers, &spec, file)?;
+    // Beside the output, so that the rename stays on one file system.
+    let dir = match out.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
+        _ => PathBuf::from("."),
+    };
+    let tmp = tempfile::NamedTempFile::new_in(&dir)
+        .map_err(|e| anyhow::anyhow!("{}: cannot write there: {e}", dir.display()))?;
+    let counts = rotacal::recording::import::import(readers, &spec, tmp.as_file())?;
+    tmp.as_file()
+        .sync_all()
+        .map_err(|e| anyhow::anyhow!("{}: {e}", out.display()))?;
+    tmp.persist(out)
+        .map_err(|e| anyhow::anyhow!("{}: {}", out.display(), e.error))?;
     let total: usize = counts.rows.iter().sum();
     let mut text = format!(
         "wrote {}: {total} rows ({})\n",
@@ -133,4 +156,28 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     }
     rotacal::output::emit(&text)?;
     Ok(())
+}
+
+/// An input: a spreadsheet (by its first bytes), else delimited text.
+fn open(
+    p: &std::path::Path,
+    sheet: Option<&str>,
+) -> anyhow::Result<rotacal::recording::import::Input<'static>> {
+    use rotacal::recording::import::{is_spreadsheet, Input};
+    use std::io::Read;
+    let name = p.display().to_string();
+    let mut f = std::fs::File::open(p).map_err(|e| anyhow::anyhow!("{name}: {e}"))?;
+    let mut head = [0u8; 8];
+    let n = f
+        .read(&mut head)
+        .map_err(|e| anyhow::anyhow!("{name}: {e}"))?;
+    if is_spreadsheet(head.get(..n).unwrap_or(&[])) {
+        let bytes = std::fs::read(p).map_err(|e| anyhow::anyhow!("{name}: {e}"))?;
+        return Ok(rotacal::recording::import::sheet(&name, bytes, sheet)?);
+    }
+    if sheet.is_some() {
+        anyhow::bail!("{name}: --sheet is for spreadsheets, and this is text");
+    }
+    let f = std::fs::File::open(p).map_err(|e| anyhow::anyhow!("{name}: {e}"))?;
+    Ok(Input::text(name, Box::new(std::io::BufReader::new(f))))
 }

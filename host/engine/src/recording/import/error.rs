@@ -112,6 +112,58 @@ pub enum ImportErrorKind {
     /// An input without data lines.
     #[error("no data lines")]
     NoData,
+    /// No line with a number among the first lines.
+    #[error("no line with a number in the first {lines} lines: is this a log of readings?")]
+    NoDataLine {
+        /// Lines read.
+        lines: usize,
+    },
+    /// A line with zero bytes: a binary file.
+    #[error(
+        "a binary file, not text (rotacal import reads delimited text and spreadsheets: \
+         .xlsx, .xls, .xlsb, .ods)"
+    )]
+    Binary,
+    /// A spreadsheet that could not be read.
+    #[error("cannot read the spreadsheet: {0}")]
+    Spreadsheet(String),
+    /// A sheet the workbook does not have.
+    #[error("no sheet '{sheet}' (the workbook has: {sheets})")]
+    NoSheet {
+        /// The sheet asked for.
+        sheet: String,
+        /// The workbook's sheets.
+        sheets: String,
+    },
+    /// A column named in the map, and no header line to find it in.
+    #[error(
+        "{column}={name} names a column, but the input has no header line before its first \
+         line of numbers: give the field's number (from 0) instead"
+    )]
+    NoHeader {
+        /// The column (`u`, `t`, …).
+        column: &'static str,
+        /// The name given.
+        name: String,
+    },
+    /// A column named in the map that the header lacks.
+    #[error("{column}={name}: the header has no such column (it has: {header})")]
+    NoSuchColumn {
+        /// The column (`u`, `t`, …).
+        column: &'static str,
+        /// The name given.
+        name: String,
+        /// The header's names.
+        header: String,
+    },
+    /// The first data line did not read: perhaps it is not data.
+    #[error("{error}; if this line is not data, skip the lines up to it with --skip {skip}")]
+    FirstLine {
+        /// What is wrong with it.
+        error: Box<ImportErrorKind>,
+        /// Lines to skip to leave it out.
+        skip: usize,
+    },
     /// A section list that is not JSON.
     #[error("not a JSON section list: {0}")]
     NotJson(serde_json::Error),
@@ -182,6 +234,9 @@ pub enum SpecError {
     /// A time scale that is not a positive number.
     #[error("--time-scale must be positive")]
     TimeScale(f64),
+    /// A reading scale that is zero or not finite.
+    #[error("--scale must be a finite number other than 0")]
+    Scale(f64),
     /// A section list with more than one input.
     #[error("a section list describes one input; {inputs} given")]
     SectionsInputs {
@@ -207,7 +262,7 @@ pub enum SpecError {
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum ColumnMapError {
     /// A part without `=`.
-    #[error("'{part}': expected NAME=INDEX")]
+    #[error("'{part}': expected NAME=FIELD (the field's number from 0, or its header name)")]
     NoIndex {
         /// The part.
         part: String,

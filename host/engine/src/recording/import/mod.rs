@@ -1,101 +1,175 @@
-//! `rotacal import`: generic text logs (a timestamp and three readings per line, as the
-//! papers' set-ups wrote them, or any delimited columns) into the recording format.
+//! `rotacal import`: logs (a timestamp and three readings per line, as the papers' set-ups
+//! wrote them, a logger's CSV, a German spreadsheet's export, an Excel workbook) into the
+//! recording format.
 //!
-//! A column map names which field holds what (0-based): `t=0,u=1,v=2,w=3`, optionally
-//! `condition=`, `angle=`, `temp=`, `seq=`. Fields are split on commas, semicolons, tabs
-//! or runs of spaces (detected per line). Empty lines and lines starting with `#` are
-//! skipped, as are the first `skip` lines (headers). Lines are read and written one at a
-//! time. Every problem names the file and line.
+//! A column map names which field holds what, by its 0-based number or by its name in the
+//! header line: `t=0,u=1,v=2,w=3` or `t=time,u=ax,v=ay,w=az`, optionally `condition=`,
+//! `angle=`, `temp=`, `seq=`. A text input's delimiter is found on its first data line
+//! (a semicolon, else a tab, else a comma, else runs of spaces), and where it is not a
+//! comma, a comma in a number is a decimal comma. Empty lines and lines starting with `#`
+//! are skipped, as are the first `skip` lines. Lines before the first line with a number
+//! are a preamble (a logger's banner), whose last line is the header. Readings are
+//! multiplied by `scale` (LSB to g, say). Lines are read and written one at a time. Every
+//! problem names the file and line.
 //!
 //! Static sessions from known orientations (six-position and the like) come with a section
 //! list (imucal's JSON: `{"x_p": {"start": 540, "end": 1271}, ...}`, data-row positions
-//! counted from 0 after the skipped lines, `start` inclusive and `end` exclusive) and a
-//! pose map that gives each section's gravity direction (`x_p=+x,x_a=-x,...`). Rows in
-//! mapped sections are written with `pose, gx, gy, gz`; other rows are left out.
+//! counted from 0 after the skipped lines and the header, `start` inclusive and `end`
+//! exclusive) and a pose map that gives each section's gravity direction
+//! (`x_p=+x,x_a=-x,...`). Rows in mapped sections are written with `pose, gx, gy, gz`;
+//! other rows are left out.
 //!
 //! Problems are [`ImportError`]s (`error`): the input, the line, and the field and its
 //! text as fields of an [`ImportErrorKind`].
 
 mod error;
+mod table;
 #[cfg(test)]
 mod tests;
 
 pub use error::{ColumnMapError, ImportError, ImportErrorKind, PoseMapError, SpecError};
+pub use table::{is_spreadsheet, sheet, Input, Rows};
 
 use crate::recording::{Columns, Metadata, Method, Row, Writer};
 use rotacal_shared::Condition;
-use std::io::{BufRead, Write};
+use std::io::Write;
 use ImportErrorKind as K;
 
+/// A field of the input: by its 0-based number, or by its name in the header line
+/// (matched without regard to case).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum Col {
+    /// The field's number, from 0.
+    At(usize),
+    /// The header's name of it.
+    Named(String),
+}
+
 /// Which field holds what.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Debug, PartialEq, Eq)]
 pub struct ColumnMap {
     /// Time.
-    pub t: Option<usize>,
+    pub t: Option<Col>,
     /// Channels.
-    pub u: usize,
+    pub u: Col,
     /// See `u`.
-    pub v: usize,
+    pub v: Col,
     /// See `u`.
-    pub w: usize,
+    pub w: Col,
     /// Condition letter per line.
-    pub condition: Option<usize>,
+    pub condition: Option<Col>,
     /// Table angle, degrees (static logs).
-    pub angle: Option<usize>,
+    pub angle: Option<Col>,
     /// Temperature, °C.
-    pub temp: Option<usize>,
+    pub temp: Option<Col>,
     /// Sample sequence number.
-    pub seq: Option<usize>,
+    pub seq: Option<Col>,
+}
+
+impl ColumnMap {
+    /// The fields' numbers, names looked up in `header` (`None`: no header line).
+    fn resolve(&self, header: Option<&[String]>) -> Result<Fields, ImportErrorKind> {
+        let find = |column: &'static str, c: &Col| -> Result<usize, ImportErrorKind> {
+            match c {
+                Col::At(i) => Ok(*i),
+                Col::Named(name) => {
+                    let header = header.ok_or_else(|| K::NoHeader {
+                        column,
+                        name: name.clone(),
+                    })?;
+                    header
+                        .iter()
+                        .position(|h| h.eq_ignore_ascii_case(name))
+                        .ok_or_else(|| K::NoSuchColumn {
+                            column,
+                            name: name.clone(),
+                            header: header.join(" | "),
+                        })
+                }
+            }
+        };
+        let opt = |column, c: &Option<Col>| c.as_ref().map(|c| find(column, c)).transpose();
+        Ok(Fields {
+            t: opt("t", &self.t)?,
+            u: find("u", &self.u)?,
+            v: find("v", &self.v)?,
+            w: find("w", &self.w)?,
+            condition: opt("condition", &self.condition)?,
+            angle: opt("angle", &self.angle)?,
+            temp: opt("temp", &self.temp)?,
+            seq: opt("seq", &self.seq)?,
+        })
+    }
+}
+
+/// A column map with every field by number: an input's, once its header is read.
+#[derive(Clone, Copy, Debug)]
+struct Fields {
+    t: Option<usize>,
+    u: usize,
+    v: usize,
+    w: usize,
+    condition: Option<usize>,
+    angle: Option<usize>,
+    temp: Option<usize>,
+    seq: Option<usize>,
 }
 
 impl std::str::FromStr for ColumnMap {
     type Err = ColumnMapError;
-    /// `t=0,u=1,v=2,w=3[,condition=4][,angle=5][,temp=6][,seq=7]`.
+    /// `t=0,u=1,v=2,w=3[,condition=4][,angle=5][,temp=6][,seq=7]`, each field a number
+    /// from 0 or a header's name.
     fn from_str(s: &str) -> Result<Self, ColumnMapError> {
-        let mut m = ColumnMap::default();
-        let (mut u, mut v, mut w) = (None, None, None);
+        let mut slots: [Option<Col>; 8] = Default::default();
+        const NAMES: [&str; 8] = ["t", "u", "v", "w", "condition", "angle", "temp", "seq"];
         for part in s.split(',').map(str::trim).filter(|p| !p.is_empty()) {
-            let (k, i) = part
+            let (k, f) = part
                 .split_once('=')
                 .ok_or_else(|| ColumnMapError::NoIndex {
                     part: part.to_string(),
                 })?;
-            let i: usize = i.trim().parse().map_err(|_| ColumnMapError::BadIndex {
-                part: part.to_string(),
-            })?;
-            let slot = match k.trim() {
-                "t" => &mut m.t,
-                "u" => &mut u,
-                "v" => &mut v,
-                "w" => &mut w,
-                "condition" => &mut m.condition,
-                "angle" => &mut m.angle,
-                "temp" => &mut m.temp,
-                "seq" => &mut m.seq,
-                other => {
-                    return Err(ColumnMapError::UnknownColumn {
-                        name: other.to_string(),
-                    })
-                }
+            let f = f.trim();
+            let col = if f.starts_with(|c: char| c.is_ascii_digit() || c == '-' || c == '+') {
+                Col::At(f.parse().map_err(|_| ColumnMapError::BadIndex {
+                    part: part.to_string(),
+                })?)
+            } else if f.is_empty() {
+                return Err(ColumnMapError::BadIndex {
+                    part: part.to_string(),
+                });
+            } else {
+                Col::Named(f.to_string())
             };
-            if slot.replace(i).is_some() {
+            let slot = NAMES
+                .iter()
+                .position(|n| *n == k.trim())
+                .and_then(|i| slots.get_mut(i))
+                .ok_or_else(|| ColumnMapError::UnknownColumn {
+                    name: k.trim().to_string(),
+                })?;
+            if slot.replace(col).is_some() {
                 return Err(ColumnMapError::Twice {
                     name: k.trim().to_string(),
                 });
             }
         }
-        match (u, v, w) {
-            (Some(u), Some(v), Some(w)) => {
-                m.u = u;
-                m.v = v;
-                m.w = w;
-            }
-            _ => return Err(ColumnMapError::NoChannels),
-        }
-        if m.t.is_none() && m.angle.is_none() {
+        let [t, u, v, w, condition, angle, temp, seq] = slots;
+        let (Some(u), Some(v), Some(w)) = (u, v, w) else {
+            return Err(ColumnMapError::NoChannels);
+        };
+        if t.is_none() && angle.is_none() {
             return Err(ColumnMapError::NoTimeOrAngle);
         }
-        Ok(m)
+        Ok(ColumnMap {
+            t,
+            u,
+            v,
+            w,
+            condition,
+            angle,
+            temp,
+            seq,
+        })
     }
 }
 
@@ -110,6 +184,8 @@ pub struct ImportSpec {
     pub skip: usize,
     /// Seconds per unit of the time column.
     pub time_scale: f64,
+    /// What the readings are multiplied by (1: as they are).
+    pub scale: f64,
     /// Metadata to write.
     pub meta: Metadata,
     /// Sections and their gravity directions (static data from known orientations).
@@ -240,16 +316,6 @@ impl PoseSections {
     }
 }
 
-fn split(line: &str) -> Vec<&str> {
-    if line.contains(',') {
-        line.split(',').map(str::trim).collect()
-    } else if line.contains(';') {
-        line.split(';').map(str::trim).collect()
-    } else {
-        line.split_whitespace().collect()
-    }
-}
-
 /// What was written.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Counts {
@@ -261,9 +327,9 @@ pub struct Counts {
     pub skipped_sections: Vec<String>,
 }
 
-/// Convert `inputs` (name, reader) into one recording written to `out`.
+/// Convert `inputs` into one recording written to `out`.
 pub fn import<W: Write>(
-    inputs: Vec<(String, Box<dyn BufRead + '_>)>,
+    inputs: Vec<Input<'_>>,
     spec: &ImportSpec,
     out: W,
 ) -> Result<Counts, ImportError> {
@@ -287,8 +353,8 @@ pub fn import<W: Write>(
         data_row: 0,
     };
     let mut counts = Counts::default();
-    for (k, (name, reader)) in inputs.into_iter().enumerate() {
-        let n = importer.input(k, &name, reader, &mut w)?;
+    for (k, input) in inputs.into_iter().enumerate() {
+        let n = importer.input(k, &input.name, input.rows, &mut w)?;
         counts.rows.push(n);
     }
     w.flush().map_err(|e| whole(K::Write(e)))?;
@@ -324,6 +390,9 @@ fn check_spec(spec: &ImportSpec, inputs: usize, free: bool) -> Result<(), SpecEr
     }
     if !(spec.time_scale.is_finite() && spec.time_scale > 0.0) {
         return Err(SpecError::TimeScale(spec.time_scale));
+    }
+    if !(spec.scale.is_finite() && spec.scale != 0.0) {
+        return Err(SpecError::Scale(spec.scale));
     }
     if let Some(p) = &spec.poses {
         if inputs != 1 {
@@ -380,18 +449,41 @@ struct Line<'a> {
     source: &'a str,
     /// 1-based.
     lineno: usize,
-    fields: Vec<&'a str>,
+    fields: Vec<String>,
+    /// A comma in a number is a decimal comma (the fields are not comma-separated).
+    decimal_comma: bool,
 }
 
 impl<'a> Line<'a> {
+    /// `line` of input `source`, its text split at `delimiter`.
+    fn of(source: &'a str, line: &table::Line, delimiter: Option<table::Delimiter>) -> Self {
+        match line {
+            table::Line::Cells(lineno, cells) => Line {
+                source,
+                lineno: *lineno,
+                fields: cells.clone(),
+                decimal_comma: true,
+            },
+            table::Line::Text(lineno, text) => {
+                let d = delimiter.unwrap_or_else(|| table::Delimiter::of(text));
+                Line {
+                    source,
+                    lineno: *lineno,
+                    fields: d.split(text),
+                    decimal_comma: d.decimal_comma(),
+                }
+            }
+        }
+    }
+
     /// `kind` at this line.
     fn err(&self, kind: ImportErrorKind) -> ImportError {
         ImportError::at(self.source, Some(self.lineno), kind)
     }
 
     /// Field `idx`, which holds `column`.
-    fn field(&self, idx: usize, column: &'static str) -> Result<&'a str, ImportError> {
-        self.fields.get(idx).copied().ok_or_else(|| {
+    fn field(&self, idx: usize, column: &'static str) -> Result<&str, ImportError> {
+        self.fields.get(idx).map(String::as_str).ok_or_else(|| {
             self.err(K::NoField {
                 field: idx,
                 column,
@@ -403,8 +495,8 @@ impl<'a> Line<'a> {
     /// Field `idx`, which holds `column`, as a finite number.
     fn num(&self, idx: usize, column: &'static str) -> Result<f64, ImportError> {
         let f = self.field(idx, column)?;
-        match f.parse::<f64>() {
-            Ok(x) if x.is_finite() => Ok(x),
+        match table::number(f, self.decimal_comma) {
+            Some(x) if x.is_finite() => Ok(x),
             _ => Err(self.err(K::NotFinite {
                 field: idx,
                 column,
@@ -412,7 +504,18 @@ impl<'a> Line<'a> {
             })),
         }
     }
+
+    /// Whether any field is a number: a data line, not a header or a banner.
+    fn has_number(&self) -> bool {
+        self.fields
+            .iter()
+            .any(|f| table::number(f, self.decimal_comma).is_some())
+    }
 }
+
+/// Lines before the first data line that are kept to find the header among: a logger's
+/// banner is a few lines.
+const PREAMBLE: usize = 100;
 
 /// Reads the inputs' lines into rows, carrying over what a line is checked against or
 /// counted in.
@@ -434,18 +537,42 @@ impl<'s> Importer<'s> {
         &mut self,
         k: usize,
         name: &str,
-        reader: Box<dyn BufRead + '_>,
+        rows: Rows<'_>,
         w: &mut Writer<W>,
     ) -> Result<usize, ImportError> {
         let spec = self.spec;
         let mut n = 0;
-        for (i, line) in reader.lines().enumerate() {
-            let lineno = i + 1;
-            let line = line.map_err(|e| ImportError::at(name, Some(lineno), K::Read(e)))?;
-            let trimmed = line.trim();
-            if i < spec.skip || trimmed.is_empty() || trimmed.starts_with('#') {
-                continue;
-            }
+        // The lines before the first with a number (a banner, the header last), and the
+        // input's delimiter and fields, found on its first data line.
+        let mut preamble: Vec<table::Line> = Vec::new();
+        let mut found: Option<(Option<table::Delimiter>, Fields)> = None;
+        for line in table::lines(name, rows, spec.skip) {
+            let line = line?;
+            let delimiter = match (&found, &line) {
+                (Some((d, _)), _) => *d,
+                (None, table::Line::Text(_, text)) => Some(table::Delimiter::of(text)),
+                (None, table::Line::Cells(..)) => None,
+            };
+            let data = Line::of(name, &line, delimiter);
+            let cols = match found {
+                Some((_, f)) => f,
+                None if !data.has_number() => {
+                    if preamble.len() >= PREAMBLE {
+                        return Err(data.err(K::NoDataLine { lines: PREAMBLE }));
+                    }
+                    preamble.push(line);
+                    continue;
+                }
+                None => {
+                    let header = preamble.last().map(|h| Line::of(name, h, delimiter));
+                    let f = spec
+                        .columns
+                        .resolve(header.as_ref().map(|h| h.fields.as_slice()))
+                        .map_err(|kind| header.as_ref().unwrap_or(&data).err(kind))?;
+                    found = Some((delimiter, f));
+                    f
+                }
+            };
             // The pose of this data row, if a section list is given.
             let mut pose: Option<(&str, [f64; 3], usize)> = None;
             if let Some(p) = &spec.poses {
@@ -457,12 +584,13 @@ impl<'s> Importer<'s> {
                     None => continue,
                 }
             }
-            let data = Line {
-                source: name,
-                lineno,
-                fields: split(trimmed),
-            };
-            let row = self.row(k, &data, pose)?;
+            let row = self.row(k, &cols, &data, pose).map_err(|e| {
+                if n == 0 {
+                    first_line_hint(e, spec.skip)
+                } else {
+                    e
+                }
+            })?;
             w.write_row(&row).map_err(|e| data.err(K::Write(e)))?;
             n += 1;
         }
@@ -490,16 +618,17 @@ impl<'s> Importer<'s> {
     fn row(
         &mut self,
         k: usize,
+        c: &Fields,
         line: &Line<'_>,
         pose: Option<(&'s str, [f64; 3], usize)>,
     ) -> Result<Row<'s>, ImportError> {
-        let c = &self.spec.columns;
-        let condition = self.condition(k, line, pose.is_some())?;
+        let condition = self.condition(k, c, line, pose.is_some())?;
+        let scale = self.spec.scale;
         let mut row = Row::new(
             condition,
-            line.num(c.u, "u")?,
-            line.num(c.v, "v")?,
-            line.num(c.w, "w")?,
+            line.num(c.u, "u")? * scale,
+            line.num(c.v, "v")? * scale,
+            line.num(c.w, "w")? * scale,
         );
         if let Some(idx) = c.t {
             let t = line.num(idx, "t")? * self.spec.time_scale;
@@ -543,9 +672,15 @@ impl<'s> Importer<'s> {
 
     /// The condition of data line `line` of input `k`: its column's letter, else the
     /// input's condition; x for poses (`posed`) and free recordings, which have none.
-    fn condition(&self, k: usize, line: &Line<'_>, posed: bool) -> Result<Condition, ImportError> {
+    fn condition(
+        &self,
+        k: usize,
+        c: &Fields,
+        line: &Line<'_>,
+        posed: bool,
+    ) -> Result<Condition, ImportError> {
         let spec = self.spec;
-        Ok(match spec.columns.condition {
+        Ok(match c.condition {
             _ if posed || self.free => Condition::X,
             Some(idx) => {
                 let f = line.field(idx, "condition")?;
@@ -565,5 +700,22 @@ impl<'s> Importer<'s> {
                 .get(k)
                 .ok_or_else(|| line.err(K::NoCondition))?,
         })
+    }
+}
+
+/// An error on an input's first data line, with what to do if the line is not data.
+fn first_line_hint(e: ImportError, skip: usize) -> ImportError {
+    match e.kind {
+        K::NotFinite { .. } | K::NoField { .. } => {
+            let line = e.line.unwrap_or(0);
+            ImportError {
+                kind: K::FirstLine {
+                    error: Box::new(e.kind),
+                    skip: line.max(skip),
+                },
+                ..e
+            }
+        }
+        _ => e,
     }
 }

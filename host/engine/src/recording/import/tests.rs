@@ -3,6 +3,7 @@
 
 use super::*;
 use crate::recording::Metadata;
+use std::io::BufRead;
 
 /// A spec for `map`, with `conditions` (letters) and `skip` header lines.
 fn spec(map: &str, conditions: &str, skip: usize) -> ImportSpec {
@@ -14,6 +15,7 @@ fn spec(map: &str, conditions: &str, skip: usize) -> ImportSpec {
             .collect(),
         skip,
         time_scale: 1.0,
+        scale: 1.0,
         meta: Metadata::default(),
         poses: None,
     }
@@ -21,11 +23,11 @@ fn spec(map: &str, conditions: &str, skip: usize) -> ImportSpec {
 
 /// Import `inputs` (name, text) by `spec`: the error.
 fn fails(inputs: &[(&str, &str)], spec: &ImportSpec) -> ImportError {
-    let readers: Vec<(String, Box<dyn BufRead + '_>)> = inputs
+    let readers: Vec<Input<'_>> = inputs
         .iter()
         .map(|(name, text)| {
             let r: Box<dyn BufRead> = Box::new(text.as_bytes());
-            (name.to_string(), r)
+            Input::text(*name, r)
         })
         .collect();
     import(readers, spec, Vec::new()).unwrap_err()
@@ -216,7 +218,7 @@ fn column_maps_name_the_part() {
         (
             " t0 ,u=1",
             ColumnMapError::NoIndex { part: "t0".into() },
-            "'t0': expected NAME=INDEX",
+            "'t0': expected NAME=FIELD (the field's number from 0, or its header name)",
         ),
         (
             "t=-1,u=1",
