@@ -11,7 +11,7 @@
 //! - [`demo`]: the main job without hardware, wiring the rest together;
 //! - [`output`]: writing to the terminal.
 pub use rotacal_engine::{
-    allan, calibrate, correct, discrepancy, fit, recording, reference, simulate, verify,
+    allan, atomic, calibrate, correct, discrepancy, fit, recording, reference, simulate, verify,
 };
 
 pub mod check_board;

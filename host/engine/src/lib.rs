@@ -13,8 +13,10 @@
 //!   the paper values it and the tests take as truth;
 //! - [`discrepancy`]: where model and measurement disagree, and which effect is missing;
 //! - [`allan`]: the overlapping Allan deviation of a still record, its intervals and the
-//!   IEEE noise terms (docs/allan.md).
+//!   IEEE noise terms (docs/allan.md);
+//! - [`atomic`]: writing an output file whole or not at all.
 pub mod allan;
+pub mod atomic;
 pub mod calibrate;
 pub mod correct;
 pub mod discrepancy;

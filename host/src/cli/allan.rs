@@ -117,8 +117,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     };
     rotacal::output::emit(&render(&out))?;
     if let Some(path) = &a.json {
-        std::fs::write(path, serde_json::to_string_pretty(&out)? + "\n")
-            .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+        rotacal::atomic::write(path, serde_json::to_string_pretty(&out)? + "\n")?;
     }
     if let Some(path) = &a.plot {
         let panels: Vec<rotacal::report::allan::Panel<'_>> = out

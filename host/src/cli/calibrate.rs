@@ -174,7 +174,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     let cal = rotacal::calibrate::stream::calibrate_file(&a.file, &opts)?;
     if let Some(path) = a.json {
         let text = serde_json::to_string_pretty(&cal)? + "\n";
-        std::fs::write(&path, text).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+        rotacal::atomic::write(&path, text)?;
     }
     rotacal::output::emit(&rotacal::calibrate::table::render(&cal))?;
     if let Some(c) = cal.residual_structure.as_ref().filter(|c| c.found) {

@@ -27,8 +27,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     let log = rotacal::recording::from_device::read_fit_log(&text, &log_name)?;
     let report = rotacal::verify::recorded::crosscheck(&rec, &log, a.threshold)?;
     if let Some(path) = &a.json {
-        std::fs::write(path, serde_json::to_string_pretty(&report)? + "\n")
-            .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+        rotacal::atomic::write(path, serde_json::to_string_pretty(&report)? + "\n")?;
     }
     rotacal::output::emit(&rotacal::verify::recorded::render(&report))?;
     if !report.passed {

@@ -60,8 +60,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     let (data, noise) = rotacal::discrepancy::with_noise(rows)?;
     let analysis = rotacal::discrepancy::analyse(data, noise, stated, &opts)?;
     if let Some(path) = &a.json {
-        std::fs::write(path, serde_json::to_string_pretty(&analysis)? + "\n")
-            .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+        rotacal::atomic::write(path, serde_json::to_string_pretty(&analysis)? + "\n")?;
     }
     rotacal::output::emit(&rotacal::report::discrepancy::render(&analysis))?;
     if let Some(dir) = &a.report {

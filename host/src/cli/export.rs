@@ -54,7 +54,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     let name = a.calibration.display().to_string();
     let body = rotacal::correct::export::render(&l.json, &l.correction, &name, format, precision);
     match a.out {
-        Some(p) => std::fs::write(&p, body).map_err(|e| anyhow::anyhow!("{}: {e}", p.display()))?,
+        Some(p) => rotacal::atomic::write(&p, body)?,
         None => rotacal::output::emit(&body)?,
     }
     Ok(())

@@ -30,7 +30,7 @@ Columns, in any order (names exact, lower case):
 Metadata (# key=value lines before the header; flags override them): method (rotation,
 static or free), rate_hz, g_loc (m/s²), units, sample_rate_hz, noise_sigma, device,
 tick_hz, and the standard uncertainties u_g_loc, u_time_s and u_angle_deg.
-Other logs (delimited text, other column names or order): rotacal import.";
+Other logs (delimited text, spreadsheets, other column names): rotacal import.";
 
 /// `rotacal help` arguments.
 #[derive(clap::Args)]

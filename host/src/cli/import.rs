@@ -1,6 +1,5 @@
 //! `rotacal import`: the command line of `rotacal::recording::import`. The recording is
-//! written to a temporary file beside `--out` and renamed into place only when the whole
-//! import succeeded: a failure leaves no partial file.
+//! written whole or not at all (`rotacal::atomic`): a failure leaves no partial file.
 
 use anyhow::Context;
 use rotacal_shared::Condition;
@@ -115,19 +114,9 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         meta,
         poses,
     };
-    // Beside the output, so that the rename stays on one file system.
-    let dir = match out.parent() {
-        Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
-        _ => PathBuf::from("."),
-    };
-    let tmp = tempfile::NamedTempFile::new_in(&dir)
-        .map_err(|e| anyhow::anyhow!("{}: cannot write there: {e}", dir.display()))?;
-    let counts = rotacal::recording::import::import(readers, &spec, tmp.as_file())?;
-    tmp.as_file()
-        .sync_all()
-        .map_err(|e| anyhow::anyhow!("{}: {e}", out.display()))?;
-    tmp.persist(out)
-        .map_err(|e| anyhow::anyhow!("{}: {}", out.display(), e.error))?;
+    let counts = rotacal::atomic::write_with(out, |w| -> anyhow::Result<_> {
+        Ok(rotacal::recording::import::import(readers, &spec, w)?)
+    })?;
     let total: usize = counts.rows.iter().sum();
     let mut text = format!(
         "wrote {}: {total} rows ({})\n",

@@ -374,6 +374,6 @@ pub fn write(a: &Analysis, dir: &Path, units: &str) -> Result<PathBuf, ReportErr
         }
     }
     let path = dir.join("discrepancy.md");
-    std::fs::write(&path, md).map_err(io)?;
+    crate::atomic::write(&path, md).map_err(io)?;
     Ok(path)
 }

@@ -1005,6 +1005,6 @@ fn markdown(
         );
     }
     let path = dir.join("report.md");
-    std::fs::write(&path, md).map_err(err(&path))?;
+    crate::atomic::write(&path, md).map_err(err(&path))?;
     Ok(path)
 }

@@ -669,8 +669,21 @@ pub fn run(
             let rec = crate::recording::read(recording)?;
             // Checked before the output is created: a refused input leaves no file.
             check_units(&rec, &job)?;
-            let file = std::fs::File::create(out).map_err(|e| bad(&out_name, e))?;
-            apply(&rec, &job, file)?
+            // Whole or not at all: a failure part way leaves no file.
+            enum Failed {
+                Apply(ApplyError),
+                Io(std::io::Error),
+            }
+            impl From<std::io::Error> for Failed {
+                fn from(e: std::io::Error) -> Self {
+                    Failed::Io(e)
+                }
+            }
+            crate::atomic::write_with(out, |w| apply(&rec, &job, w).map_err(Failed::Apply))
+                .map_err(|f| match f {
+                    Failed::Apply(e) => e,
+                    Failed::Io(e) => bad(&out_name, e),
+                })?
         }
     };
     Ok((s.clone(), render(&s, &json.units_in)))

@@ -15,12 +15,14 @@ impl Simulation {
         Ok((sum, out.into_inner()?))
     }
 
-    /// Write the recording to a file, synced to disk.
+    /// Write the recording to a file, synced to disk, whole or not at all.
     pub fn write_file(&self, path: &Path) -> io::Result<Summary> {
-        let mut out = Writer::create(path, &self.metadata(), &self.columns())?;
-        let sum = self.run(|row| out.write_row(row))?;
-        out.sync()?;
-        Ok(sum)
+        crate::atomic::write_with(path, |w| {
+            let mut out = Writer::new(w, &self.metadata(), &self.columns())?;
+            let sum = self.run(|row| out.write_row(row))?;
+            out.into_inner()?;
+            Ok(sum)
+        })
     }
 
     /// The recording as `calibrate` would read it from the file (written to memory and

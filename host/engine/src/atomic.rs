@@ -1,0 +1,73 @@
+//! Writing a command's output file whole or not at all: into a temporary file beside it,
+//! renamed into place once everything is written and on disk. A command that fails part
+//! way leaves no partial file, and an older file of the same name as it was. (The
+//! recorder is the exception: its files are written as samples come, so that a crash keeps
+//! what was recorded; docs/recording.md.)
+
+use std::fs::File;
+use std::io::{self, BufWriter, Write};
+use std::path::{Path, PathBuf};
+
+/// A problem writing `path`, named.
+fn at(path: &Path, e: io::Error) -> io::Error {
+    io::Error::new(e.kind(), format!("{}: {e}", path.display()))
+}
+
+/// The folder `path` is in ("." for a bare name).
+fn folder(path: &Path) -> PathBuf {
+    match path.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
+        _ => PathBuf::from("."),
+    }
+}
+
+/// Write `path` by `write` into a temporary file beside it, then rename it into place:
+/// only if `write` succeeds. `E` carries both the writer's errors and I/O errors.
+pub fn write_with<T, E: From<io::Error>>(
+    path: &Path,
+    write: impl FnOnce(&mut BufWriter<&File>) -> Result<T, E>,
+) -> Result<T, E> {
+    let tmp = tempfile::Builder::new()
+        .prefix(".rotacal-")
+        .tempfile_in(folder(path))
+        .map_err(|e| at(path, e))?;
+    let mut out = BufWriter::new(tmp.as_file());
+    let value = write(&mut out)?;
+    out.flush().map_err(|e| at(path, e))?;
+    drop(out);
+    tmp.as_file().sync_all().map_err(|e| at(path, e))?;
+    tmp.persist(path).map_err(|e| at(path, e.error))?;
+    Ok(value)
+}
+
+/// Write `bytes` to `path`, whole or not at all.
+pub fn write(path: &Path, bytes: impl AsRef<[u8]>) -> io::Result<()> {
+    write_with(path, |w| w.write_all(bytes.as_ref()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_failed_write_leaves_nothing_and_the_old_file_as_it_was() {
+        let d = std::env::temp_dir().join(format!("rotacal-atomic-{}", std::process::id()));
+        std::fs::create_dir_all(&d).unwrap();
+        let p = d.join("out.txt");
+        write(&p, "first\n").unwrap();
+        let r: io::Result<()> = write_with(&p, |w| {
+            w.write_all(b"half of it")?;
+            Err(io::Error::other("failed"))
+        });
+        assert!(r.is_err());
+        assert_eq!(std::fs::read_to_string(&p).unwrap(), "first\n");
+        std::fs::remove_file(&p).unwrap();
+        let _: io::Result<()> = write_with(&p, |_| Err(io::Error::other("failed")));
+        assert!(!p.exists());
+        // Nothing else in the folder: the temporary files went with their failures.
+        assert_eq!(std::fs::read_dir(&d).unwrap().count(), 0);
+        write(&p, "second\n").unwrap();
+        assert_eq!(std::fs::read_to_string(&p).unwrap(), "second\n");
+        std::fs::remove_dir_all(&d).unwrap();
+    }
+}
