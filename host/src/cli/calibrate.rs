@@ -171,12 +171,16 @@ pub struct Args {
 /// Run it.
 pub fn run(a: Args) -> anyhow::Result<()> {
     let opts = a.options.into_engine()?;
-    let cal = rotacal::calibrate::stream::calibrate_file(&a.file, &opts)?;
+    let cal = rotacal::calibrate::stream::calibrate_file(&a.file, &opts)
+        .map_err(|e| with_rate_hint(e.into(), &a.file, &opts))?;
     if let Some(path) = a.json {
         let text = serde_json::to_string_pretty(&cal)? + "\n";
         rotacal::atomic::write(&path, text)?;
     }
     rotacal::output::emit(&rotacal::calibrate::table::render(&cal))?;
+    if let Some(h) = rotacal::calibrate::hints::units(&cal) {
+        eprintln!("warning: {h}");
+    }
     if let Some(c) = cal.residual_structure.as_ref().filter(|c| c.found) {
         eprintln!(
             "warning: {} finding(s) of structure beyond the noise in the residuals (see the \
@@ -185,4 +189,17 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         );
     }
     Ok(())
+}
+
+/// A calibration's failure, with what the rows say if they turn at another rate than the
+/// nominal one (a wrong --rate-hz gives a singular fit or one that does not converge).
+pub fn with_rate_hint(
+    e: anyhow::Error,
+    file: &std::path::Path,
+    opts: &rotacal::calibrate::Options,
+) -> anyhow::Error {
+    match rotacal::calibrate::hints::rate_of_file(file, opts) {
+        Some(h) => anyhow::anyhow!("{e:#}\n{h}"),
+        None => e,
+    }
 }

@@ -17,7 +17,8 @@ pub struct Args {
 /// Run it.
 pub fn run(a: Args) -> anyhow::Result<()> {
     let opts = a.options.into_engine()?;
-    let path = rotacal::report::write_file(&a.file, &opts, &a.out)?;
+    let path = rotacal::report::write_file(&a.file, &opts, &a.out)
+        .map_err(|e| super::calibrate::with_rate_hint(e.into(), &a.file, &opts))?;
     rotacal::output::emit(&format!("wrote {}\n", path.display()))?;
     Ok(())
 }

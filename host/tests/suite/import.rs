@@ -470,3 +470,88 @@ fn a_failed_import_leaves_nothing_and_says_what_to_do() {
     assert!(!out.exists());
     std::fs::remove_dir_all(&d).ok();
 }
+
+/// Issue 34: a user's log in g. Imported as "counts", calibrate warns that the readings look
+/// like g (the sensitivities are 1/g_loc per m/s²); imported as "g", it does not. Given
+/// twice the rate the table turned at, the fit fails and says what rate the data show.
+#[test]
+fn readings_in_g_and_a_wrong_rate_are_named_with_what_to_do() {
+    let d = dir("plausible");
+    let sim = Simulation::new(Config::preset("paper-10mhz").unwrap()).unwrap();
+    let rec = sim.recording().unwrap();
+    let mut logs = Vec::new();
+    for g in &rec.groups {
+        let path = d.join(format!("{}.csv", g.condition.letter()));
+        let mut text = String::from("t,ax,ay,az\n");
+        for i in 0..g.len() {
+            let to_g = |c: f64| c / 16384.0;
+            text += &format!(
+                "{},{},{},{}\n",
+                g.t_s[i],
+                to_g(g.u[i]),
+                to_g(g.v[i]),
+                to_g(g.w[i])
+            );
+        }
+        std::fs::write(&path, text).unwrap();
+        logs.push(path.display().to_string());
+    }
+    let import = |units: &str, out: &Path| {
+        let mut args: Vec<String> = vec!["import".into()];
+        args.extend(logs.iter().cloned());
+        args.extend(
+            [
+                "--columns",
+                "t=t,u=ax,v=ay,w=az",
+                "--condition",
+                "x,y,z",
+                "--rate-hz",
+                "0.01",
+                "--g-loc",
+                "9.80101",
+                "--units",
+                units,
+                "--out",
+            ]
+            .map(String::from),
+        );
+        args.push(out.display().to_string());
+        let (ok, o, err) = run(&args);
+        assert!(ok, "{o}\n{err}");
+    };
+    let (counts, in_g) = (d.join("counts.csv"), d.join("g.csv"));
+    import("counts", &counts);
+    import("g", &in_g);
+    let calibrate = |p: &Path, extra: &[&str]| {
+        let mut args = vec!["calibrate".to_string(), p.display().to_string()];
+        args.extend(extra.iter().map(|s| s.to_string()));
+        run(&args)
+    };
+    let (ok, out, err) = calibrate(&counts, &[]);
+    assert!(ok, "{out}\n{err}");
+    assert!(
+        err.contains("are about 1/g_loc = 0.1020: the readings look like g, not 'counts'"),
+        "{err}"
+    );
+    let (ok, out, err) = calibrate(&in_g, &[]);
+    assert!(ok, "{out}\n{err}");
+    assert!(!err.contains("warning"), "{err}");
+    // Twice the rate: the fit fails, and the data's own rate is named.
+    let (ok, _, err) = calibrate(&in_g, &["--rate-hz", "0.02"]);
+    assert!(!ok);
+    assert!(
+        err.contains(
+            "the data look like 0.0101 Hz (conditions x, y, z), not the nominal 0.0200 Hz: \
+             check --rate-hz"
+        ),
+        "{err}"
+    );
+    // Half of it: too few periods at that rate, and the same hint.
+    let (ok, _, err) = calibrate(&in_g, &["--rate-hz", "0.005"]);
+    assert!(!ok);
+    assert!(err.contains("the data look like 0.0101 Hz"), "{err}");
+    // The right rate: no hint.
+    let (ok, _, err) = calibrate(&in_g, &["--rate-hz", "0.01"]);
+    assert!(ok && !err.contains("look like"), "{err}");
+    std::fs::remove_dir_all(&d).ok();
+}

@@ -27,6 +27,7 @@ mod error;
 pub mod free;
 mod free_method;
 mod group;
+pub mod hints;
 pub mod json;
 pub mod methods;
 pub mod noise_from;
