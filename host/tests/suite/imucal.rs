@@ -8,7 +8,8 @@
 //! .compute(..., sampling_rate_hz=102.4)`. imucal's model is raw = K_a·R_a·a + b_a, so
 //! rotacal's S is K_a·R_a and O is b_a. The values are its printout, 17 digits.
 //!
-//! rotacal runs through the binary with exactly the README's worked example.
+//! rotacal runs through the binary with exactly the worked example of docs/calibration.md,
+//! "Worked example: imucal's six-position session".
 // imucal's printout is kept digit for digit (17 significant digits).
 #![allow(clippy::excessive_precision)]
 use crate::common;
@@ -130,7 +131,8 @@ fn tmp(name: &str) -> PathBuf {
     dir.join(name)
 }
 
-/// The README's worked example: import with the section list and the pose map, into a
+/// The worked example of docs/calibration.md ("Worked example: imucal's six-position
+/// session"): import with the section list and the pose map, into a
 /// file of the calling test's own (the tests run in parallel).
 fn import(name: &str) -> PathBuf {
     let out = tmp(name);
