@@ -31,6 +31,7 @@ mod mounting;
 mod mtu;
 mod noise;
 mod orientation;
+mod readme;
 mod record;
 mod recording;
 mod report;
