@@ -9,7 +9,8 @@
 //!   [`simulate`], [`discrepancy`], [`allan`];
 //! - [`report`]: the report folders with plots (calibration and discrepancy);
 //! - [`demo`]: the main job without hardware, wiring the rest together;
-//! - [`output`]: writing to the terminal.
+//! - [`output`]: writing to the terminal; [`trace`]: the traceability block of every
+//!   output.
 pub use rotacal_engine::{
     allan, atomic, calibrate, correct, discrepancy, fit, recording, reference, simulate, verify,
 };
@@ -20,3 +21,4 @@ pub mod link;
 pub mod output;
 pub mod record;
 pub mod report;
+pub mod trace;

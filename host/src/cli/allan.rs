@@ -117,7 +117,8 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     };
     rotacal::output::emit(&render(&out))?;
     if let Some(path) = &a.json {
-        rotacal::atomic::write(path, serde_json::to_string_pretty(&out)? + "\n")?;
+        let trace = rotacal::trace::Traceability::of_recording(&a.file, None, None, None)?;
+        rotacal::atomic::write(path, trace.json(&out)?)?;
     }
     if let Some(path) = &a.plot {
         let panels: Vec<rotacal::report::allan::Panel<'_>> = out

@@ -174,8 +174,13 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     let cal = rotacal::calibrate::stream::calibrate_file(&a.file, &opts)
         .map_err(|e| with_rate_hint(e.into(), &a.file, &opts))?;
     if let Some(path) = a.json {
-        let text = serde_json::to_string_pretty(&cal)? + "\n";
-        rotacal::atomic::write(&path, text)?;
+        let trace = rotacal::trace::Traceability::of_recording(
+            &a.file,
+            opts.method,
+            opts.g_loc,
+            opts.inputs.u_g_loc,
+        )?;
+        rotacal::atomic::write(&path, trace.json(&cal)?)?;
     }
     rotacal::output::emit(&rotacal::calibrate::table::render(&cal))?;
     if let Some(h) = rotacal::calibrate::hints::units(&cal) {

@@ -27,7 +27,9 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     let log = rotacal::recording::from_device::read_fit_log(&text, &log_name)?;
     let report = rotacal::verify::recorded::crosscheck(&rec, &log, a.threshold)?;
     if let Some(path) = &a.json {
-        rotacal::atomic::write(path, serde_json::to_string_pretty(&report)? + "\n")?;
+        let mut trace = rotacal::trace::Traceability::of_recording(&a.recording, None, None, None)?;
+        trace.inputs.push(rotacal::trace::input(&a.fit_log)?);
+        rotacal::atomic::write(path, trace.json(&report)?)?;
     }
     rotacal::output::emit(&rotacal::verify::recorded::render(&report))?;
     if !report.passed {

@@ -59,12 +59,16 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     let rows = rotacal::discrepancy::rows_from(rec, &opts)?;
     let (data, noise) = rotacal::discrepancy::with_noise(rows)?;
     let analysis = rotacal::discrepancy::analyse(data, noise, stated, &opts)?;
+    let trace = rotacal::trace::Traceability::of_recording(&a.file, None, a.g_loc, None)?;
     if let Some(path) = &a.json {
-        rotacal::atomic::write(path, serde_json::to_string_pretty(&analysis)? + "\n")?;
+        rotacal::atomic::write(path, trace.json(&analysis)?)?;
     }
     rotacal::output::emit(&rotacal::report::discrepancy::render(&analysis))?;
     if let Some(dir) = &a.report {
         let path = rotacal::report::discrepancy::write(&analysis, dir, &units)?;
+        let md = std::fs::read_to_string(&path)
+            .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+        rotacal::atomic::write(&path, md + "\n" + &trace.markdown())?;
         rotacal::output::emit(&format!("report: {}\n", path.display()))?;
     }
     if !analysis.verdict.explained {

@@ -52,7 +52,20 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     };
     let l = rotacal::correct::apply::load(&a.calibration, a.rate_hz, a.frame.into())?;
     let name = a.calibration.display().to_string();
-    let body = rotacal::correct::export::render(&l.json, &l.correction, &name, format, precision);
+    let trace = rotacal::trace::Traceability::of_calibration(&a.calibration)?;
+    let lines: Vec<String> = trace
+        .comment("traceability: ")
+        .lines()
+        .map(String::from)
+        .collect();
+    let body = rotacal::correct::export::render(
+        &l.json,
+        &l.correction,
+        &name,
+        format,
+        precision,
+        (&lines, Some(serde_json::to_value(&trace)?)),
+    );
     match a.out {
         Some(p) => rotacal::atomic::write(&p, body)?,
         None => rotacal::output::emit(&body)?,

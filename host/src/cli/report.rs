@@ -19,6 +19,15 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     let opts = a.options.into_engine()?;
     let path = rotacal::report::write_file(&a.file, &opts, &a.out)
         .map_err(|e| super::calibrate::with_rate_hint(e.into(), &a.file, &opts))?;
+    let trace = rotacal::trace::Traceability::of_recording(
+        &a.file,
+        opts.method,
+        opts.g_loc,
+        opts.inputs.u_g_loc,
+    )?;
+    let md =
+        std::fs::read_to_string(&path).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+    rotacal::atomic::write(&path, md + "\n" + &trace.markdown())?;
     rotacal::output::emit(&format!("wrote {}\n", path.display()))?;
     Ok(())
 }

@@ -41,4 +41,5 @@ mod slow_noise;
 mod static_method;
 mod streaming;
 mod structure_check;
+mod traceability;
 mod verdict;

@@ -65,17 +65,20 @@ fn header_lines(json: &CorrectionJson, c: &Correction, source: &str) -> Vec<Stri
     l
 }
 
-/// The constants in `format`.
+/// The constants in `format`, with `trace` (lines for the header comment, and the same as
+/// JSON for the JSON format: the traceability block).
 pub fn render(
     json: &CorrectionJson,
     c: &Correction,
     source: &str,
     format: Format,
     precision: Precision,
+    trace: (&[String], Option<serde_json::Value>),
 ) -> String {
     let mut o = String::new();
     let head: Vec<String> = header_lines(json, c, source)
         .iter()
+        .chain(trace.0)
         .map(|l| clean(l))
         .collect();
     let units_in = clean(&json.units_in);
@@ -91,6 +94,7 @@ pub fn render(
                 "offset_std_unc": c.offset_std_unc,
                 "matrix": c.matrix,
                 "matrix_std_unc": c.matrix_std_unc,
+                "traceability": trace.1,
             });
             o = serde_json::to_string_pretty(&v).unwrap_or_default();
             o.push('\n');

@@ -1,0 +1,347 @@
+//! The traceability block every JSON, report and export carries (docs/formats.md,
+//! "Traceability"): which rotacal made it, when, from which input (its SHA-256), on which
+//! device and firmware, over which temperatures, with which local gravity, by which
+//! command line.
+
+use crate::recording::{self, Parse, Scanned};
+use serde::Serialize;
+use sha2::{Digest, Sha256};
+use std::io::Read;
+use std::path::Path;
+
+/// See the module documentation.
+#[derive(Clone, Debug, Serialize)]
+pub struct Traceability {
+    /// rotacal's version.
+    pub rotacal: String,
+    /// The commit it was built from (`git describe`; "-dirty": with changes not
+    /// committed; "unknown" outside a checkout).
+    pub commit: String,
+    /// When the output was made, UTC, ISO 8601.
+    pub date_utc: String,
+    /// The command line, its arguments as given.
+    pub command_line: Vec<String>,
+    /// The input files.
+    pub inputs: Vec<Input>,
+    /// The recording's `# device=` (which for `rotacal record` names the chip, the
+    /// firmware and the BLE address).
+    pub device: Option<String>,
+    /// The firmware version, from `device` ("firmware A.B.C").
+    pub firmware: Option<String>,
+    /// The range of the recording's `temp_c`, °C.
+    pub temperature_c: Option<Range>,
+    /// Local gravity, where it came from and its standard uncertainty.
+    pub g_loc: Option<Gravity>,
+    /// For an output made from a calibration (an export): that calibration's own block,
+    /// which names the recording it was made from.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub calibration: Option<serde_json::Value>,
+}
+
+/// An input file.
+#[derive(Clone, Debug, Serialize)]
+pub struct Input {
+    /// As given on the command line.
+    pub path: String,
+    /// Bytes.
+    pub bytes: u64,
+    /// SHA-256 of its bytes, hex.
+    pub sha256: String,
+}
+
+/// A closed range.
+#[derive(Clone, Copy, Debug, Serialize)]
+pub struct Range {
+    /// Smallest.
+    pub min: f64,
+    /// Largest.
+    pub max: f64,
+}
+
+/// Local gravity.
+#[derive(Clone, Debug, Serialize)]
+pub struct Gravity {
+    /// m/s².
+    pub value: f64,
+    /// "--g-loc" or "the recording's g_loc".
+    pub source: String,
+    /// Standard uncertainty, m/s² (`None`: not given, and not in the budget).
+    pub std_unc: Option<f64>,
+    /// "--u-g-loc", "the recording's u_g_loc" or "not given".
+    pub std_unc_source: String,
+}
+
+/// The file at `path`: its size and SHA-256.
+pub fn input(path: &Path) -> std::io::Result<Input> {
+    let at = |e: std::io::Error| std::io::Error::new(e.kind(), format!("{}: {e}", path.display()));
+    let mut f = std::fs::File::open(path).map_err(at)?;
+    let mut hash = Sha256::new();
+    let mut buf = vec![0u8; 1 << 16];
+    let mut bytes = 0u64;
+    loop {
+        let n = f.read(&mut buf).map_err(at)?;
+        if n == 0 {
+            break;
+        }
+        hash.update(buf.get(..n).unwrap_or(&[]));
+        bytes += n as u64;
+    }
+    let sha256 = hash.finalize().iter().map(|b| format!("{b:02x}")).collect();
+    Ok(Input {
+        path: path.display().to_string(),
+        bytes,
+        sha256,
+    })
+}
+
+impl Traceability {
+    /// For outputs made from `inputs` (files of any kind), without a recording's facts.
+    pub fn new(inputs: &[&Path]) -> std::io::Result<Self> {
+        Ok(Traceability {
+            rotacal: env!("CARGO_PKG_VERSION").into(),
+            commit: env!("ROTACAL_COMMIT").into(),
+            date_utc: utc_now(),
+            command_line: std::env::args().collect(),
+            inputs: inputs.iter().map(|p| input(p)).collect::<Result<_, _>>()?,
+            device: None,
+            firmware: None,
+            temperature_c: None,
+            g_loc: None,
+            calibration: None,
+        })
+    }
+
+    /// For outputs made from the recording at `path` (read as `method`), with local
+    /// gravity and its uncertainty as the command line gave them, if it did.
+    pub fn of_recording(
+        path: &Path,
+        method: Option<recording::Method>,
+        g_loc: Option<f64>,
+        u_g_loc: Option<f64>,
+    ) -> anyhow::Result<Self> {
+        let mut t = Traceability::new(&[path])?;
+        let mut meta = None;
+        let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+        let mut range = |x: f64| {
+            lo = lo.min(x);
+            hi = hi.max(x);
+        };
+        let whole = recording::scan(path, method, Parse::All, |ev| match ev {
+            Scanned::Start { meta: m, .. } => meta = Some(*m),
+            Scanned::Row {
+                temp_c: Some(x), ..
+            } => range(x),
+            _ => {}
+        })?;
+        // Poses and free series are read whole rather than row by row.
+        if let Some(rec) = &whole {
+            let temps = rec
+                .oriented
+                .as_ref()
+                .and_then(|o| o.temp_c.as_ref())
+                .or(rec.series.as_ref().and_then(|s| s.temp_c.as_ref()));
+            temps.into_iter().flatten().for_each(|x| range(*x));
+            meta = meta.or(Some(rec.meta.clone()));
+        }
+        let meta = meta.unwrap_or_default();
+        t.firmware = meta.device.as_deref().and_then(firmware);
+        t.device = meta.device.clone();
+        t.temperature_c = (lo <= hi).then_some(Range { min: lo, max: hi });
+        let value = g_loc
+            .map(|g| (g, "--g-loc"))
+            .or(meta.g_loc.map(|g| (g, "the recording's g_loc")));
+        let unc = u_g_loc.map(|u| (u, "--u-g-loc")).or(meta
+            .other
+            .get("u_g_loc")
+            .and_then(|u| u.parse().ok())
+            .map(|u| (u, "the recording's u_g_loc")));
+        t.g_loc = value.map(|(value, source)| Gravity {
+            value,
+            source: source.into(),
+            std_unc: unc.map(|u| u.0),
+            std_unc_source: unc.map_or("not given".into(), |u| u.1.into()),
+        });
+        Ok(t)
+    }
+
+    /// For outputs made from the calibration JSON at `path`: its facts of the device,
+    /// temperature and gravity, and its own block.
+    pub fn of_calibration(path: &Path) -> anyhow::Result<Self> {
+        let mut t = Traceability::new(&[path])?;
+        let text = std::fs::read_to_string(path)
+            .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+        let json: serde_json::Value =
+            serde_json::from_str(&text).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+        if let Some(c) = json.get("traceability") {
+            let s = |k: &str| c.get(k).and_then(|v| v.as_str()).map(String::from);
+            t.device = s("device");
+            t.firmware = s("firmware");
+            t.temperature_c = c.get("temperature_c").and_then(|r| {
+                Some(Range {
+                    min: r.get("min")?.as_f64()?,
+                    max: r.get("max")?.as_f64()?,
+                })
+            });
+            t.g_loc = c.get("g_loc").and_then(|g| {
+                Some(Gravity {
+                    value: g.get("value")?.as_f64()?,
+                    source: g.get("source")?.as_str()?.into(),
+                    std_unc: g.get("std_unc").and_then(serde_json::Value::as_f64),
+                    std_unc_source: g.get("std_unc_source")?.as_str()?.into(),
+                })
+            });
+            t.calibration = Some(c.clone());
+        }
+        Ok(t)
+    }
+
+    /// The block as Markdown: a heading and a table.
+    pub fn markdown(&self) -> String {
+        let mut rows = vec![
+            ("rotacal", format!("{} ({})", self.rotacal, self.commit)),
+            ("date (UTC)", self.date_utc.clone()),
+            ("command line", format!("`{}`", self.command_line.join(" "))),
+        ];
+        for i in &self.inputs {
+            rows.push((
+                "input",
+                format!("{} ({} bytes, SHA-256 {})", i.path, i.bytes, i.sha256),
+            ));
+        }
+        if let Some(c) = &self.calibration {
+            let s = |k: &str| c.get(k).and_then(|v| v.as_str()).unwrap_or("?").to_string();
+            let recording = c
+                .get("inputs")
+                .and_then(|i| i.get(0))
+                .map_or("?".into(), |i| {
+                    format!(
+                        "{} (SHA-256 {})",
+                        i.get("path").and_then(|v| v.as_str()).unwrap_or("?"),
+                        i.get("sha256").and_then(|v| v.as_str()).unwrap_or("?")
+                    )
+                });
+            rows.push((
+                "calibration",
+                format!(
+                    "made by rotacal {} ({}) on {} from {recording}",
+                    s("rotacal"),
+                    s("commit"),
+                    s("date_utc")
+                ),
+            ));
+        }
+        rows.push(("device", self.device.clone().unwrap_or("not stated".into())));
+        rows.push((
+            "firmware",
+            self.firmware.clone().unwrap_or("not stated".into()),
+        ));
+        rows.push((
+            "temperature",
+            self.temperature_c.map_or("not recorded".into(), |r| {
+                format!("{} to {} °C", r.min, r.max)
+            }),
+        ));
+        rows.push((
+            "g_loc",
+            self.g_loc.as_ref().map_or("not given".into(), |g| {
+                let u = g.std_unc.map_or("not given".into(), |u| {
+                    format!("{u} m/s² ({})", g.std_unc_source)
+                });
+                format!("{} m/s² ({}), standard uncertainty {u}", g.value, g.source)
+            }),
+        ));
+        let mut md = String::from("## Traceability\n\n| | |\n| --- | --- |\n");
+        for (k, v) in rows {
+            md.push_str(&format!("| {k} | {} |\n", v.replace('|', "\\|")));
+        }
+        md
+    }
+
+    /// The block as comment lines, each starting with `prefix`.
+    pub fn comment(&self, prefix: &str) -> String {
+        self.markdown()
+            .lines()
+            .skip(4)
+            .map(|l| {
+                let cells: Vec<&str> = l.trim_matches('|').splitn(2, " | ").collect();
+                format!(
+                    "{prefix}{}: {}\n",
+                    cells.first().unwrap_or(&"").trim(),
+                    cells.get(1).unwrap_or(&"").trim().trim_matches('`')
+                )
+            })
+            .collect()
+    }
+
+    /// `value` (which serialises as a JSON object) as pretty JSON with this block added
+    /// last, under `traceability`: the object's own keys keep their order.
+    pub fn json<T: Serialize>(&self, value: &T) -> serde_json::Result<String> {
+        #[derive(Serialize)]
+        struct With<'a, T: Serialize> {
+            #[serde(flatten)]
+            value: &'a T,
+            traceability: &'a Traceability,
+        }
+        Ok(serde_json::to_string_pretty(&With {
+            value,
+            traceability: self,
+        })? + "\n")
+    }
+}
+
+/// "A.B.C" from a device description "… firmware A.B.C …".
+fn firmware(device: &str) -> Option<String> {
+    let rest = device.split("firmware ").nth(1)?;
+    let v: String = rest
+        .chars()
+        .take_while(|c| c.is_ascii_digit() || *c == '.')
+        .collect();
+    (!v.is_empty()).then_some(v)
+}
+
+/// Now, UTC, as `YYYY-MM-DDTHH:MM:SSZ`.
+fn utc_now() -> String {
+    let secs = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_secs());
+    utc(secs)
+}
+
+/// `secs` since 1970 as `YYYY-MM-DDTHH:MM:SSZ` (the proleptic Gregorian calendar; days to
+/// a civil date by H. Hinnant's algorithm).
+fn utc(secs: u64) -> String {
+    let days = (secs / 86_400) as i64;
+    let rem = secs % 86_400;
+    let z = days + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z - era * 146_097;
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let d = doy - (153 * mp + 2) / 5 + 1;
+    let m = if mp < 10 { mp + 3 } else { mp - 9 };
+    let y = yoe + era * 400 + i64::from(m <= 2);
+    format!(
+        "{y:04}-{m:02}-{d:02}T{:02}:{:02}:{:02}Z",
+        rem / 3600,
+        rem % 3600 / 60,
+        rem % 60
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn dates_and_firmware() {
+        assert_eq!(utc(0), "1970-01-01T00:00:00Z");
+        assert_eq!(utc(951_782_400), "2000-02-29T00:00:00Z");
+        assert_eq!(utc(1_795_824_000 + 3723), "2026-11-28T01:02:03Z");
+        assert_eq!(
+            firmware("LSM6DS33 firmware 0.2.0 (BLE device F1:23:45:67:89:AB)").as_deref(),
+            Some("0.2.0")
+        );
+        assert_eq!(firmware("simulated LSM6DS33"), None);
+    }
+}
