@@ -27,10 +27,17 @@ pub fn write_with<T, E: From<io::Error>>(
     path: &Path,
     write: impl FnOnce(&mut BufWriter<&File>) -> Result<T, E>,
 ) -> Result<T, E> {
-    let tmp = tempfile::Builder::new()
-        .prefix(".rotacal-")
-        .tempfile_in(folder(path))
-        .map_err(|e| at(path, e))?;
+    let mut builder = tempfile::Builder::new();
+    builder.prefix(".rotacal-");
+    // As a file created the usual way would be (a temporary file is private): the old
+    // file's permissions, or read-write for the owner and readable by all.
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt;
+        let mode = std::fs::metadata(path).map_or(0o644, |m| m.permissions().mode());
+        builder.permissions(std::fs::Permissions::from_mode(mode));
+    }
+    let tmp = builder.tempfile_in(folder(path)).map_err(|e| at(path, e))?;
     let mut out = BufWriter::new(tmp.as_file());
     let value = write(&mut out)?;
     out.flush().map_err(|e| at(path, e))?;
@@ -68,6 +75,13 @@ mod tests {
         assert_eq!(std::fs::read_dir(&d).unwrap().count(), 0);
         write(&p, "second\n").unwrap();
         assert_eq!(std::fs::read_to_string(&p).unwrap(), "second\n");
+        // Not a temporary file's private permissions.
+        #[cfg(unix)]
+        {
+            use std::os::unix::fs::PermissionsExt;
+            let mode = std::fs::metadata(&p).unwrap().permissions().mode();
+            assert_eq!(mode & 0o777, 0o644);
+        }
         std::fs::remove_dir_all(&d).unwrap();
     }
 }
