@@ -10,6 +10,11 @@ pub struct Args {
     /// The folder to write (created if missing).
     #[arg(long)]
     pub out: PathBuf,
+    /// Also write DIR/report.html: one self-contained file (plots inline, no network)
+    /// that a browser prints to PDF, a certificate with the results, U and k, the budget,
+    /// the plots and the traceability block.
+    #[arg(long)]
+    pub html: bool,
     #[command(flatten)]
     pub options: super::calibrate::Options,
 }
@@ -17,7 +22,7 @@ pub struct Args {
 /// Run it.
 pub fn run(a: Args) -> anyhow::Result<()> {
     let opts = a.options.into_engine()?;
-    let path = rotacal::report::write_file(&a.file, &opts, &a.out)
+    let (path, cal) = rotacal::report::write_file_with(&a.file, &opts, &a.out)
         .map_err(|e| super::calibrate::with_rate_hint(e.into(), &a.file, &opts))?;
     let trace = rotacal::trace::Traceability::of_recording(
         &a.file,
@@ -27,7 +32,20 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     )?;
     let md =
         std::fs::read_to_string(&path).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
-    rotacal::atomic::write(&path, md + "\n" + &trace.markdown())?;
+    rotacal::atomic::write(&path, md.clone() + "\n" + &trace.markdown())?;
     rotacal::output::emit(&format!("wrote {}\n", path.display()))?;
+    if a.html {
+        let html = rotacal::report::html::certificate(
+            &cal,
+            &a.file.display().to_string(),
+            &md,
+            &a.out,
+            &rotacal::calibrate::table::render(&cal),
+            &trace.markdown(),
+        )?;
+        let page = a.out.join("report.html");
+        rotacal::atomic::write(&page, html)?;
+        rotacal::output::emit(&format!("wrote {}\n", page.display()))?;
+    }
     Ok(())
 }

@@ -18,6 +18,7 @@
 pub mod allan;
 pub mod discrepancy;
 mod free;
+pub mod html;
 
 use crate::calibrate::json::{CalibrationJson, FitJson, Quantity, RateJson};
 use crate::calibrate::{self, calibrate, CalibrateError, Options, CLOCK};
@@ -589,6 +590,15 @@ fn q(x: &Quantity, unit: &str) -> String {
 
 /// Write the report; returns the Markdown file's path.
 pub fn write(rec: &Recording, opts: &Options, dir: &Path) -> Result<PathBuf, ReportError> {
+    write_with(rec, opts, dir).map(|(path, _)| path)
+}
+
+/// [`write`], returning the calibration too.
+pub fn write_with(
+    rec: &Recording,
+    opts: &Options,
+    dir: &Path,
+) -> Result<(PathBuf, CalibrationJson), ReportError> {
     let cal = calibrate(rec, opts)?;
     let mut groups = |entry: &RateJson| -> Result<Vec<Series>, ReportError> {
         // Method free fits no sines: its groups (if any) were searched for still poses.
@@ -605,13 +615,23 @@ pub fn write(rec: &Recording, opts: &Options, dir: &Path) -> Result<PathBuf, Rep
     let mut free = |f: &calibrate::json::FreeJson, units: &str, md: &mut String| {
         free::write(rec, f, units, dir, md)
     };
-    markdown(&cal, &rec.source, rec.rows(), dir, &mut groups, &mut free)
+    let path = markdown(&cal, &rec.source, rec.rows(), dir, &mut groups, &mut free)?;
+    Ok((path, cal))
 }
 
 /// [`write`] for the recording at `path`: a rotation file streams (calibrated by
 /// [`calibrate::stream`], its plots reduced to pixel columns as the rows come), in
 /// memory that does not grow with its length; any other is read whole.
 pub fn write_file(path: &Path, opts: &Options, dir: &Path) -> Result<PathBuf, ReportError> {
+    write_file_with(path, opts, dir).map(|(p, _)| p)
+}
+
+/// [`write_file`], returning the calibration too.
+pub fn write_file_with(
+    path: &Path,
+    opts: &Options,
+    dir: &Path,
+) -> Result<(PathBuf, CalibrationJson), ReportError> {
     let rotation = match opts.method {
         Some(Method::Static | Method::Free) => false,
         _ => crate::recording::Parts::open(path, opts.method)?
@@ -619,7 +639,7 @@ pub fn write_file(path: &Path, opts: &Options, dir: &Path) -> Result<PathBuf, Re
     };
     if !rotation {
         let rec = crate::recording::read_as(path, opts.method)?;
-        return write(&rec, opts, dir);
+        return write_with(&rec, opts, dir);
     }
     let cal = calibrate::stream::calibrate_file(path, opts)?;
     let (mut by_entry, rows) = streamed_series(path, opts, &cal)?;
@@ -630,14 +650,15 @@ pub fn write_file(path: &Path, opts: &Options, dir: &Path) -> Result<PathBuf, Re
             .unwrap_or_default())
     };
     let mut free = |_: &calibrate::json::FreeJson, _: &str, _: &mut String| Ok(());
-    markdown(
+    let md = markdown(
         &cal,
         &path.display().to_string(),
         rows,
         dir,
         &mut groups,
         &mut free,
-    )
+    )?;
+    Ok((md, cal))
 }
 
 /// Each rate entry's series, from one pass over a rotation file; and the rows read.
