@@ -153,6 +153,9 @@ pub(crate) struct Series {
     model: [Envelope; 3],
     resid: [Envelope; 3],
     harmonics: [HarmonicSums; 3],
+    /// Sum of squared residuals per channel, and rows: the noise floor of the spectrum.
+    ss: [f64; 3],
+    n: usize,
     /// The x range of the rows.
     x_range: (f64, f64),
 }
@@ -168,6 +171,8 @@ impl Series {
             model: Default::default(),
             resid: Default::default(),
             harmonics: Default::default(),
+            ss: [0.0; 3],
+            n: 0,
             x_range: (f64::INFINITY, f64::NEG_INFINITY),
         }
     }
@@ -183,9 +188,14 @@ impl Series {
             .zip(&mut self.resid);
         let per_channel = envelopes
             .zip(&mut self.harmonics)
-            .zip(y.into_iter().zip(model));
-        for ((((data, fit), resid), harmonics), (y, m)) in per_channel {
+            .zip(y.into_iter().zip(model))
+            .zip(&mut self.ss);
+        self.n += 1;
+        for (((((data, fit), resid), harmonics), (y, m)), ss) in per_channel {
             let r = y - m;
+            if r.is_finite() {
+                *ss += r * r;
+            }
             data.add(x, y);
             fit.add(x, m);
             resid.add(x, r);
@@ -193,6 +203,15 @@ impl Series {
                 harmonics.add(alpha, r);
             }
         }
+    }
+
+    /// Per channel, the mean amplitude white noise of the residuals' RMS gives at one
+    /// harmonic: the amplitude of a least-squares sine over n rows of noise σ is Rayleigh
+    /// with scale σ·√(2/n), whose mean is σ·√(π/n).
+    pub(crate) fn noise_floor(&self) -> [f64; 3] {
+        let n = self.n.max(1) as f64;
+        self.ss
+            .map(|ss| (ss / n).sqrt() * (std::f64::consts::PI / n).sqrt())
     }
 
     /// The residual amplitude at each harmonic of ω, per channel.
@@ -380,6 +399,71 @@ fn legend<'a, 'b: 'a>(c: &mut Chart<'a, 'b>, path: &Path) -> Result<(), ReportEr
         .map_err(err(path))
 }
 
+/// What a legend entry shows beside its label.
+#[derive(Clone, Copy)]
+enum Key {
+    /// A dot (data).
+    Dot,
+    /// A line (a fit).
+    Line,
+    /// A dashed line (a reference level).
+    Dashed,
+}
+
+/// A legend beside the plots, outside the data: one line per entry from the top of `area`.
+fn side_legend(
+    area: &DrawingArea<SVGBackend<'_>, plotters::coord::Shift>,
+    entries: &[(String, RGBColor, Key)],
+    path: &Path,
+) -> Result<(), ReportError> {
+    for (i, (label, c, key)) in entries.iter().enumerate() {
+        let y = 40 + 22 * i as i32;
+        match key {
+            Key::Dot => area
+                .draw(&Circle::new((16, y), 4, c.filled()))
+                .map_err(err(path))?,
+            Key::Line => area
+                .draw(&PathElement::new(vec![(6, y), (26, y)], c.stroke_width(2)))
+                .map_err(err(path))?,
+            Key::Dashed => {
+                for x in [6, 14, 22] {
+                    area.draw(&PathElement::new(
+                        vec![(x, y), (x + 5, y)],
+                        c.stroke_width(2),
+                    ))
+                    .map_err(err(path))?;
+                }
+            }
+        }
+        area.draw(&Text::new(
+            label.clone(),
+            (34, y - 8),
+            ("sans-serif", 14).into_font(),
+        ))
+        .map_err(err(path))?;
+    }
+    Ok(())
+}
+
+/// The plot's drawing area, white, split into the plots (three panels, one per channel,
+/// stacked) and a legend column at the right.
+#[allow(clippy::type_complexity)]
+fn panels<'b>(
+    root: &DrawingArea<SVGBackend<'b>, plotters::coord::Shift>,
+    width: u32,
+    path: &Path,
+) -> Result<
+    (
+        Vec<DrawingArea<SVGBackend<'b>, plotters::coord::Shift>>,
+        DrawingArea<SVGBackend<'b>, plotters::coord::Shift>,
+    ),
+    ReportError,
+> {
+    root.fill(&WHITE).map_err(err(path))?;
+    let (plots, legend) = root.split_horizontally(width - 150);
+    Ok((plots.split_evenly((3, 1)), legend))
+}
+
 /// An envelope's bins as marks: a bar from each bin's least to its greatest value (a dot
 /// for a bin of one value).
 fn marks(e: &Envelope, c: RGBColor) -> Vec<PathElement<(f64, f64)>> {
@@ -389,102 +473,141 @@ fn marks(e: &Envelope, c: RGBColor) -> Vec<PathElement<(f64, f64)>> {
 }
 
 /// Raw data (each pixel column's range) and the fitted sines (a line through each
-/// column's range), three channels.
+/// column's range), a panel per channel.
 fn plot_fit(s: &Series, path: &Path, units: &str) -> Result<(), ReportError> {
-    let root = SVGBackend::new(path, (900, 520)).into_drawing_area();
-    root.fill(&WHITE).map_err(err(path))?;
+    let root = SVGBackend::new(path, (900, 720)).into_drawing_area();
+    let (areas, side) = panels(&root, 900, path)?;
     let (x0, x1) = range([s.x_range.0, s.x_range.1].into_iter());
-    let (y0, y1) = range(s.data.iter().flat_map(Envelope::values));
-    let mut chart = chart(
-        &root,
-        path,
-        &format!("{}: data and fitted sines", s.title),
-        18,
-        (x0, x1),
-        (y0, y1),
-        s.x_label,
-        units,
-    )?;
     let per_channel = s.data.iter().zip(&s.model).zip(COLOURS).zip(CHANNELS);
-    for (((data, model), c), name) in per_channel {
-        chart
-            .draw_series(marks(data, c))
-            .map_err(err(path))?
-            .label(format!("{name} data"))
-            .legend(move |(x, y)| Circle::new((x + 10, y), 3, c.filled()));
+    for ((((data, model), c), name), area) in per_channel.zip(&areas) {
+        let (y0, y1) = range(data.values().chain(model.values()));
+        let mut chart = chart(
+            area,
+            path,
+            &format!("{}: {name}", s.title),
+            15,
+            (x0, x1),
+            (y0, y1),
+            s.x_label,
+            units,
+        )?;
+        chart.draw_series(marks(data, c)).map_err(err(path))?;
         let line: Vec<(f64, f64)> = model
             .points()
             .flat_map(|(x, lo, hi)| [(x, lo), (x, hi)])
             .collect();
         chart
-            .draw_series(LineSeries::new(line, c.stroke_width(1)))
-            .map_err(err(path))?
-            .label(format!("{name} fit"))
-            .legend(move |(x, y)| PathElement::new([(x, y), (x + 20, y)], c));
+            .draw_series(LineSeries::new(line, BLACK.stroke_width(1)))
+            .map_err(err(path))?;
     }
-    legend(&mut chart, path)?;
+    let mut entries: Vec<(String, RGBColor, Key)> = CHANNELS
+        .iter()
+        .zip(COLOURS)
+        .map(|(n, c)| (format!("{n}: data"), c, Key::Dot))
+        .collect();
+    entries.push(("fitted sine".into(), BLACK, Key::Line));
+    side_legend(&side, &entries, path)?;
     root.present().map_err(err(path))
 }
 
-/// Residuals against time or angle (each pixel column's range), three channels.
+/// Residuals against time or angle (each pixel column's range), a panel per channel.
 pub(crate) fn plot_residuals(s: &Series, path: &Path, units: &str) -> Result<(), ReportError> {
-    let root = SVGBackend::new(path, (900, 420)).into_drawing_area();
-    root.fill(&WHITE).map_err(err(path))?;
+    let root = SVGBackend::new(path, (900, 620)).into_drawing_area();
+    let (areas, side) = panels(&root, 900, path)?;
     let (x0, x1) = range([s.x_range.0, s.x_range.1].into_iter());
-    let (y0, y1) = range(s.resid.iter().flat_map(Envelope::values));
-    let mut chart = chart(
-        &root,
-        path,
-        &format!("{}: residuals", s.title),
-        18,
-        (x0, x1),
-        (y0, y1),
-        s.x_label,
-        &format!("data − fit ({units})"),
-    )?;
-    for ((e, c), name) in s.resid.iter().zip(COLOURS).zip(CHANNELS) {
-        chart
-            .draw_series(marks(e, c))
-            .map_err(err(path))?
-            .label(name)
-            .legend(move |(x, y)| Circle::new((x + 10, y), 3, c.filled()));
+    for (((e, c), name), area) in s.resid.iter().zip(COLOURS).zip(CHANNELS).zip(&areas) {
+        let (y0, y1) = range(e.values());
+        let mut chart = chart(
+            area,
+            path,
+            &format!("{}: residuals of {name}", s.title),
+            15,
+            (x0, x1),
+            (y0, y1),
+            s.x_label,
+            &format!("data − fit ({units})"),
+        )?;
+        chart.draw_series(marks(e, c)).map_err(err(path))?;
     }
-    legend(&mut chart, path)?;
+    let entries: Vec<(String, RGBColor, Key)> = CHANNELS
+        .iter()
+        .zip(COLOURS)
+        .map(|(n, c)| (format!("{n}: data − fit"), c, Key::Dot))
+        .collect();
+    side_legend(&side, &entries, path)?;
     root.present().map_err(err(path))
 }
 
-/// Residual amplitude at the harmonics of ω.
+/// Residual amplitude at the harmonics 2…8 of ω on a log axis (k = 1 is fitted, so it is
+/// zero), with each channel's white-noise floor.
 pub(crate) fn plot_spectrum(
     s: &Series,
     amps: &[Vec<f64>],
     path: &Path,
     units: &str,
 ) -> Result<(), ReportError> {
-    let root = SVGBackend::new(path, (700, 400)).into_drawing_area();
+    let root = SVGBackend::new(path, (850, 420)).into_drawing_area();
     root.fill(&WHITE).map_err(err(path))?;
-    let (_, y1) = range(amps.iter().flatten().copied());
-    let mut chart = chart(
-        &root,
-        path,
-        &format!("{}: residual amplitude at k·ω", s.title),
-        18,
-        (0.5f64, (HARMONICS as f64 + 0.5)),
-        (0.0, y1.max(1e-12)),
-        "harmonic k",
-        &format!("amplitude ({units})"),
-    )?;
-    for (ch, ((a, c), name)) in amps.iter().zip(COLOURS).zip(CHANNELS).enumerate() {
+    let (plot, side) = root.split_horizontally(850 - 190);
+    let floor = s.noise_floor();
+    let shown = amps
+        .iter()
+        .flat_map(|a| a.iter().skip(1).copied())
+        .chain(floor)
+        .filter(|v| *v > 0.0 && v.is_finite());
+    let (lo, hi) = shown.fold((f64::INFINITY, 0.0f64), |(l, h), v| (l.min(v), h.max(v)));
+    let (lo, hi) = if lo.is_finite() && hi > 0.0 {
+        (lo / 3.0, hi * 3.0)
+    } else {
+        (1e-6, 1.0)
+    };
+    let mut chart = ChartBuilder::on(&plot)
+        .caption(
+            format!("{}: residual amplitude at k·ω", s.title),
+            ("sans-serif", 16),
+        )
+        .margin(10)
+        .x_label_area_size(40)
+        .y_label_area_size(80)
+        .build_cartesian_2d(1.5f64..(HARMONICS as f64 + 0.5), (lo..hi).log_scale())
+        .map_err(err(path))?;
+    chart
+        .configure_mesh()
+        .x_desc("harmonic k (k = 1 is fitted)")
+        .y_desc(format!("amplitude ({units})"))
+        .x_labels(HARMONICS)
+        .x_label_formatter(&|x| format!("{x:.0}"))
+        .draw()
+        .map_err(err(path))?;
+    for (ch, ((a, c), f)) in amps.iter().zip(COLOURS).zip(floor).enumerate() {
         let off = (ch as f64 - 1.0) * 0.2;
         chart
-            .draw_series(a.iter().enumerate().map(|(k, v)| {
+            .draw_series(a.iter().enumerate().skip(1).map(|(k, v)| {
                 let x = k as f64 + 1.0 + off;
-                Rectangle::new([(x - 0.09, 0.0), (x + 0.09, *v)], c.filled())
+                Rectangle::new([(x - 0.09, lo), (x + 0.09, v.max(lo))], c.filled())
             }))
-            .map_err(err(path))?
-            .label(name)
-            .legend(move |(x, y)| Rectangle::new([(x + 5, y - 4), (x + 13, y + 4)], c.filled()));
+            .map_err(err(path))?;
+        chart
+            .draw_series(DashedLineSeries::new(
+                [(1.5, f), (HARMONICS as f64 + 0.5, f)],
+                6,
+                4,
+                c.stroke_width(1),
+            ))
+            .map_err(err(path))?;
     }
-    legend(&mut chart, path)?;
+    let mut entries: Vec<(String, RGBColor, Key)> = CHANNELS
+        .iter()
+        .zip(COLOURS)
+        .map(|(n, c)| (n.to_string(), c, Key::Dot))
+        .collect();
+    entries.extend(
+        CHANNELS
+            .iter()
+            .zip(COLOURS)
+            .map(|(n, c)| (format!("{n}: white-noise floor"), c, Key::Dashed)),
+    );
+    side_legend(&side, &entries, path)?;
     root.present().map_err(err(path))
 }
 
@@ -500,8 +623,9 @@ fn angles(e: &RateJson) -> [&Quantity; 3] {
     [&a.uv, &a.vw, &a.wu]
 }
 
-/// Properties against rate, relative to the lowest rate, with U (k = 2) as error bars:
-/// sensitivities in parts per million, angles in degrees.
+/// Properties against rate (a log axis: rates span decades), relative to the lowest rate,
+/// with U as error bars: sensitivities in parts per million, angles in degrees; the legend
+/// beside the panels.
 fn plot_rates(cal: &CalibrationJson, path: &Path) -> Result<(), ReportError> {
     let mut entries: Vec<&RateJson> = cal.by_rate.iter().collect();
     entries.sort_by(|a, b| {
@@ -514,16 +638,27 @@ fn plot_rates(cal: &CalibrationJson, path: &Path) -> Result<(), ReportError> {
     };
     let root = SVGBackend::new(path, (900, 700)).into_drawing_area();
     root.fill(&WHITE).map_err(err(path))?;
-    let (top, bottom) = root.split_vertically(350);
+    let (plots, side) = root.split_horizontally(900 - 130);
+    let (top, bottom) = plots.split_vertically(350);
     let rate = |e: &RateJson| e.rate_hz.unwrap_or(0.0);
-    let (x0, x1) = range(entries.iter().map(|e| rate(e)));
+    let (lo, hi) = entries
+        .iter()
+        .map(|e| rate(e))
+        .filter(|r| *r > 0.0)
+        .fold((f64::INFINITY, 0.0f64), |(l, h), r| (l.min(r), h.max(r)));
+    let (x0, x1) = if lo.is_finite() && hi > 0.0 {
+        (lo / 1.5, hi * 1.5)
+    } else {
+        (1e-3, 1.0)
+    };
     type Pick = fn(&RateJson) -> [&Quantity; 3];
+    let mut legend_entries = Vec::new();
     for (panel, area, pick, names, scale, unit) in [
         (
             "sensitivities",
             &top,
             sensitivities as Pick,
-            ["u", "v", "w"],
+            ["s_u", "s_v", "s_w"],
             1e6,
             "Δs / s (ppm)",
         ),
@@ -531,7 +666,7 @@ fn plot_rates(cal: &CalibrationJson, path: &Path) -> Result<(), ReportError> {
             "angles",
             &bottom,
             angles as Pick,
-            ["uv", "vw", "wu"],
+            ["φ_uv", "φ_vw", "φ_wu"],
             1.0,
             "Δφ (deg)",
         ),
@@ -550,31 +685,37 @@ fn plot_rates(cal: &CalibrationJson, path: &Path) -> Result<(), ReportError> {
             }
         }
         let (y0, y1) = range(pts.iter().flatten().flat_map(|(_, v, u)| [v - u, v + u]));
-        let mut chart = chart(
-            area,
-            path,
-            &format!(
-                "{panel} against rate, relative to {} Hz (bars: U, k = 2)",
-                rate(first)
-            ),
-            16,
-            (x0, x1),
-            (y0, y1),
-            "rotation rate (Hz)",
-            unit,
-        )?;
+        let mut chart = ChartBuilder::on(area)
+            .caption(
+                format!(
+                    "{panel} against rate, relative to {} Hz (bars: U)",
+                    rate(first)
+                ),
+                ("sans-serif", 16),
+            )
+            .margin(10)
+            .x_label_area_size(40)
+            .y_label_area_size(70)
+            .build_cartesian_2d((x0..x1).log_scale(), y0..y1)
+            .map_err(err(path))?;
+        chart
+            .configure_mesh()
+            .x_desc("rotation rate (Hz, log scale)")
+            .y_desc(unit)
+            .draw()
+            .map_err(err(path))?;
         for (i, ((series, c), name)) in pts.iter().zip(COLOURS).zip(names).enumerate() {
-            let dx = (x1 - x0) * 0.006 * (i as f64 - 1.0);
+            // Side by side around each rate, by a fixed ratio on the log axis.
+            let f = 1.0 + 0.015 * (i as f64 - 1.0);
             chart
                 .draw_series(series.iter().map(|(x, y, u)| {
-                    ErrorBar::new_vertical(x + dx, y - u, *y, y + u, c.filled(), 6)
+                    ErrorBar::new_vertical(x * f, y - u, *y, y + u, c.filled(), 6)
                 }))
-                .map_err(err(path))?
-                .label(name)
-                .legend(move |(x, y)| Circle::new((x + 10, y), 3, c.filled()));
+                .map_err(err(path))?;
+            legend_entries.push((name.to_string(), c, Key::Dot));
         }
-        legend(&mut chart, path)?;
     }
+    side_legend(&side, &legend_entries, path)?;
     root.present().map_err(err(path))
 }
 
