@@ -153,6 +153,9 @@ pub(crate) struct Series {
     model: [Envelope; 3],
     resid: [Envelope; 3],
     harmonics: [HarmonicSums; 3],
+    /// Stepped (static with table angles): the fit's A, B, C per channel, to draw it as
+    /// the smooth curve it is rather than lines between the angles.
+    curve: Option<[[f64; 3]; 3]>,
     /// Sum of squared residuals per channel, and rows: the noise floor of the spectrum.
     ss: [f64; 3],
     n: usize,
@@ -171,6 +174,7 @@ impl Series {
             model: Default::default(),
             resid: Default::default(),
             harmonics: Default::default(),
+            curve: None,
             ss: [0.0; 3],
             n: 0,
             x_range: (f64::INFINITY, f64::NEG_INFINITY),
@@ -316,6 +320,9 @@ fn series(rec: &Recording, g: &Group, entry: &RateJson) -> Result<Series, Report
     let plot = GroupPlot::new(g.condition, entry, rotation)?;
     let (title, stem) = names(cond, entry.rate_hz);
     let mut s = Series::new(title, stem, x_label(rotation), rotation);
+    if !rotation {
+        s.curve = Some(plot.coefs);
+    }
     let samples = if rotation {
         // A condition in several boots, joined as its calibration joined it.
         match entry.rate_hz {
@@ -451,6 +458,7 @@ fn side_legend(
 fn panels<'b>(
     root: &DrawingArea<SVGBackend<'b>, plotters::coord::Shift>,
     width: u32,
+    legend: u32,
     path: &Path,
 ) -> Result<
     (
@@ -460,8 +468,8 @@ fn panels<'b>(
     ReportError,
 > {
     root.fill(&WHITE).map_err(err(path))?;
-    let (plots, legend) = root.split_horizontally(width - 150);
-    Ok((plots.split_evenly((3, 1)), legend))
+    let (plots, side) = root.split_horizontally(width - legend);
+    Ok((plots.split_evenly((3, 1)), side))
 }
 
 /// An envelope's bins as marks: a bar from each bin's least to its greatest value (a dot
@@ -476,10 +484,10 @@ fn marks(e: &Envelope, c: RGBColor) -> Vec<PathElement<(f64, f64)>> {
 /// column's range), a panel per channel.
 fn plot_fit(s: &Series, path: &Path, units: &str) -> Result<(), ReportError> {
     let root = SVGBackend::new(path, (900, 720)).into_drawing_area();
-    let (areas, side) = panels(&root, 900, path)?;
+    let (areas, side) = panels(&root, 900, 150, path)?;
     let (x0, x1) = range([s.x_range.0, s.x_range.1].into_iter());
     let per_channel = s.data.iter().zip(&s.model).zip(COLOURS).zip(CHANNELS);
-    for ((((data, model), c), name), area) in per_channel.zip(&areas) {
+    for (i, ((((data, model), c), name), area)) in per_channel.zip(&areas).enumerate() {
         let (y0, y1) = range(data.values().chain(model.values()));
         let mut chart = chart(
             area,
@@ -491,11 +499,34 @@ fn plot_fit(s: &Series, path: &Path, units: &str) -> Result<(), ReportError> {
             s.x_label,
             units,
         )?;
-        chart.draw_series(marks(data, c)).map_err(err(path))?;
-        let line: Vec<(f64, f64)> = model
-            .points()
-            .flat_map(|(x, lo, hi)| [(x, lo), (x, hi)])
-            .collect();
+        let line: Vec<(f64, f64)> = match (s.curve, Channel::ALL.get(i)) {
+            // Stepped: the readings as points, the fitted sine as the curve it is.
+            (Some(coefs), Some(ch)) => {
+                let [a, b, cc] = *ch.of(&coefs);
+                chart
+                    .draw_series(
+                        data.points()
+                            .flat_map(|(x, lo, hi)| [(x, lo), (x, hi)])
+                            .map(|p| Circle::new(p, 3, c.filled())),
+                    )
+                    .map_err(err(path))?;
+                let steps = 720;
+                (0..=steps)
+                    .map(|k| {
+                        let x = x0 + (x1 - x0) * k as f64 / steps as f64;
+                        let r = x.to_radians();
+                        (x, a * r.sin() + b * r.cos() + cc)
+                    })
+                    .collect()
+            }
+            _ => {
+                chart.draw_series(marks(data, c)).map_err(err(path))?;
+                model
+                    .points()
+                    .flat_map(|(x, lo, hi)| [(x, lo), (x, hi)])
+                    .collect()
+            }
+        };
         chart
             .draw_series(LineSeries::new(line, BLACK.stroke_width(1)))
             .map_err(err(path))?;
@@ -513,7 +544,7 @@ fn plot_fit(s: &Series, path: &Path, units: &str) -> Result<(), ReportError> {
 /// Residuals against time or angle (each pixel column's range), a panel per channel.
 pub(crate) fn plot_residuals(s: &Series, path: &Path, units: &str) -> Result<(), ReportError> {
     let root = SVGBackend::new(path, (900, 620)).into_drawing_area();
-    let (areas, side) = panels(&root, 900, path)?;
+    let (areas, side) = panels(&root, 900, 150, path)?;
     let (x0, x1) = range([s.x_range.0, s.x_range.1].into_iter());
     for (((e, c), name), area) in s.resid.iter().zip(COLOURS).zip(CHANNELS).zip(&areas) {
         let (y0, y1) = range(e.values());
@@ -607,6 +638,73 @@ pub(crate) fn plot_spectrum(
             .zip(COLOURS)
             .map(|(n, c)| (format!("{n}: white-noise floor"), c, Key::Dashed)),
     );
+    side_legend(&side, &entries, path)?;
+    root.present().map_err(err(path))
+}
+
+/// Static poses (stepped angles, six positions, any known orientations): each pose's
+/// residual (mean − model) per channel, a panel per channel, with bars of ±k·√(se² + τ²),
+/// the spread the pose fit allows a pose's mean (its readings' noise and the poses'
+/// scatter τ; k from ν).
+fn plot_poses(
+    p: &crate::calibrate::json::PosesJson,
+    path: &Path,
+    units: &str,
+) -> Result<(), ReportError> {
+    let n = p.list.len();
+    let width = (480 + 26 * n as u32).clamp(760, 1400);
+    let root = SVGBackend::new(path, (width, 660)).into_drawing_area();
+    let (areas, side) = panels(&root, width, 210, path)?;
+    let names: Vec<&str> = p.list.iter().map(|q| q.name.as_str()).collect();
+    // At most about 24 names under the axis: every `every`-th pose is named.
+    let every = n.div_ceil(24).max(1);
+    for (ci, ((c, name), area)) in COLOURS.iter().zip(CHANNELS).zip(&areas).enumerate() {
+        let tau = p.tau.get(ci).copied().unwrap_or(0.0);
+        let pts: Vec<(i32, f64, f64)> = p
+            .list
+            .iter()
+            .enumerate()
+            .map(|(i, q)| {
+                let r = q.residual.get(ci).copied().unwrap_or(f64::NAN);
+                let se = q.std_err.and_then(|s| s.get(ci).copied()).unwrap_or(0.0);
+                (i as i32, r, p.k * (se * se + tau * tau).sqrt())
+            })
+            .collect();
+        let (y0, y1) = range(pts.iter().flat_map(|(_, r, b)| [r - b, r + b, 0.0]));
+        let mut chart = ChartBuilder::on(area)
+            .caption(format!("poses: residual of {name}"), ("sans-serif", 15))
+            .margin(10)
+            .x_label_area_size(40)
+            .y_label_area_size(70)
+            .build_cartesian_2d((0..n as i32).into_segmented(), y0..y1)
+            .map_err(err(path))?;
+        chart
+            .configure_mesh()
+            .x_labels(n)
+            .x_label_formatter(&|v| match v {
+                SegmentValue::CenterOf(i) | SegmentValue::Exact(i) => usize::try_from(*i)
+                    .ok()
+                    .filter(|i| i % every == 0)
+                    .and_then(|i| names.get(i))
+                    .map_or(String::new(), |s| s.to_string()),
+                SegmentValue::Last => String::new(),
+            })
+            .y_desc(format!("mean − model ({units})"))
+            .draw()
+            .map_err(err(path))?;
+        chart
+            .draw_series(pts.iter().map(|(i, r, b)| {
+                ErrorBar::new_vertical(SegmentValue::CenterOf(*i), r - b, *r, r + b, c.filled(), 6)
+            }))
+            .map_err(err(path))?;
+    }
+    let mut entries: Vec<(String, RGBColor, Key)> = CHANNELS
+        .iter()
+        .zip(COLOURS)
+        .map(|(n, c)| (n.to_string(), c, Key::Dot))
+        .collect();
+    entries.push(("bars: ±k·√(se² + τ²)".to_string(), BLACK, Key::Line));
+    entries.push((format!("k = {:.2}", p.k), BLACK, Key::Line));
     side_legend(&side, &entries, path)?;
     root.present().map_err(err(path))
 }
@@ -1109,6 +1207,11 @@ fn markdown(
         property_tables(&mut md, entry, &units);
         if let Some(p) = &entry.poses {
             pose_table(&mut md, p, &units);
+            let stem = entry.rate_hz.map_or("poses".to_string(), |r| {
+                format!("poses_{}mhz", (r * 1e3).round())
+            });
+            plot_poses(p, &dir.join(format!("{stem}.svg")), &units)?;
+            let _ = writeln!(md, "\n![pose residuals]({stem}.svg)\n");
         }
         if let Some(c) = &entry.correction {
             correction_table(&mut md, c, &units);
