@@ -218,6 +218,12 @@ impl Series {
             .map(|ss| (ss / n).sqrt() * (std::f64::consts::PI / n).sqrt())
     }
 
+    /// The residuals' rms per row, per channel.
+    pub(crate) fn row_rms(&self) -> [f64; 3] {
+        let n = self.n.max(1) as f64;
+        self.ss.map(|ss| (ss / n).sqrt())
+    }
+
     /// The residual amplitude at each harmonic of ω, per channel.
     pub(crate) fn amplitudes(&self) -> Vec<Vec<f64>> {
         self.harmonics
@@ -1220,7 +1226,10 @@ fn markdown(
             free(f, &units, &mut md)?;
         }
         if !entry.fits.is_empty() {
-            let _ = writeln!(md, "\nFits (A sin α + B cos α + C, {units}):\n\n| condition | channel | A ± se | B ± se | C ± se | rms residual | n |\n| --- | --- | --- | --- | --- | --- | --- |");
+            // The fit weighs a row of n conversions n times: its rms is one conversion's,
+            // √n above the rows' own, which the residual plots show (issue 34: 10.9
+            // against 4.2 for the demo's rows of six or seven conversions).
+            let _ = writeln!(md, "\nFits (A sin α + B cos α + C, {units}; rms residual: a single conversion's, where rows average conversions; the plots' rows scatter √n less):\n\n| condition | channel | A ± se | B ± se | C ± se | rms residual | n |\n| --- | --- | --- | --- | --- | --- | --- |");
         }
         for f in &entry.fits {
             let _ = writeln!(
@@ -1235,10 +1244,15 @@ fn markdown(
             let res = dir.join(format!("residuals_{}.svg", s.stem));
             plot_fit(&s, &fit, &units)?;
             plot_residuals(&s, &res, &units)?;
+            let rms = s.row_rms();
             let _ = writeln!(
                 md,
-                "### {}\n\n![data and fit](fit_{stem}.svg)\n\n![residuals](residuals_{stem}.svg)",
+                "### {}\n\n![data and fit](fit_{stem}.svg)\n\n![residuals](residuals_{stem}.svg)\n\n\
+                 rms of the plotted residuals, per row: u {:.4}, v {:.4}, w {:.4} {units}",
                 s.title,
+                rms[0],
+                rms[1],
+                rms[2],
                 stem = s.stem
             );
             if s.rotation {
