@@ -1,6 +1,6 @@
 //! The sensor side: the data-ready edge on INT1 (P1.11) goes through GPIOTE and PPI
 //! channel 0 to TIMER1 CAPTURE[0] (1 MHz from HFCLK, which main() puts on the crystal), so a
-//! sample's time is its conversion's whatever the task latency (method.md §7), and on the
+//! sample's time is its conversion's whatever the task latency (docs/method.md §7), and on the
 //! channel's fork to TIMER2 in counter mode, which counts every edge. The task reads the
 //! sample over I²C, noting the timer and the count before and after, and
 //! `rotacal_shared::device::pairing` decides which instant the data belong to; the logic

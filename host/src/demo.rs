@@ -1,7 +1,7 @@
 //! `rotacal demo`: the main job without hardware, the whole chain.
 //!
-//! 1. Simulate seed 000's 10 mHz session (`paper-10mhz`, with the sensor at its own
-//!    104 Hz output rate): truth = seed 000 Table 1's DC intrinsic properties.
+//! 1. Simulate Gaitan & Geist's (2022) 10 mHz session (`paper-10mhz`, with the sensor at its own
+//!    104 Hz output rate): truth = Gaitan & Geist (2022) Table 1's DC intrinsic properties.
 //! 2. Run it through the firmware's hardware-independent logic on this host
 //!    ([`crate::link::simulated`]: sampler, ring, packetiser, f32 fit, quick-look).
 //! 3. Decode its packets and 4. record them with `rotacal record`'s code (one condition
@@ -87,7 +87,7 @@ pub struct Demo {
     pub puzzle: Puzzle,
 }
 
-/// Seed 000's unexplained 0.5 Hz deviation, reproduced and explained: `paper-multirate`
+/// Gaitan & Geist (2022)'s unexplained 0.5 Hz deviation, reproduced and explained: `paper-multirate`
 /// (10, 50, 100, 500 mHz, 22 cm from the axis) with K2 = 2e-4 /(m/s²) on w.
 #[derive(Clone, Debug)]
 pub struct Puzzle {
@@ -424,7 +424,7 @@ fn ratio(x: f64) -> String {
     }
 }
 
-/// The sentence on the U ratio column (seed 000's over rotacal's), its comparison word
+/// The sentence on the U ratio column (Gaitan & Geist's (2022) over rotacal's), its comparison word
 /// chosen from the ratios.
 fn ratio_sentence(ratios: &[f64]) -> String {
     if ratios.is_empty() || ratios.iter().any(|r| !r.is_finite()) {
@@ -437,11 +437,11 @@ fn ratio_sentence(ratios: &[f64]) -> String {
         (a, b) => format!("{a}–{b}"),
     };
     if lo > 1.0 {
-        format!("rotacal's U is {range} times smaller than seed 000's stated uncertainties")
+        format!("rotacal's U is {range} times smaller than the stated uncertainties of Gaitan & Geist (2022)")
     } else if hi < 1.0 {
-        format!("rotacal's U is larger than seed 000's stated uncertainties ({range} times it)")
+        format!("rotacal's U is larger than the stated uncertainties of Gaitan & Geist (2022) ({range} times it)")
     } else {
-        format!("seed 000's stated uncertainties are {range} times rotacal's U, not all above it")
+        format!("the stated uncertainties of Gaitan & Geist (2022) are {range} times rotacal's U, not all above it")
     }
 }
 
@@ -482,7 +482,7 @@ fn deviation_label(rates_hz: &[f64]) -> String {
     }
 }
 
-/// The truth is seed 000 Table 1's DC column (as the first sentence says).
+/// The truth is Gaitan & Geist (2022) Table 1's DC column (as the first sentence says).
 fn truth_is_paper_dc(truth: &[f64; 6]) -> bool {
     let paper = PAPER_DC_SENSITIVITY.iter().chain(&PAPER_DC_ANGLES_DEG);
     truth
@@ -662,16 +662,16 @@ pub fn render(d: &Demo) -> String {
     let fits = total(d, |o| o.summary.fit_lines);
     let _ = writeln!(
         o,
-        "Simulated seed 000 session: 10 mHz about x, y, z; LSM6DS33 at {} Hz ({} conversions per\n\
+        "Simulated Gaitan & Geist (2022) session: 10 mHz about x, y, z; LSM6DS33 at {} Hz ({} conversions per\n\
          condition), truth {}, g = {} m/s².\n\
          Device logic (the firmware's, on this host) → BLE packets → decoded → recorded:\n\
          {rows} samples at 16 Hz, {lost} lost, {fits} fit-log lines (device fit reports and quick-look).",
         short(d.sensor_hz),
         d.conversions,
         if truth_is_paper_dc(&d.truth) {
-            "= seed 000 Table 1 DC"
+            "= Gaitan & Geist (2022) Table 1 DC"
         } else {
-            "≠ seed 000 Table 1 DC"
+            "≠ Gaitan & Geist (2022) Table 1 DC"
         },
         d.calibration.g_loc
     );
@@ -743,14 +743,14 @@ fn render_intrinsic(o: &mut String, d: &Demo, r: &crate::calibrate::json::RateJs
     let ours = r.intrinsic.quantities();
     let _ = writeln!(
         o,
-        "\nIntrinsic properties (f64, exact Gram form, method.md §2; ± is U, {};\n\
+        "\nIntrinsic properties (f64, exact Gram form, docs/method.md §2; ± is U, {};\n\
          s in counts/(m/s²), φ in degrees):",
         k_phrase(&ours)
     );
     let _ = writeln!(
         o,
         "{:<5} {:>22} {:>9} {:>8} {:>20} {:>9} {:>20}",
-        "", "rotacal", "truth", "|err|/U", "seed 000 (10 mHz)", "U ratio", "phase method"
+        "", "rotacal", "truth", "|err|/U", "G&G 2022 (10 mHz)", "U ratio", "phase method"
     );
     let phase = r
         .angle_deg_phase_method
@@ -786,7 +786,7 @@ fn render_intrinsic(o: &mut String, d: &Demo, r: &crate::calibrate::json::RateJs
     }
     let _ = writeln!(
         o,
-        "U ratio: seed 000's stated uncertainty over rotacal's U. With sensor noise the only\n\
+        "U ratio: the stated uncertainty of Gaitan & Geist (2022) over rotacal's U. With sensor noise the only\n\
          simulated effect, {};\nthe missing effects are what the discrepancy workflow is for.",
         ratio_sentence(&ratios)
     );
@@ -798,7 +798,7 @@ fn render_puzzle(o: &mut String, p: &Puzzle) {
     let rates: Vec<String> = p.rates_hz.iter().map(|r| short(r * 1e3)).collect();
     let _ = writeln!(
         o,
-        "\nThe paper's puzzle: seed 000 saw s_w deviate at 0.5 Hz and could not say why. Simulated:\n\
+        "\nThe paper's puzzle: Gaitan & Geist (2022) saw s_w deviate at 0.5 Hz and could not say why. Simulated:\n\
          paper-multirate ({} mHz; sensor {} cm off the axis) with K2 = {:e} /(m/s²) on w.\n\
          Fitting each rate on its own (the paper's analysis): {label} = {:+.4} ± {:.4},\n\
          {}. rotacal discrepancy names {}\n\

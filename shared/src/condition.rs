@@ -1,4 +1,4 @@
-//! The rotation conditions, which platter axis the device turns about (method.md §1), and
+//! The rotation conditions, which platter axis the device turns about (docs/method.md §1), and
 //! the sensor's channels. With the `serde` feature both are written as their letters.
 
 /// A condition, named by the platter axis of rotation. Gravity in the platter frame is
@@ -75,7 +75,7 @@ impl Condition {
     }
 
     /// ĝ(α), the direction of gravity's reading in the platter frame at table angle
-    /// `alpha_rad` (method.md §1): the sign convention of the conditions, in one place.
+    /// `alpha_rad` (docs/method.md §1): the sign convention of the conditions, in one place.
     pub fn gravity_direction(self, alpha_rad: f64) -> [f64; 3] {
         let (s, c) = (libm::sin(alpha_rad), libm::cos(alpha_rad));
         match self {

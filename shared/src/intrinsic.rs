@@ -1,11 +1,11 @@
-//! Intrinsic properties from the three rotation conditions, done exactly (method.md §2).
+//! Intrinsic properties from the three rotation conditions, done exactly (docs/method.md §2).
 //!
 //! For each condition and channels j, k: `P_jk = A_j·A_k + B_j·B_k = g²·(in-plane dot product
 //! of S_j and S_k)`. The three planes count every component twice, so the Gram matrix
 //! `G = S·Sᵀ = (Pˣ + Pʸ + Pᶻ)/(2g²)` is exact at any mounting: `s_j = √G_jj` and
-//! `cos φ_jk = G_jk/(s_j·s_k)`. The phase-difference angles of seed 000 (eqs. 12–16) are
+//! `cos φ_jk = G_jk/(s_j·s_k)`. The phase-difference angles of Gaitan & Geist (2022) (eqs. 12–16) are
 //! also given, computed with atan2: they are the angles between the *projections* of S_j
-//! and S_k on one plane and are biased once the device is tilted (method.md §2).
+//! and S_k on one plane and are biased once the device is tilted (docs/method.md §2).
 //!
 //! Uncertainties: first-order propagation with the full covariance of each fit's (A, B)
 //! (the A–B correlation included); fits of different channels and conditions are
@@ -241,7 +241,7 @@ pub fn from_gram(fits: &[ConditionFit; 3], g: f64, u_g: f64) -> Result<Intrinsic
     finish(values, cov, gram)
 }
 
-/// Seed 000's phase-difference angles (eqs. 12–16), with atan2 so there is no 180°
+/// Gaitan & Geist (2022)'s phase-difference angles (eqs. 12–16), with atan2 so there is no 180°
 /// ambiguity: φ_uv from condition z, φ_vw from x, φ_wu from y (the two channels with the
 /// large signals in each). Each is the angle between the two channels' (A, B) vectors,
 /// i.e. between the projections of S_j and S_k on that condition's plane. In degrees.

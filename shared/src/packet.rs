@@ -91,7 +91,7 @@ impl SampleFlags {
     /// A channel read the rail (i16::MIN or i16::MAX): the sample is clipped.
     pub const CLIPPED: u8 = 1 << 0;
     /// The data-ready edge was not captured for this sample (the timestamp is the
-    /// read time and may be up to one sensor period late: method.md §7).
+    /// read time and may be up to one sensor period late: docs/method.md §7).
     pub const LATE_TIMESTAMP: u8 = 1 << 1;
     /// Bits 2–4: conversions the sensor made in this sample's slot that the device did
     /// not read (0 to 7; [`SampleFlags::missed`]). The sample averages the others.
@@ -302,7 +302,7 @@ pub struct Temperature {
 
 /// What the device's streaming f32 fit found for one condition, with what the host needs
 /// to re-fit exactly the same samples: the window (first and last seq) and the rotation
-/// step per tick (the regressors are sin/cos of `step·t mod 2⁶⁴`, method.md §6).
+/// step per tick (the regressors are sin/cos of `step·t mod 2⁶⁴`, docs/method.md §6).
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct FitReport {
@@ -331,7 +331,7 @@ pub struct FitReport {
 }
 
 /// The quick-look calibration after x, y and z: intrinsic properties from the exact Gram
-/// form (method.md §2) in f32.
+/// form (docs/method.md §2) in f32.
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct QuickLook {

@@ -1,6 +1,6 @@
 //! Rotation phase as an exact integer fraction of a turn.
 //!
-//! `sin(ω·t)` in f32 with t in seconds loses ~1e-4 rad after an hour (method.md §6).
+//! `sin(ω·t)` in f32 with t in seconds loses ~1e-4 rad after an hour (docs/method.md §6).
 //! Instead the phase at tick `t` is `step · t mod 2⁶⁴` in units of 2⁻⁶⁴ turn: one integer
 //! multiplication, exact, identical on host and device. Only the reduced angle within an
 //! octant (≤ π/4) is ever converted to floating point.

@@ -151,7 +151,7 @@ impl Checksum {
 }
 
 /// The A, B, C of each channel (rows of `s`, output units per m/s²) for rotation about
-/// platter axis `axis` (0 = x, 1 = y, 2 = z) in gravity `g`, by method.md §1: about x,
+/// platter axis `axis` (0 = x, 1 = y, 2 = z) in gravity `g`, by docs/method.md §1: about x,
 /// A = g·S_jy and B = g·S_jz; about y, A = g·S_jx, B = g·S_jz; about z, A = g·S_jx,
 /// B = g·S_jy. C is the offset.
 pub fn coefficients(s: &[[f64; 3]; 3], offsets: &[f64; 3], g: f64, axis: usize) -> [[f64; 3]; 3] {
@@ -189,7 +189,7 @@ pub mod crosscheck {
         pub n_samples: u32,
     }
 
-    /// Seed 000's run, then an hour at 16 Hz and at 104 Hz (at 0.25 Hz, as method.md §6).
+    /// Gaitan & Geist (2022)'s run, then an hour at 16 Hz and at 104 Hz (at 0.25 Hz, as docs/method.md §6).
     pub const RECORDS: [Record; 3] = [
         Record {
             name: "paper-10mhz",

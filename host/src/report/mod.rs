@@ -2,12 +2,12 @@
 //!
 //! - the intrinsic-properties table with U (95 %; k = 2, or Student's t for few poses), the fits, and for static files the
 //!   sensitivity matrix and offsets;
-//! - per condition (and rate): the raw data with the fitted sines (like seed 000 Fig. 5),
+//! - per condition (and rate): the raw data with the fitted sines (like Gaitan & Geist (2022) Fig. 5),
 //!   the residuals against time or angle, and for rotation the residual amplitude at the
 //!   first harmonics of ω (each from a least-squares fit of sin kα, cos kα and a constant
 //!   to the residuals, so it holds for records of any length);
 //! - for multi-rate files, the properties against rate relative to the lowest rate, with
-//!   U (k = 2) as error bars (like seed 000 Fig. 6);
+//!   U (k = 2) as error bars (like Gaitan & Geist (2022) Fig. 6);
 //! - for method free: |y| against time with the still intervals marked, the
 //!   fitted gravity directions, each pose's residual, and their tables;
 //! - with `--slow-noise` (rotation): the residuals' Allan deviation against the noise

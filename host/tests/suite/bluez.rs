@@ -17,7 +17,7 @@ const RATE: &str = "0.1";
 /// The preset's local gravity, m/s².
 const G_LOC: &str = "9.80101";
 
-/// The session: seed 000's device and noise, its 104 Hz conversions averaged into 16 Hz by
+/// The session: Gaitan & Geist's (2022) device and noise, its 104 Hz conversions averaged into 16 Hz by
 /// the firmware's logic, the table at 0.1 Hz, 45 s of conversions per condition.
 fn config_text(seed: u64) -> String {
     format!(

@@ -16,7 +16,7 @@ fn tmp(name: &str) -> PathBuf {
     dir.join(name)
 }
 
-/// A rotation recording of the seed 000 device; `rate_ppm` is how far the true rate is
+/// A rotation recording of the Gaitan & Geist (2022) device; `rate_ppm` is how far the true rate is
 /// off the nominal 10 mHz written in the metadata.
 fn write_rotation(path: &PathBuf, rate_ppm: f64) {
     let clock = TickRate::MHZ_1;

@@ -243,11 +243,11 @@ fn efficiency_check(results: &[(RateJson, [f64; 3], Truth)]) -> Vec<String> {
             failures.push(format!("{}: spread/CRB {ratio}", tally.names[j]));
         }
     }
-    // Expanded uncertainties beside seed 000 Table 1's (which states no coverage factor).
+    // Expanded uncertainties beside Gaitan & Geist (2022) Table 1's (which states no coverage factor).
     for k in 0..6 {
         let u2 = 2.0 * tally.mean_u(k);
         println!(
-            "{}: mean U (k = 2) {u2:.3e}; seed 000 Table 1 states {}; {:.0}× smaller",
+            "{}: mean U (k = 2) {u2:.3e}; Gaitan & Geist (2022) Table 1 states {}; {:.0}× smaller",
             tally.names[k],
             PAPER_10MHZ[k].1,
             PAPER_10MHZ[k].1 / u2
@@ -491,7 +491,7 @@ fn rotation_coverage_ar1_0_9() {
 
 #[test]
 fn rotation_coverage_lowpass_like_the_lsm6ds33() {
-    // The LSM6DS33 at 104 Hz with its digital low-pass at ODR/9 (11.6 Hz), seed 000's
+    // The LSM6DS33 at 104 Hz with its digital low-pass at ODR/9 (11.6 Hz), Gaitan & Geist's (2022)
     // 262.5 s per condition at the sensor's own rate; the level that of the 11.6 Hz band.
     // 1000 runs (each 6.5 times the samples): [0.93, 0.97] is then ±2.9 binomial σ.
     rotation_coverage(

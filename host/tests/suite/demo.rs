@@ -63,7 +63,10 @@ fn clean_demo_passes_and_its_sentences_agree_with_its_numbers() {
     let lo = ratios.iter().min_by(|a, b| a.1.total_cmp(&b.1)).unwrap();
     let hi = ratios.iter().max_by(|a, b| a.1.total_cmp(&b.1)).unwrap();
     assert!(lo.1 > 1.0 && hi.1 > lo.1, "{ratios:?}");
-    let sentence = format!("U is {}–{} times smaller than seed 000's", lo.0, hi.0);
+    let sentence = format!(
+        "U is {}–{} times smaller than the stated uncertainties of Gaitan & Geist (2022)",
+        lo.0, hi.0
+    );
     assert!(out.contains(&sentence), "{sentence}\n{out}");
 
     // The |err|/U column is what the 3 U checks measured, with the k they state.

@@ -160,7 +160,7 @@ fn four_parameter_fit_estimates_the_rate() {
         (amp - true_amp).abs() < 4.0 * c.se[0],
         "amplitude {amp} vs {true_amp}"
     );
-    // The fixed-rate fit is biased by about −A(2πJδ)²/24 (method.md §7) plus the spread
+    // The fixed-rate fit is biased by about −A(2πJδ)²/24 (docs/method.md §7) plus the spread
     // of the phase ramp; here well beyond its standard error.
     let fixed = batch::fit(&samples, nominal, clock, Model::SINE, Ticks(0)).unwrap();
     let fc = &fixed.channels[0];

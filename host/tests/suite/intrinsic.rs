@@ -1,5 +1,5 @@
 //! The Gram intrinsic computation (rotacal_shared::intrinsic): exact at any mounting,
-//! the phase-difference method's bias as method.md §2 tabulates it, and the analytic
+//! the phase-difference method's bias as docs/method.md §2 tabulates it, and the analytic
 //! uncertainty propagation against numerical differentiation.
 // Matrix arithmetic on small fixed arrays reads more plainly with indices.
 #![allow(clippy::needless_range_loop)]
@@ -51,7 +51,7 @@ fn gram_is_exact_at_any_mounting() {
     }
 }
 
-/// method.md §2: noise-free bias of the phase method for the seed 000 Table 1 device.
+/// docs/method.md §2: noise-free bias of the phase method for the Gaitan & Geist (2022) Table 1 device.
 #[test]
 fn phase_method_bias_matches_method_md() {
     let s0 = paper_device();
@@ -68,7 +68,7 @@ fn phase_method_bias_matches_method_md() {
         let bias: Vec<f64> = (0..3)
             .map(|k| ph[k].value - PAPER_DC_ANGLES_DEG[k])
             .collect();
-        println!("{deg}° about {axis:?}: bias {bias:.4?} (method.md {expected:?})");
+        println!("{deg}° about {axis:?}: bias {bias:.4?} (docs/method.md {expected:?})");
         // The table's precision: 2 decimals in its last row, 3 to 4 elsewhere.
         let tol = if deg == 10.0 { 0.006 } else { 0.0006 };
         for k in 0..3 {

@@ -1,7 +1,7 @@
-//! Mounting invariance end to end: simulated recordings of the seed 000 device mounted
+//! Mounting invariance end to end: simulated recordings of the Gaitan & Geist (2022) device mounted
 //! 0–10° off about several axes, through the CSV and the whole `calibrate` path.
 //! Noise-free, the Gram intrinsic properties do not move (1e-9) while the phase-difference
-//! angles show the bias of method.md §2; with noise, every mounting agrees with the truth
+//! angles show the bias of docs/method.md §2; with noise, every mounting agrees with the truth
 //! within its uncertainty.
 
 use rotacal::calibrate::json::RateJson;
@@ -22,7 +22,7 @@ fn run(axis: [f64; 3], deg: f64, noise: bool, seed: u64) -> (RateJson, Simulatio
     (cal.by_rate.into_iter().next().unwrap(), sim)
 }
 
-/// method.md §2's table: mounting, and the phase method's bias on φ_uv, φ_vw, φ_wu (deg),
+/// docs/method.md §2's table: mounting, and the phase method's bias on φ_uv, φ_vw, φ_wu (deg),
 /// with the number of decimals printed there.
 const BIAS: [([f64; 3], f64, [f64; 3], i32); 5] = [
     ([1.0, 1.0, 0.0], 1.0, [-0.0087, -0.0010, -0.0001], 4),
@@ -61,7 +61,7 @@ fn gram_is_invariant_and_the_phase_method_is_biased_noise_free() {
             let b = got[j] - t.angles_deg[j];
             assert!(
                 (b - bias[j]).abs() <= half_digit,
-                "{deg}° about {axis:?}: phase-method bias {b:.5} vs method.md {}",
+                "{deg}° about {axis:?}: phase-method bias {b:.5} vs docs/method.md {}",
                 bias[j]
             );
         }

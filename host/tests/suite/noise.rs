@@ -29,7 +29,7 @@ fn ar1(n: usize, rho: f64, sd: f64, rng: &mut ChaCha8Rng) -> Vec<f64> {
         .collect()
 }
 
-/// Regressors sin, cos, 1 of a 10 mHz rotation sampled at 16 Hz (seed 000's run).
+/// Regressors sin, cos, 1 of a 10 mHz rotation sampled at 16 Hz (Gaitan & Geist's (2022) run).
 fn design(n: usize) -> DMatrix<f64> {
     DMatrix::from_fn(n, 3, |i, j| {
         let a = TAU * 0.01 * i as f64 / 16.0;

@@ -52,7 +52,7 @@ fn fmt_matrix(m: &[[f64; 3]; 3]) -> String {
     )
 }
 
-/// ĝ(α) per condition (method.md §1), written out again.
+/// ĝ(α) per condition (docs/method.md §1), written out again.
 fn g_hat(cond: usize, a: f64) -> [f64; 3] {
     match cond {
         0 => [0.0, a.sin(), a.cos()],

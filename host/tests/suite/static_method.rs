@@ -1,4 +1,4 @@
-//! The static stepped method (seed 001): its Table 1 reproduced noise-free against an
+//! The static stepped method (Gaitan et al. (2021)): its Table 1 reproduced noise-free against an
 //! independent calculation, Monte Carlo coverage of the uncertainties, and mounting
 //! invariance of the intrinsic properties.
 // Matrix arithmetic on small fixed arrays reads more plainly with indices.
@@ -11,10 +11,10 @@ use rotacal::calibrate::poses::StaticCondition;
 use rotacal::simulate::geometry::{mounted, rotation};
 use rotacal_shared::Condition;
 
-/// Seed 001's g_loc, m/s².
+/// Gaitan et al. (2021)'s g_loc, m/s².
 const G: f64 = 9.801018;
 
-/// Seed 001 Table 1 (volts): per condition x, y, z and channel u, v, w: (A, B, O).
+/// Gaitan et al. (2021) Table 1 (volts): per condition x, y, z and channel u, v, w: (A, B, O).
 const TABLE1: [[[f64; 3]; 3]; 3] = [
     [
         [-0.010809, 0.000919, -0.00559],
@@ -65,7 +65,7 @@ fn seed_001_table_1_reproduced() {
 
     // Independent calculation. On full-circle uniform steps sin, cos and 1 are orthogonal
     // within a condition, so the joint least-squares S is the mean of each element's two
-    // duplicates (seed 001 eq. 20) and O the mean of the three per-condition offsets.
+    // duplicates (Gaitan et al. (2021) eq. 20) and O the mean of the three per-condition offsets.
     let t = |c: usize, j: usize, p: usize| TABLE1[c][j][p];
     let mut s = [[0.0; 3]; 3];
     for j in 0..3 {
@@ -208,7 +208,7 @@ fn static_k2_intervals_cover_the_truth() {
     }
 }
 
-/// Seed 001's finding, in simulation: the sensitivity matrix moves with the mounting,
+/// Gaitan et al. (2021)'s finding, in simulation: the sensitivity matrix moves with the mounting,
 /// the intrinsic properties don't (noise-free: to 1e-9).
 #[test]
 fn matrix_moves_with_mounting_intrinsic_does_not() {

@@ -1,7 +1,7 @@
 //! From captured data-ready edges to the sample stream: 64-bit timestamps, averaging of
 //! the sensor's conversions into the sample rate's slots, sequence numbers, flags.
 //!
-//! The LSM6DS33 has no 16 Hz output rate (method.md §7), so the sensor converts at a
+//! The LSM6DS33 has no 16 Hz output rate (docs/method.md §7), so the sensor converts at a
 //! native rate (104 Hz) behind its anti-alias filter, and each streamed sample is the sum
 //! of every conversion whose data-ready edge falls in its slot of the sample-rate grid
 //! (6 or 7 at 104 Hz into 16 Hz), with the instants of those conversions

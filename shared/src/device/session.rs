@@ -1,6 +1,6 @@
 //! The measurement session: which condition runs, its streaming f32 fit, the fit reports
 //! (periodic, and final at stop), and after x, y and z the quick-look calibration from the
-//! exact Gram form (method.md §2).
+//! exact Gram form (docs/method.md §2).
 
 use super::sampler::StreamSample;
 use crate::fit::{FitConfig, FitResult, Param, SineFit};

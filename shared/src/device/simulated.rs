@@ -30,7 +30,7 @@ pub struct SessionSpec {
 }
 
 impl SessionSpec {
-    /// Seed 000's 10 mHz run through the Feather's pipeline: 262.5 s per condition of the
+    /// Gaitan & Geist's (2022) 10 mHz run through the Feather's pipeline: 262.5 s per condition of the
     /// sensor at 104 Hz (16 Hz streamed: 4200 samples), 1 MHz counter wrapping in the
     /// first condition.
     pub const PAPER: SessionSpec = SessionSpec {

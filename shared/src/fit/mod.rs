@@ -9,7 +9,7 @@
 //! `Σy² − xᵀHᵀy` cancels from ~N·A² down to ~N·σ², which amplifies any rounding in the
 //! sums by (A/σ)²/√N (in f32 at the LSM6DS33's SNR that would put σ̂ off by ~1 %); and
 //! an hour of sums would otherwise drift. The system is solved only when a result is read out, by an equilibrated
-//! Cholesky factorisation refined in double-word arithmetic. method.md §6 explains why
+//! Cholesky factorisation refined in double-word arithmetic. docs/method.md §6 explains why
 //! not covariance-form RLS (erratic in f32) or Givens QR-RLS (loses accuracy over an
 //! hour); docs/fit.md shows the measured accuracy.
 //!
@@ -141,7 +141,7 @@ pub struct FitConfig {
     /// Terms beyond the sine and offset.
     pub model: Model,
     /// Fewest rotation periods the record must span, in thousandths (default 1500: below
-    /// about 1.5 periods the sine and offset are poorly separated, method.md §5).
+    /// about 1.5 periods the sine and offset are poorly separated, docs/method.md §5).
     pub min_milli_periods: u32,
 }
 

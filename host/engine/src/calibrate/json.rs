@@ -1,5 +1,5 @@
 //! The JSON that `rotacal calibrate --json OUT` writes: exactly the schema of
-//! ../shared/docs/formats.md (a contract with tests outside the project: keys may be
+//! docs/formats.md (a contract with tests outside the project: keys may be
 //! added, never renamed or removed).
 
 use crate::calibrate::correction::Correction;
@@ -344,7 +344,7 @@ pub struct RateJson {
     pub rate_hz: Option<f64>,
     /// The result.
     pub intrinsic: IntrinsicJson,
-    /// Seed 000 eqs. 12–16 (rotation only).
+    /// Gaitan & Geist (2022) eqs. 12–16 (rotation only).
     pub angle_deg_phase_method: Option<Pairs>,
     /// Static only.
     pub sensitivity_matrix: Option<MatrixJson>,

@@ -3,7 +3,7 @@
 //! Takes the fits of the three conditions (from `rotacal_shared::SineFit` or the batch
 //! fit), assembles each fit's (A, B) covariance, and computes the Gram intrinsic
 //! properties and the phase-difference angles with their uncertainties
-//! (`rotacal_shared::intrinsic`); and the static stepped method (seed 001).
+//! (`rotacal_shared::intrinsic`); and the static stepped method (Gaitan et al. (2021)).
 
 use crate::calibrate::poses::{self, PoseError, PoseFit, StaticCondition};
 use crate::fit::batch::{self, BatchError};
@@ -16,7 +16,7 @@ use rotacal_shared::Channel;
 pub struct RotationCalibration {
     /// From the exact Gram matrix: the result.
     pub intrinsic: Intrinsic,
-    /// Seed 000's phase-difference angles φ_uv, φ_vw, φ_wu (degrees), for comparison.
+    /// Gaitan & Geist (2022)'s phase-difference angles φ_uv, φ_vw, φ_wu (degrees), for comparison.
     pub phase_angles_deg: [Estimate; 3],
 }
 
@@ -57,11 +57,11 @@ pub struct StaticCalibration {
     pub s_cov: [[f64; 9]; 9],
     /// Intrinsic properties from the rows of S.
     pub intrinsic: Intrinsic,
-    /// Seed 001's estimator (its eqs. 20–21): each element of S the mean of its two
+    /// Gaitan et al. (2021)'s estimator (its eqs. 20–21): each element of S the mean of its two
     /// duplicates, each offset the mean over the conditions. For comparison; stepped
     /// (condition, angle) records only.
     pub duplicate_average: Option<DuplicateAverage>,
-    /// Per condition (x, y, z) and channel, the sine fit of seed 001's Table 1; stepped
+    /// Per condition (x, y, z) and channel, the sine fit of Gaitan et al. (2021)'s Table 1; stepped
     /// records only.
     pub fits: Option<[[SineFit3; 3]; 3]>,
     /// The pose fit behind S and O: poses, residuals, τ, conditioning, both offset
@@ -69,7 +69,7 @@ pub struct StaticCalibration {
     pub pose_fit: PoseFit,
 }
 
-/// Seed 001's duplicate-averaging estimator, with standard uncertainties from the fits'
+/// Gaitan et al. (2021)'s duplicate-averaging estimator, with standard uncertainties from the fits'
 /// standard errors (independent conditions).
 #[derive(Clone, Copy, Debug)]
 pub struct DuplicateAverage {
@@ -102,9 +102,9 @@ pub enum StaticError {
     Internal(&'static str),
 }
 
-/// The stepped static method (seed 001): the per-condition sine fits of its Table 1 and
+/// The stepped static method (Gaitan et al. (2021)): the per-condition sine fits of its Table 1 and
 /// its duplicate-averaging estimator for comparison; the result is the fit of S and O to
-/// the poses (one per condition and table angle, `y = g·S_j·ĝ(α) + O_j`, method.md §3),
+/// the poses (one per condition and table angle, `y = g·S_j·ĝ(α) + O_j`, docs/method.md §3),
 /// then intrinsic properties from the rows of S with the rows' covariances.
 pub fn static_method(
     conds: &[StaticCondition<'_>],
@@ -129,7 +129,7 @@ pub fn static_method(
     };
     let ordered = [cx, cy, cz];
 
-    // Per-condition sine fits (seed 001 Table 1).
+    // Per-condition sine fits (Gaitan et al. (2021) Table 1).
     let mut fits = [[SineFit3 {
         coef: [0.0; 3],
         se: [0.0; 3],
@@ -162,7 +162,7 @@ pub fn static_method(
 
     let mut cal = from_poses(poses::poses_from_conditions(&ordered.map(|c| *c)), g, opts)?;
 
-    // Seed 001 eqs. 20–21: S_jx from A of y and z, S_jy from A of x and B of z, S_jz
+    // Gaitan et al. (2021) eqs. 20–21: S_jx from A of y and z, S_jy from A of x and B of z, S_jz
     // from B of x and y; offsets averaged over the three conditions.
     let mean2 = |(c1, se1): (f64, f64), (c2, se2): (f64, f64)| Estimate {
         value: (c1 + c2) / (2.0 * g),

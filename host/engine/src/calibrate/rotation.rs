@@ -1,4 +1,4 @@
-//! The rotation method (seed 000): the plan of rates and conditions, each group's fit from
+//! The rotation method (Gaitan & Geist (2022)): the plan of rates and conditions, each group's fit from
 //! its rows ([`super::group`]) or from a streamed file's sums ([`super::stream`]), and one
 //! assembly of the entries for both: budgets, corrections, offsets at rest.
 
@@ -385,7 +385,7 @@ fn set_offsets_at_rest(by_rate: &mut [json::RateJson], (offset, var): ([f64; 3],
 }
 
 /// The device-frame correction of a rotation calibration: M from the Gram matrix of the
-/// three conditions' (A, B) (method.md §2) with their covariances; O_j the mean of the
+/// three conditions' (A, B) (docs/method.md §2) with their covariances; O_j the mean of the
 /// three conditions' C_j (over whole turns the mean of ĝ is zero, so C_j = O_j).
 pub fn rotation_correction(
     fits: &[GroupFit; 3],
@@ -665,7 +665,7 @@ fn rate_sources(
 /// The `timestamps` line.
 fn timestamps_source(b: &mut Budget, fits: &[GroupFit; 3], values: &[f64; 6], inputs: &TypeB) {
     // A timestamp error of standard deviation σ_t attenuates every amplitude by
-    // (ωσ_t)²/2 (method.md §7), the same for the three channels, so the angles keep.
+    // (ωσ_t)²/2 (docs/method.md §7), the same for the three channels, so the angles keep.
     let resolution = 1.0 / f64::from(CLOCK.hz());
     let jitter = inputs.u_time_s.unwrap_or(0.0);
     let sigma_t = (resolution * resolution / 12.0 + jitter * jitter).sqrt();

@@ -1,4 +1,4 @@
-//! The static methods (seed 001): angle steps about the three axes, or poses of known
+//! The static methods (Gaitan et al. (2021)): angle steps about the three axes, or poses of known
 //! orientation; their entry, budget and corrections.
 
 use super::budget::{Budget, Kind};

@@ -288,7 +288,7 @@ fn render_rate(r: &RateJson, units: &str) -> String {
     if let Some(p) = &r.angle_deg_phase_method {
         let _ = writeln!(
             o,
-            "  phase-difference angles (seed 000 eqs. 12–16, for comparison; biased when tilted):"
+            "  phase-difference angles (Gaitan & Geist (2022) eqs. 12–16, for comparison; biased when tilted):"
         );
         o += &render_angles(p);
     }

@@ -20,7 +20,7 @@ pub enum TrialError {
     Analysis(#[from] DiscrepancyError),
 }
 
-/// Single-rate trials: seed 000's 10 mHz run, with the lab's temperature swinging ±1 °C
+/// Single-rate trials: Gaitan & Geist's (2022) 10 mHz run, with the lab's temperature swinging ±1 °C
 /// over 10 minutes (so that a temperature coefficient can be told from a drift).
 pub const SINGLE_RATE: &str = "preset = \"paper-10mhz\"\n\
     [temperature]\nswing_c = 1.0\nperiod_s = 600.0\n";

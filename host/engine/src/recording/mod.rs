@@ -62,9 +62,9 @@ use rotacal_shared::{Aperture, Condition, Ticks};
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Method {
-    /// Constant rotation (seed 000): rows carry device time `t_s`.
+    /// Constant rotation (Gaitan & Geist (2022)): rows carry device time `t_s`.
     Rotation,
-    /// Static steps (seed 001): rows carry the table angle `angle_deg`.
+    /// Static steps (Gaitan et al. (2021)): rows carry the table angle `angle_deg`.
     Static,
     /// Still poses of unknown orientation (docs/formats.md): the poses are found in the
     /// readings (`t_s`), and only |a| = g is used.

@@ -22,7 +22,7 @@ pub fn mounted(s: &[[f64; 3]; 3], r: &[[f64; 3]; 3]) -> [[f64; 3]; 3] {
 }
 
 /// A sensitivity matrix with the given intrinsic properties, in the device's own frame:
-/// u along x, v in the xy plane (method.md §1; any rotation of it has the same
+/// u along x, v in the xy plane (docs/method.md §1; any rotation of it has the same
 /// intrinsic properties).
 pub fn sensitivity_from_intrinsic(s: [f64; 3], angles_deg: [f64; 3]) -> [[f64; 3]; 3] {
     let [uv, vw, wu] = angles_deg.map(f64::to_radians);

@@ -6,7 +6,7 @@
 //!
 //! 1. true time t (session seconds) on the sensor's own schedule, 1/fs apart;
 //! 2. table angle α(t) (rate, rate error, rate ripple; per channel at t + τ_j for skew);
-//! 3. specific force in the platter frame, f = g·ĝ(α) − ω²·r·d̂ (method.md §1 for ĝ);
+//! 3. specific force in the platter frame, f = g·ĝ(α) − ω²·r·d̂ (docs/method.md §1 for ĝ);
 //! 4. along each sensitive axis a_j = Ŝ_j·f, output s_j·(a_j + K2·a_j² + K3·a_j³) + O_j
 //!    + drift + temperature term, with S the device's matrix turned by the mounting;
 //! 5. plus sensor noise (white, or per `[sensor.noise]` an autoregressive or low-passed

@@ -15,7 +15,7 @@ use crate::recording::from_device::FitLine;
 use rotacal_shared::{Model, PhaseStep, TickRate, Ticks};
 
 /// σ_CRLB of A, B and C for `n` samples of white noise `noise_sigma` quantised to whole
-/// counts (adding 1/12 count²): √(2σ²/N), √(2σ²/N), √(σ²/N) (method.md §5).
+/// counts (adding 1/12 count²): √(2σ²/N), √(2σ²/N), √(σ²/N) (docs/method.md §5).
 pub fn sigma_crlb(noise_sigma: f64, n: usize) -> [f64; 3] {
     let var = noise_sigma * noise_sigma + 1.0 / 12.0;
     let n = n as f64;

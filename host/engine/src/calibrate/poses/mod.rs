@@ -1,7 +1,7 @@
 //! Static calibration from any known orientations: one least-squares fit of the
-//! sensitivity matrix S and the offsets O to `y = g·S·ĝ + O` (method.md §1, §3).
+//! sensitivity matrix S and the offsets O to `y = g·S·ĝ + O` (docs/method.md §1, §3).
 //!
-//! The stepped method (seed 001: ĝ from the condition and the table angle) and the
+//! The stepped method (Gaitan et al. (2021): ĝ from the condition and the table angle) and the
 //! six-position method (AN4399, Ferraris et al.) are special cases: only the list of
 //! poses differs. Readings repeated at one orientation are averaged into a pose mean with
 //! its standard error (how still the device was). Each channel j is then fitted to the pose

@@ -275,7 +275,7 @@ pub(super) fn prepare(
     let pieces = std::mem::take(&mut gs.pilots).into_pieces(&moments);
     // Folded once: every fit below reads the dense sums.
     let moments = moments.dense();
-    // As the streaming fit checks its record (method.md §5).
+    // As the streaming fit checks its record (docs/method.md §5).
     let cfg = FitConfig::sine(nominal, CLOCK);
     let span = gs.span_ticks;
     let milli = (nominal.turns_x2_64(span).saturating_mul(1000) >> 64) as u64;

@@ -47,7 +47,7 @@ pub struct Config {
     /// Seed of every random draw: the same seed and config give the same file.
     #[serde(default = "default_seed")]
     pub seed: u64,
-    /// `rotation` (constant rate, seed 000) or `static` (angle steps, seed 001).
+    /// `rotation` (constant rate, Gaitan & Geist (2022)) or `static` (angle steps, Gaitan et al. (2021)).
     #[serde(default = "default_method")]
     pub method: Method,
     /// Local gravity, m/s².
