@@ -35,6 +35,7 @@ mod readme;
 mod record;
 mod recording;
 mod report;
+mod self_contained;
 mod session_check;
 mod simulator;
 mod slow_noise;
