@@ -9,7 +9,7 @@ use std::path::Path;
 
 use plotters::prelude::*;
 
-use super::{err, ReportError};
+use super::{err, svg, ReportError};
 use crate::allan::{Fit, Point, TermKind};
 
 /// One panel: a channel of a group.
@@ -153,14 +153,15 @@ struct Legend {
 
 fn draw(panels: &[Drawn], legend: &Legend, path: &Path, units: &str) -> Result<(), ReportError> {
     let rows = panels.len().div_ceil(3).max(1);
-    let root = SVGBackend::new(path, (1200, 340 * rows as u32)).into_drawing_area();
-    root.fill(&WHITE).map_err(err(path))?;
-    let (plots, legend_area) = root.split_horizontally(1020);
-    for (area, panel) in plots.split_evenly((rows, 3)).iter().zip(panels) {
-        draw_panel(area, panel, path, units)?;
-    }
-    draw_legend(&legend_area, legend, path)?;
-    root.present().map_err(err(path))
+    svg(path, (1200, 340 * rows as u32), |root| {
+        root.fill(&WHITE).map_err(err(path))?;
+        let (plots, legend_area) = root.split_horizontally(1020);
+        for (area, panel) in plots.split_evenly((rows, 3)).iter().zip(panels) {
+            draw_panel(area, panel, path, units)?;
+        }
+        draw_legend(&legend_area, legend, path)?;
+        Ok(())
+    })
 }
 
 fn draw_panel(

@@ -1,7 +1,7 @@
 //! Method free in the report: the still intervals over the readings' magnitude, the fitted
 //! gravity directions on the sphere, each pose's residual, and their tables.
 
-use super::{chart, err, legend, range, Envelope, ReportError, COLOURS};
+use super::{chart, err, legend, range, svg, Envelope, ReportError, COLOURS};
 use crate::calibrate::free::Residual;
 use crate::calibrate::json::{DetectionJson, FreeJson, IntervalJson};
 use crate::calibrate::still::Verdict;
@@ -70,60 +70,61 @@ fn plot_magnitude(
     path: &Path,
     units: &str,
 ) -> Result<(), ReportError> {
-    let root = SVGBackend::new(path, (900, 420)).into_drawing_area();
-    root.fill(&WHITE).map_err(err(path))?;
-    let (x0, x1) = range(t.x.iter().copied());
-    let (y0, y1) = range(t.magnitude.iter().copied());
-    let title = if d.segment.is_empty() {
-        "|y| and the still intervals".to_string()
-    } else {
-        format!("{}: |y| and the still intervals", d.segment)
-    };
-    let mut c = chart(
-        &root,
-        path,
-        &title,
-        18,
-        (x0, x1),
-        (y0, y1),
-        "t (s)",
-        &format!("|y| ({units})"),
-    )?;
-    let ends = |i: &IntervalJson| i.interval.span_s;
-    let classes = [(KEPT, "kept", None)].into_iter().chain(
-        REJECTED
-            .iter()
-            .enumerate()
-            .map(|(k, (c, l))| (*c, *l, Some(k))),
-    );
-    for (colour, label, which) in classes {
-        let bands: Vec<(f64, f64)> = d
-            .intervals
-            .iter()
-            .filter(|i| class(&i.interval.verdict) == which)
-            .map(ends)
-            .collect();
-        if bands.is_empty() {
-            continue;
+    svg(path, (900, 420), |root| {
+        root.fill(&WHITE).map_err(err(path))?;
+        let (x0, x1) = range(t.x.iter().copied());
+        let (y0, y1) = range(t.magnitude.iter().copied());
+        let title = if d.segment.is_empty() {
+            "|y| and the still intervals".to_string()
+        } else {
+            format!("{}: |y| and the still intervals", d.segment)
+        };
+        let mut c = chart(
+            root,
+            path,
+            &title,
+            18,
+            (x0, x1),
+            (y0, y1),
+            "t (s)",
+            &format!("|y| ({units})"),
+        )?;
+        let ends = |i: &IntervalJson| i.interval.span_s;
+        let classes = [(KEPT, "kept", None)].into_iter().chain(
+            REJECTED
+                .iter()
+                .enumerate()
+                .map(|(k, (c, l))| (*c, *l, Some(k))),
+        );
+        for (colour, label, which) in classes {
+            let bands: Vec<(f64, f64)> = d
+                .intervals
+                .iter()
+                .filter(|i| class(&i.interval.verdict) == which)
+                .map(ends)
+                .collect();
+            if bands.is_empty() {
+                continue;
+            }
+            c.draw_series(
+                bands
+                    .into_iter()
+                    .map(|(a, b)| Rectangle::new([(a, y0), (b, y1)], colour.mix(0.25).filled())),
+            )
+            .map_err(err(path))?
+            .label(label)
+            .legend(move |(x, y)| {
+                Rectangle::new([(x + 2, y - 5), (x + 18, y + 5)], colour.mix(0.25).filled())
+            });
         }
-        c.draw_series(
-            bands
-                .into_iter()
-                .map(|(a, b)| Rectangle::new([(a, y0), (b, y1)], colour.mix(0.25).filled())),
-        )
-        .map_err(err(path))?
-        .label(label)
-        .legend(move |(x, y)| {
-            Rectangle::new([(x + 2, y - 5), (x + 18, y + 5)], colour.mix(0.25).filled())
-        });
-    }
-    let line = COLOURS[0];
-    c.draw_series(LineSeries::new(envelope(t), line.stroke_width(1)))
-        .map_err(err(path))?
-        .label("|y|")
-        .legend(move |(x, y)| PathElement::new([(x, y), (x + 20, y)], line));
-    legend(&mut c, path)?;
-    root.present().map_err(err(path))
+        let line = COLOURS[0];
+        c.draw_series(LineSeries::new(envelope(t), line.stroke_width(1)))
+            .map_err(err(path))?
+            .label("|y|")
+            .legend(move |(x, y)| PathElement::new([(x, y), (x + 20, y)], line));
+        legend(&mut c, path)?;
+        Ok(())
+    })
 }
 
 /// Lambert azimuthal equal-area projection of a unit vector about +z′ (`upper`) or −z′,
@@ -137,126 +138,129 @@ fn lambert(d: &[f64; 3], upper: bool) -> (f64, f64) {
 /// The fitted ĝ of each pose on two equal-area discs, z′ ≥ 0 and z′ < 0, labelled by
 /// pose number (the tables' #).
 fn plot_directions(free: &FreeJson, path: &Path) -> Result<(), ReportError> {
-    let root = SVGBackend::new(path, (900, 500)).into_drawing_area();
-    root.fill(&WHITE).map_err(err(path))?;
-    let body = root
-        .titled(
-            "fitted gravity directions ĝ, device frame (Lambert equal-area)",
-            ("sans-serif", 18),
-        )
-        .map_err(err(path))?;
-    let (left, right) = body.split_horizontally(450);
-    let ring = |r: f64| -> Vec<(f64, f64)> {
-        (0..=360)
-            .map(|k| {
-                let a = f64::from(k).to_radians();
-                (r * a.cos(), r * a.sin())
-            })
-            .collect()
-    };
-    for (area, upper, title) in [
-        (&left, true, "z′ ≥ 0 (seen from +z′)"),
-        (&right, false, "z′ < 0 (seen from +z′, through the sphere)"),
-    ] {
-        let area = area.titled(title, ("sans-serif", 15)).map_err(err(path))?;
-        // A square plot so the circles stay round.
-        let (w, h) = area.dim_in_pixel();
-        let side = w.min(h).saturating_sub(20);
-        let (mx, my) = ((w - side) / 2, (h - side) / 2);
-        let area = area.margin(my, my, mx, mx);
-        let mut c = ChartBuilder::on(&area)
-            .build_cartesian_2d(-1.2f64..1.2, -1.2f64..1.2)
+    svg(path, (900, 500), |root| {
+        root.fill(&WHITE).map_err(err(path))?;
+        let body = root
+            .titled(
+                "fitted gravity directions ĝ, device frame (Lambert equal-area)",
+                ("sans-serif", 18),
+            )
             .map_err(err(path))?;
-        c.draw_series(LineSeries::new(ring(1.0), BLACK.stroke_width(1)))
+        let (left, right) = body.split_horizontally(450);
+        let ring = |r: f64| -> Vec<(f64, f64)> {
+            (0..=360)
+                .map(|k| {
+                    let a = f64::from(k).to_radians();
+                    (r * a.cos(), r * a.sin())
+                })
+                .collect()
+        };
+        for (area, upper, title) in [
+            (&left, true, "z′ ≥ 0 (seen from +z′)"),
+            (&right, false, "z′ < 0 (seen from +z′, through the sphere)"),
+        ] {
+            let area = area.titled(title, ("sans-serif", 15)).map_err(err(path))?;
+            // A square plot so the circles stay round.
+            let (w, h) = area.dim_in_pixel();
+            let side = w.min(h).saturating_sub(20);
+            let (mx, my) = ((w - side) / 2, (h - side) / 2);
+            let area = area.margin(my, my, mx, mx);
+            let mut c = ChartBuilder::on(&area)
+                .build_cartesian_2d(-1.2f64..1.2, -1.2f64..1.2)
+                .map_err(err(path))?;
+            c.draw_series(LineSeries::new(ring(1.0), BLACK.stroke_width(1)))
+                .map_err(err(path))?;
+            // 45° from the pole: X² + Y² = 1 − |z|.
+            let r45 = (1.0 - std::f64::consts::FRAC_1_SQRT_2).sqrt();
+            c.draw_series(LineSeries::new(ring(r45), BLACK.mix(0.3).stroke_width(1)))
+                .map_err(err(path))?;
+            c.draw_series(LineSeries::new(
+                [(-1.0, 0.0), (1.0, 0.0)],
+                BLACK.mix(0.2).stroke_width(1),
+            ))
             .map_err(err(path))?;
-        // 45° from the pole: X² + Y² = 1 − |z|.
-        let r45 = (1.0 - std::f64::consts::FRAC_1_SQRT_2).sqrt();
-        c.draw_series(LineSeries::new(ring(r45), BLACK.mix(0.3).stroke_width(1)))
+            c.draw_series(LineSeries::new(
+                [(0.0, -1.0), (0.0, 1.0)],
+                BLACK.mix(0.2).stroke_width(1),
+            ))
             .map_err(err(path))?;
-        c.draw_series(LineSeries::new(
-            [(-1.0, 0.0), (1.0, 0.0)],
-            BLACK.mix(0.2).stroke_width(1),
-        ))
-        .map_err(err(path))?;
-        c.draw_series(LineSeries::new(
-            [(0.0, -1.0), (0.0, 1.0)],
-            BLACK.mix(0.2).stroke_width(1),
-        ))
-        .map_err(err(path))?;
-        let axis = ("sans-serif", 14).into_font().color(&BLACK);
-        c.draw_series([
-            Text::new("x′", (1.04, 0.02), axis.clone()),
-            Text::new("y′", (0.02, 1.08), axis),
-        ])
-        .map_err(err(path))?;
-        let pts: Vec<(usize, (f64, f64))> = free
-            .poses
-            .iter()
-            .enumerate()
-            .filter(|(_, p)| (p.direction[2] >= 0.0) == upper)
-            .map(|(i, p)| (i + 1, lambert(&p.direction, upper)))
-            .collect();
-        let dot = COLOURS[0];
-        c.draw_series(pts.iter().map(|(_, p)| Circle::new(*p, 4, dot.filled())))
+            let axis = ("sans-serif", 14).into_font().color(&BLACK);
+            c.draw_series([
+                Text::new("x′", (1.04, 0.02), axis.clone()),
+                Text::new("y′", (0.02, 1.08), axis),
+            ])
             .map_err(err(path))?;
-        let label = ("sans-serif", 13).into_font().color(&BLACK);
-        c.draw_series(
-            pts.iter()
-                .map(|(i, (x, y))| Text::new(i.to_string(), (x + 0.04, y + 0.04), label.clone())),
-        )
-        .map_err(err(path))?;
-    }
-    root.present().map_err(err(path))
+            let pts: Vec<(usize, (f64, f64))> = free
+                .poses
+                .iter()
+                .enumerate()
+                .filter(|(_, p)| (p.direction[2] >= 0.0) == upper)
+                .map(|(i, p)| (i + 1, lambert(&p.direction, upper)))
+                .collect();
+            let dot = COLOURS[0];
+            c.draw_series(pts.iter().map(|(_, p)| Circle::new(*p, 4, dot.filled())))
+                .map_err(err(path))?;
+            let label = ("sans-serif", 13).into_font().color(&BLACK);
+            c.draw_series(
+                pts.iter().map(|(i, (x, y))| {
+                    Text::new(i.to_string(), (x + 0.04, y + 0.04), label.clone())
+                }),
+            )
+            .map_err(err(path))?;
+        }
+        Ok(())
+    })
 }
 
 /// |a| − g of each pose with ±2 standard deviations.
 fn plot_pose_residuals(free: &FreeJson, path: &Path) -> Result<(), ReportError> {
-    let root = SVGBackend::new(path, (900, 420)).into_drawing_area();
-    root.fill(&WHITE).map_err(err(path))?;
-    let n = free.poses.len() as f64;
-    let (y0, y1) = range(free.poses.iter().flat_map(|p| {
-        let u = 2.0 * p.residual_std_ms2;
-        [p.residual_ms2 - u, p.residual_ms2 + u, 0.0]
-    }));
-    // Not `chart`: pose numbers want integer ticks.
-    let mut c = ChartBuilder::on(&root)
-        .caption(
-            "residual |a| − g of each pose (bars: ±2 standard deviations)",
-            ("sans-serif", 18),
-        )
-        .margin(10)
-        .x_label_area_size(40)
-        .y_label_area_size(70)
-        .build_cartesian_2d(0.5..n + 0.5, y0..y1)
+    svg(path, (900, 420), |root| {
+        root.fill(&WHITE).map_err(err(path))?;
+        let n = free.poses.len() as f64;
+        let (y0, y1) = range(free.poses.iter().flat_map(|p| {
+            let u = 2.0 * p.residual_std_ms2;
+            [p.residual_ms2 - u, p.residual_ms2 + u, 0.0]
+        }));
+        // Not `chart`: pose numbers want integer ticks.
+        let mut c = ChartBuilder::on(root)
+            .caption(
+                "residual |a| − g of each pose (bars: ±2 standard deviations)",
+                ("sans-serif", 18),
+            )
+            .margin(10)
+            .x_label_area_size(40)
+            .y_label_area_size(70)
+            .build_cartesian_2d(0.5..n + 0.5, y0..y1)
+            .map_err(err(path))?;
+        c.configure_mesh()
+            .x_labels(free.poses.len().clamp(1, 30))
+            .x_label_formatter(&|x| format!("{x:.0}"))
+            .disable_x_mesh()
+            .x_desc("pose #")
+            .y_desc("|a| − g (m/s²)")
+            .draw()
+            .map_err(err(path))?;
+        c.draw_series(LineSeries::new(
+            [(0.5, 0.0), (n + 0.5, 0.0)],
+            BLACK.mix(0.4).stroke_width(1),
+        ))
         .map_err(err(path))?;
-    c.configure_mesh()
-        .x_labels(free.poses.len().clamp(1, 30))
-        .x_label_formatter(&|x| format!("{x:.0}"))
-        .disable_x_mesh()
-        .x_desc("pose #")
-        .y_desc("|a| − g (m/s²)")
-        .draw()
+        let col = COLOURS[0];
+        c.draw_series(free.poses.iter().enumerate().map(|(i, p)| {
+            let u = 2.0 * p.residual_std_ms2;
+            let x = (i + 1) as f64;
+            ErrorBar::new_vertical(
+                x,
+                p.residual_ms2 - u,
+                p.residual_ms2,
+                p.residual_ms2 + u,
+                col.filled(),
+                8,
+            )
+        }))
         .map_err(err(path))?;
-    c.draw_series(LineSeries::new(
-        [(0.5, 0.0), (n + 0.5, 0.0)],
-        BLACK.mix(0.4).stroke_width(1),
-    ))
-    .map_err(err(path))?;
-    let col = COLOURS[0];
-    c.draw_series(free.poses.iter().enumerate().map(|(i, p)| {
-        let u = 2.0 * p.residual_std_ms2;
-        let x = (i + 1) as f64;
-        ErrorBar::new_vertical(
-            x,
-            p.residual_ms2 - u,
-            p.residual_ms2,
-            p.residual_ms2 + u,
-            col.filled(),
-            8,
-        )
-    }))
-    .map_err(err(path))?;
-    root.present().map_err(err(path))
+        Ok(())
+    })
 }
 
 fn three(v: &[f64; 3], f: impl Fn(f64) -> String) -> String {

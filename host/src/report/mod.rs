@@ -412,6 +412,21 @@ fn legend<'a, 'b: 'a>(c: &mut Chart<'a, 'b>, path: &Path) -> Result<(), ReportEr
         .map_err(err(path))
 }
 
+/// An SVG of `size` drawn by `draw` in memory, then written to `path` whole or not at all.
+pub(crate) fn svg(
+    path: &Path,
+    size: (u32, u32),
+    draw: impl FnOnce(&DrawingArea<SVGBackend<'_>, plotters::coord::Shift>) -> Result<(), ReportError>,
+) -> Result<(), ReportError> {
+    let mut buf = String::new();
+    {
+        let root = SVGBackend::with_string(&mut buf, size).into_drawing_area();
+        draw(&root)?;
+        root.present().map_err(err(path))?;
+    }
+    crate::atomic::write(path, buf).map_err(err(path))
+}
+
 /// What a legend entry shows beside its label.
 #[derive(Clone, Copy)]
 enum Key {
@@ -489,90 +504,92 @@ fn marks(e: &Envelope, c: RGBColor) -> Vec<PathElement<(f64, f64)>> {
 /// Raw data (each pixel column's range) and the fitted sines (a line through each
 /// column's range), a panel per channel.
 fn plot_fit(s: &Series, path: &Path, units: &str) -> Result<(), ReportError> {
-    let root = SVGBackend::new(path, (900, 720)).into_drawing_area();
-    let (areas, side) = panels(&root, 900, 150, path)?;
-    let (x0, x1) = range([s.x_range.0, s.x_range.1].into_iter());
-    let per_channel = s.data.iter().zip(&s.model).zip(COLOURS).zip(CHANNELS);
-    for (i, ((((data, model), c), name), area)) in per_channel.zip(&areas).enumerate() {
-        let (y0, y1) = range(data.values().chain(model.values()));
-        let mut chart = chart(
-            area,
-            path,
-            &format!("{}: {name}", s.title),
-            15,
-            (x0, x1),
-            (y0, y1),
-            s.x_label,
-            units,
-        )?;
-        let line: Vec<(f64, f64)> = match (s.curve, Channel::ALL.get(i)) {
-            // Stepped: the readings as points, the fitted sine as the curve it is.
-            (Some(coefs), Some(ch)) => {
-                let [a, b, cc] = *ch.of(&coefs);
-                chart
-                    .draw_series(
-                        data.points()
-                            .flat_map(|(x, lo, hi)| [(x, lo), (x, hi)])
-                            .map(|p| Circle::new(p, 3, c.filled())),
-                    )
-                    .map_err(err(path))?;
-                let steps = 720;
-                (0..=steps)
-                    .map(|k| {
-                        let x = x0 + (x1 - x0) * k as f64 / steps as f64;
-                        let r = x.to_radians();
-                        (x, a * r.sin() + b * r.cos() + cc)
-                    })
-                    .collect()
-            }
-            _ => {
-                chart.draw_series(marks(data, c)).map_err(err(path))?;
-                model
-                    .points()
-                    .flat_map(|(x, lo, hi)| [(x, lo), (x, hi)])
-                    .collect()
-            }
-        };
-        chart
-            .draw_series(LineSeries::new(line, BLACK.stroke_width(1)))
-            .map_err(err(path))?;
-    }
-    let mut entries: Vec<(String, RGBColor, Key)> = CHANNELS
-        .iter()
-        .zip(COLOURS)
-        .map(|(n, c)| (format!("{n}: data"), c, Key::Dot))
-        .collect();
-    entries.push(("fitted sine".into(), BLACK, Key::Line));
-    side_legend(&side, &entries, path)?;
-    root.present().map_err(err(path))
+    svg(path, (900, 720), |root| {
+        let (areas, side) = panels(root, 900, 150, path)?;
+        let (x0, x1) = range([s.x_range.0, s.x_range.1].into_iter());
+        let per_channel = s.data.iter().zip(&s.model).zip(COLOURS).zip(CHANNELS);
+        for (i, ((((data, model), c), name), area)) in per_channel.zip(&areas).enumerate() {
+            let (y0, y1) = range(data.values().chain(model.values()));
+            let mut chart = chart(
+                area,
+                path,
+                &format!("{}: {name}", s.title),
+                15,
+                (x0, x1),
+                (y0, y1),
+                s.x_label,
+                units,
+            )?;
+            let line: Vec<(f64, f64)> = match (s.curve, Channel::ALL.get(i)) {
+                // Stepped: the readings as points, the fitted sine as the curve it is.
+                (Some(coefs), Some(ch)) => {
+                    let [a, b, cc] = *ch.of(&coefs);
+                    chart
+                        .draw_series(
+                            data.points()
+                                .flat_map(|(x, lo, hi)| [(x, lo), (x, hi)])
+                                .map(|p| Circle::new(p, 3, c.filled())),
+                        )
+                        .map_err(err(path))?;
+                    let steps = 720;
+                    (0..=steps)
+                        .map(|k| {
+                            let x = x0 + (x1 - x0) * k as f64 / steps as f64;
+                            let r = x.to_radians();
+                            (x, a * r.sin() + b * r.cos() + cc)
+                        })
+                        .collect()
+                }
+                _ => {
+                    chart.draw_series(marks(data, c)).map_err(err(path))?;
+                    model
+                        .points()
+                        .flat_map(|(x, lo, hi)| [(x, lo), (x, hi)])
+                        .collect()
+                }
+            };
+            chart
+                .draw_series(LineSeries::new(line, BLACK.stroke_width(1)))
+                .map_err(err(path))?;
+        }
+        let mut entries: Vec<(String, RGBColor, Key)> = CHANNELS
+            .iter()
+            .zip(COLOURS)
+            .map(|(n, c)| (format!("{n}: data"), c, Key::Dot))
+            .collect();
+        entries.push(("fitted sine".into(), BLACK, Key::Line));
+        side_legend(&side, &entries, path)?;
+        Ok(())
+    })
 }
 
 /// Residuals against time or angle (each pixel column's range), a panel per channel.
 pub(crate) fn plot_residuals(s: &Series, path: &Path, units: &str) -> Result<(), ReportError> {
-    let root = SVGBackend::new(path, (900, 620)).into_drawing_area();
-    let (areas, side) = panels(&root, 900, 150, path)?;
-    let (x0, x1) = range([s.x_range.0, s.x_range.1].into_iter());
-    for (((e, c), name), area) in s.resid.iter().zip(COLOURS).zip(CHANNELS).zip(&areas) {
-        let (y0, y1) = range(e.values());
-        let mut chart = chart(
-            area,
-            path,
-            &format!("{}: residuals of {name}", s.title),
-            15,
-            (x0, x1),
-            (y0, y1),
-            s.x_label,
-            &format!("data − fit ({units})"),
-        )?;
-        chart.draw_series(marks(e, c)).map_err(err(path))?;
-    }
-    let entries: Vec<(String, RGBColor, Key)> = CHANNELS
-        .iter()
-        .zip(COLOURS)
-        .map(|(n, c)| (format!("{n}: data − fit"), c, Key::Dot))
-        .collect();
-    side_legend(&side, &entries, path)?;
-    root.present().map_err(err(path))
+    svg(path, (900, 620), |root| {
+        let (areas, side) = panels(root, 900, 150, path)?;
+        let (x0, x1) = range([s.x_range.0, s.x_range.1].into_iter());
+        for (((e, c), name), area) in s.resid.iter().zip(COLOURS).zip(CHANNELS).zip(&areas) {
+            let (y0, y1) = range(e.values());
+            let mut chart = chart(
+                area,
+                path,
+                &format!("{}: residuals of {name}", s.title),
+                15,
+                (x0, x1),
+                (y0, y1),
+                s.x_label,
+                &format!("data − fit ({units})"),
+            )?;
+            chart.draw_series(marks(e, c)).map_err(err(path))?;
+        }
+        let entries: Vec<(String, RGBColor, Key)> = CHANNELS
+            .iter()
+            .zip(COLOURS)
+            .map(|(n, c)| (format!("{n}: data − fit"), c, Key::Dot))
+            .collect();
+        side_legend(&side, &entries, path)?;
+        Ok(())
+    })
 }
 
 /// Residual amplitude at the harmonics 2…8 of ω on a log axis (k = 1 is fitted, so it is
@@ -583,69 +600,70 @@ pub(crate) fn plot_spectrum(
     path: &Path,
     units: &str,
 ) -> Result<(), ReportError> {
-    let root = SVGBackend::new(path, (850, 420)).into_drawing_area();
-    root.fill(&WHITE).map_err(err(path))?;
-    let (plot, side) = root.split_horizontally(850 - 190);
-    let floor = s.noise_floor();
-    let shown = amps
-        .iter()
-        .flat_map(|a| a.iter().skip(1).copied())
-        .chain(floor)
-        .filter(|v| *v > 0.0 && v.is_finite());
-    let (lo, hi) = shown.fold((f64::INFINITY, 0.0f64), |(l, h), v| (l.min(v), h.max(v)));
-    let (lo, hi) = if lo.is_finite() && hi > 0.0 {
-        (lo / 3.0, hi * 3.0)
-    } else {
-        (1e-6, 1.0)
-    };
-    let mut chart = ChartBuilder::on(&plot)
-        .caption(
-            format!("{}: residual amplitude at k·ω", s.title),
-            ("sans-serif", 16),
-        )
-        .margin(10)
-        .x_label_area_size(40)
-        .y_label_area_size(80)
-        .build_cartesian_2d(1.5f64..(HARMONICS as f64 + 0.5), (lo..hi).log_scale())
-        .map_err(err(path))?;
-    chart
-        .configure_mesh()
-        .x_desc("harmonic k (k = 1 is fitted)")
-        .y_desc(format!("amplitude ({units})"))
-        .x_labels(HARMONICS)
-        .x_label_formatter(&|x| format!("{x:.0}"))
-        .draw()
-        .map_err(err(path))?;
-    for (ch, ((a, c), f)) in amps.iter().zip(COLOURS).zip(floor).enumerate() {
-        let off = (ch as f64 - 1.0) * 0.2;
-        chart
-            .draw_series(a.iter().enumerate().skip(1).map(|(k, v)| {
-                let x = k as f64 + 1.0 + off;
-                Rectangle::new([(x - 0.09, lo), (x + 0.09, v.max(lo))], c.filled())
-            }))
+    svg(path, (850, 420), |root| {
+        root.fill(&WHITE).map_err(err(path))?;
+        let (plot, side) = root.split_horizontally(850 - 190);
+        let floor = s.noise_floor();
+        let shown = amps
+            .iter()
+            .flat_map(|a| a.iter().skip(1).copied())
+            .chain(floor)
+            .filter(|v| *v > 0.0 && v.is_finite());
+        let (lo, hi) = shown.fold((f64::INFINITY, 0.0f64), |(l, h), v| (l.min(v), h.max(v)));
+        let (lo, hi) = if lo.is_finite() && hi > 0.0 {
+            (lo / 3.0, hi * 3.0)
+        } else {
+            (1e-6, 1.0)
+        };
+        let mut chart = ChartBuilder::on(&plot)
+            .caption(
+                format!("{}: residual amplitude at k·ω", s.title),
+                ("sans-serif", 16),
+            )
+            .margin(10)
+            .x_label_area_size(40)
+            .y_label_area_size(80)
+            .build_cartesian_2d(1.5f64..(HARMONICS as f64 + 0.5), (lo..hi).log_scale())
             .map_err(err(path))?;
         chart
-            .draw_series(DashedLineSeries::new(
-                [(1.5, f), (HARMONICS as f64 + 0.5, f)],
-                6,
-                4,
-                c.stroke_width(1),
-            ))
+            .configure_mesh()
+            .x_desc("harmonic k (k = 1 is fitted)")
+            .y_desc(format!("amplitude ({units})"))
+            .x_labels(HARMONICS)
+            .x_label_formatter(&|x| format!("{x:.0}"))
+            .draw()
             .map_err(err(path))?;
-    }
-    let mut entries: Vec<(String, RGBColor, Key)> = CHANNELS
-        .iter()
-        .zip(COLOURS)
-        .map(|(n, c)| (n.to_string(), c, Key::Dot))
-        .collect();
-    entries.extend(
-        CHANNELS
+        for (ch, ((a, c), f)) in amps.iter().zip(COLOURS).zip(floor).enumerate() {
+            let off = (ch as f64 - 1.0) * 0.2;
+            chart
+                .draw_series(a.iter().enumerate().skip(1).map(|(k, v)| {
+                    let x = k as f64 + 1.0 + off;
+                    Rectangle::new([(x - 0.09, lo), (x + 0.09, v.max(lo))], c.filled())
+                }))
+                .map_err(err(path))?;
+            chart
+                .draw_series(DashedLineSeries::new(
+                    [(1.5, f), (HARMONICS as f64 + 0.5, f)],
+                    6,
+                    4,
+                    c.stroke_width(1),
+                ))
+                .map_err(err(path))?;
+        }
+        let mut entries: Vec<(String, RGBColor, Key)> = CHANNELS
             .iter()
             .zip(COLOURS)
-            .map(|(n, c)| (format!("{n}: white-noise floor"), c, Key::Dashed)),
-    );
-    side_legend(&side, &entries, path)?;
-    root.present().map_err(err(path))
+            .map(|(n, c)| (n.to_string(), c, Key::Dot))
+            .collect();
+        entries.extend(
+            CHANNELS
+                .iter()
+                .zip(COLOURS)
+                .map(|(n, c)| (format!("{n}: white-noise floor"), c, Key::Dashed)),
+        );
+        side_legend(&side, &entries, path)?;
+        Ok(())
+    })
 }
 
 /// Static poses (stepped angles, six positions, any known orientations): each pose's
@@ -659,60 +677,68 @@ fn plot_poses(
 ) -> Result<(), ReportError> {
     let n = p.list.len();
     let width = (480 + 26 * n as u32).clamp(760, 1400);
-    let root = SVGBackend::new(path, (width, 660)).into_drawing_area();
-    let (areas, side) = panels(&root, width, 210, path)?;
-    let names: Vec<&str> = p.list.iter().map(|q| q.name.as_str()).collect();
-    // At most about 24 names under the axis: every `every`-th pose is named.
-    let every = n.div_ceil(24).max(1);
-    for (ci, ((c, name), area)) in COLOURS.iter().zip(CHANNELS).zip(&areas).enumerate() {
-        let tau = p.tau.get(ci).copied().unwrap_or(0.0);
-        let pts: Vec<(i32, f64, f64)> = p
-            .list
+    svg(path, (width, 660), |root| {
+        let (areas, side) = panels(root, width, 210, path)?;
+        let names: Vec<&str> = p.list.iter().map(|q| q.name.as_str()).collect();
+        // At most about 24 names under the axis: every `every`-th pose is named.
+        let every = n.div_ceil(24).max(1);
+        for (ci, ((c, name), area)) in COLOURS.iter().zip(CHANNELS).zip(&areas).enumerate() {
+            let tau = p.tau.get(ci).copied().unwrap_or(0.0);
+            let pts: Vec<(i32, f64, f64)> = p
+                .list
+                .iter()
+                .enumerate()
+                .map(|(i, q)| {
+                    let r = q.residual.get(ci).copied().unwrap_or(f64::NAN);
+                    let se = q.std_err.and_then(|s| s.get(ci).copied()).unwrap_or(0.0);
+                    (i as i32, r, p.k * (se * se + tau * tau).sqrt())
+                })
+                .collect();
+            let (y0, y1) = range(pts.iter().flat_map(|(_, r, b)| [r - b, r + b, 0.0]));
+            let mut chart = ChartBuilder::on(area)
+                .caption(format!("poses: residual of {name}"), ("sans-serif", 15))
+                .margin(10)
+                .x_label_area_size(40)
+                .y_label_area_size(70)
+                .build_cartesian_2d((0..n as i32).into_segmented(), y0..y1)
+                .map_err(err(path))?;
+            chart
+                .configure_mesh()
+                .x_labels(n)
+                .x_label_formatter(&|v| match v {
+                    SegmentValue::CenterOf(i) | SegmentValue::Exact(i) => usize::try_from(*i)
+                        .ok()
+                        .filter(|i| i % every == 0)
+                        .and_then(|i| names.get(i))
+                        .map_or(String::new(), |s| s.to_string()),
+                    SegmentValue::Last => String::new(),
+                })
+                .y_desc(format!("mean − model ({units})"))
+                .draw()
+                .map_err(err(path))?;
+            chart
+                .draw_series(pts.iter().map(|(i, r, b)| {
+                    ErrorBar::new_vertical(
+                        SegmentValue::CenterOf(*i),
+                        r - b,
+                        *r,
+                        r + b,
+                        c.filled(),
+                        6,
+                    )
+                }))
+                .map_err(err(path))?;
+        }
+        let mut entries: Vec<(String, RGBColor, Key)> = CHANNELS
             .iter()
-            .enumerate()
-            .map(|(i, q)| {
-                let r = q.residual.get(ci).copied().unwrap_or(f64::NAN);
-                let se = q.std_err.and_then(|s| s.get(ci).copied()).unwrap_or(0.0);
-                (i as i32, r, p.k * (se * se + tau * tau).sqrt())
-            })
+            .zip(COLOURS)
+            .map(|(n, c)| (n.to_string(), c, Key::Dot))
             .collect();
-        let (y0, y1) = range(pts.iter().flat_map(|(_, r, b)| [r - b, r + b, 0.0]));
-        let mut chart = ChartBuilder::on(area)
-            .caption(format!("poses: residual of {name}"), ("sans-serif", 15))
-            .margin(10)
-            .x_label_area_size(40)
-            .y_label_area_size(70)
-            .build_cartesian_2d((0..n as i32).into_segmented(), y0..y1)
-            .map_err(err(path))?;
-        chart
-            .configure_mesh()
-            .x_labels(n)
-            .x_label_formatter(&|v| match v {
-                SegmentValue::CenterOf(i) | SegmentValue::Exact(i) => usize::try_from(*i)
-                    .ok()
-                    .filter(|i| i % every == 0)
-                    .and_then(|i| names.get(i))
-                    .map_or(String::new(), |s| s.to_string()),
-                SegmentValue::Last => String::new(),
-            })
-            .y_desc(format!("mean − model ({units})"))
-            .draw()
-            .map_err(err(path))?;
-        chart
-            .draw_series(pts.iter().map(|(i, r, b)| {
-                ErrorBar::new_vertical(SegmentValue::CenterOf(*i), r - b, *r, r + b, c.filled(), 6)
-            }))
-            .map_err(err(path))?;
-    }
-    let mut entries: Vec<(String, RGBColor, Key)> = CHANNELS
-        .iter()
-        .zip(COLOURS)
-        .map(|(n, c)| (n.to_string(), c, Key::Dot))
-        .collect();
-    entries.push(("bars: ±k·√(se² + τ²)".to_string(), BLACK, Key::Line));
-    entries.push((format!("k = {:.2}", p.k), BLACK, Key::Line));
-    side_legend(&side, &entries, path)?;
-    root.present().map_err(err(path))
+        entries.push(("bars: ±k·√(se² + τ²)".to_string(), BLACK, Key::Line));
+        entries.push((format!("k = {:.2}", p.k), BLACK, Key::Line));
+        side_legend(&side, &entries, path)?;
+        Ok(())
+    })
 }
 
 /// s_u, s_v, s_w.
@@ -740,87 +766,88 @@ fn plot_rates(cal: &CalibrationJson, path: &Path) -> Result<(), ReportError> {
     let Some(first) = entries.first() else {
         return Ok(());
     };
-    let root = SVGBackend::new(path, (900, 700)).into_drawing_area();
-    root.fill(&WHITE).map_err(err(path))?;
-    let (plots, side) = root.split_horizontally(900 - 130);
-    let (top, bottom) = plots.split_vertically(350);
-    let rate = |e: &RateJson| e.rate_hz.unwrap_or(0.0);
-    let (lo, hi) = entries
-        .iter()
-        .map(|e| rate(e))
-        .filter(|r| *r > 0.0)
-        .fold((f64::INFINITY, 0.0f64), |(l, h), r| (l.min(r), h.max(r)));
-    let (x0, x1) = if lo.is_finite() && hi > 0.0 {
-        (lo / 1.5, hi * 1.5)
-    } else {
-        (1e-3, 1.0)
-    };
-    type Pick = fn(&RateJson) -> [&Quantity; 3];
-    let mut legend_entries = Vec::new();
-    for (panel, area, pick, names, scale, unit) in [
-        (
-            "sensitivities",
-            &top,
-            sensitivities as Pick,
-            ["s_u", "s_v", "s_w"],
-            1e6,
-            "Δs / s (ppm)",
-        ),
-        (
-            "angles",
-            &bottom,
-            angles as Pick,
-            ["φ_uv", "φ_vw", "φ_wu"],
-            1.0,
-            "Δφ (deg)",
-        ),
-    ] {
-        let base = pick(first).map(|q| q.value);
-        // Per property, its points (rate, change, U) in order of rate.
-        let mut pts: [Vec<(f64, f64, f64)>; 3] = Default::default();
-        for e in &entries {
-            for ((series, q), base) in pts.iter_mut().zip(pick(e)).zip(base) {
-                let norm = if scale == 1.0 { 1.0 } else { base };
-                series.push((
-                    rate(e),
-                    (q.value - base) / norm * scale,
-                    q.expanded_unc / norm * scale,
-                ));
+    svg(path, (900, 700), |root| {
+        root.fill(&WHITE).map_err(err(path))?;
+        let (plots, side) = root.split_horizontally(900 - 130);
+        let (top, bottom) = plots.split_vertically(350);
+        let rate = |e: &RateJson| e.rate_hz.unwrap_or(0.0);
+        let (lo, hi) = entries
+            .iter()
+            .map(|e| rate(e))
+            .filter(|r| *r > 0.0)
+            .fold((f64::INFINITY, 0.0f64), |(l, h), r| (l.min(r), h.max(r)));
+        let (x0, x1) = if lo.is_finite() && hi > 0.0 {
+            (lo / 1.5, hi * 1.5)
+        } else {
+            (1e-3, 1.0)
+        };
+        type Pick = fn(&RateJson) -> [&Quantity; 3];
+        let mut legend_entries = Vec::new();
+        for (panel, area, pick, names, scale, unit) in [
+            (
+                "sensitivities",
+                &top,
+                sensitivities as Pick,
+                ["s_u", "s_v", "s_w"],
+                1e6,
+                "Δs / s (ppm)",
+            ),
+            (
+                "angles",
+                &bottom,
+                angles as Pick,
+                ["φ_uv", "φ_vw", "φ_wu"],
+                1.0,
+                "Δφ (deg)",
+            ),
+        ] {
+            let base = pick(first).map(|q| q.value);
+            // Per property, its points (rate, change, U) in order of rate.
+            let mut pts: [Vec<(f64, f64, f64)>; 3] = Default::default();
+            for e in &entries {
+                for ((series, q), base) in pts.iter_mut().zip(pick(e)).zip(base) {
+                    let norm = if scale == 1.0 { 1.0 } else { base };
+                    series.push((
+                        rate(e),
+                        (q.value - base) / norm * scale,
+                        q.expanded_unc / norm * scale,
+                    ));
+                }
+            }
+            let (y0, y1) = range(pts.iter().flatten().flat_map(|(_, v, u)| [v - u, v + u]));
+            let mut chart = ChartBuilder::on(area)
+                .caption(
+                    format!(
+                        "{panel} against rate, relative to {} Hz (bars: U)",
+                        rate(first)
+                    ),
+                    ("sans-serif", 16),
+                )
+                .margin(10)
+                .x_label_area_size(40)
+                .y_label_area_size(70)
+                .build_cartesian_2d((x0..x1).log_scale(), y0..y1)
+                .map_err(err(path))?;
+            chart
+                .configure_mesh()
+                .x_desc("rotation rate (Hz, log scale)")
+                .y_desc(unit)
+                .draw()
+                .map_err(err(path))?;
+            for (i, ((series, c), name)) in pts.iter().zip(COLOURS).zip(names).enumerate() {
+                // Side by side around each rate, by a fixed ratio on the log axis.
+                let f = 1.0 + 0.015 * (i as f64 - 1.0);
+                chart
+                    .draw_series(series.iter().map(|(x, y, u)| {
+                        ErrorBar::new_vertical(x * f, y - u, *y, y + u, c.filled(), 6)
+                    }))
+                    .map_err(err(path))?;
+                legend_entries.push((name.to_string(), c, Key::Dot));
             }
         }
-        let (y0, y1) = range(pts.iter().flatten().flat_map(|(_, v, u)| [v - u, v + u]));
-        let mut chart = ChartBuilder::on(area)
-            .caption(
-                format!(
-                    "{panel} against rate, relative to {} Hz (bars: U)",
-                    rate(first)
-                ),
-                ("sans-serif", 16),
-            )
-            .margin(10)
-            .x_label_area_size(40)
-            .y_label_area_size(70)
-            .build_cartesian_2d((x0..x1).log_scale(), y0..y1)
-            .map_err(err(path))?;
-        chart
-            .configure_mesh()
-            .x_desc("rotation rate (Hz, log scale)")
-            .y_desc(unit)
-            .draw()
-            .map_err(err(path))?;
-        for (i, ((series, c), name)) in pts.iter().zip(COLOURS).zip(names).enumerate() {
-            // Side by side around each rate, by a fixed ratio on the log axis.
-            let f = 1.0 + 0.015 * (i as f64 - 1.0);
-            chart
-                .draw_series(series.iter().map(|(x, y, u)| {
-                    ErrorBar::new_vertical(x * f, y - u, *y, y + u, c.filled(), 6)
-                }))
-                .map_err(err(path))?;
-            legend_entries.push((name.to_string(), c, Key::Dot));
-        }
-    }
-    side_legend(&side, &legend_entries, path)?;
-    root.present().map_err(err(path))
+        side_legend(&side, &legend_entries, path)?;
+        Ok(())
+    })
 }
 
 fn q(x: &Quantity, unit: &str) -> String {
