@@ -143,10 +143,8 @@ fn puzzle(seed: u64, dir: &Path) -> anyhow::Result<Puzzle> {
     let rec = crate::recording::read(&csv)?;
     let cal = crate::calibrate::calibrate(&rec, &Default::default())?;
     let a = crate::discrepancy::run(&rec, &Default::default())?;
-    std::fs::write(
-        dir.join("puzzle.discrepancy.json"),
-        serde_json::to_string_pretty(&a)? + "\n",
-    )?;
+    let trace = crate::trace::Traceability::of_recording(&csv, None, None, None)?;
+    crate::atomic::write(&dir.join("puzzle.discrepancy.json"), trace.json(&a)?)?;
     let report = crate::report::discrepancy::write(&a, &dir.join("puzzle-report"), "counts")?;
     let dev = |lo: &crate::calibrate::json::Quantity, hi: &crate::calibrate::json::Quantity| {
         (hi.value - lo.value, lo.expanded_unc.hypot(hi.expanded_unc))
@@ -292,32 +290,27 @@ pub fn run(seed: u64, dir: &Path, inject: Option<Inject>) -> anyhow::Result<Demo
         &log,
         crate::verify::recorded::DEFAULT_THRESHOLD,
     )?;
-    std::fs::write(
-        dir.join("calibration.json"),
-        serde_json::to_string_pretty(&calibration)? + "\n",
-    )?;
-    std::fs::write(
-        dir.join("crosscheck.json"),
-        serde_json::to_string_pretty(&crosscheck)? + "\n",
-    )?;
+    let mut trace = crate::trace::Traceability::of_recording(rec_path, None, None, None)?;
+    crate::atomic::write(&dir.join("calibration.json"), trace.json(&calibration)?)?;
+    trace.inputs.push(crate::trace::input(fits_path)?);
+    crate::atomic::write(&dir.join("crosscheck.json"), trace.json(&crosscheck)?)?;
     let report = crate::report::write(&rec, &Default::default(), &dir.join("report"))?;
     let correction = calibration
         .by_rate
         .first()
         .and_then(|r| r.correction.as_ref())
         .ok_or_else(|| anyhow::anyhow!("the calibration has no correction"))?;
-    let applied = crate::correct::apply::apply(
-        &rec,
-        &crate::correct::apply::Job {
-            correction: &correction.device_frame,
-            units_in: &correction.units_in,
-            k: correction.k,
-            cal_name: "calibration.json",
-            g_loc: Some(PAPER_G_LOC),
-            out_name: "recording-ms2.csv",
-        },
-        std::fs::File::create(dir.join("recording-ms2.csv"))?,
-    )?;
+    let job = crate::correct::apply::Job {
+        correction: &correction.device_frame,
+        units_in: &correction.units_in,
+        k: correction.k,
+        cal_name: "calibration.json",
+        g_loc: Some(PAPER_G_LOC),
+        out_name: "recording-ms2.csv",
+    };
+    let applied = crate::atomic::write_with(&dir.join("recording-ms2.csv"), |w| {
+        anyhow::Ok(crate::correct::apply::apply(&rec, &job, w)?)
+    })?;
     let puzzle = puzzle(seed, dir)?;
     let [s0, s1, s2, a0, a1, a2, ..] = truth;
     Ok(Demo {
@@ -359,7 +352,7 @@ fn corrupt_first_fit(path: &Path) -> anyhow::Result<()> {
     if !done {
         anyhow::bail!("{}: no device fit report to corrupt", path.display());
     }
-    std::fs::write(path, out).map_err(|e| at(&e))
+    crate::atomic::write(path, out).map_err(|e| at(&e))
 }
 
 /// How many U a property may miss the simulated truth by before the demo fails.

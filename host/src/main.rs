@@ -21,6 +21,7 @@ enum Command {
     Calibrate(cli::calibrate::Args),
     /// Correct readings with a calibration: a = M·(y − O) in m/s², written as a recording
     /// with each value's standard uncertainty from the calibration.
+    #[command(after_long_help = cli::help::RECORDING)]
     Apply(cli::apply::Args),
     /// The correction as constants to embed (C header, Rust module or JSON).
     Export(cli::export::Args),
@@ -30,6 +31,7 @@ enum Command {
     Report(cli::report::Args),
     /// Re-fit in f64 exactly the sample windows the device fitted, and compare
     /// (exit 1 if any differs by more than the threshold).
+    #[command(after_long_help = cli::help::RECORDING)]
     Crosscheck(cli::crosscheck::Args),
     /// Convert text logs (delimited columns) into a recording; with a section list and a
     /// pose map, static poses with their gravity directions.
