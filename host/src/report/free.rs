@@ -1,7 +1,7 @@
 //! Method free in the report: the still intervals over the readings' magnitude, the fitted
 //! gravity directions on the sphere, each pose's residual, and their tables.
 
-use super::{chart, err, legend, range, svg, Envelope, ReportError, COLOURS};
+use super::{chart, err, range, side_legend, svg, Envelope, Key, ReportError, COLOURS};
 use crate::calibrate::free::Residual;
 use crate::calibrate::json::{DetectionJson, FreeJson, IntervalJson};
 use crate::calibrate::still::Verdict;
@@ -72,6 +72,10 @@ fn plot_magnitude(
 ) -> Result<(), ReportError> {
     svg(path, (900, 420), |root| {
         root.fill(&WHITE).map_err(err(path))?;
+        // The legend in a column of its own, beside the data.
+        let (root, side) = root.split_horizontally(900 - 150);
+        let root = &root;
+        let mut entries = Vec::new();
         let (x0, x1) = range(t.x.iter().copied());
         let (y0, y1) = range(t.magnitude.iter().copied());
         let title = if d.segment.is_empty() {
@@ -111,18 +115,14 @@ fn plot_magnitude(
                     .into_iter()
                     .map(|(a, b)| Rectangle::new([(a, y0), (b, y1)], colour.mix(0.25).filled())),
             )
-            .map_err(err(path))?
-            .label(label)
-            .legend(move |(x, y)| {
-                Rectangle::new([(x + 2, y - 5), (x + 18, y + 5)], colour.mix(0.25).filled())
-            });
+            .map_err(err(path))?;
+            entries.push((label.to_string(), colour, Key::Band));
         }
         let line = COLOURS[0];
         c.draw_series(LineSeries::new(envelope(t), line.stroke_width(1)))
-            .map_err(err(path))?
-            .label("|y|")
-            .legend(move |(x, y)| PathElement::new([(x, y), (x + 20, y)], line));
-        legend(&mut c, path)?;
+            .map_err(err(path))?;
+        entries.push(("|y|".to_string(), line, Key::Line));
+        side_legend(&side, &entries, path)?;
         Ok(())
     })
 }

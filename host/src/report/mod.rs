@@ -404,14 +404,6 @@ fn chart<'a, 'b>(
     Ok(c)
 }
 
-fn legend<'a, 'b: 'a>(c: &mut Chart<'a, 'b>, path: &Path) -> Result<(), ReportError> {
-    c.configure_series_labels()
-        .background_style(WHITE.mix(0.8))
-        .border_style(BLACK)
-        .draw()
-        .map_err(err(path))
-}
-
 /// An SVG of `size` drawn by `draw` in memory, then written to `path` whole or not at all.
 pub(crate) fn svg(
     path: &Path,
@@ -429,17 +421,19 @@ pub(crate) fn svg(
 
 /// What a legend entry shows beside its label.
 #[derive(Clone, Copy)]
-enum Key {
+pub(crate) enum Key {
     /// A dot (data).
     Dot,
     /// A line (a fit).
     Line,
     /// A dashed line (a reference level).
     Dashed,
+    /// A pale band (an interval of the axis).
+    Band,
 }
 
 /// A legend beside the plots, outside the data: one line per entry from the top of `area`.
-fn side_legend(
+pub(crate) fn side_legend(
     area: &DrawingArea<SVGBackend<'_>, plotters::coord::Shift>,
     entries: &[(String, RGBColor, Key)],
     path: &Path,
@@ -452,6 +446,12 @@ fn side_legend(
                 .map_err(err(path))?,
             Key::Line => area
                 .draw(&PathElement::new(vec![(6, y), (26, y)], c.stroke_width(2)))
+                .map_err(err(path))?,
+            Key::Band => area
+                .draw(&Rectangle::new(
+                    [(6, y - 6), (26, y + 6)],
+                    c.mix(0.25).filled(),
+                ))
                 .map_err(err(path))?,
             Key::Dashed => {
                 for x in [6, 14, 22] {
