@@ -48,6 +48,10 @@ pub struct Args {
     /// Sample rate, Hz (metadata).
     #[arg(long)]
     sample_rate_hz: Option<f64>,
+    /// The device: model, serial number, firmware ("… firmware A.B.C …" is read as its
+    /// version), as the recording's `# device=` and every output's traceability block.
+    #[arg(long)]
+    device: Option<String>,
     /// A section list (imucal's JSON: {"name": {"start": N, "end": M}}, data rows from
     /// 0, end exclusive) of static poses; needs --poses.
     #[arg(long, requires = "poses")]
@@ -68,6 +72,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         g_loc: a.g_loc,
         units: a.units,
         sample_rate_hz: a.sample_rate_hz,
+        device: a.device.clone(),
         ..Default::default()
     };
     let (inputs, columns, condition, skip, time_scale, out) = (
