@@ -1,7 +1,7 @@
 //! Still poses of unknown orientation (method free, docs/calibration.md): the Gram matrix
 //! G = S·Sᵀ and the offsets O from |S⁻¹(y − O)| = g alone.
 //!
-//! Only G and O are identifiable (docs/method.md §2): G is parameterised by its lower Cholesky
+//! Only G and O are identifiable (docs/method.md §2b): G is parameterised by its lower Cholesky
 //! factor L (S in the device frame, x′ along u, y′ in the plane of u and v), so the fit
 //! has exactly the nine intrinsic degrees of freedom and the correction a = L⁻¹(y − O)
 //! comes with it. For pose p with mean ȳ_p and the mean's covariance Σ_p:
