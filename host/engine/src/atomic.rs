@@ -47,6 +47,27 @@ pub fn write_with<T, E: From<io::Error>>(
     Ok(value)
 }
 
+/// Fill the folder `dir` whole or not at all: `fill` writes into a temporary folder beside
+/// it, whose files are moved into `dir` (created if missing) only once `fill` succeeded.
+/// Files of `dir` that `fill` did not write are left as they were.
+pub fn fill_dir<T, E: From<io::Error>>(
+    dir: &Path,
+    fill: impl FnOnce(&Path) -> Result<T, E>,
+) -> Result<T, E> {
+    let staging = tempfile::Builder::new()
+        .prefix(".rotacal-")
+        .tempdir_in(folder(dir))
+        .map_err(|e| at(dir, e))?;
+    let value = fill(staging.path())?;
+    std::fs::create_dir_all(dir).map_err(|e| at(dir, e))?;
+    for entry in std::fs::read_dir(staging.path()).map_err(|e| at(dir, e))? {
+        let entry = entry.map_err(|e| at(dir, e))?;
+        let to = dir.join(entry.file_name());
+        std::fs::rename(entry.path(), &to).map_err(|e| at(&to, e))?;
+    }
+    Ok(value)
+}
+
 /// Write `bytes` to `path`, whole or not at all.
 pub fn write(path: &Path, bytes: impl AsRef<[u8]>) -> io::Result<()> {
     write_with(path, |w| w.write_all(bytes.as_ref()))
@@ -73,6 +94,16 @@ mod tests {
         assert!(!p.exists());
         // Nothing else in the folder: the temporary files went with their failures.
         assert_eq!(std::fs::read_dir(&d).unwrap().count(), 0);
+        // A folder: nothing of a failed fill; all of a good one.
+        let out = d.join("report");
+        let r: io::Result<()> = fill_dir(&out, |tmp| {
+            write(&tmp.join("a.svg"), "a")?;
+            Err(io::Error::other("failed"))
+        });
+        assert!(r.is_err() && !out.exists());
+        fill_dir(&out, |tmp| write(&tmp.join("a.svg"), "a")).unwrap();
+        assert_eq!(std::fs::read_to_string(out.join("a.svg")).unwrap(), "a");
+        std::fs::remove_dir_all(&out).unwrap();
         write(&p, "second\n").unwrap();
         assert_eq!(std::fs::read_to_string(&p).unwrap(), "second\n");
         // Not a temporary file's private permissions.

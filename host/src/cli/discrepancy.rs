@@ -65,10 +65,18 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     }
     rotacal::output::emit(&rotacal::report::discrepancy::render(&analysis))?;
     if let Some(dir) = &a.report {
-        let path = rotacal::report::discrepancy::write(&analysis, dir, &units)?;
-        let md = std::fs::read_to_string(&path)
-            .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
-        rotacal::atomic::write(&path, md + "\n" + &trace.markdown())?;
+        // The folder whole or not at all.
+        let name = rotacal::atomic::fill_dir(dir, |tmp| -> anyhow::Result<_> {
+            let path = rotacal::report::discrepancy::write(&analysis, tmp, &units)?;
+            let md = std::fs::read_to_string(&path)
+                .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+            rotacal::atomic::write(&path, md + "\n" + &trace.markdown())?;
+            Ok(path
+                .file_name()
+                .map(std::path::PathBuf::from)
+                .unwrap_or_default())
+        })?;
+        let path = dir.join(name);
         rotacal::output::emit(&format!("report: {}\n", path.display()))?;
     }
     if !analysis.verdict.explained {

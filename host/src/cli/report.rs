@@ -22,30 +22,35 @@ pub struct Args {
 /// Run it.
 pub fn run(a: Args) -> anyhow::Result<()> {
     let opts = a.options.into_engine()?;
-    let (path, cal) = rotacal::report::write_file_with(&a.file, &opts, &a.out)
-        .map_err(|e| super::calibrate::with_rate_hint(e.into(), &a.file, &opts))?;
-    let trace = rotacal::trace::Traceability::of_recording(
-        &a.file,
-        opts.method,
-        opts.g_loc,
-        opts.inputs.u_g_loc,
-    )?;
-    let md =
-        std::fs::read_to_string(&path).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
-    rotacal::atomic::write(&path, md.clone() + "\n" + &trace.markdown())?;
-    rotacal::output::emit(&format!("wrote {}\n", path.display()))?;
-    if a.html {
-        let html = rotacal::report::html::certificate(
-            &cal,
-            &a.file.display().to_string(),
-            &md,
-            &a.out,
-            &rotacal::calibrate::table::render(&cal),
-            &trace.markdown(),
+    // The folder whole or not at all: a report that fails part way leaves nothing.
+    rotacal::atomic::fill_dir(&a.out, |dir| -> anyhow::Result<()> {
+        let (path, cal) = rotacal::report::write_file_with(&a.file, &opts, dir)
+            .map_err(|e| super::calibrate::with_rate_hint(e.into(), &a.file, &opts))?;
+        let trace = rotacal::trace::Traceability::of_recording(
+            &a.file,
+            opts.method,
+            opts.g_loc,
+            opts.inputs.u_g_loc,
         )?;
-        let page = a.out.join("report.html");
-        rotacal::atomic::write(&page, html)?;
-        rotacal::output::emit(&format!("wrote {}\n", page.display()))?;
+        let md = std::fs::read_to_string(&path)
+            .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+        rotacal::atomic::write(&path, md.clone() + "\n" + &trace.markdown())?;
+        if a.html {
+            let html = rotacal::report::html::certificate(
+                &cal,
+                &a.file.display().to_string(),
+                &md,
+                dir,
+                &rotacal::calibrate::table::render(&cal),
+                &trace.markdown(),
+            )?;
+            rotacal::atomic::write(&dir.join("report.html"), html)?;
+        }
+        Ok(())
+    })?;
+    rotacal::output::emit(&format!("wrote {}\n", a.out.join("report.md").display()))?;
+    if a.html {
+        rotacal::output::emit(&format!("wrote {}\n", a.out.join("report.html").display()))?;
     }
     Ok(())
 }

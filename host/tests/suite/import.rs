@@ -546,6 +546,19 @@ fn readings_in_g_and_a_wrong_rate_are_named_with_what_to_do() {
         ),
         "{err}"
     );
+    // A report that fails so leaves no folder behind, not even its first plots.
+    let rep_dir = d.join("report");
+    let (ok, _, err) = run(&[
+        "report",
+        &in_g.display().to_string(),
+        "--rate-hz",
+        "0.02",
+        "--out",
+        &rep_dir.display().to_string(),
+    ]);
+    assert!(!ok);
+    assert!(err.contains("the data look like 0.0101 Hz"), "{err}");
+    assert!(!rep_dir.exists());
     // Half of it: too few periods at that rate, and the same hint.
     let (ok, _, err) = calibrate(&in_g, &["--rate-hz", "0.005"]);
     assert!(!ok);
