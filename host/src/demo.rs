@@ -294,7 +294,7 @@ pub fn run(seed: u64, dir: &Path, inject: Option<Inject>) -> anyhow::Result<Demo
     crate::atomic::write(&dir.join("calibration.json"), trace.json(&calibration)?)?;
     trace.inputs.push(crate::trace::input(fits_path)?);
     crate::atomic::write(&dir.join("crosscheck.json"), trace.json(&crosscheck)?)?;
-    let report = crate::report::write(&rec, &Default::default(), &dir.join("report"))?;
+    let (report, _) = crate::report::write(&rec, &Default::default(), &dir.join("report"))?;
     let correction = calibration
         .by_rate
         .first()

@@ -195,6 +195,20 @@ impl Traceability {
         Ok(t)
     }
 
+    /// For outputs calibrated from the recording at `path` with `opts`: its method, and
+    /// the local gravity and uncertainty the command line gave, if it did.
+    pub fn of_calibrating(path: &Path, opts: &crate::calibrate::Options) -> anyhow::Result<Self> {
+        Traceability::of_recording(path, opts.method, opts.g_loc, opts.inputs.u_g_loc)
+    }
+
+    /// The Markdown file at `path` with this block added at its end (written whole).
+    pub fn append_to(&self, path: &Path) -> anyhow::Result<()> {
+        let md = std::fs::read_to_string(path)
+            .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+        crate::atomic::write(path, md + "\n" + &self.markdown())?;
+        Ok(())
+    }
+
     /// The block as Markdown: a heading and a table.
     pub fn markdown(&self) -> String {
         let mut rows = vec![

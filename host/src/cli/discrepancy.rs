@@ -68,9 +68,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         // The folder whole or not at all.
         let name = rotacal::atomic::fill_dir(dir, |tmp| -> anyhow::Result<_> {
             let path = rotacal::report::discrepancy::write(&analysis, tmp, &units)?;
-            let md = std::fs::read_to_string(&path)
-                .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
-            rotacal::atomic::write(&path, md + "\n" + &trace.markdown())?;
+            trace.append_to(&path)?;
             Ok(path
                 .file_name()
                 .map(std::path::PathBuf::from)

@@ -24,25 +24,19 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     let opts = a.options.into_engine()?;
     // The folder whole or not at all: a report that fails part way leaves nothing.
     rotacal::atomic::fill_dir(&a.out, |dir| -> anyhow::Result<()> {
-        let (path, cal) = rotacal::report::write_file_with(&a.file, &opts, dir)
+        let (path, cal) = rotacal::report::write_file(&a.file, &opts, dir)
             .map_err(|e| super::calibrate::with_rate_hint(e.into(), &a.file, &opts))?;
-        let trace = rotacal::trace::Traceability::of_recording(
-            &a.file,
-            opts.method,
-            opts.g_loc,
-            opts.inputs.u_g_loc,
-        )?;
-        let md = std::fs::read_to_string(&path)
-            .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
-        rotacal::atomic::write(&path, md.clone() + "\n" + &trace.markdown())?;
+        rotacal::trace::Traceability::of_calibrating(&a.file, &opts)?.append_to(&path)?;
         if a.html {
+            // The report as written, its traceability block last.
+            let md = std::fs::read_to_string(&path)
+                .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
             let html = rotacal::report::html::certificate(
                 &cal,
                 &a.file.display().to_string(),
                 &md,
                 dir,
                 &rotacal::calibrate::table::render(&cal),
-                &trace.markdown(),
             )?;
             rotacal::atomic::write(&dir.join("report.html"), html)?;
         }

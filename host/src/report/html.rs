@@ -4,6 +4,7 @@
 
 use super::ReportError;
 use crate::calibrate::json::{CalibrationJson, Quantity};
+use crate::calibrate::table::decimals;
 use pulldown_cmark::{html, Event, Options, Parser, Tag, TagEnd};
 use std::fmt::Write as _;
 use std::path::Path;
@@ -39,14 +40,6 @@ fn body(md: &str, dir: &Path) -> Result<String, ReportError> {
     let mut out = String::new();
     html::push_html(&mut out, events.into_iter());
     Ok(out)
-}
-
-/// Decimals that show `u` to two significant figures.
-fn decimals(u: f64) -> usize {
-    if u == 0.0 || !u.is_finite() {
-        return 6;
-    }
-    (1 - u.abs().log10().floor() as i32).max(0) as usize
 }
 
 /// `x` to two significant figures (an uncertainty).
@@ -120,15 +113,14 @@ pre{font-size:0.7em;white-space:pre-wrap}figure{margin:0.5em 0;page-break-inside
 figure svg{max-width:100%;height:auto}table,tr{page-break-inside:avoid}\
 @media print{body{margin:0}}";
 
-/// The certificate for `cal`, from the report's Markdown `md` (its plots in `dir`), the
-/// terminal summary with the budget `summary`, and the traceability block (Markdown).
+/// The certificate for `cal`, from the report's Markdown `md` (its plots in `dir`, its
+/// traceability block last) and the terminal summary with the budget `summary`.
 pub fn certificate(
     cal: &CalibrationJson,
     source: &str,
     md: &str,
     dir: &Path,
     summary: &str,
-    trace_md: &str,
 ) -> Result<String, ReportError> {
     let mut o = String::new();
     let _ = write!(
@@ -151,7 +143,6 @@ pub fn certificate(
         esc(summary)
     );
     o.push_str(&body(md, dir)?);
-    o.push_str(&body(trace_md, dir)?);
     o.push_str("</body></html>\n");
     Ok(o)
 }

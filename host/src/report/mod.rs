@@ -860,13 +860,8 @@ fn q(x: &Quantity, unit: &str) -> String {
     format!("{:.d$} ± {:.d$} {unit}{k}", x.value, x.expanded_unc)
 }
 
-/// Write the report; returns the Markdown file's path.
-pub fn write(rec: &Recording, opts: &Options, dir: &Path) -> Result<PathBuf, ReportError> {
-    write_with(rec, opts, dir).map(|(path, _)| path)
-}
-
-/// [`write`], returning the calibration too.
-pub fn write_with(
+/// Write the report; returns the Markdown file's path and the calibration.
+pub fn write(
     rec: &Recording,
     opts: &Options,
     dir: &Path,
@@ -894,12 +889,7 @@ pub fn write_with(
 /// [`write`] for the recording at `path`: a rotation file streams (calibrated by
 /// [`calibrate::stream`], its plots reduced to pixel columns as the rows come), in
 /// memory that does not grow with its length; any other is read whole.
-pub fn write_file(path: &Path, opts: &Options, dir: &Path) -> Result<PathBuf, ReportError> {
-    write_file_with(path, opts, dir).map(|(p, _)| p)
-}
-
-/// [`write_file`], returning the calibration too.
-pub fn write_file_with(
+pub fn write_file(
     path: &Path,
     opts: &Options,
     dir: &Path,
@@ -911,7 +901,7 @@ pub fn write_file_with(
     };
     if !rotation {
         let rec = crate::recording::read_as(path, opts.method)?;
-        return write_with(&rec, opts, dir);
+        return write(&rec, opts, dir);
     }
     let cal = calibrate::stream::calibrate_file(path, opts)?;
     let (mut by_entry, rows) = streamed_series(path, opts, &cal)?;
