@@ -7,7 +7,13 @@ use std::process::ExitCode;
 mod cli;
 
 #[derive(Parser)]
-#[command(name = "rotacal", version, about, disable_help_subcommand = true)]
+#[command(
+    name = "rotacal",
+    version,
+    about,
+    disable_help_subcommand = true,
+    after_long_help = cli::help::TOPIC_LIST
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,
@@ -21,9 +27,10 @@ enum Command {
     Calibrate(cli::calibrate::Args),
     /// Correct readings with a calibration: a = M·(y − O) in m/s², written as a recording
     /// with each value's standard uncertainty from the calibration.
-    #[command(after_long_help = cli::help::RECORDING)]
+    #[command(after_long_help = cli::help::APPLY)]
     Apply(cli::apply::Args),
     /// The correction as constants to embed (C header, Rust module or JSON).
+    #[command(after_long_help = cli::help::CALIBRATION)]
     Export(cli::export::Args),
     /// A Markdown report with SVG plots: data and fits, residuals, residual spectrum,
     /// the intrinsic properties with U (95 %), properties against rate.
@@ -47,8 +54,10 @@ enum Command {
     #[command(after_long_help = cli::help::RECORDING)]
     Discrepancy(cli::discrepancy::Args),
     /// Rebuild a recording and its fit log from a capture (after a crash, or to re-decode).
+    #[command(after_long_help = cli::help::CAPTURE)]
     Decode(cli::decode::Args),
-    /// Simulate the experiment and write a recording (docs/simulator.md).
+    /// Simulate the experiment and write a recording (rotacal help simulator).
+    #[command(after_long_help = cli::help::SIMULATOR)]
     Simulate(cli::simulate::Args),
     /// Overlapping Allan deviation of each still record and channel, with 1σ intervals
     /// and the fitted noise terms N, B, K (docs/allan.md).
@@ -58,8 +67,8 @@ enum Command {
     /// run it through the firmware's logic, record its packets, calibrate, cross-check,
     /// report; exits with status 1 if any of its checks fails.
     Demo(cli::demo::Args),
-    /// Help on a subcommand, or on the files rotacal reads and writes: `rotacal help
-    /// formats`.
+    /// Help on a subcommand, or a topic: formats (the files rotacal reads and writes),
+    /// simulator, recording, protocol.
     Help(cli::help::Args),
 }
 

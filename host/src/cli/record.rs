@@ -25,7 +25,7 @@ pub struct DeviceArgs {
     pub simulate: Option<String>,
     /// Faults for the simulated device, e.g. outage=60:5,drop=0.01,burst=3,garbage=100
     /// (also firmware=, protocol=, replaced=, mute_after=, seed=, mtu=, late=, stuck=;
-    /// docs/recording.md).
+    /// rotacal help recording).
     #[arg(long, requires = "simulate")]
     pub faults: Option<Faults>,
     /// How long to scan for the device per attempt, e.g. 20s.

@@ -34,6 +34,48 @@ fn help_formats_prints_docs_formats_md() {
             "calibrate's help lacks {column}:\n{text}"
         );
     }
+    // Every topic the top-level help lists prints its document, byte for byte.
+    let out = Command::new(env!("CARGO_BIN_EXE_rotacal"))
+        .arg("--help")
+        .output()
+        .unwrap();
+    let top = String::from_utf8(out.stdout).unwrap();
+    let listed: Vec<&str> = top
+        .split("Topics (rotacal help TOPIC):")
+        .nth(1)
+        .expect("the top-level help lists the topics")
+        .lines()
+        .filter_map(|l| l.split_whitespace().next())
+        .collect();
+    assert_eq!(listed, ["formats", "simulator", "recording", "protocol"]);
+    for topic in listed {
+        let file = format!("{topic}.md");
+        let out = Command::new(env!("CARGO_BIN_EXE_rotacal"))
+            .args(["help", topic])
+            .output()
+            .unwrap();
+        assert!(out.status.success(), "help {topic}");
+        let doc = std::fs::read_to_string(root().join("docs").join(&file)).unwrap();
+        assert_eq!(String::from_utf8(out.stdout).unwrap(), doc, "help {topic}");
+    }
+    // The commands that read something other than a recording say where its format is.
+    for (command, says) in [
+        ("simulate", "rotacal help simulator"),
+        ("decode", "rotacal help recording"),
+        ("export", "its keys: rotacal help formats"),
+        ("apply", "its keys: rotacal help formats"),
+        ("apply", "gx, gy, gz"),
+    ] {
+        let out = Command::new(env!("CARGO_BIN_EXE_rotacal"))
+            .args(["help", command])
+            .output()
+            .unwrap();
+        let text = String::from_utf8(out.stdout).unwrap();
+        assert!(
+            text.contains(says),
+            "{command}'s help lacks {says}:\n{text}"
+        );
+    }
     // An unknown topic is an error naming the topics.
     let out = Command::new(env!("CARGO_BIN_EXE_rotacal"))
         .args(["help", "format"])
@@ -42,7 +84,9 @@ fn help_formats_prints_docs_formats_md() {
     assert_eq!(out.status.code(), Some(1));
     let err = String::from_utf8(out.stderr).unwrap();
     assert!(
-        err.contains("the topics are formats and the subcommands (calibrate"),
+        err.contains(
+            "the topics are formats, simulator, recording, protocol and the subcommands (calibrate"
+        ),
         "{err}"
     );
 }
