@@ -300,6 +300,8 @@ pub fn run(seed: u64, dir: &Path, inject: Option<Inject>) -> anyhow::Result<Demo
         .first()
         .and_then(|r| r.correction.as_ref())
         .ok_or_else(|| anyhow::anyhow!("the calibration has no correction"))?;
+    let provenance = crate::trace::Traceability::new(&[&dir.join("calibration.json"), rec_path])?
+        .as_metadata(&["calibration", "recording"]);
     let job = crate::correct::apply::Job {
         correction: &correction.device_frame,
         units_in: &correction.units_in,
@@ -307,6 +309,7 @@ pub fn run(seed: u64, dir: &Path, inject: Option<Inject>) -> anyhow::Result<Demo
         cal_name: "calibration.json",
         g_loc: Some(PAPER_G_LOC),
         out_name: "recording-ms2.csv",
+        provenance: &provenance,
     };
     let applied = crate::atomic::write_with(&dir.join("recording-ms2.csv"), |w| {
         anyhow::Ok(crate::correct::apply::apply(&rec, &job, w)?)

@@ -201,6 +201,22 @@ impl Traceability {
         Traceability::of_recording(path, opts.method, opts.g_loc, opts.inputs.u_g_loc)
     }
 
+    /// The block as a recording's `# key=value` metadata, each input named by its label
+    /// in `labels` (in order): `rotacal`, `rotacal_commit`, `date_utc`, `command_line`,
+    /// then `LABEL_sha256` per input (docs/formats.md).
+    pub fn as_metadata(&self, labels: &[&str]) -> Vec<(String, String)> {
+        let mut m = vec![
+            ("rotacal".into(), self.rotacal.clone()),
+            ("rotacal_commit".into(), self.commit.clone()),
+            ("date_utc".into(), self.date_utc.clone()),
+            ("command_line".into(), self.command_line.join(" ")),
+        ];
+        for (label, i) in labels.iter().zip(&self.inputs) {
+            m.push((format!("{label}_sha256"), i.sha256.clone()));
+        }
+        m
+    }
+
     /// The Markdown file at `path` with this block added at its end (written whole).
     pub fn append_to(&self, path: &Path) -> anyhow::Result<()> {
         let md = std::fs::read_to_string(path)

@@ -23,12 +23,14 @@ pub struct Args {
 
 /// Run it.
 pub fn run(a: Args) -> anyhow::Result<()> {
+    let trace = rotacal::trace::Traceability::new(&[&a.calibration, &a.recording])?;
     let (_, text) = rotacal::correct::apply::run(
         &a.calibration,
         &a.recording,
         &a.out,
         a.frame.into(),
         a.rate_hz,
+        &trace.as_metadata(&["calibration", "recording"]),
     )?;
     rotacal::output::emit(&format!("wrote {}\n{text}", a.out.display()))?;
     Ok(())

@@ -173,6 +173,7 @@ fn apply_to(rec: &rotacal::recording::Recording, c: &Correction) -> rotacal::rec
         cal_name: "test",
         g_loc: None,
         out_name: "buffer",
+        provenance: &[],
     };
     apply::apply(rec, &job, &mut buf).unwrap();
     rotacal::recording::read_from(buf.as_slice(), "applied").unwrap()

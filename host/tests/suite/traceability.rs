@@ -1,7 +1,7 @@
-//! Issue 34: the traceability block is in every JSON, report and export: rotacal's version
-//! and commit, the date, the input's SHA-256 (checked against `sha256sum`), the device and
-//! firmware from the recording's `# device=`, the temperature range, g_loc with its source
-//! and uncertainty, and the command line.
+//! Issue 34: the traceability block is in every JSON, report, export and corrected
+//! recording: rotacal's version and commit, the date, the input's SHA-256 (checked against
+//! `sha256sum`), the device and firmware from the recording's `# device=`, the temperature
+//! range, g_loc with its source and uncertainty, and the command line.
 use crate::common::run;
 use std::path::{Path, PathBuf};
 
@@ -133,6 +133,30 @@ fn every_output_carries_the_traceability_block() {
             "{format}: the recording's SHA-256 is missing"
         );
         assert!(text.contains("0.2.0"), "{format}");
+    }
+    // A corrected recording names its calibration and recording by SHA-256, and keeps the
+    // recording's device line.
+    let (ok, o, e) = run(&["apply", &p("cal.json"), &r, "--out", &p("ms2.csv")]);
+    assert!(ok, "{o}{e}");
+    let text = std::fs::read_to_string(d.join("ms2.csv")).unwrap();
+    let meta: Vec<&str> = text.lines().take_while(|l| l.starts_with('#')).collect();
+    for line in [
+        format!("# calibration_sha256={cal_sha}"),
+        format!("# recording_sha256={sha}"),
+        format!("# rotacal={}", env!("CARGO_PKG_VERSION")),
+    ] {
+        assert!(meta.contains(&line.as_str()), "{line} not in {meta:?}");
+    }
+    for key in [
+        "# rotacal_commit=",
+        "# date_utc=20",
+        "# command_line=",
+        "# device=",
+    ] {
+        assert!(
+            meta.iter().any(|l| l.starts_with(key)),
+            "{key} not in {meta:?}"
+        );
     }
     std::fs::remove_dir_all(&d).ok();
 }

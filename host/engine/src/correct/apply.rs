@@ -311,6 +311,9 @@ pub struct Job<'a> {
     pub g_loc: Option<f64>,
     /// The output's name, for messages.
     pub out_name: &'a str,
+    /// Further metadata for the output (the shell's traceability: version, date, inputs'
+    /// SHA-256, command line), written as `# key=value` lines.
+    pub provenance: &'a [(String, String)],
 }
 
 /// The recording must hold raw readings (not `apply`'s output, which carries a
@@ -400,6 +403,10 @@ impl<'a, W: Write> Corrector<'a, W> {
         );
         meta.other
             .insert("coverage_factor".into(), format!("{}", job.k));
+        for (key, value) in job.provenance {
+            meta.other
+                .insert(key.clone(), value.replace(['\n', '\r'], " "));
+        }
         meta.method = Some(method);
         let w = Writer::new(out, &meta, &Columns { unc: true, ..cols })
             .map_err(|e| bad(job.out_name, e))?;
@@ -567,6 +574,7 @@ pub fn run(
     out: &Path,
     frame: Frame,
     rate_hz: Option<f64>,
+    provenance: &[(String, String)],
 ) -> Result<(Summary, String), RunError> {
     let Loaded {
         json,
@@ -581,6 +589,7 @@ pub fn run(
         cal_name: &cal_name,
         g_loc: g,
         out_name: &out_name,
+        provenance,
     };
     let partial = std::path::PathBuf::from(format!("{out_name}.partial"));
     let source = recording.display().to_string();
