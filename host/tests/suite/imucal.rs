@@ -134,7 +134,7 @@ fn tmp(name: &str) -> PathBuf {
 /// The worked example of docs/calibration.md ("Worked example: imucal's six-position
 /// session"): import with the section list and the pose map, into a
 /// file of the calling test's own (the tests run in parallel).
-fn import(name: &str) -> PathBuf {
+pub(crate) fn import(name: &str) -> PathBuf {
     let out = tmp(name);
     let d = data();
     let (ok, stdout, stderr) = run(&[

@@ -109,14 +109,15 @@ fn static_json(
     Ok(entry)
 }
 
-/// Both corrections of a static calibration. The covariance of (S, O) is the pose fit's;
+/// Both corrections of a static calibration. The covariance of (S, O) is the pose fit's,
+/// with the variances the JSON reports for S and O ([`poses::PoseFit::cov_weighed`]);
 /// imucal's offsets are taken as uncorrelated with S (with balanced up/down poses their
 /// correlation is zero).
 pub fn static_correction(
     cal: &methods::StaticCalibration,
 ) -> Result<(correction::Correction, correction::Correction), correction::CorrectionError> {
     let joint = cal.pose_fit.options.offsets == poses::OffsetEstimator::Joint;
-    let full = &cal.pose_fit.cov;
+    let full = &cal.pose_fit.cov_weighed();
     let (rows, cols) = full.shape();
     let mut cov = DMatrix::from_iterator(rows, cols, full.iter().copied());
     if !joint {
