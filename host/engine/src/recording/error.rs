@@ -16,16 +16,20 @@ pub struct RecordingError {
     pub source_name: String,
     /// 1-based physical line in the file, counting comment and blank lines.
     pub line: Option<u64>,
+    /// 0-based row of a recording held as columns in memory (no file, so no line).
+    pub row: Option<u64>,
     /// The problem.
     pub kind: RecordingErrorKind,
 }
 
 impl fmt::Display for RecordingError {
-    /// `FILE:LINE: problem`, or `FILE: problem` when no line applies.
+    /// `FILE:LINE: problem`, `SOURCE: row N: problem` for columns held in memory, or
+    /// `FILE: problem` when no place applies.
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        match self.line {
-            Some(line) => write!(f, "{}:{}: {}", self.source_name, line, self.kind),
-            None => write!(f, "{}: {}", self.source_name, self.kind),
+        match (self.line, self.row) {
+            (Some(line), _) => write!(f, "{}:{}: {}", self.source_name, line, self.kind),
+            (None, Some(row)) => write!(f, "{}: row {}: {}", self.source_name, row, self.kind),
+            (None, None) => write!(f, "{}: {}", self.source_name, self.kind),
         }
     }
 }
@@ -75,6 +79,21 @@ pub enum RecordingErrorKind {
         column: &'static str,
         /// The field (possibly shortened).
         text: String,
+    },
+    /// Columns held in memory: one with another length than the first.
+    ColumnLength {
+        /// The column.
+        column: String,
+        /// The first column's length.
+        expected: usize,
+        /// This one's.
+        got: usize,
+    },
+    /// Metadata given with a recording held in memory: a key or value with a line break
+    /// (a file's `# key=value` line could not hold it).
+    MetadataLineBreak {
+        /// The key.
+        key: String,
     },
     /// NaN or an infinity (including a number too large for f64).
     NotFinite {
@@ -153,6 +172,25 @@ fn rate_suffix(rate_hz: Option<f64>) -> String {
     }
 }
 
+impl RecordingErrorKind {
+    /// The column the problem is in, where it is in one.
+    pub fn column(&self) -> Option<&str> {
+        use RecordingErrorKind as K;
+        match self {
+            K::MissingColumn(c)
+            | K::NotANumber { column: c, .. }
+            | K::NotFinite { column: c }
+            | K::NotAnInteger { column: c, .. }
+            | K::NotPositive { column: c, .. } => Some(c),
+            K::WrongCaseColumn { expected, .. } => Some(expected),
+            K::ColumnLength { column, .. } => Some(column),
+            K::UnknownCondition(_) => Some("condition"),
+            K::TimeWentBackwards { .. } | K::TimeWentBackwardsFree { .. } => Some("t_s"),
+            _ => None,
+        }
+    }
+}
+
 impl fmt::Display for RecordingErrorKind {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         use RecordingErrorKind as K;
@@ -203,6 +241,20 @@ impl fmt::Display for RecordingErrorKind {
             }
             K::NotANumber { column, text } => {
                 write!(f, "column {column}: '{text}' is not a number")
+            }
+            K::ColumnLength {
+                column,
+                expected,
+                got,
+            } => write!(
+                f,
+                "column {column}: {got} values, but the first column has {expected}"
+            ),
+            K::MetadataLineBreak { key } => {
+                write!(
+                    f,
+                    "metadata '{key}': a key or value may not hold a line break"
+                )
             }
             K::NotFinite { column } => {
                 write!(f, "column {column}: value is not finite (NaN or infinity)")

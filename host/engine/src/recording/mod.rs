@@ -48,8 +48,8 @@ mod write;
 
 pub use error::{MetadataError, RecordingError, RecordingErrorKind, UnknownMethod};
 pub use read::{
-    read, read_as, read_bytes, read_from, read_in_progress, read_preamble, scan, Parse, PartRow,
-    Parts, Scanned,
+    read, read_as, read_bytes, read_columns, read_from, read_in_progress, read_preamble, scan,
+    Column, Parse, PartRow, Parts, Scanned, Values,
 };
 pub use write::Writer;
 
@@ -322,6 +322,7 @@ impl Recording {
         Err(RecordingError {
             source_name: self.source.clone(),
             line: None,
+            row: None,
             kind,
         })
     }

@@ -12,6 +12,7 @@
 
 mod allan;
 mod budget;
+mod columns;
 mod config;
 mod poses;
 mod reader;

@@ -42,6 +42,7 @@ pub(super) fn over_parts<T: Send>(
                     Err(RecordingError {
                         source_name: String::new(),
                         line: None,
+                        row: None,
                         kind: recording::RecordingErrorKind::Io(std::io::Error::other(
                             "a reading thread failed",
                         )),
@@ -193,6 +194,7 @@ pub(super) fn read_pass(
             Err(RecordingError {
                 source_name: path.display().to_string(),
                 line: None,
+                row: None,
                 kind: recording::RecordingErrorKind::Io(std::io::Error::other(
                     "the reading thread failed",
                 )),

@@ -46,7 +46,7 @@ impl<R: Read> Read for FinalNewline<R> {
 
 /// The rows of a file without conditions, as read: its poses (a `gx, gy, gz` file) or its
 /// continuous series (a free file). A file with conditions has neither.
-struct Collected {
+pub(super) struct Collected {
     oriented: Option<Oriented>,
     series: Option<Series>,
 }
@@ -54,7 +54,7 @@ struct Collected {
 impl Collected {
     /// Nothing yet, with the optional columns `cols` has (`free`: a file without
     /// conditions or orientations).
-    fn new(cols: &ColumnIndex, free: bool) -> Collected {
+    pub(super) fn new(cols: &ColumnIndex, free: bool) -> Collected {
         Collected {
             series: free.then(|| Series {
                 t_s: Vec::new(),
@@ -79,7 +79,7 @@ impl Collected {
 
     /// Keeps `row`, of file line `line`, when the file's rows are poses or a series, and
     /// says whether it did; a series' time must not go backwards.
-    fn take(&mut self, row: &Row<'_>, line: u64) -> Result<bool, RecordingErrorKind> {
+    pub(super) fn take(&mut self, row: &Row<'_>, line: u64) -> Result<bool, RecordingErrorKind> {
         if let (Some(o), Some(g)) = (self.oriented.as_mut(), row.gravity) {
             o.gravity.push(g);
             o.y.push([row.u, row.v, row.w]);
@@ -229,7 +229,7 @@ impl Parser<'_> {
     /// The recording once every row is read: the poses or the series collected, else
     /// (the rows went to the sink) one without rows, once the router has checked its
     /// groups are complete.
-    fn finish(
+    pub(super) fn finish(
         &self,
         meta: Metadata,
         method: Method,

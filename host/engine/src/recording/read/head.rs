@@ -49,6 +49,7 @@ impl Parser<'_> {
         RecordingError {
             source_name: self.source.to_string(),
             line,
+            row: None,
             kind,
         }
     }

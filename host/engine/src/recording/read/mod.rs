@@ -3,9 +3,10 @@
 //!
 //! Two readers give the same rows: the fast one (`fast`, lines split at their commas) for
 //! plain files, and the csv crate's (`csv`) for anything else, which also names any
-//! problem. Both read the preamble and header with `head` and each row's fields with
+//! problem; [`read_columns`] gives them from columns held in memory. Both read the preamble and header with `head` and each row's fields with
 //! `row` (numbers by `number`); the rows go through [`Router`] to a [`GroupSink`].
 
+mod columns;
 mod csv;
 mod fast;
 mod head;
@@ -13,6 +14,7 @@ mod number;
 mod parts;
 mod row;
 
+pub use columns::{read_columns, Column, Values};
 pub use parts::{PartRow, Parts};
 
 use std::fs::File;
@@ -326,6 +328,7 @@ fn open(path: &Path) -> Result<File, RecordingError> {
     File::open(path).map_err(|e| RecordingError {
         source_name: path.display().to_string(),
         line: None,
+        row: None,
         kind: RecordingErrorKind::Io(e),
     })
 }

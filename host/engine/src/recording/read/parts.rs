@@ -101,6 +101,7 @@ impl Parts {
         let io = |e: io::Error| RecordingError {
             source_name: self.path.display().to_string(),
             line: None,
+            row: None,
             kind: RecordingErrorKind::Io(e),
         };
         let mut cuts = vec![self.offset];
@@ -146,6 +147,7 @@ impl Parts {
         let io = |e: io::Error| RecordingError {
             source_name: self.path.display().to_string(),
             line: None,
+            row: None,
             kind: RecordingErrorKind::Io(e),
         };
         let mut f = open(&self.path)?;

@@ -7,10 +7,34 @@ use super::number::parse_number;
 use super::Parse;
 use crate::recording::{pose_name_ok, snippet, RecordingErrorKind, Row, UNIT_TOLERANCE};
 
-/// A record's fields, from the csv reader or from the fast line reader.
+/// A record's fields, from the csv reader or from the fast line reader (text), or a row
+/// of columns held in memory ([`super::columns`]: numbers where the columns hold them).
 pub(super) trait Fields {
-    /// Field `i`, untrimmed (`None` past the last).
+    /// Field `i`, untrimmed (`None` past the last, or where the field is a number).
     fn raw(&self, i: usize) -> Option<&[u8]>;
+    /// Field `i` as the number its column holds, if it holds numbers rather than text.
+    fn number(&self, _i: usize) -> Option<f64> {
+        None
+    }
+}
+
+/// An integer field: the column's number when it is a whole number, else the text parsed.
+fn integer<F: Fields + ?Sized, T: std::str::FromStr + TryFrom<u64>>(
+    rec: &F,
+    i: usize,
+) -> Result<T, Vec<u8>> {
+    if let Some(x) = rec.number(i) {
+        let whole = x.is_finite() && x >= 0.0 && x.fract() == 0.0 && x < u64::MAX as f64;
+        return whole
+            .then(|| T::try_from(x as u64).ok())
+            .flatten()
+            .ok_or_else(|| format!("{x}").into_bytes());
+    }
+    let f = field(rec, i);
+    std::str::from_utf8(f)
+        .ok()
+        .and_then(|s| s.parse::<T>().ok())
+        .ok_or_else(|| f.to_vec())
 }
 
 impl Fields for csv::ByteRecord {
@@ -28,11 +52,16 @@ fn parse_f64<F: Fields + ?Sized>(
     i: usize,
     column: &'static str,
 ) -> Result<f64, RecordingErrorKind> {
-    let f = field(rec, i);
-    let x = parse_number(f).ok_or_else(|| RecordingErrorKind::NotANumber {
-        column,
-        text: snippet(f),
-    })?;
+    let x = match rec.number(i) {
+        Some(x) => x,
+        None => {
+            let f = field(rec, i);
+            parse_number(f).ok_or_else(|| RecordingErrorKind::NotANumber {
+                column,
+                text: snippet(f),
+            })?
+        }
+    };
     if x.is_finite() {
         Ok(x)
     } else {
@@ -108,15 +137,12 @@ pub(super) fn parse_row<'r, F: Fields + ?Sized>(
     let w = parse_f64(rec, cols.w, "w")?;
     let seq = match cols.seq.filter(|_| all) {
         Some(i) => {
-            let f = field(rec, i);
-            let s = std::str::from_utf8(f)
-                .ok()
-                .and_then(|s| s.parse::<u64>().ok())
-                .ok_or_else(|| RecordingErrorKind::NotAnInteger {
+            Some(
+                integer::<_, u64>(rec, i).map_err(|f| RecordingErrorKind::NotAnInteger {
                     column: "seq",
-                    text: snippet(f),
-                })?;
-            Some(s)
+                    text: snippet(&f),
+                })?,
+            )
         }
         None => None,
     };
@@ -126,11 +152,27 @@ pub(super) fn parse_row<'r, F: Fields + ?Sized>(
         Some(i) => Some(parse_gaps(field(rec, i))?),
         None => None,
     };
-    let conv_missed = match cols.conv_missed {
-        Some(i) => parse_missed(field(rec, i))?,
+    let conv_missed = match cols.conv_missed.map(|i| (i, rec.number(i))) {
+        // A number column's NaN is a text file's empty field: not counted.
+        Some((_, Some(x))) if x.is_nan() => None,
+        Some((i, Some(x))) => Some(
+            integer::<_, u8>(rec, i)
+                .ok()
+                .filter(|m| *m <= 7)
+                .ok_or_else(|| RecordingErrorKind::BadMissed(format!("{x}")))?,
+        ),
+        Some((i, None)) => parse_missed(field(rec, i))?,
         None => None,
     };
     let boot = match cols.boot {
+        Some(i) if rec.number(i).is_some() => {
+            Some(
+                integer::<_, u32>(rec, i).map_err(|f| RecordingErrorKind::NotAnInteger {
+                    column: "boot",
+                    text: snippet(&f),
+                })?,
+            )
+        }
         Some(i) => Some(parse_boot(field(rec, i))?),
         None => None,
     };

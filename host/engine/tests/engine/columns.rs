@@ -1,0 +1,208 @@
+//! A recording held as columns (`recording::read_columns`, what the Python package hands
+//! over from a DataFrame) reads as the same file does: the same recording, row for row, on
+//! every kind of file; and each problem is named by its column and its 0-based row.
+
+use rotacal_engine::recording::{
+    self, read_columns, Column, Recording, RecordingError, RecordingErrorKind as K, Values,
+};
+use rotacal_engine::simulate::{Config, Simulation};
+use std::path::{Path, PathBuf};
+
+/// A column as a file has it: numbers if every field is one, else text.
+enum Held {
+    Numbers(Vec<f64>),
+    Texts(Vec<String>),
+}
+
+/// A recording's `# key=value` pairs, and its named columns.
+type Meta = Vec<(String, String)>;
+type Cols = Vec<(String, Held)>;
+
+/// The metadata and columns of the recording CSV `text`.
+fn columns_of(text: &str) -> (Meta, Cols) {
+    let mut meta = Vec::new();
+    let mut lines = text.lines();
+    let header = loop {
+        let line = lines.next().unwrap();
+        match line.strip_prefix('#').and_then(|l| l.split_once('=')) {
+            Some((k, v)) => meta.push((k.trim().to_string(), v.trim().to_string())),
+            None if line.starts_with('#') || line.trim().is_empty() => {}
+            None => break line,
+        }
+    };
+    let names: Vec<&str> = header.split(',').map(str::trim).collect();
+    let mut fields: Vec<Vec<String>> = vec![Vec::new(); names.len()];
+    for line in lines.filter(|l| !l.trim().is_empty() && !l.starts_with('#')) {
+        for (i, f) in line.split(',').enumerate() {
+            fields[i].push(f.trim().to_string());
+        }
+    }
+    let cols = names
+        .iter()
+        .zip(fields)
+        .map(|(n, f)| {
+            let numbers: Option<Vec<f64>> = f.iter().map(|x| x.parse().ok()).collect();
+            let held = match numbers {
+                Some(x) if !f.is_empty() => Held::Numbers(x),
+                _ => Held::Texts(f),
+            };
+            (n.to_string(), held)
+        })
+        .collect();
+    (meta, cols)
+}
+
+fn read_held(
+    meta: &[(String, String)],
+    cols: &[(String, Held)],
+) -> Result<Recording, RecordingError> {
+    let columns: Vec<Column<'_>> = cols
+        .iter()
+        .map(|(name, h)| Column {
+            name,
+            values: match h {
+                Held::Numbers(x) => Values::Numbers(x),
+                Held::Texts(t) => Values::Texts(t),
+            },
+        })
+        .collect();
+    let meta: Vec<(&str, &str)> = meta.iter().map(|(k, v)| (k.as_str(), v.as_str())).collect();
+    read_columns(&columns, &meta, "the DataFrame", None)
+}
+
+/// The file's recording with its place in the file replaced by the row's number, as
+/// columns have it.
+fn as_rows(mut rec: Recording, header_line: u64) -> Recording {
+    rec.source = "the DataFrame".into();
+    let row = |line: u64| line - header_line - 1;
+    for g in &mut rec.groups {
+        g.first_line = row(g.first_line);
+    }
+    if let Some(o) = &mut rec.oriented {
+        o.line.iter_mut().for_each(|l| *l = row(*l));
+    }
+    if let Some(s) = &mut rec.series {
+        s.line.iter_mut().for_each(|l| *l = row(*l));
+    }
+    rec
+}
+
+fn temp(name: &str) -> PathBuf {
+    std::env::temp_dir().join(format!("rotacal-columns-{}-{name}", std::process::id()))
+}
+
+fn same_as_the_file(path: &Path) {
+    let text = std::fs::read_to_string(path).unwrap();
+    let header_line = text
+        .lines()
+        .position(|l| !l.starts_with('#') && !l.trim().is_empty())
+        .unwrap() as u64
+        + 1;
+    let from_file = as_rows(recording::read(path).unwrap(), header_line);
+    let (meta, cols) = columns_of(&text);
+    let from_columns = read_held(&meta, &cols).unwrap();
+    assert!(from_file.rows() > 0);
+    assert_eq!(from_columns, from_file, "{}", path.display());
+}
+
+#[test]
+fn every_kind_of_recording_reads_as_its_file() {
+    // Rotation (three conditions, t_s, seq, temp_c), stepped (angle_deg), poses of known
+    // orientation (gx, gy, gz), and a free series from another tool.
+    for (i, preset) in ["paper-10mhz", "metrologia-static"].into_iter().enumerate() {
+        let mut cfg = Config::preset(preset).unwrap();
+        if i == 0 {
+            // A short session: the reading, not the length, is under test.
+            cfg.table.duration_s = None;
+            cfg.table.samples_per_condition = Some(3000);
+        }
+        let path = temp(&format!("{preset}.csv"));
+        Simulation::new(cfg).unwrap().write_file(&path).unwrap();
+        same_as_the_file(&path);
+        std::fs::remove_file(&path).ok();
+    }
+    let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/data");
+    same_as_the_file(&data.join("imutk-xsens/xsens_acc_free.csv"));
+    for good in ["rotation", "multirate", "static", "odd_order_extra_column"] {
+        same_as_the_file(&data.join(format!("recording/good/{good}.csv")));
+    }
+}
+
+/// `text`'s columns read with `edit` applied: the error.
+fn error(text: &str, edit: impl FnOnce(&mut Cols)) -> RecordingError {
+    let (meta, mut cols) = columns_of(text);
+    edit(&mut cols);
+    read_held(&meta, &cols).unwrap_err()
+}
+
+const ROTATION: &str = "# method=rotation\n# rate_hz=0.01\n# g_loc=9.8\ncondition,t_s,u,v,w\n\
+    x,0,1,2,3\nx,1,1,2,3\nx,2,1,2,3\ny,0,1,2,3\ny,1,1,2,3\nz,0,1,2,3\nz,1,1,2,3\n";
+
+fn numbers<'a>(cols: &'a mut [(String, Held)], name: &str) -> &'a mut Vec<f64> {
+    match &mut cols.iter_mut().find(|(n, _)| n == name).unwrap().1 {
+        Held::Numbers(x) => x,
+        Held::Texts(_) => panic!("{name} is text"),
+    }
+}
+
+#[test]
+fn each_problem_names_its_column_and_row() {
+    // NaN.
+    let e = error(ROTATION, |c| numbers(c, "v")[4] = f64::NAN);
+    assert_eq!((e.row, e.line, e.kind.column()), (Some(4), None, Some("v")));
+    assert_eq!(
+        e.to_string(),
+        "the DataFrame: row 4: column v: value is not finite (NaN or infinity)"
+    );
+    // Time going backwards within a condition.
+    let e = error(ROTATION, |c| numbers(c, "t_s")[2] = 0.5);
+    assert_eq!((e.row, e.kind.column()), (Some(2), Some("t_s")));
+    assert!(matches!(e.kind, K::TimeWentBackwards { .. }), "{e}");
+    // Text where a number belongs.
+    let e = error(ROTATION, |c| {
+        let mut w: Vec<String> = numbers(c, "w").iter().map(|x| x.to_string()).collect();
+        w[6] = "3,5".into();
+        c.iter_mut().find(|(n, _)| n == "w").unwrap().1 = Held::Texts(w);
+    });
+    assert_eq!((e.row, e.kind.column()), (Some(6), Some("w")));
+    assert_eq!(
+        e.to_string(),
+        "the DataFrame: row 6: column w: '3,5' is not a number"
+    );
+    // A missing column, a condition that is none, columns of two lengths.
+    let e = error(ROTATION, |c| c.retain(|(n, _)| n != "u"));
+    assert_eq!((e.row, e.kind.column()), (None, Some("u")));
+    assert!(matches!(e.kind, K::MissingColumn("u")), "{e}");
+    let e = error(ROTATION, |c| match &mut c[0].1 {
+        Held::Texts(t) => t[3] = "q".into(),
+        Held::Numbers(_) => panic!(),
+    });
+    assert_eq!((e.row, e.kind.column()), (Some(3), Some("condition")));
+    let e = error(ROTATION, |c| {
+        numbers(c, "u").pop();
+    });
+    assert_eq!(
+        e.to_string(),
+        "the DataFrame: column u: 6 values, but the first column has 7"
+    );
+    // Metadata is checked as a file's.
+    let (mut meta, cols) = columns_of(ROTATION);
+    meta.push(("g_loc".into(), "-1".into()));
+    let e = read_held(&meta, &cols).unwrap_err();
+    assert!(matches!(e.kind, K::BadMetadata(_)), "{e}");
+    assert_eq!((e.line, e.row), (None, None));
+    meta.pop();
+    meta.push(("device".into(), "two\nlines".into()));
+    let e = read_held(&meta, &cols).unwrap_err();
+    assert!(matches!(e.kind, K::MetadataLineBreak { .. }), "{e}");
+    // Integer columns: a whole number is one, a fraction is not.
+    let (meta, mut cols) = columns_of(ROTATION);
+    cols.push(("seq".into(), Held::Numbers((0..7).map(f64::from).collect())));
+    assert!(read_held(&meta, &cols).is_ok());
+    numbers(&mut cols, "seq")[5] = 2.5;
+    let e = read_held(&meta, &cols).unwrap_err();
+    assert_eq!(
+        e.to_string(),
+        "the DataFrame: row 5: column seq: '2.5' is not a non-negative integer"
+    );
+}
