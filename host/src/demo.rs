@@ -143,7 +143,7 @@ fn puzzle(seed: u64, dir: &Path) -> anyhow::Result<Puzzle> {
     let rec = crate::recording::read(&csv)?;
     let cal = crate::calibrate::calibrate(&rec, &Default::default())?;
     let a = crate::discrepancy::run(&rec, &Default::default())?;
-    let trace = crate::trace::Traceability::of_recording(&csv, None, None, None)?;
+    let trace = crate::trace::Traceability::of_recording(crate::BUILD, &csv, None, None, None)?;
     crate::atomic::write(&dir.join("puzzle.discrepancy.json"), trace.json(&a)?)?;
     let report = crate::report::discrepancy::write(&a, &dir.join("puzzle-report"), "counts")?;
     let dev = |lo: &crate::calibrate::json::Quantity, hi: &crate::calibrate::json::Quantity| {
@@ -290,7 +290,8 @@ pub fn run(seed: u64, dir: &Path, inject: Option<Inject>) -> anyhow::Result<Demo
         &log,
         crate::verify::recorded::DEFAULT_THRESHOLD,
     )?;
-    let mut trace = crate::trace::Traceability::of_recording(rec_path, None, None, None)?;
+    let mut trace =
+        crate::trace::Traceability::of_recording(crate::BUILD, rec_path, None, None, None)?;
     crate::atomic::write(&dir.join("calibration.json"), trace.json(&calibration)?)?;
     trace.inputs.push(crate::trace::input(fits_path)?);
     crate::atomic::write(&dir.join("crosscheck.json"), trace.json(&crosscheck)?)?;
@@ -300,8 +301,9 @@ pub fn run(seed: u64, dir: &Path, inject: Option<Inject>) -> anyhow::Result<Demo
         .first()
         .and_then(|r| r.correction.as_ref())
         .ok_or_else(|| anyhow::anyhow!("the calibration has no correction"))?;
-    let provenance = crate::trace::Traceability::new(&[&dir.join("calibration.json"), rec_path])?
-        .as_metadata(&["calibration", "recording"]);
+    let provenance =
+        crate::trace::Traceability::new(crate::BUILD, &[&dir.join("calibration.json"), rec_path])?
+            .as_metadata(&["calibration", "recording"]);
     let job = crate::correct::apply::Job {
         correction: &correction.device_frame,
         units_in: &correction.units_in,

@@ -9,10 +9,17 @@
 //!   [`simulate`], [`discrepancy`], [`allan`];
 //! - [`report`]: the report folders with plots (calibration and discrepancy);
 //! - [`demo`]: the main job without hardware, wiring the rest together;
-//! - [`output`]: writing to the terminal; [`trace`]: the traceability block of every
-//!   output.
+//! - [`output`]: writing to the terminal; [`BUILD`]: this build, for the traceability
+//!   block of every output ([`trace`]).
 pub use rotacal_engine::{
-    allan, atomic, calibrate, correct, discrepancy, fit, recording, reference, simulate, verify,
+    allan, atomic, calibrate, correct, discrepancy, fit, recording, reference, simulate, trace,
+    verify,
+};
+
+/// This build of rotacal: its version, and the commit the build script read.
+pub const BUILD: trace::Build = trace::Build {
+    version: env!("CARGO_PKG_VERSION"),
+    commit: env!("ROTACAL_COMMIT"),
 };
 
 pub mod check_board;
@@ -21,4 +28,3 @@ pub mod link;
 pub mod output;
 pub mod record;
 pub mod report;
-pub mod trace;

@@ -14,7 +14,8 @@
 //! - [`discrepancy`]: where model and measurement disagree, and which effect is missing;
 //! - [`allan`]: the overlapping Allan deviation of a still record, its intervals and the
 //!   IEEE noise terms (docs/allan.md);
-//! - [`atomic`]: writing an output file whole or not at all.
+//! - [`atomic`]: writing an output file whole or not at all; [`trace`]: the traceability
+//!   block of every output.
 pub mod allan;
 pub mod atomic;
 pub mod calibrate;
@@ -24,4 +25,5 @@ pub mod fit;
 pub mod recording;
 pub mod reference;
 pub mod simulate;
+pub mod trace;
 pub mod verify;

@@ -117,7 +117,8 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     };
     rotacal::output::emit(&render(&out))?;
     if let Some(path) = &a.json {
-        let trace = rotacal::trace::Traceability::of_recording(&a.file, None, None, None)?;
+        let trace =
+            rotacal::trace::Traceability::of_recording(rotacal::BUILD, &a.file, None, None, None)?;
         rotacal::atomic::write(path, trace.json(&out)?)?;
     }
     if let Some(path) = &a.plot {

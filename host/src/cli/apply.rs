@@ -23,7 +23,7 @@ pub struct Args {
 
 /// Run it.
 pub fn run(a: Args) -> anyhow::Result<()> {
-    let trace = rotacal::trace::Traceability::new(&[&a.calibration, &a.recording])?;
+    let trace = rotacal::trace::Traceability::new(rotacal::BUILD, &[&a.calibration, &a.recording])?;
     let (_, text) = rotacal::correct::apply::run(
         &a.calibration,
         &a.recording,

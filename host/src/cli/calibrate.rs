@@ -174,7 +174,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     let cal = rotacal::calibrate::stream::calibrate_file(&a.file, &opts)
         .map_err(|e| with_rate_hint(e.into(), &a.file, &opts))?;
     if let Some(path) = a.json {
-        let trace = rotacal::trace::Traceability::of_calibrating(&a.file, &opts)?;
+        let trace = rotacal::trace::Traceability::of_calibrating(rotacal::BUILD, &a.file, &opts)?;
         rotacal::atomic::write(&path, trace.json(&cal)?)?;
     }
     rotacal::output::emit(&rotacal::calibrate::table::render(&cal))?;

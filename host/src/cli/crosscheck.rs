@@ -27,7 +27,13 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     let log = rotacal::recording::from_device::read_fit_log(&text, &log_name)?;
     let report = rotacal::verify::recorded::crosscheck(&rec, &log, a.threshold)?;
     if let Some(path) = &a.json {
-        let mut trace = rotacal::trace::Traceability::of_recording(&a.recording, None, None, None)?;
+        let mut trace = rotacal::trace::Traceability::of_recording(
+            rotacal::BUILD,
+            &a.recording,
+            None,
+            None,
+            None,
+        )?;
         trace.inputs.push(rotacal::trace::input(&a.fit_log)?);
         rotacal::atomic::write(path, trace.json(&report)?)?;
     }

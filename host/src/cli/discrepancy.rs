@@ -59,7 +59,8 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     let rows = rotacal::discrepancy::rows_from(rec, &opts)?;
     let (data, noise) = rotacal::discrepancy::with_noise(rows)?;
     let analysis = rotacal::discrepancy::analyse(data, noise, stated, &opts)?;
-    let trace = rotacal::trace::Traceability::of_recording(&a.file, None, a.g_loc, None)?;
+    let trace =
+        rotacal::trace::Traceability::of_recording(rotacal::BUILD, &a.file, None, a.g_loc, None)?;
     if let Some(path) = &a.json {
         rotacal::atomic::write(path, trace.json(&analysis)?)?;
     }

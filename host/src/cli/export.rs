@@ -52,7 +52,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     };
     let l = rotacal::correct::apply::load(&a.calibration, a.rate_hz, a.frame.into())?;
     let name = a.calibration.display().to_string();
-    let trace = rotacal::trace::Traceability::of_calibration(&a.calibration)?;
+    let trace = rotacal::trace::Traceability::of_calibration(rotacal::BUILD, &a.calibration)?;
     let lines: Vec<String> = trace
         .comment("traceability: ")
         .lines()

@@ -26,7 +26,8 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     rotacal::atomic::fill_dir(&a.out, |dir| -> anyhow::Result<()> {
         let (path, cal) = rotacal::report::write_file(&a.file, &opts, dir)
             .map_err(|e| super::calibrate::with_rate_hint(e.into(), &a.file, &opts))?;
-        rotacal::trace::Traceability::of_calibrating(&a.file, &opts)?.append_to(&path)?;
+        rotacal::trace::Traceability::of_calibrating(rotacal::BUILD, &a.file, &opts)?
+            .append_to(&path)?;
         if a.html {
             // The report as written, its traceability block last.
             let md = std::fs::read_to_string(&path)

@@ -2,12 +2,55 @@
 //! "Traceability"): which rotacal made it, when, from which input (its SHA-256), on which
 //! device and firmware, over which temperatures, with which local gravity, by which
 //! command line.
+//!
+//! The engine has no build script: which build made the output ([`Build`]) is the caller's
+//! to say (the application's and the Python package's build scripts read the commit).
 
-use crate::recording::{self, Parse, Scanned};
+use crate::recording::{self, Parse, RecordingError, Scanned};
 use serde::Serialize;
 use sha2::{Digest, Sha256};
 use std::io::Read;
 use std::path::Path;
+
+/// Which rotacal made an output: its version and the commit it was built from.
+#[derive(Clone, Copy, Debug)]
+pub struct Build {
+    /// The version.
+    pub version: &'static str,
+    /// `git describe --always --dirty` of the build ("unknown" outside a checkout).
+    pub commit: &'static str,
+}
+
+/// Why a traceability block could not be made.
+#[derive(Debug, thiserror::Error)]
+pub enum TraceError {
+    /// A file could not be read or written.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file.
+        path: String,
+        /// Why.
+        source: std::io::Error,
+    },
+    /// A calibration JSON that is not JSON.
+    #[error("{path}: {source}")]
+    Json {
+        /// The file.
+        path: String,
+        /// Why.
+        source: serde_json::Error,
+    },
+    /// The recording could not be read.
+    #[error(transparent)]
+    Recording(#[from] RecordingError),
+}
+
+fn io_at(path: &Path) -> impl Fn(std::io::Error) -> TraceError + '_ {
+    move |source| TraceError::Io {
+        path: path.display().to_string(),
+        source,
+    }
+}
 
 /// See the module documentation.
 #[derive(Clone, Debug, Serialize)]
@@ -95,11 +138,12 @@ pub fn input(path: &Path) -> std::io::Result<Input> {
 }
 
 impl Traceability {
-    /// For outputs made from `inputs` (files of any kind), without a recording's facts.
-    pub fn new(inputs: &[&Path]) -> std::io::Result<Self> {
+    /// For outputs of `build` made from `inputs` (files of any kind), without a
+    /// recording's facts.
+    pub fn new(build: Build, inputs: &[&Path]) -> std::io::Result<Self> {
         Ok(Traceability {
-            rotacal: env!("CARGO_PKG_VERSION").into(),
-            commit: env!("ROTACAL_COMMIT").into(),
+            rotacal: build.version.into(),
+            commit: build.commit.into(),
             date_utc: utc_now(),
             command_line: std::env::args().collect(),
             inputs: inputs.iter().map(|p| input(p)).collect::<Result<_, _>>()?,
@@ -114,12 +158,13 @@ impl Traceability {
     /// For outputs made from the recording at `path` (read as `method`), with local
     /// gravity and its uncertainty as the command line gave them, if it did.
     pub fn of_recording(
+        build: Build,
         path: &Path,
         method: Option<recording::Method>,
         g_loc: Option<f64>,
         u_g_loc: Option<f64>,
-    ) -> anyhow::Result<Self> {
-        let mut t = Traceability::new(&[path])?;
+    ) -> Result<Self, TraceError> {
+        let mut t = Traceability::new(build, &[path]).map_err(io_at(path))?;
         let mut meta = None;
         let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
         let mut range = |x: f64| {
@@ -166,12 +211,14 @@ impl Traceability {
 
     /// For outputs made from the calibration JSON at `path`: its facts of the device,
     /// temperature and gravity, and its own block.
-    pub fn of_calibration(path: &Path) -> anyhow::Result<Self> {
-        let mut t = Traceability::new(&[path])?;
-        let text = std::fs::read_to_string(path)
-            .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+    pub fn of_calibration(build: Build, path: &Path) -> Result<Self, TraceError> {
+        let mut t = Traceability::new(build, &[path]).map_err(io_at(path))?;
+        let text = std::fs::read_to_string(path).map_err(io_at(path))?;
         let json: serde_json::Value =
-            serde_json::from_str(&text).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+            serde_json::from_str(&text).map_err(|source| TraceError::Json {
+                path: path.display().to_string(),
+                source,
+            })?;
         if let Some(c) = json.get("traceability") {
             let s = |k: &str| c.get(k).and_then(|v| v.as_str()).map(String::from);
             t.device = s("device");
@@ -197,8 +244,12 @@ impl Traceability {
 
     /// For outputs calibrated from the recording at `path` with `opts`: its method, and
     /// the local gravity and uncertainty the command line gave, if it did.
-    pub fn of_calibrating(path: &Path, opts: &crate::calibrate::Options) -> anyhow::Result<Self> {
-        Traceability::of_recording(path, opts.method, opts.g_loc, opts.inputs.u_g_loc)
+    pub fn of_calibrating(
+        build: Build,
+        path: &Path,
+        opts: &crate::calibrate::Options,
+    ) -> Result<Self, TraceError> {
+        Traceability::of_recording(build, path, opts.method, opts.g_loc, opts.inputs.u_g_loc)
     }
 
     /// The block as a recording's `# key=value` metadata, each input named by its label
@@ -218,11 +269,9 @@ impl Traceability {
     }
 
     /// The Markdown file at `path` with this block added at its end (written whole).
-    pub fn append_to(&self, path: &Path) -> anyhow::Result<()> {
-        let md = std::fs::read_to_string(path)
-            .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
-        crate::atomic::write(path, md + "\n" + &self.markdown())?;
-        Ok(())
+    pub fn append_to(&self, path: &Path) -> Result<(), TraceError> {
+        let md = std::fs::read_to_string(path).map_err(io_at(path))?;
+        crate::atomic::write(path, md + "\n" + &self.markdown()).map_err(io_at(path))
     }
 
     /// The block as Markdown: a heading and a table.
