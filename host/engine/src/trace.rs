@@ -114,6 +114,35 @@ pub struct Gravity {
     pub std_unc_source: String,
 }
 
+/// Columns held in memory, described as `path` (what they came from): SHA-256 of their
+/// names and values in order (each name's UTF-8 and a 0 byte; each number's 8
+/// little-endian bytes; each text's UTF-8 and a 0 byte), `bytes` the length digested.
+pub fn input_of_columns(path: &str, columns: &[recording::Column<'_>]) -> Input {
+    let mut hash = Sha256::new();
+    let mut bytes = 0u64;
+    let mut take = |b: &[u8]| {
+        hash.update(b);
+        bytes += b.len() as u64;
+    };
+    for c in columns {
+        take(c.name.as_bytes());
+        take(&[0]);
+        match c.values {
+            recording::Values::Numbers(x) => x.iter().for_each(|v| take(&v.to_le_bytes())),
+            recording::Values::Texts(t) => t.iter().for_each(|v| {
+                take(v.as_bytes());
+                take(&[0]);
+            }),
+        }
+    }
+    let sha256 = hash.finalize().iter().map(|b| format!("{b:02x}")).collect();
+    Input {
+        path: path.to_string(),
+        bytes,
+        sha256,
+    }
+}
+
 /// The file at `path`: its size and SHA-256.
 pub fn input(path: &Path) -> std::io::Result<Input> {
     let at = |e: std::io::Error| std::io::Error::new(e.kind(), format!("{}: {e}", path.display()));
@@ -142,16 +171,8 @@ impl Traceability {
     /// recording's facts.
     pub fn new(build: Build, inputs: &[&Path]) -> std::io::Result<Self> {
         Ok(Traceability {
-            rotacal: build.version.into(),
-            commit: build.commit.into(),
-            date_utc: utc_now(),
-            command_line: std::env::args().collect(),
             inputs: inputs.iter().map(|p| input(p)).collect::<Result<_, _>>()?,
-            device: None,
-            firmware: None,
-            temperature_c: None,
-            g_loc: None,
-            calibration: None,
+            ..Traceability::empty(build)
         })
     }
 
@@ -165,48 +186,112 @@ impl Traceability {
         u_g_loc: Option<f64>,
     ) -> Result<Self, TraceError> {
         let mut t = Traceability::new(build, &[path]).map_err(io_at(path))?;
+        let given = (g_loc, u_g_loc);
+        let names = ("--g-loc", "--u-g-loc");
         let mut meta = None;
         let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
-        let mut range = |x: f64| {
-            lo = lo.min(x);
-            hi = hi.max(x);
-        };
-        let whole = recording::scan(path, method, Parse::All, |ev| match ev {
+        let scanned = recording::scan(path, method, Parse::All, |ev| match ev {
             Scanned::Start { meta: m, .. } => meta = Some(*m),
             Scanned::Row {
                 temp_c: Some(x), ..
-            } => range(x),
+            } => (lo, hi) = (lo.min(x), hi.max(x)),
             _ => {}
         })?;
-        // Poses and free series are read whole rather than row by row.
-        if let Some(rec) = &whole {
-            let temps = rec
-                .oriented
-                .as_ref()
-                .and_then(|o| o.temp_c.as_ref())
-                .or(rec.series.as_ref().and_then(|s| s.temp_c.as_ref()));
-            temps.into_iter().flatten().for_each(|x| range(*x));
-            meta = meta.or(Some(rec.meta.clone()));
+        if scanned.is_none() {
+            // Poses and free series are not scanned (scan stops at their header): read
+            // whole, their facts are a held recording's.
+            let rec = recording::read_as(path, method)?;
+            let input = t.inputs.pop().ok_or_else(|| TraceError::Io {
+                path: path.display().to_string(),
+                source: std::io::Error::other("no input"),
+            })?;
+            return Ok(Traceability::of_held(build, &rec, input, given, names));
         }
-        let meta = meta.unwrap_or_default();
-        t.firmware = meta.device.as_deref().and_then(firmware);
-        t.device = meta.device.clone();
-        t.temperature_c = (lo <= hi).then_some(Range { min: lo, max: hi });
-        let value = g_loc
-            .map(|g| (g, "--g-loc"))
+        t.facts(
+            &meta.unwrap_or_default(),
+            (lo <= hi).then_some(Range { min: lo, max: hi }),
+            given,
+            names,
+        );
+        Ok(t)
+    }
+
+    /// For outputs made from `rec`, a recording held in memory (columns handed to
+    /// [`recording::read_columns`]) described as `input`, with local gravity and its
+    /// uncertainty as given by the arguments named `names`, if they were.
+    pub fn of_held(
+        build: Build,
+        rec: &recording::Recording,
+        input: Input,
+        given: (Option<f64>, Option<f64>),
+        names: (&str, &str),
+    ) -> Self {
+        let mut t = Traceability {
+            inputs: vec![input],
+            ..Traceability::empty(build)
+        };
+        let groups = rec.groups.iter().filter_map(|g| g.temp_c.as_ref());
+        let poses = rec.oriented.as_ref().and_then(|o| o.temp_c.as_ref());
+        let series = rec.series.as_ref().and_then(|s| s.temp_c.as_ref());
+        let (lo, hi) = groups
+            .chain(poses)
+            .chain(series)
+            .flatten()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), x| {
+                (lo.min(*x), hi.max(*x))
+            });
+        t.facts(
+            &rec.meta,
+            (lo <= hi).then_some(Range { min: lo, max: hi }),
+            given,
+            names,
+        );
+        t
+    }
+
+    /// The block without inputs or facts.
+    fn empty(build: Build) -> Self {
+        Traceability {
+            rotacal: build.version.into(),
+            commit: build.commit.into(),
+            date_utc: utc_now(),
+            command_line: std::env::args().collect(),
+            inputs: Vec::new(),
+            device: None,
+            firmware: None,
+            temperature_c: None,
+            g_loc: None,
+            calibration: None,
+        }
+    }
+
+    /// The recording's facts: device and firmware from `meta`, the temperature range, and
+    /// local gravity with its uncertainty (`given` by the arguments `names`, else `meta`'s).
+    fn facts(
+        &mut self,
+        meta: &recording::Metadata,
+        temperature_c: Option<Range>,
+        given: (Option<f64>, Option<f64>),
+        names: (&str, &str),
+    ) {
+        self.firmware = meta.device.as_deref().and_then(firmware);
+        self.device = meta.device.clone();
+        self.temperature_c = temperature_c;
+        let value = given
+            .0
+            .map(|g| (g, names.0))
             .or(meta.g_loc.map(|g| (g, "the recording's g_loc")));
-        let unc = u_g_loc.map(|u| (u, "--u-g-loc")).or(meta
+        let unc = given.1.map(|u| (u, names.1)).or(meta
             .other
             .get("u_g_loc")
             .and_then(|u| u.parse().ok())
             .map(|u| (u, "the recording's u_g_loc")));
-        t.g_loc = value.map(|(value, source)| Gravity {
+        self.g_loc = value.map(|(value, source)| Gravity {
             value,
             source: source.into(),
             std_unc: unc.map(|u| u.0),
             std_unc_source: unc.map_or("not given".into(), |u| u.1.into()),
         });
-        Ok(t)
     }
 
     /// For outputs made from the calibration JSON at `path`: its facts of the device,

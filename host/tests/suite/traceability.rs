@@ -158,5 +158,23 @@ fn every_output_carries_the_traceability_block() {
             "{key} not in {meta:?}"
         );
     }
+    // A file without conditions (here a free series; poses alike) is not scanned row by
+    // row: its facts came out empty before (device and g_loc null).
+    let free =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/imutk-xsens/xsens_acc_free.csv");
+    let (ok, o, e) = run(&[
+        "calibrate",
+        &free.display().to_string(),
+        "--json",
+        &p("free.json"),
+    ]);
+    assert!(ok, "{o}{e}");
+    let t = &json("free.json")["traceability"];
+    assert_eq!(
+        t["device"],
+        "Xsens MTi (imu_tk test_data/xsens_acc.mat, A. Pretto, BSD)"
+    );
+    assert_eq!(t["g_loc"]["source"], "the recording's g_loc");
+    assert_eq!(t["inputs"][0]["sha256"], sha256sum(&free).as_str());
     std::fs::remove_dir_all(&d).ok();
 }
