@@ -447,7 +447,16 @@ impl PoseFit {
             }
         });
         let d = Cov12::from_diagonal(&nalgebra::SVector::<f64, 12>::from(scale));
-        d * self.cov * d
+        let mut c = d * self.cov * d;
+        // The variances themselves, not their rescaled rounding: u(O) is then the
+        // offsets' reported u to the last bit.
+        for i in 0..12 {
+            let v = w.total(|p| p.theta[(i, i)]).0;
+            if self.cov[(i, i)] > 0.0 && v > 0.0 {
+                c[(i, i)] = v;
+            }
+        }
+        c
     }
 
     /// How the parts of the covariance combine into one quantity's variance.
