@@ -1,21 +1,4 @@
-//! The commit the binary is built from, for the traceability block of its outputs
-//! (docs/formats.md, "Traceability"): `git describe --always --dirty`, or "unknown"
-//! outside a git checkout.
-use std::process::Command;
-
-fn main() {
-    let commit = Command::new("git")
-        .args(["describe", "--always", "--dirty", "--abbrev=12"])
-        .output()
-        .ok()
-        .filter(|o| o.status.success())
-        .and_then(|o| String::from_utf8(o.stdout).ok())
-        .map(|s| s.trim().to_string())
-        .filter(|s| !s.is_empty())
-        .unwrap_or_else(|| "unknown".into());
-    println!("cargo:rustc-env=ROTACAL_COMMIT={commit}");
-    // Again when the checkout moves or its index changes, and when the crate does.
-    for p in ["../.git/HEAD", "../.git/index", "src", "Cargo.toml"] {
-        println!("cargo:rerun-if-changed={p}");
-    }
-}
+// The commit the binary is built from, for the traceability block of its outputs
+// (docs/formats.md, "Traceability"): `git describe --always --dirty`, or "unknown"
+// outside a git checkout.
+include!("build_commit.rs");

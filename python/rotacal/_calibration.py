@@ -1,0 +1,196 @@
+"""A calibration: the command line's JSON (docs/formats.md), read into Python objects."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from typing import Any, Optional
+
+import numpy as np
+
+#: The intrinsic properties, in the budget's order: (name, JSON group, JSON key).
+_PROPERTIES = [
+    ("s_u", "sensitivity", "u"),
+    ("s_v", "sensitivity", "v"),
+    ("s_w", "sensitivity", "w"),
+    ("φ_uv", "angle_deg", "uv"),
+    ("φ_vw", "angle_deg", "vw"),
+    ("φ_wu", "angle_deg", "wu"),
+    ("O_u", "offset", "u"),
+    ("O_v", "offset", "v"),
+    ("O_w", "offset", "w"),
+]
+
+
+@dataclass(frozen=True)
+class Quantity:
+    """A result with its uncertainty (GUM): value, standard uncertainty u, expanded
+    uncertainty U = k·u (95 %), coverage factor k, effective degrees of freedom ν_eff
+    (``inf``: infinite) and unit."""
+
+    value: float
+    u: float
+    U: float
+    k: float
+    nu_eff: float
+    unit: str
+
+    def __str__(self) -> str:
+        return f"{self.value} ± {self.U} {self.unit} (k = {self.k:.2f})"
+
+
+@dataclass(frozen=True)
+class Correction:
+    """The correction a = M·(y − O) to m/s² (docs/formats.md, ``correction``): M (3×3),
+    O (3,), their standard uncertainties, and the covariance of (M row-major, O) (12×12)."""
+
+    frame: str
+    M: np.ndarray
+    O: np.ndarray
+    M_u: np.ndarray
+    O_u: np.ndarray
+    covariance: np.ndarray
+    units_in: str
+
+
+class Calibration:
+    """A calibration: what ``rotacal calibrate --json`` writes, with its parts as Python
+    objects. :meth:`to_json` gives back the JSON it was made from, byte for byte.
+
+    Attributes
+    ----------
+    method : str
+    g_loc : float
+        Local gravity used, m/s².
+    units : str
+        The readings' units.
+    rates : list of float or None
+        Each entry's nominal rotation rate, Hz (``None``: static or free poses).
+    traceability : dict
+        Which rotacal made it, when, from what (docs/formats.md, "Traceability").
+    """
+
+    def __init__(self, text: str, data: dict):
+        self._text = text
+        self._data = data
+        self.method: str = data["method"]
+        self.g_loc: float = data["g_loc"]
+        self.units: str = data["units"]
+        self.rates: list = [e.get("rate_hz") for e in data["by_rate"]]
+        self.traceability: dict = data.get("traceability", {})
+
+    @classmethod
+    def from_json(cls, text: str) -> "Calibration":
+        """A calibration from the JSON ``rotacal calibrate --json`` wrote (or
+        :meth:`to_json`)."""
+        data = json.loads(text)
+        for key in ("method", "g_loc", "units", "by_rate"):
+            if key not in data:
+                raise ValueError(f"not a rotacal calibration: no '{key}' key")
+        if not data["by_rate"]:
+            raise ValueError("not a rotacal calibration: 'by_rate' is empty")
+        return cls(text, data)
+
+    def to_json(self) -> str:
+        """The calibration JSON, as the command line writes it (docs/formats.md)."""
+        return self._text
+
+    def _entry(self, rate_hz: Optional[float]) -> dict:
+        entries = self._data["by_rate"]
+        if rate_hz is None:
+            if len(entries) > 1:
+                raise ValueError(f"several rates ({self.rates}): say which with rate_hz=")
+            return entries[0]
+        for e in entries:
+            if e.get("rate_hz") == rate_hz:
+                return e
+        raise ValueError(f"no entry at {rate_hz} Hz: the rates are {self.rates}")
+
+    def _combined(self, entry: dict) -> dict:
+        b = entry.get("uncertainty_budget") or {}
+        return {c["quantity"]: c for c in b.get("combined", [])}
+
+    def quantity(self, name: str, rate_hz: Optional[float] = None) -> Quantity:
+        """One intrinsic property (``"s_u"``, ``"φ_uv"`` or ``"phi_uv"``, ``"O_w"``, ...)."""
+        name = name.replace("phi_", "φ_")
+        entry = self._entry(rate_hz)
+        for n, group, key in _PROPERTIES:
+            if n == name:
+                g = entry["intrinsic"].get(group)
+                if not g:
+                    raise ValueError(f"{name}: not estimated by this calibration")
+                q = g[key]
+                c = self._combined(entry).get(n, {})
+                units = dict(zip(entry["uncertainty_budget"]["quantities"],
+                                 entry["uncertainty_budget"]["units"]))
+                nu = c.get("nu_eff")
+                return Quantity(
+                    value=q["value"],
+                    u=q["std_unc"],
+                    U=q["expanded_unc"],
+                    k=q["k"],
+                    nu_eff=float("inf") if nu is None else nu,
+                    unit=units.get(n, ""),
+                )
+        raise ValueError(f"{name}: the properties are {[p[0] for p in _PROPERTIES]}")
+
+    def properties(self, rate_hz: Optional[float] = None):
+        """The intrinsic properties as a pandas DataFrame: index the property, columns
+        value, u, U, k, nu_eff, unit."""
+        import pandas as pd
+
+        entry = self._entry(rate_hz)
+        rows = {}
+        for n, group, _ in _PROPERTIES:
+            if entry["intrinsic"].get(group):
+                q = self.quantity(n, entry.get("rate_hz"))
+                rows[n] = [q.value, q.u, q.U, q.k, q.nu_eff, q.unit]
+        return pd.DataFrame.from_dict(
+            rows, orient="index", columns=["value", "u", "U", "k", "nu_eff", "unit"]
+        )
+
+    def budget(self, rate_hz: Optional[float] = None):
+        """The uncertainty budget as a pandas DataFrame: a row per source (with its type,
+        A or B, and its standard uncertainty where it is one number), a column per
+        property holding that source's contribution |c|·u, then the combined u."""
+        import pandas as pd
+
+        b = self._entry(rate_hz)["uncertainty_budget"]
+        quantities = b["quantities"]
+        rows = {}
+        for s in b["sources"]:
+            rows[s["source"]] = [s["type"], s.get("std_unc"), s.get("unit")] + [
+                np.nan if x is None else x for x in s["contribution"]
+            ]
+        combined = {c["quantity"]: c["std_unc"] for c in b["combined"]}
+        rows["combined u"] = ["", None, None] + [combined.get(q, np.nan) for q in quantities]
+        return pd.DataFrame.from_dict(
+            rows, orient="index", columns=["type", "u(input)", "unit"] + quantities
+        )
+
+    def correction(self, frame: str = "device", rate_hz: Optional[float] = None) -> Correction:
+        """The correction to m/s² in the ``"device"`` frame (x′ along u, y′ in the u-v
+        plane) or the ``"platter"`` frame (static calibrations)."""
+        c = self._entry(rate_hz).get("correction")
+        if not c:
+            raise ValueError("this calibration has no correction")
+        f = c.get(f"{frame}_frame")
+        if not f:
+            raise ValueError(f"this calibration has no correction in the {frame} frame")
+        return Correction(
+            frame=frame,
+            M=np.array(f["matrix"], dtype=float),
+            O=np.array(f["offset"], dtype=float),
+            M_u=np.array(f["matrix_std_unc"], dtype=float),
+            O_u=np.array(f["offset_std_unc"], dtype=float),
+            covariance=np.array(f["covariance"], dtype=float),
+            units_in=c["units_in"],
+        )
+
+    def as_dict(self) -> dict:
+        """The whole calibration JSON as Python objects."""
+        return json.loads(self._text)
+
+    def __repr__(self) -> str:
+        rates = "" if self.rates == [None] else f", rates {self.rates} Hz"
+        return f"<rotacal.Calibration {self.method}{rates}, units {self.units}>"

@@ -1,0 +1,196 @@
+"""From the user's data to the engine: DataFrames, numpy arrays and files."""
+
+from __future__ import annotations
+
+import os
+import sys
+from collections.abc import Mapping
+from typing import Any, Optional, Union
+
+import numpy as np
+
+from . import _rotacal
+from ._calibration import Calibration
+
+#: Columns read as text: a condition letter, a pose's name, the gaps between conversions.
+_TEXT = {"condition", "pose", "conv_gaps"}
+
+Data = Union[str, "os.PathLike[str]", Mapping[str, Any], Any]
+
+
+def read_recording(path: Union[str, "os.PathLike[str]"]):
+    """Read a recording CSV (docs/formats.md), checked as ``rotacal calibrate`` checks it.
+
+    Parameters
+    ----------
+    path
+        The recording.
+
+    Returns
+    -------
+    pandas.DataFrame
+        Its rows, grouped by condition in order of first appearance, with its columns
+        (``condition``, ``t_s``, ``u``, ``v``, ``w``, ...). ``df.attrs["rotacal"]`` holds
+        the file's metadata (``method``, ``rate_hz``, ``g_loc``, ``units``, ...) as text,
+        which :func:`calibrate` takes back.
+
+    Raises
+    ------
+    RecordingError
+        The file cannot be read: ``line`` and ``column`` say where.
+    """
+    import pandas as pd
+
+    columns, meta, _method = _rotacal.read_recording(os.fspath(path))
+    df = pd.DataFrame({name: values for name, values in columns})
+    df.attrs["rotacal"] = dict(meta)
+    return df
+
+
+def _column_values(name: str, values: Any) -> Any:
+    """A column as the extension takes it: float64 contiguous, or a list of str."""
+    if name in _TEXT:
+        return ["" if v is None else str(v) for v in np.asarray(values, dtype=object).tolist()]
+    arr = np.asarray(values)
+    if arr.ndim != 1:
+        raise _recording_error(name, None, f"column {name}: {arr.ndim}-D, a column is 1-D")
+    if arr.dtype.kind in "fiub":
+        return np.ascontiguousarray(arr, dtype=np.float64)
+    # Text or objects: numbers written as text are read as a file's fields are, and a
+    # field that is not one is named with its row.
+    return ["" if v is None else str(v) for v in arr.tolist()]
+
+
+def _recording_error(column: str, row: Optional[int], message: str) -> Exception:
+    e = _rotacal.RecordingError(message)
+    e.source, e.line, e.row, e.column = "the data", None, row, column
+    return e
+
+
+def _table(data: Any, columns: Optional[Mapping[str, str]], metadata: Optional[Mapping[str, Any]]):
+    """The (name, values) pairs and metadata of a DataFrame, a mapping or numpy arrays:
+    ``df.attrs["rotacal"]``, then ``metadata`` over it."""
+    rename = {theirs: ours for ours, theirs in (columns or {}).items()}
+    meta: dict = {}
+    attrs = getattr(data, "attrs", None)
+    if isinstance(attrs, Mapping) and isinstance(attrs.get("rotacal"), Mapping):
+        meta = dict(attrs["rotacal"])
+    meta.update({k: v for k, v in (metadata or {}).items() if v is not None})
+    meta = {str(k): v if isinstance(v, str) else repr(v) for k, v in meta.items()}
+    if isinstance(data, Mapping):
+        names = list(data.keys())
+        get = data.__getitem__
+        source = "the mapping"
+    elif hasattr(data, "columns") and hasattr(data, "__getitem__"):
+        names = [str(c) for c in data.columns]
+        get = data.__getitem__
+        source = f"the {type(data).__name__}"
+    else:
+        raise TypeError(
+            "data: a path, a pandas or polars DataFrame, or a mapping of column names to "
+            f"arrays is needed, not {type(data).__name__}"
+        )
+    missing = [theirs for theirs in rename if theirs not in names]
+    if missing:
+        raise _recording_error(
+            missing[0], None, f"{source}: columns= names {missing[0]!r}, which it has not"
+        )
+    pairs = []
+    for name in names:
+        ours = rename.get(name, name)
+        pairs.append((ours, _column_values(ours, _series(get(name)))))
+    return pairs, meta, source
+
+
+def _series(col: Any) -> Any:
+    """A column's values as numpy sees them (pandas and polars Series have to_numpy)."""
+    to_numpy = getattr(col, "to_numpy", None)
+    return to_numpy() if callable(to_numpy) else col
+
+
+def _command(func: str, data: Any, options: Mapping[str, Any]) -> list:
+    what = os.fspath(data) if isinstance(data, (str, os.PathLike)) else type(data).__name__
+    args = ", ".join([repr(what)] + [f"{k}={v!r}" for k, v in options.items() if v is not None])
+    return [sys.executable, f"rotacal.{func}({args})"]
+
+
+def calibrate(
+    data: Data,
+    method: Optional[str] = None,
+    rate_hz: Optional[float] = None,
+    g_loc: Optional[float] = None,
+    columns: Optional[Mapping[str, str]] = None,
+    metadata: Optional[Mapping[str, Any]] = None,
+    **options: Any,
+) -> Calibration:
+    """Calibrate a recording: the intrinsic properties with their uncertainty budget.
+
+    The command line's ``rotacal calibrate``, with the same engine and the same numbers.
+
+    Parameters
+    ----------
+    data
+        A path to a recording CSV; a pandas or polars DataFrame; or a mapping of column
+        names to arrays. Columns are named as in docs/formats.md (``condition``, ``t_s``,
+        ``u``, ``v``, ``w``; ``angle_deg``; ``gx``, ``gy``, ``gz``; ...), or mapped with
+        ``columns``. A DataFrame from :func:`read_recording` carries its metadata in
+        ``df.attrs["rotacal"]``.
+    method
+        ``"rotation"``, ``"static"`` or ``"free"`` (default: the metadata's, else
+        rotation when there is ``t_s``).
+    rate_hz
+        Nominal rotation rate, Hz (overrides the metadata's).
+    g_loc
+        Local gravity, m/s² (overrides the metadata's).
+    columns
+        ``{rotacal's name: your column's name}``, e.g. ``{"u": "acc_x"}``.
+    metadata
+        For a DataFrame or arrays: the recording's ``# key=value`` metadata
+        (docs/formats.md: ``units``, ``device``, ``sample_rate_hz``, ``tick_hz``,
+        ``u_g_loc``, ...), over ``df.attrs["rotacal"]``. Numbers are written with
+        ``repr``, which Python makes exact.
+    **options
+        The command line's other flags with ``_`` for ``-``: ``u_g_loc``, ``u_time_s``,
+        ``u_angle_deg``, ``monte_carlo``, ``pose_weights`` (``"random-effects"``,
+        ``"equal"``), ``offsets`` (``"joint"``, ``"axis-pairs"``), ``still_window_s``,
+        ``still_threshold``, ``min_still_s``, ``slow_noise``, ``noise_from`` (a path).
+
+    Returns
+    -------
+    Calibration
+
+    Raises
+    ------
+    RecordingError
+        The data cannot be read: ``column`` and ``row`` (a DataFrame's, 0-based) or
+        ``line`` (a file's) say where.
+    CalibrationError
+        The data were read but cannot be calibrated.
+    """
+    opts = dict(options, method=method, rate_hz=rate_hz, g_loc=g_loc)
+    command = _command("calibrate", data, opts)
+    if isinstance(data, (str, os.PathLike)):
+        if columns is not None or metadata is not None:
+            raise TypeError("columns= and metadata= are for DataFrames and arrays, not files")
+        text = _rotacal.calibrate_path(os.fspath(data), opts, command)
+    else:
+        pairs, meta, source = _table(data, columns, metadata)
+        try:
+            text = _rotacal.calibrate_columns(pairs, list(meta.items()), source, opts, command)
+        except (_rotacal.RecordingError, _rotacal.CalibrationError) as e:
+            _label_row(e, data)
+            raise
+    return Calibration.from_json(text)
+
+
+def _label_row(e: Exception, data: Any) -> None:
+    """`e.index`: the DataFrame's index label of the row `e.row` (a position), if it has
+    an index (pandas)."""
+    row = getattr(e, "row", None)
+    index = getattr(data, "index", None)
+    e.index = None
+    if row is not None and index is not None and not callable(index):
+        try:
+            e.index = index[row]
+        except (IndexError, TypeError):
+            pass

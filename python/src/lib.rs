@@ -1,0 +1,451 @@
+//! `rotacal._rotacal`, the Python package's extension: the engine's reader, calibration and
+//! traceability, called by the package's Python code (python/rotacal). Nothing here
+//! computes: it hands columns to `recording::read_columns` and options to the engine's
+//! `calibrate`, gives back the calibration JSON the command line writes, and turns the
+//! engine's errors into exceptions that carry their place (docs/python.md).
+
+use numpy::{IntoPyArray, PyReadonlyArray1, PyUntypedArrayMethods};
+use pyo3::create_exception;
+use pyo3::exceptions::{PyTypeError, PyValueError};
+use pyo3::prelude::*;
+use pyo3::types::{PyDict, PyList};
+use rotacal_engine::calibrate::{self, json::CalibrationJson};
+use rotacal_engine::recording::{self, Column, Method, Recording, Values};
+use rotacal_engine::trace::{self, Traceability};
+use std::path::PathBuf;
+use std::str::FromStr;
+
+create_exception!(
+    rotacal,
+    RecordingError,
+    PyValueError,
+    "A recording that cannot be read: its `source`, and `line` (a file's, 1-based) or `row` (a DataFrame's, 0-based), and `column` where one applies."
+);
+create_exception!(
+    rotacal,
+    CalibrationError,
+    PyValueError,
+    "A recording that was read but cannot be calibrated: its `source`, and the first `line` (a file's) or `row` (a DataFrame's) of the data concerned, where one applies."
+);
+
+/// This build, for the traceability block.
+const BUILD: trace::Build = trace::Build {
+    version: env!("CARGO_PKG_VERSION"),
+    commit: env!("ROTACAL_COMMIT"),
+};
+
+/// The exception for a recording's problem, with its place as attributes.
+fn recording_error(py: Python<'_>, e: &recording::RecordingError) -> PyErr {
+    let err = RecordingError::new_err(e.to_string());
+    let v = err.value(py);
+    let set = [
+        v.setattr("source", e.source_name.as_str()),
+        v.setattr("line", e.line),
+        v.setattr("row", e.row),
+        v.setattr("column", e.kind.column()),
+    ];
+    match set.into_iter().find_map(Result::err) {
+        Some(failed) => failed,
+        None => err,
+    }
+}
+
+/// The exception for a calibration's problem; `held`: its lines are rows of columns.
+fn calibration_error(py: Python<'_>, e: &calibrate::CalibrateError, held: bool) -> PyErr {
+    let err = CalibrationError::new_err(e.to_string());
+    let v = err.value(py);
+    let (line, row) = if held { (None, e.line) } else { (e.line, None) };
+    let set = [
+        v.setattr("source", e.source_name.as_str()),
+        v.setattr("line", line),
+        v.setattr("row", row),
+    ];
+    match set.into_iter().find_map(Result::err) {
+        Some(failed) => failed,
+        None => err,
+    }
+}
+
+/// A column handed over: a contiguous float64 array, borrowed, or texts.
+enum Held<'py> {
+    Numbers(PyReadonlyArray1<'py, f64>),
+    Texts(Vec<String>),
+}
+
+impl<'py> Held<'py> {
+    fn of(name: &str, values: &Bound<'py, PyAny>) -> PyResult<Self> {
+        if let Ok(a) = values.extract::<PyReadonlyArray1<'py, f64>>() {
+            if !a.is_c_contiguous() {
+                return Err(PyValueError::new_err(format!(
+                    "column {name}: the array is not contiguous (numpy.ascontiguousarray)"
+                )));
+            }
+            return Ok(Held::Numbers(a));
+        }
+        values
+            .extract::<Vec<String>>()
+            .map(Held::Texts)
+            .map_err(|_| {
+                PyTypeError::new_err(format!(
+                    "column {name}: a 1-D float64 numpy array or a list of str is needed"
+                ))
+            })
+    }
+
+    fn values(&self) -> PyResult<Values<'_>> {
+        Ok(match self {
+            Held::Numbers(a) => Values::Numbers(a.as_slice()?),
+            Held::Texts(t) => Values::Texts(t),
+        })
+    }
+}
+
+fn number(key: &str, v: &Bound<'_, PyAny>) -> PyResult<f64> {
+    v.extract::<f64>()
+        .map_err(|_| PyTypeError::new_err(format!("{key}: a number is needed")))
+}
+
+fn text(key: &str, v: &Bound<'_, PyAny>) -> PyResult<String> {
+    v.extract::<String>()
+        .map_err(|_| PyTypeError::new_err(format!("{key}: a str is needed")))
+}
+
+/// The engine's options from the keyword arguments of `rotacal.calibrate` (the command
+/// line's flags, with `_` for `-`; the engine's defaults where one is not given).
+fn options(py: Python<'_>, given: &Bound<'_, PyDict>) -> PyResult<calibrate::Options> {
+    let mut o = calibrate::Options::default();
+    for (k, v) in given.iter() {
+        let key: String = k.extract()?;
+        if v.is_none() {
+            continue;
+        }
+        match key.as_str() {
+            "method" => {
+                let m = text(&key, &v)?;
+                o.method =
+                    Some(Method::from_str(&m).map_err(|e| PyValueError::new_err(format!("{e}")))?);
+            }
+            "rate_hz" => o.rate_hz = Some(number(&key, &v)?),
+            "g_loc" => o.g_loc = Some(number(&key, &v)?),
+            "u_g_loc" => o.inputs.u_g_loc = Some(number(&key, &v)?),
+            "u_time_s" => o.inputs.u_time_s = Some(number(&key, &v)?),
+            "u_angle_deg" => o.inputs.u_angle_deg = Some(number(&key, &v)?),
+            "monte_carlo" => o.monte_carlo = Some(v.extract::<usize>()?),
+            "slow_noise" => o.slow_noise = v.extract::<bool>()?,
+            "still_window_s" => o.still.window_s = number(&key, &v)?,
+            "still_threshold" => o.still.threshold = number(&key, &v)?,
+            "min_still_s" => o.still.min_still_s = number(&key, &v)?,
+            "pose_weights" => {
+                o.poses.weights = match text(&key, &v)?.as_str() {
+                    "random-effects" => calibrate::poses::Weights::RandomEffects,
+                    "equal" => calibrate::poses::Weights::Equal,
+                    other => {
+                        return Err(PyValueError::new_err(format!(
+                            "pose_weights: '{other}' is neither 'random-effects' nor 'equal'"
+                        )))
+                    }
+                }
+            }
+            "offsets" => {
+                o.poses.offsets = match text(&key, &v)?.as_str() {
+                    "joint" => calibrate::poses::OffsetEstimator::Joint,
+                    "axis-pairs" => calibrate::poses::OffsetEstimator::AxisPairs,
+                    other => {
+                        return Err(PyValueError::new_err(format!(
+                            "offsets: '{other}' is neither 'joint' nor 'axis-pairs'"
+                        )))
+                    }
+                }
+            }
+            "noise_from" => {
+                let path: PathBuf = v.extract()?;
+                let rec = recording::read(&path).map_err(|e| recording_error(py, &e))?;
+                let prepared = calibrate::noise_from::NoiseFrom::new(&rec).map_err(|e| {
+                    CalibrationError::new_err(format!("noise_from {}: {e}", path.display()))
+                })?;
+                o.noise_from = Some(std::sync::Arc::new(prepared));
+                o.slow_noise = true;
+            }
+            other => {
+                return Err(PyTypeError::new_err(format!(
+                    "calibrate() got an unexpected keyword argument '{other}'"
+                )))
+            }
+        }
+    }
+    Ok(o)
+}
+
+/// The calibration JSON with the traceability block, as the command line writes it.
+fn with_trace(
+    cal: &CalibrationJson,
+    mut t: Traceability,
+    command: Vec<String>,
+) -> PyResult<String> {
+    t.command_line = command;
+    t.json(cal)
+        .map_err(|e| PyValueError::new_err(format!("the calibration as JSON: {e}")))
+}
+
+/// Calibrate the recording file at `path` exactly as `rotacal calibrate` does (its
+/// streaming engine); the calibration JSON, whose traceability names `command`.
+#[pyfunction]
+fn calibrate_path(
+    py: Python<'_>,
+    path: PathBuf,
+    options: &Bound<'_, PyDict>,
+    command: Vec<String>,
+) -> PyResult<String> {
+    let opts = self::options(py, options)?;
+    let cal = py
+        .detach(|| calibrate::stream::calibrate_file(&path, &opts))
+        .map_err(|e| match e {
+            calibrate::stream::FileError::Read(e) => recording_error(py, &e),
+            calibrate::stream::FileError::Calibrate(e) => calibration_error(py, &e, false),
+        })?;
+    let t = Traceability::of_calibrating(BUILD, &path, &opts)
+        .map_err(|e| PyValueError::new_err(e.to_string()))?;
+    with_trace(&cal, t, command)
+}
+
+/// Calibrate the recording held in `columns` ((name, values) pairs: float64 arrays, not
+/// copied, or lists of str) with the metadata `meta`, named `source` in messages; the
+/// calibration JSON, whose traceability digests the columns and names `command`.
+#[pyfunction]
+fn calibrate_columns(
+    py: Python<'_>,
+    columns: Vec<(String, Bound<'_, PyAny>)>,
+    meta: Vec<(String, String)>,
+    source: String,
+    options: &Bound<'_, PyDict>,
+    command: Vec<String>,
+) -> PyResult<String> {
+    let opts = self::options(py, options)?;
+    let held: Vec<Held<'_>> = columns
+        .iter()
+        .map(|(n, v)| Held::of(n, v))
+        .collect::<PyResult<_>>()?;
+    let mut cols = Vec::with_capacity(held.len());
+    for ((name, _), h) in columns.iter().zip(&held) {
+        cols.push(Column {
+            name,
+            values: h.values()?,
+        });
+    }
+    let meta_refs: Vec<(&str, &str)> = meta.iter().map(|(k, v)| (k.as_str(), v.as_str())).collect();
+    let (rec, cal, input) = py
+        .detach(|| {
+            let rec = recording::read_columns(&cols, &meta_refs, &source, opts.method)?;
+            let cal = calibrate::calibrate(&rec, &opts);
+            Ok::<_, recording::RecordingError>((rec, cal, trace::input_of_columns(&source, &cols)))
+        })
+        .map_err(|e| recording_error(py, &e))?;
+    let cal = cal.map_err(|e| calibration_error(py, &e, true))?;
+    let t = Traceability::of_held(
+        BUILD,
+        &rec,
+        input,
+        (opts.g_loc, opts.inputs.u_g_loc),
+        ("g_loc=", "u_g_loc="),
+    );
+    with_trace(&cal, t, command)
+}
+
+/// The recording file at `path`, checked, as columns ((name, values): float64 arrays or
+/// lists of str, rows in the order of the groups) with its metadata ((key, value)) and
+/// method.
+#[pyfunction]
+#[allow(clippy::type_complexity)]
+fn read_recording<'py>(
+    py: Python<'py>,
+    path: PathBuf,
+) -> PyResult<(
+    Vec<(String, Bound<'py, PyAny>)>,
+    Vec<(String, String)>,
+    String,
+)> {
+    let rec = py
+        .detach(|| recording::read(&path))
+        .map_err(|e| recording_error(py, &e))?;
+    let columns = columns_of(py, &rec)?;
+    Ok((columns, metadata_of(&rec.meta), rec.method.as_str().into()))
+}
+
+/// A recording's metadata as `# key=value` pairs (numbers in their shortest exact form).
+fn metadata_of(m: &recording::Metadata) -> Vec<(String, String)> {
+    let mut out: Vec<(String, String)> = Vec::new();
+    let mut put = |k: &str, v: Option<String>| {
+        if let Some(v) = v {
+            out.push((k.into(), v));
+        }
+    };
+    put("method", m.method.map(|x| x.as_str().into()));
+    put("rate_hz", m.rate_hz.map(|x| format!("{x}")));
+    put("g_loc", m.g_loc.map(|x| format!("{x}")));
+    put("units", m.units.clone());
+    put("sample_rate_hz", m.sample_rate_hz.map(|x| format!("{x}")));
+    put("noise_sigma", m.noise_sigma.map(|x| format!("{x}")));
+    put("device", m.device.clone());
+    for (k, v) in &m.other {
+        out.push((k.clone(), v.clone()));
+    }
+    out
+}
+
+/// Columns being made for Python.
+struct Out<'py> {
+    py: Python<'py>,
+    cols: Vec<(String, Bound<'py, PyAny>)>,
+}
+
+impl<'py> Out<'py> {
+    fn numbers(&mut self, name: &str, x: Vec<f64>) {
+        self.cols
+            .push((name.into(), x.into_pyarray(self.py).into_any()));
+    }
+
+    /// Three columns from rows of three (ĝ, readings, their uncertainties).
+    fn triple(&mut self, names: [&str; 3], rows: &[[f64; 3]]) {
+        for (k, name) in names.into_iter().enumerate() {
+            let x = rows
+                .iter()
+                .map(|r| r.get(k).copied().unwrap_or(f64::NAN))
+                .collect();
+            self.numbers(name, x);
+        }
+    }
+
+    fn texts(&mut self, name: &str, x: &[String]) -> PyResult<()> {
+        self.cols
+            .push((name.into(), PyList::new(self.py, x)?.into_any()));
+        Ok(())
+    }
+}
+
+/// The recording's rows as columns, named as in its file.
+fn columns_of<'py>(py: Python<'py>, rec: &Recording) -> PyResult<Vec<(String, Bound<'py, PyAny>)>> {
+    let mut out = Out {
+        py,
+        cols: Vec::new(),
+    };
+    if let Some(o) = &rec.oriented {
+        out.triple(["gx", "gy", "gz"], &o.gravity);
+        out.triple(["u", "v", "w"], &o.y);
+        if let Some(t) = &o.t_s {
+            out.numbers("t_s", t.clone());
+        }
+        if let Some(s) = &o.seq {
+            out.numbers("seq", s.iter().map(|x| *x as f64).collect());
+        }
+        if let Some(t) = &o.temp_c {
+            out.numbers("temp_c", t.clone());
+        }
+        if let Some(u) = &o.unc {
+            out.triple(["u_unc", "v_unc", "w_unc"], u);
+        }
+        if let Some(p) = &o.pose {
+            out.texts("pose", p)?;
+        }
+        return Ok(out.cols);
+    }
+    if let Some(s) = &rec.series {
+        out.numbers("t_s", s.t_s.clone());
+        out.triple(["u", "v", "w"], &s.y);
+        if let Some(x) = &s.seq {
+            out.numbers("seq", x.iter().map(|x| *x as f64).collect());
+        }
+        if let Some(t) = &s.temp_c {
+            out.numbers("temp_c", t.clone());
+        }
+        if let Some(p) = &s.pose {
+            out.texts("pose", p)?;
+        }
+        return Ok(out.cols);
+    }
+    let g = &rec.groups;
+    let all =
+        |f: &dyn Fn(&recording::Group) -> Vec<f64>| -> Vec<f64> { g.iter().flat_map(f).collect() };
+    let condition: Vec<String> = g
+        .iter()
+        .flat_map(|x| std::iter::repeat_n(x.condition.letter().to_string(), x.len()))
+        .collect();
+    out.texts("condition", &condition)?;
+    if g.iter().any(|x| x.rate_hz.is_some()) {
+        out.numbers(
+            "rate_hz",
+            all(&|x| vec![x.rate_hz.unwrap_or(f64::NAN); x.len()]),
+        );
+    }
+    if g.iter().any(|x| !x.t_s.is_empty()) {
+        out.numbers("t_s", all(&|x| x.t_s.clone()));
+    }
+    if g.iter().any(|x| !x.angle_deg.is_empty()) {
+        out.numbers("angle_deg", all(&|x| x.angle_deg.clone()));
+    }
+    out.numbers("u", all(&|x| x.u.clone()));
+    out.numbers("v", all(&|x| x.v.clone()));
+    out.numbers("w", all(&|x| x.w.clone()));
+    let some = |f: &dyn Fn(&recording::Group) -> bool| g.first().is_some_and(f);
+    if some(&|x| x.seq.is_some()) {
+        out.numbers(
+            "seq",
+            all(&|x| x.seq.iter().flatten().map(|s| *s as f64).collect()),
+        );
+    }
+    if some(&|x| x.temp_c.is_some()) {
+        out.numbers("temp_c", all(&|x| x.temp_c.clone().unwrap_or_default()));
+    }
+    if some(&|x| x.unc.is_some()) {
+        let unc: Vec<[f64; 3]> = g
+            .iter()
+            .flat_map(|x| x.unc.iter().flatten().copied())
+            .collect();
+        out.triple(["u_unc", "v_unc", "w_unc"], &unc);
+    }
+    if some(&|x| x.conversions.is_some()) {
+        let gaps: Vec<String> = g
+            .iter()
+            .flat_map(|x| x.conversions.iter().flatten())
+            .map(|a| {
+                a.gaps()
+                    .iter()
+                    .map(u16::to_string)
+                    .collect::<Vec<_>>()
+                    .join(" ")
+            })
+            .collect();
+        out.texts("conv_gaps", &gaps)?;
+    }
+    if some(&|x| x.missed.is_some()) {
+        out.numbers(
+            "conv_missed",
+            all(&|x| {
+                x.missed
+                    .iter()
+                    .flatten()
+                    .map(|m| m.map_or(f64::NAN, f64::from))
+                    .collect()
+            }),
+        );
+    }
+    if some(&|x| x.boot.is_some()) {
+        out.numbers(
+            "boot",
+            all(&|x| x.boot.iter().flatten().map(|b| f64::from(*b)).collect()),
+        );
+    }
+    Ok(out.cols)
+}
+
+/// The module.
+#[pymodule]
+fn _rotacal(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add("RecordingError", m.py().get_type::<RecordingError>())?;
+    m.add("CalibrationError", m.py().get_type::<CalibrationError>())?;
+    m.add("__version__", BUILD.version)?;
+    m.add("__commit__", BUILD.commit)?;
+    m.add_function(wrap_pyfunction!(calibrate_path, m)?)?;
+    m.add_function(wrap_pyfunction!(calibrate_columns, m)?)?;
+    m.add_function(wrap_pyfunction!(read_recording, m)?)?;
+    Ok(())
+}

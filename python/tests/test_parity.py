@@ -1,0 +1,78 @@
+"""One engine (issue 35, proof point 1): the package's calibration of a file, and of the
+same file as a DataFrame, equal the command line's JSON bit for bit. What may differ is
+named: the traceability block (when, by which command, from which input), and for a
+DataFrame each pose's or group's `first_line`, which names its row, not a file line."""
+
+import json
+
+import pytest
+
+import rotacal
+from conftest import calibrate_cli, same, without
+
+
+@pytest.mark.parametrize("name", ["demo", "imucal", "imutk"])
+def test_a_file_calibrates_as_the_command_line_does(name, sessions, cli, tmp_path):
+    path = sessions[name]
+    text = calibrate_cli(cli, path, tmp_path / "cli.json")
+    ours = rotacal.calibrate(str(path))
+    cli_json, our_json = json.loads(text), json.loads(ours.to_json())
+    assert same(without(our_json, {"traceability"}), without(cli_json, {"traceability"}))
+    # The block says the same of the input, and names the Python call.
+    assert our_json["traceability"]["inputs"] == cli_json["traceability"]["inputs"]
+    assert our_json["traceability"]["g_loc"] == cli_json["traceability"]["g_loc"]
+    assert "rotacal.calibrate(" in our_json["traceability"]["command_line"][1]
+    # The command line's JSON goes through Calibration byte for byte.
+    assert rotacal.Calibration.from_json(text).to_json() == text
+
+
+@pytest.mark.parametrize("name", ["demo", "imucal", "imutk"])
+def test_a_dataframe_calibrates_as_its_file(name, sessions, cli, tmp_path):
+    path = sessions[name]
+    cli_json = json.loads(calibrate_cli(cli, path, tmp_path / "cli.json"))
+    df = rotacal.read_recording(path)
+    ours = json.loads(rotacal.calibrate(df).to_json())
+    places = {"traceability", "first_line"}
+    assert same(without(ours, places), without(cli_json, places))
+    t = ours["traceability"]
+    assert t["inputs"][0]["path"] == "the DataFrame"
+    assert len(t["inputs"][0]["sha256"]) == 64
+    assert t["device"] == cli_json["traceability"]["device"]
+    assert t["temperature_c"] == cli_json["traceability"]["temperature_c"]
+
+
+def test_the_columns_digest_follows_the_data(sessions):
+    df = rotacal.read_recording(sessions["imutk"])
+    a = rotacal.calibrate(df).traceability["inputs"][0]["sha256"]
+    assert rotacal.calibrate(df.copy()).traceability["inputs"][0]["sha256"] == a
+    df.loc[10, "u"] += 1.0
+    assert rotacal.calibrate(df).traceability["inputs"][0]["sha256"] != a
+
+
+def test_numpy_arrays_and_renamed_columns(sessions):
+    df = rotacal.read_recording(sessions["imutk"])
+    meta = df.attrs["rotacal"]
+    want = without(rotacal.calibrate(df).as_dict(), {"traceability"})
+    arrays = {"time": df["t_s"].to_numpy(), "ax": df["u"].to_numpy(),
+              "ay": df["v"].to_numpy(), "az": df["w"].to_numpy()}
+    got = rotacal.calibrate(
+        arrays, method=meta["method"], g_loc=float(meta["g_loc"]),
+        columns={"t_s": "time", "u": "ax", "v": "ay", "w": "az"},
+        metadata={"units": meta["units"], "sample_rate_hz": 100},
+    )
+    assert same(without(got.as_dict(), {"traceability"}), want)
+
+
+def test_the_results_as_python_objects(sessions):
+    cal = rotacal.calibrate(str(sessions["imucal"]))
+    props = cal.properties()
+    assert list(props.index) == ["s_u", "s_v", "s_w", "φ_uv", "φ_vw", "φ_wu", "O_u", "O_v", "O_w"]
+    q = cal.quantity("phi_vw")
+    row = cal.as_dict()["by_rate"][0]["intrinsic"]["angle_deg"]["vw"]
+    assert (q.value, q.u, q.U, q.k) == (row["value"], row["std_unc"], row["expanded_unc"], row["k"])
+    assert q.unit == "deg" and q.U == pytest.approx(q.k * q.u, rel=1e-12)
+    budget = cal.budget()
+    assert budget.loc["combined u", "O_u"] == props.loc["O_u", "u"]
+    c = cal.correction()
+    assert c.M.shape == (3, 3) and c.covariance.shape == (12, 12)
+    assert list(c.O_u) == list(props.loc[["O_u", "O_v", "O_w"], "u"])
