@@ -12,15 +12,18 @@ command line's: the same engine, in Rust (docs/python.md).
 
 from ._calibration import Calibration, Quantity
 from ._data import calibrate, read_recording
+from ._imucal import ImucalCalibration, read_imucal
 from ._rotacal import CalibrationError, RecordingError, __commit__, __version__
 
 __all__ = [
     "Calibration",
     "CalibrationError",
+    "ImucalCalibration",
     "Quantity",
     "RecordingError",
     "__commit__",
     "__version__",
     "calibrate",
+    "read_imucal",
     "read_recording",
 ]

@@ -8,6 +8,8 @@ from typing import Any, Optional
 
 import numpy as np
 
+from ._imucal import ImucalCalibration, imucal_json
+
 #: The intrinsic properties, in the budget's order: (name, JSON group, JSON key).
 _PROPERTIES = [
     ("s_u", "sensitivity", "u"),
@@ -185,6 +187,62 @@ class Calibration:
             O_u=np.array(f["offset_std_unc"], dtype=float),
             covariance=np.array(f["covariance"], dtype=float),
             units_in=c["units_in"],
+        )
+
+    def to_imucal(
+        self,
+        frame: Optional[str] = None,
+        rate_hz: Optional[float] = None,
+        cal_type: Optional[str] = None,
+    ) -> str:
+        """This calibration as imucal's calibration JSON (imucal 2.x), for
+        ``imucal.CalibrationInfo.from_json``: K_a, R_a, b_a from the correction in
+        ``frame`` (default: ``"platter"`` where there is one, the frame of the poses, as
+        imucal's own; else ``"device"``). The gyroscope's terms are identity and zero, so
+        imucal passes gyroscope readings through unchanged: rotacal calibrates
+        accelerometers. The uncertainties, the budget and the traceability cannot be
+        carried (imucal's format has no place for them); the comment names this
+        calibration, and its JSON keeps them.
+
+        ``cal_type``: ``"Turntable"`` (default for rotation) or ``"Ferraris"`` (default
+        for static and free poses); imucal treats both alike."""
+        entry = self._entry(rate_hz)
+        c = entry.get("correction") or {}
+        if frame is None:
+            frame = "platter" if c.get("platter_frame") else "device"
+        corr = self.correction(frame, rate_hz)
+        if cal_type is None:
+            cal_type = "Turntable" if self.method == "rotation" else "Ferraris"
+        t = self.traceability
+        inputs = ", ".join(
+            f"{i.get('path')} (SHA-256 {i.get('sha256')})" for i in t.get("inputs", [])
+        )
+        comment = (
+            f"rotacal {t.get('rotacal', '?')} ({t.get('commit', '?')}), {self.method} "
+            f"calibration of {inputs or 'unnamed data'} on {t.get('date_utc', '?')}, "
+            f"{frame} frame. Not carried: the uncertainties (see rotacal's JSON). "
+            "The gyroscope terms are identity: rotacal calibrates accelerometers only."
+        )
+        return imucal_json(corr.M, corr.O, corr.units_in, comment, cal_type)
+
+    def compare_imucal(self, other: "ImucalCalibration", rate_hz: Optional[float] = None):
+        """Each intrinsic property here and in an imucal calibration (:func:`read_imucal`),
+        as a pandas DataFrame: rotacal's value and U, imucal's value, their difference
+        (imucal − rotacal), |difference|/U, and whether it is within U. imucal gives no
+        uncertainty: U is this calibration's alone."""
+        import pandas as pd
+
+        theirs = other.intrinsic()
+        props = self.properties(rate_hz)
+        rows = {}
+        for name in props.index:
+            v, U = props.loc[name, "value"], props.loc[name, "U"]
+            d = theirs[name] - v
+            rows[name] = [v, U, theirs[name], d, abs(d) / U, abs(d) <= U, props.loc[name, "unit"]]
+        return pd.DataFrame.from_dict(
+            rows,
+            orient="index",
+            columns=["rotacal", "U", "imucal", "difference", "|difference|/U", "within_U", "unit"],
         )
 
     def as_dict(self) -> dict:
