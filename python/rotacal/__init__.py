@@ -11,7 +11,7 @@ command line's: the same engine, in Rust (docs/python.md).
 """
 
 from ._calibration import Calibration, Quantity
-from ._data import calibrate, read_recording
+from ._data import calibrate, read_recording, simulate
 from ._imucal import ImucalCalibration, read_imucal
 from ._rotacal import CalibrationError, RecordingError, __commit__, __version__
 
@@ -26,4 +26,5 @@ __all__ = [
     "calibrate",
     "read_imucal",
     "read_recording",
+    "simulate",
 ]

@@ -245,6 +245,34 @@ class Calibration:
             columns=["rotacal", "U", "imucal", "difference", "|difference|/U", "within_U", "unit"],
         )
 
+    def apply(self, data, frame: Optional[str] = None, rate_hz: Optional[float] = None,
+              columns=None, metadata=None):
+        """Correct readings: a = M·(y − O) in m/s², as ``rotacal apply`` does.
+
+        Parameters
+        ----------
+        data
+            A recording: a path, a DataFrame or a mapping of arrays, as for
+            :func:`rotacal.calibrate` (``columns=`` and ``metadata=`` likewise), in the
+            calibration's units.
+        frame
+            ``"device"`` (x′ along u, y′ in the u-v plane) or ``"platter"`` (the poses'
+            frame; static calibrations). Default: platter where there is one.
+        rate_hz
+            Which entry, for a calibration with several rates.
+
+        Returns
+        -------
+        pandas.DataFrame
+            The corrected recording: u, v, w in m/s² and ``u_unc``, ``v_unc``, ``w_unc``,
+            each value's standard uncertainty from the calibration (k in
+            ``attrs["rotacal"]["coverage_factor"]``), the other columns as they were; the
+            values are ``rotacal apply``'s, bit for bit.
+        """
+        from ._data import apply
+
+        return apply(self, data, frame, rate_hz, columns, metadata)
+
     def as_dict(self) -> dict:
         """The whole calibration JSON as Python objects."""
         return json.loads(self._text)

@@ -194,3 +194,55 @@ def _label_row(e: Exception, data: Any) -> None:
             e.index = index[row]
         except (IndexError, TypeError):
             pass
+
+
+def _frame(pairs, meta, extra=None):
+    """A DataFrame of (name, values) pairs, with the metadata in ``attrs["rotacal"]``."""
+    import pandas as pd
+
+    df = pd.DataFrame({name: values for name, values in pairs})
+    df.attrs["rotacal"] = dict(meta)
+    return df
+
+
+def simulate(config: str, seed: Optional[int] = None):
+    """Simulate the experiment (``rotacal simulate``; docs/simulator.md).
+
+    Parameters
+    ----------
+    config
+        A preset's name (``"paper-10mhz"``, ``"paper-multirate"``,
+        ``"metrologia-static"``), a TOML configuration file's path, or TOML text.
+    seed
+        Replaces the configuration's seed.
+
+    Returns
+    -------
+    pandas.DataFrame
+        The recording the command line writes, read back: the same rows, bit for bit, with
+        its metadata (and the simulator's truth keys) in ``attrs["rotacal"]``.
+    """
+    pairs, meta = _rotacal.simulate(str(config), seed)
+    return _frame(pairs, meta)
+
+
+def apply(calibration: Calibration, data: Any, frame: Optional[str] = None,
+          rate_hz: Optional[float] = None, columns: Optional[Mapping[str, str]] = None,
+          metadata: Optional[Mapping[str, Any]] = None):
+    """:meth:`Calibration.apply`."""
+    if frame is None:
+        entry = calibration._entry(rate_hz)
+        frame = "platter" if (entry.get("correction") or {}).get("platter_frame") else "device"
+    if isinstance(data, (str, os.PathLike)):
+        data = read_recording(data)
+    pairs, meta, source = _table(data, columns, metadata)
+    command = _command("Calibration.apply", data, {"frame": frame, "rate_hz": rate_hz})
+    try:
+        out, out_meta = _rotacal.apply_columns(
+            calibration.to_json(), "the calibration", pairs, list(meta.items()), source,
+            frame, rate_hz, command,
+        )
+    except _rotacal.RecordingError as e:
+        _label_row(e, data)
+        raise
+    return _frame(out, out_meta)

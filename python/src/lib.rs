@@ -221,17 +221,8 @@ fn calibrate_columns(
     command: Vec<String>,
 ) -> PyResult<String> {
     let opts = self::options(py, options)?;
-    let held: Vec<Held<'_>> = columns
-        .iter()
-        .map(|(n, v)| Held::of(n, v))
-        .collect::<PyResult<_>>()?;
-    let mut cols = Vec::with_capacity(held.len());
-    for ((name, _), h) in columns.iter().zip(&held) {
-        cols.push(Column {
-            name,
-            values: h.values()?,
-        });
-    }
+    let held = hold(&columns)?;
+    let cols = as_columns(&columns, &held)?;
     let meta_refs: Vec<(&str, &str)> = meta.iter().map(|(k, v)| (k.as_str(), v.as_str())).collect();
     let (rec, cal, input) = py
         .detach(|| {
@@ -249,6 +240,131 @@ fn calibrate_columns(
         ("g_loc=", "u_g_loc="),
     );
     with_trace(&cal, t, command)
+}
+
+/// Columns handed over, borrowed as the reader takes them.
+fn hold<'py>(columns: &[(String, Bound<'py, PyAny>)]) -> PyResult<Vec<Held<'py>>> {
+    columns.iter().map(|(n, v)| Held::of(n, v)).collect()
+}
+
+fn as_columns<'a>(
+    columns: &'a [(String, Bound<'_, PyAny>)],
+    held: &'a [Held<'_>],
+) -> PyResult<Vec<Column<'a>>> {
+    columns
+        .iter()
+        .zip(held)
+        .map(|((name, _), h)| {
+            Ok(Column {
+                name,
+                values: h.values()?,
+            })
+        })
+        .collect()
+}
+
+/// A recording as columns and metadata for Python, read back from the text the command
+/// line would have written (so that its numbers are the command line's, bit for bit).
+#[allow(clippy::type_complexity)]
+fn from_text<'py>(
+    py: Python<'py>,
+    text: &[u8],
+    name: &str,
+) -> PyResult<(Vec<(String, Bound<'py, PyAny>)>, Vec<(String, String)>)> {
+    let rec = recording::read_bytes(text, name).map_err(|e| recording_error(py, &e))?;
+    Ok((columns_of(py, &rec)?, metadata_of(&rec.meta)))
+}
+
+/// Correct the recording held in `columns` (with `meta`, named `source`) by the
+/// calibration JSON `calibration` (named `cal_name`) in `frame` ("device" or "platter"):
+/// the corrected recording, as `rotacal apply` writes it, as columns and metadata (its
+/// traceability lines name the calibration's and the columns' SHA-256 and `command`).
+#[pyfunction]
+#[allow(clippy::too_many_arguments, clippy::type_complexity)]
+fn apply_columns<'py>(
+    py: Python<'py>,
+    calibration: String,
+    cal_name: String,
+    columns: Vec<(String, Bound<'py, PyAny>)>,
+    meta: Vec<(String, String)>,
+    source: String,
+    frame: String,
+    rate_hz: Option<f64>,
+    command: Vec<String>,
+) -> PyResult<(Vec<(String, Bound<'py, PyAny>)>, Vec<(String, String)>)> {
+    use rotacal_engine::calibrate::correction::Frame;
+    use rotacal_engine::correct::apply;
+    let frame = match frame.as_str() {
+        "device" => Frame::Device,
+        "platter" => Frame::Platter,
+        other => {
+            return Err(PyValueError::new_err(format!(
+                "frame: '{other}' is neither 'device' nor 'platter'"
+            )))
+        }
+    };
+    let loaded = apply::load_text(&calibration, &cal_name, rate_hz, frame)
+        .map_err(|e| CalibrationError::new_err(e.to_string()))?;
+    let held = hold(&columns)?;
+    let cols = as_columns(&columns, &held)?;
+    let meta_refs: Vec<(&str, &str)> = meta.iter().map(|(k, v)| (k.as_str(), v.as_str())).collect();
+    let rec = recording::read_columns(&cols, &meta_refs, &source, None)
+        .map_err(|e| recording_error(py, &e))?;
+    let mut t = Traceability::new(BUILD, &[]).map_err(|e| PyValueError::new_err(e.to_string()))?;
+    t.inputs = vec![
+        trace::input_of_bytes(&cal_name, calibration.as_bytes()),
+        trace::input_of_columns(&source, &cols),
+    ];
+    t.command_line = command;
+    let provenance = t.as_metadata(&["calibration", "recording"]);
+    let out_name = format!("{source}, corrected");
+    let job = apply::Job {
+        correction: &loaded.correction,
+        units_in: &loaded.json.units_in,
+        k: loaded.json.k,
+        cal_name: &cal_name,
+        g_loc: loaded.g_loc,
+        out_name: &out_name,
+        provenance: &provenance,
+    };
+    let mut text = Vec::new();
+    py.detach(|| apply::apply(&rec, &job, &mut text))
+        .map_err(|e| CalibrationError::new_err(e.to_string()))?;
+    from_text(py, &text, &out_name)
+}
+
+/// The simulated recording of `config` (a preset's name, a TOML file's path, or TOML
+/// text) with its seed replaced by `seed` if given, as `rotacal simulate` writes it, as
+/// columns and metadata.
+#[pyfunction]
+#[pyo3(signature = (config, seed=None))]
+#[allow(clippy::type_complexity)]
+fn simulate<'py>(
+    py: Python<'py>,
+    config: String,
+    seed: Option<u64>,
+) -> PyResult<(Vec<(String, Bound<'py, PyAny>)>, Vec<(String, String)>)> {
+    use rotacal_engine::simulate::{Config, Simulation};
+    let text = config.contains('=') || config.contains('\n');
+    let cfg = if text {
+        Config::from_toml(&config)
+    } else {
+        Config::load(&config)
+    };
+    let mut cfg = cfg.map_err(|e| PyValueError::new_err(format!("{config}: {e}")))?;
+    if let Some(s) = seed {
+        cfg.seed = s;
+    }
+    let name = if text {
+        "the configuration"
+    } else {
+        config.as_str()
+    };
+    let sim = Simulation::new(cfg).map_err(|e| PyValueError::new_err(format!("{name}: {e}")))?;
+    let (_, bytes) = py
+        .detach(|| sim.write(Vec::new()))
+        .map_err(|e| PyValueError::new_err(format!("{name}: {e}")))?;
+    from_text(py, &bytes, name)
 }
 
 /// The recording file at `path`, checked, as columns ((name, values): float64 arrays or
@@ -447,5 +563,7 @@ fn _rotacal(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(calibrate_path, m)?)?;
     m.add_function(wrap_pyfunction!(calibrate_columns, m)?)?;
     m.add_function(wrap_pyfunction!(read_recording, m)?)?;
+    m.add_function(wrap_pyfunction!(apply_columns, m)?)?;
+    m.add_function(wrap_pyfunction!(simulate, m)?)?;
     Ok(())
 }

@@ -143,6 +143,20 @@ pub fn input_of_columns(path: &str, columns: &[recording::Column<'_>]) -> Input 
     }
 }
 
+/// Bytes held in memory (a calibration's JSON handed over as text), described as `path`:
+/// their size and SHA-256, as [`input`] gives them for a file of these bytes.
+pub fn input_of_bytes(path: &str, bytes: &[u8]) -> Input {
+    let sha256 = Sha256::digest(bytes)
+        .iter()
+        .map(|b| format!("{b:02x}"))
+        .collect();
+    Input {
+        path: path.to_string(),
+        bytes: bytes.len() as u64,
+        sha256,
+    }
+}
+
 /// The file at `path`: its size and SHA-256.
 pub fn input(path: &Path) -> std::io::Result<Input> {
     let at = |e: std::io::Error| std::io::Error::new(e.kind(), format!("{}: {e}", path.display()));

@@ -169,8 +169,18 @@ pub struct Loaded {
 pub fn load(cal: &Path, rate_hz: Option<f64>, frame: Frame) -> Result<Loaded, ApplyError> {
     let name = cal.display().to_string();
     let text = std::fs::read_to_string(cal).map_err(|e| bad(&name, e))?;
-    let v = parse(&text, &name)?;
-    let (json, correction) = choose(&corrections_of(&v, &name)?, rate_hz, frame, &name)?;
+    load_text(&text, &name, rate_hz, frame)
+}
+
+/// [`load`] of a calibration's JSON `text`, named `name` in messages.
+pub fn load_text(
+    text: &str,
+    name: &str,
+    rate_hz: Option<f64>,
+    frame: Frame,
+) -> Result<Loaded, ApplyError> {
+    let v = parse(text, name)?;
+    let (json, correction) = choose(&corrections_of(&v, name)?, rate_hz, frame, name)?;
     Ok(Loaded {
         json,
         correction,
