@@ -76,3 +76,21 @@ def test_the_results_as_python_objects(sessions):
     c = cal.correction()
     assert c.M.shape == (3, 3) and c.covariance.shape == (12, 12)
     assert list(c.O_u) == list(props.loc[["O_u", "O_v", "O_w"], "u"])
+
+
+def test_a_polars_dataframe_calibrates_as_pandas_does(sessions):
+    import polars as pl
+
+    pdf = rotacal.read_recording(sessions["imucal"])
+    text = {"pose"}
+    df = pl.DataFrame({c: pdf[c].tolist() if c in text else pdf[c].to_numpy() for c in pdf.columns})
+    want = without(rotacal.calibrate(pdf).as_dict(), {"traceability"})
+    got = rotacal.calibrate(df, metadata=pdf.attrs["rotacal"])
+    assert same(without(got.as_dict(), {"traceability"}), want)
+    # polars' null is a NaN in numpy: named with its row.
+    bad = df.with_columns(
+        pl.when(pl.int_range(pl.len()) == 5).then(None).otherwise(pl.col("u")).alias("u")
+    )
+    with pytest.raises(rotacal.RecordingError) as e:
+        rotacal.calibrate(bad, metadata=pdf.attrs["rotacal"])
+    assert (e.value.row, e.value.column) == (5, "u")
