@@ -11,19 +11,28 @@ command line's: the same engine, in Rust (docs/python.md).
 """
 
 from ._calibration import Calibration, Quantity
-from ._data import calibrate, read_recording, simulate
+from ._data import Discrepancy, calibrate, discrepancy, read_recording, simulate
 from ._imucal import ImucalCalibration, read_imucal
-from ._rotacal import CalibrationError, RecordingError, __commit__, __version__
+from ._rotacal import (
+    CalibrationError,
+    DiscrepancyError,
+    RecordingError,
+    __commit__,
+    __version__,
+)
 
 __all__ = [
     "Calibration",
     "CalibrationError",
+    "Discrepancy",
+    "DiscrepancyError",
     "ImucalCalibration",
     "Quantity",
     "RecordingError",
     "__commit__",
     "__version__",
     "calibrate",
+    "discrepancy",
     "read_imucal",
     "read_recording",
     "simulate",

@@ -246,3 +246,86 @@ def apply(calibration: Calibration, data: Any, frame: Optional[str] = None,
         _label_row(e, data)
         raise
     return _frame(out, out_meta)
+
+
+class Discrepancy:
+    """The discrepancy workflow's analysis: what ``rotacal discrepancy --json`` writes
+    (docs/discrepancy.md, docs/formats.md), with its verdict at hand.
+
+    Attributes
+    ----------
+    explained : bool
+        Whether the model with the effects it named explains the data (the command line
+        exits with status 4 where it does not).
+    summary : str
+        The verdict in a sentence.
+    """
+
+    def __init__(self, text: str):
+        import json
+
+        self._text = text
+        self._data = json.loads(text)
+        verdict = self._data.get("verdict", {})
+        self.explained: bool = bool(verdict.get("explained"))
+        self.summary: str = verdict.get("summary", "")
+        self.traceability: dict = self._data.get("traceability", {})
+
+    def to_json(self) -> str:
+        """The analysis JSON, as the command line writes it."""
+        return self._text
+
+    def as_dict(self) -> dict:
+        """The analysis as Python objects."""
+        import json
+
+        return json.loads(self._text)
+
+    def __repr__(self) -> str:
+        return f"<rotacal.Discrepancy explained={self.explained}: {self.summary}>"
+
+
+def discrepancy(
+    data: Data,
+    g_loc: Optional[float] = None,
+    rate_hz: Optional[float] = None,
+    alpha: Optional[float] = None,
+    slow_noise: bool = False,
+    columns: Optional[Mapping[str, str]] = None,
+    metadata: Optional[Mapping[str, Any]] = None,
+) -> Discrepancy:
+    """Where model and measurement disagree, and which effect explains it (``rotacal
+    discrepancy``; docs/discrepancy.md): a rotation recording as a path, a DataFrame or
+    arrays, as for :func:`calibrate`.
+
+    Parameters
+    ----------
+    g_loc, rate_hz
+        Override the metadata's.
+    alpha
+        Significance of each effect's F-test (default: the command line's, 0.001).
+    slow_noise
+        Count flicker and a bias random walk, estimated from the data, in every test.
+
+    Returns
+    -------
+    Discrepancy
+        Whether it is explained is ``.explained``; nothing is raised when it is not.
+
+    Raises
+    ------
+    RecordingError, DiscrepancyError
+    """
+    opts = {"g_loc": g_loc, "rate_hz": rate_hz, "alpha": alpha, "slow_noise": slow_noise}
+    command = _command("discrepancy", data, opts)
+    if isinstance(data, (str, os.PathLike)):
+        if columns is not None or metadata is not None:
+            raise TypeError("columns= and metadata= are for DataFrames and arrays, not files")
+        return Discrepancy(_rotacal.discrepancy_path(os.fspath(data), opts, command))
+    pairs, meta, source = _table(data, columns, metadata)
+    try:
+        text = _rotacal.discrepancy_columns(pairs, list(meta.items()), source, opts, command)
+    except _rotacal.RecordingError as e:
+        _label_row(e, data)
+        raise
+    return Discrepancy(text)

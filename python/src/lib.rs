@@ -23,6 +23,12 @@ create_exception!(
 );
 create_exception!(
     rotacal,
+    DiscrepancyError,
+    PyValueError,
+    "A recording that was read but that the discrepancy workflow cannot analyse (not a rotation recording, too short, a fit that fails)."
+);
+create_exception!(
+    rotacal,
     CalibrationError,
     PyValueError,
     "A recording that was read but cannot be calibrated: its `source`, and the first `line` (a file's) or `row` (a DataFrame's) of the data concerned, where one applies."
@@ -240,6 +246,98 @@ fn calibrate_columns(
         ("g_loc=", "u_g_loc="),
     );
     with_trace(&cal, t, command)
+}
+
+/// The discrepancy workflow's options from `rotacal.discrepancy`'s keyword arguments.
+fn discrepancy_options(
+    given: &Bound<'_, PyDict>,
+) -> PyResult<rotacal_engine::discrepancy::Options> {
+    let mut o = rotacal_engine::discrepancy::Options::default();
+    for (k, v) in given.iter() {
+        let key: String = k.extract()?;
+        if v.is_none() {
+            continue;
+        }
+        match key.as_str() {
+            "g_loc" => o.g_loc = Some(number(&key, &v)?),
+            "rate_hz" => o.rate_hz = Some(number(&key, &v)?),
+            "alpha" => {
+                o.alpha = number(&key, &v)?;
+                if !(o.alpha > 0.0 && o.alpha < 1.0) {
+                    return Err(PyValueError::new_err(format!(
+                        "alpha {}: a probability between 0 and 1 is needed",
+                        o.alpha
+                    )));
+                }
+            }
+            "slow_noise" => o.slow_noise = v.extract::<bool>()?,
+            other => {
+                return Err(PyTypeError::new_err(format!(
+                    "discrepancy() got an unexpected keyword argument '{other}'"
+                )))
+            }
+        }
+    }
+    Ok(o)
+}
+
+/// The discrepancy workflow on `rec` (`rotacal discrepancy`): its JSON with `t`.
+fn discrepancy_of(
+    py: Python<'_>,
+    rec: &Recording,
+    opts: &rotacal_engine::discrepancy::Options,
+    mut t: Traceability,
+    command: Vec<String>,
+) -> PyResult<String> {
+    let analysis = py
+        .detach(|| rotacal_engine::discrepancy::run(rec, opts))
+        .map_err(|e| DiscrepancyError::new_err(e.to_string()))?;
+    t.command_line = command;
+    t.json(&analysis)
+        .map_err(|e| PyValueError::new_err(format!("the analysis as JSON: {e}")))
+}
+
+/// `rotacal discrepancy FILE --json`: the analysis of the recording at `path`.
+#[pyfunction]
+fn discrepancy_path(
+    py: Python<'_>,
+    path: PathBuf,
+    options: &Bound<'_, PyDict>,
+    command: Vec<String>,
+) -> PyResult<String> {
+    let opts = discrepancy_options(options)?;
+    let rec = py
+        .detach(|| recording::read(&path))
+        .map_err(|e| recording_error(py, &e))?;
+    let t = Traceability::of_recording(BUILD, &path, None, opts.g_loc, None)
+        .map_err(|e| PyValueError::new_err(e.to_string()))?;
+    discrepancy_of(py, &rec, &opts, t, command)
+}
+
+/// The discrepancy workflow on the recording held in `columns`.
+#[pyfunction]
+fn discrepancy_columns(
+    py: Python<'_>,
+    columns: Vec<(String, Bound<'_, PyAny>)>,
+    meta: Vec<(String, String)>,
+    source: String,
+    options: &Bound<'_, PyDict>,
+    command: Vec<String>,
+) -> PyResult<String> {
+    let opts = discrepancy_options(options)?;
+    let held = hold(&columns)?;
+    let cols = as_columns(&columns, &held)?;
+    let meta_refs: Vec<(&str, &str)> = meta.iter().map(|(k, v)| (k.as_str(), v.as_str())).collect();
+    let rec = recording::read_columns(&cols, &meta_refs, &source, None)
+        .map_err(|e| recording_error(py, &e))?;
+    let t = Traceability::of_held(
+        BUILD,
+        &rec,
+        trace::input_of_columns(&source, &cols),
+        (opts.g_loc, None),
+        ("g_loc=", "u_g_loc="),
+    );
+    discrepancy_of(py, &rec, &opts, t, command)
 }
 
 /// Columns handed over, borrowed as the reader takes them.
@@ -558,6 +656,7 @@ fn columns_of<'py>(py: Python<'py>, rec: &Recording) -> PyResult<Vec<(String, Bo
 fn _rotacal(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("RecordingError", m.py().get_type::<RecordingError>())?;
     m.add("CalibrationError", m.py().get_type::<CalibrationError>())?;
+    m.add("DiscrepancyError", m.py().get_type::<DiscrepancyError>())?;
     m.add("__version__", BUILD.version)?;
     m.add("__commit__", BUILD.commit)?;
     m.add_function(wrap_pyfunction!(calibrate_path, m)?)?;
@@ -565,5 +664,7 @@ fn _rotacal(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(read_recording, m)?)?;
     m.add_function(wrap_pyfunction!(apply_columns, m)?)?;
     m.add_function(wrap_pyfunction!(simulate, m)?)?;
+    m.add_function(wrap_pyfunction!(discrepancy_path, m)?)?;
+    m.add_function(wrap_pyfunction!(discrepancy_columns, m)?)?;
     Ok(())
 }

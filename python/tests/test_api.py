@@ -60,3 +60,26 @@ def test_the_worked_example_in_docs_python_md_runs_as_written(sessions, monkeypa
     # What the example plots: |a| − g of each row, small against g after the correction.
     r = scope["residual"]
     assert len(r) == 3428 and np.abs(np.median(r)) < 0.01
+
+
+def test_discrepancy_is_the_command_line_s(sessions, cli, tmp_path):
+    from conftest import same, without
+
+    puzzle = sessions["demo"].parent / "puzzle.csv"
+    exe_ok = True
+    try:
+        cli("discrepancy", puzzle, "--json", tmp_path / "d.json")
+    except AssertionError:
+        exe_ok = False  # exit status 4: something unexplained; the JSON is written first
+    import json
+
+    theirs = json.loads((tmp_path / "d.json").read_text())
+    ours = rotacal.discrepancy(str(puzzle))
+    assert ours.explained == theirs["verdict"]["explained"] == exe_ok
+    assert same(without(ours.as_dict(), {"traceability"}), without(theirs, {"traceability"}))
+    held = rotacal.discrepancy(rotacal.read_recording(puzzle)).as_dict()
+    assert same(without(held, {"traceability", "first_line"}), without(theirs, {"traceability", "first_line"}))
+    with pytest.raises(TypeError, match="unexpected keyword argument 'beta'"):
+        rotacal.discrepancy(str(puzzle), **{"beta": 1})
+    with pytest.raises(ValueError, match="alpha 2"):
+        rotacal.discrepancy(str(puzzle), alpha=2)
