@@ -9,7 +9,7 @@ use pyo3::create_exception;
 use pyo3::exceptions::{PyTypeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
-use rotacal_engine::calibrate::{self, json::CalibrationJson};
+use rotacal_engine::calibrate;
 use rotacal_engine::recording::{self, Column, Method, Recording, Values};
 use rotacal_engine::trace::{self, Traceability};
 use std::path::PathBuf;
@@ -182,15 +182,16 @@ fn options(py: Python<'_>, given: &Bound<'_, PyDict>) -> PyResult<calibrate::Opt
     Ok(o)
 }
 
-/// The calibration JSON with the traceability block, as the command line writes it.
-fn with_trace(
-    cal: &CalibrationJson,
+/// An output's JSON with the traceability block `t` naming `command`, as the command line
+/// writes it.
+fn with_trace<T: serde::Serialize>(
+    value: &T,
     mut t: Traceability,
     command: Vec<String>,
 ) -> PyResult<String> {
     t.command_line = command;
-    t.json(cal)
-        .map_err(|e| PyValueError::new_err(format!("the calibration as JSON: {e}")))
+    t.json(value)
+        .map_err(|e| PyValueError::new_err(format!("the output as JSON: {e}")))
 }
 
 /// Calibrate the recording file at `path` exactly as `rotacal calibrate` does (its
@@ -286,15 +287,13 @@ fn discrepancy_of(
     py: Python<'_>,
     rec: &Recording,
     opts: &rotacal_engine::discrepancy::Options,
-    mut t: Traceability,
+    t: Traceability,
     command: Vec<String>,
 ) -> PyResult<String> {
     let analysis = py
         .detach(|| rotacal_engine::discrepancy::run(rec, opts))
         .map_err(|e| DiscrepancyError::new_err(e.to_string()))?;
-    t.command_line = command;
-    t.json(&analysis)
-        .map_err(|e| PyValueError::new_err(format!("the analysis as JSON: {e}")))
+    with_trace(&analysis, t, command)
 }
 
 /// `rotacal discrepancy FILE --json`: the analysis of the recording at `path`.
