@@ -51,7 +51,7 @@ pub use read::{
     read, read_as, read_bytes, read_columns, read_from, read_in_progress, read_preamble, scan,
     Column, Parse, PartRow, Parts, Scanned, Values,
 };
-pub use write::Writer;
+pub use write::{write_recording, Writer};
 
 use std::collections::BTreeMap;
 use std::fmt;

@@ -280,3 +280,98 @@ impl<W: Write> Writer<W> {
             .map_err(io::IntoInnerError::into_error)
     }
 }
+
+/// Write the whole recording `rec` to `w`: its metadata, then its rows (the groups in
+/// order of first appearance, or its poses, or its series) with the columns it was read
+/// with. A file the writer wrote comes back byte for byte when read and written again.
+pub fn write_recording<W: Write>(rec: &super::Recording, w: W) -> io::Result<W> {
+    let mut meta = rec.meta.clone();
+    // A free series needs its method said: nothing else marks it.
+    if rec.method == Method::Free && meta.method.is_none() {
+        meta.method = Some(Method::Free);
+    }
+    let missing = || invalid("a row shorter than its recording's columns".into());
+    if let Some(o) = &rec.oriented {
+        let cols = Columns {
+            gravity: true,
+            pose: o.pose.is_some(),
+            t_s: o.t_s.is_some(),
+            seq: o.seq.is_some(),
+            temp_c: o.temp_c.is_some(),
+            unc: o.unc.is_some(),
+            ..Columns::default()
+        };
+        let mut out = Writer::new(w, &meta, &cols)?;
+        for (i, (y, g)) in o.y.iter().zip(&o.gravity).enumerate() {
+            let at = |c: &Option<Vec<f64>>| c.as_ref().and_then(|v| v.get(i).copied());
+            let row = Row {
+                gravity: Some(*g),
+                pose: o.pose.as_ref().and_then(|p| p.get(i)).map(String::as_str),
+                t_s: at(&o.t_s),
+                seq: o.seq.as_ref().and_then(|v| v.get(i).copied()),
+                temp_c: at(&o.temp_c),
+                unc: o.unc.as_ref().and_then(|v| v.get(i).copied()),
+                ..Row::new(super::Condition::X, y[0], y[1], y[2])
+            };
+            out.write_row(&row)?;
+        }
+        return out.into_inner();
+    }
+    if let Some(s) = &rec.series {
+        let cols = Columns {
+            t_s: true,
+            pose: s.pose.is_some(),
+            seq: s.seq.is_some(),
+            temp_c: s.temp_c.is_some(),
+            ..Columns::default()
+        };
+        let mut out = Writer::new(w, &meta, &cols)?;
+        for (i, (y, t)) in s.y.iter().zip(&s.t_s).enumerate() {
+            let row = Row {
+                t_s: Some(*t),
+                pose: s.pose.as_ref().and_then(|p| p.get(i)).map(String::as_str),
+                seq: s.seq.as_ref().and_then(|v| v.get(i).copied()),
+                temp_c: s.temp_c.as_ref().and_then(|v| v.get(i).copied()),
+                ..Row::new(super::Condition::X, y[0], y[1], y[2])
+            };
+            out.write_row(&row)?;
+        }
+        return out.into_inner();
+    }
+    let first = rec.groups.first();
+    let has = |f: &dyn Fn(&super::Group) -> bool| first.is_some_and(f);
+    let cols = Columns {
+        t_s: has(&|g| !g.t_s.is_empty()),
+        angle_deg: has(&|g| !g.angle_deg.is_empty()),
+        seq: has(&|g| g.seq.is_some()),
+        temp_c: has(&|g| g.temp_c.is_some()),
+        rate_hz: rec.groups.iter().any(|g| g.rate_hz.is_some()),
+        unc: has(&|g| g.unc.is_some()),
+        conv_gaps: has(&|g| g.conversions.is_some()),
+        conv_missed: has(&|g| g.missed.is_some()),
+        boot: has(&|g| g.boot.is_some()),
+        ..Columns::default()
+    };
+    let mut out = Writer::new(w, &meta, &cols)?;
+    for g in &rec.groups {
+        for i in 0..g.len() {
+            let (Some(u), Some(v), Some(w)) = (g.u.get(i), g.v.get(i), g.w.get(i)) else {
+                return Err(missing());
+            };
+            let row = Row {
+                t_s: g.t_s.get(i).copied(),
+                angle_deg: g.angle_deg.get(i).copied(),
+                seq: g.seq.as_ref().and_then(|v| v.get(i).copied()),
+                temp_c: g.temp_c.as_ref().and_then(|v| v.get(i).copied()),
+                rate_hz: g.rate_hz,
+                unc: g.unc.as_ref().and_then(|v| v.get(i).copied()),
+                conv_gaps: g.conversions.as_ref().and_then(|v| v.get(i).cloned()),
+                conv_missed: g.missed.as_ref().and_then(|v| v.get(i).copied()).flatten(),
+                boot: g.boot.as_ref().and_then(|v| v.get(i).copied()),
+                ..Row::new(g.condition, *u, *v, *w)
+            };
+            out.write_row(&row)?;
+        }
+    }
+    out.into_inner()
+}
