@@ -11,7 +11,14 @@ command line's: the same engine, in Rust (docs/python.md).
 """
 
 from ._calibration import Calibration, Quantity
-from ._data import Discrepancy, calibrate, discrepancy, read_recording, simulate
+from ._data import (
+    Discrepancy,
+    calibrate,
+    discrepancy,
+    read_recording,
+    simulate,
+    write_recording,
+)
 from ._imucal import ImucalCalibration, read_imucal
 from ._rotacal import (
     CalibrationError,
@@ -36,4 +43,5 @@ __all__ = [
     "read_imucal",
     "read_recording",
     "simulate",
+    "write_recording",
 ]

@@ -329,3 +329,33 @@ def discrepancy(
         _label_row(e, data)
         raise
     return Discrepancy(text)
+
+
+def write_recording(data: Any, path: Union[str, "os.PathLike[str]"],
+                    columns: Optional[Mapping[str, str]] = None, **metadata: Any) -> None:
+    """Write a DataFrame or arrays as a recording CSV (docs/formats.md) that ``rotacal``
+    reads back exactly, checked as the reader checks a file, whole or not at all (a
+    temporary file renamed into place).
+
+    Parameters
+    ----------
+    data
+        A pandas or polars DataFrame or a mapping of arrays, columns named as in
+        docs/formats.md or mapped with ``columns``.
+    path
+        The file to write.
+    **metadata
+        The ``# key=value`` lines (``method``, ``rate_hz``, ``g_loc``, ``units``,
+        ``device``, ...), over ``df.attrs["rotacal"]``.
+
+    Raises
+    ------
+    RecordingError
+        The data are not a recording: ``column`` and ``row`` say where.
+    """
+    pairs, meta, source = _table(data, columns, metadata)
+    try:
+        _rotacal.write_columns(pairs, list(meta.items()), source, os.fspath(path))
+    except _rotacal.RecordingError as e:
+        _label_row(e, data)
+        raise

@@ -228,17 +228,10 @@ fn calibrate_columns(
     command: Vec<String>,
 ) -> PyResult<String> {
     let opts = self::options(py, options)?;
-    let held = hold(&columns)?;
-    let cols = as_columns(&columns, &held)?;
-    let meta_refs: Vec<(&str, &str)> = meta.iter().map(|(k, v)| (k.as_str(), v.as_str())).collect();
-    let (rec, cal, input) = py
-        .detach(|| {
-            let rec = recording::read_columns(&cols, &meta_refs, &source, opts.method)?;
-            let cal = calibrate::calibrate(&rec, &opts);
-            Ok::<_, recording::RecordingError>((rec, cal, trace::input_of_columns(&source, &cols)))
-        })
-        .map_err(|e| recording_error(py, &e))?;
-    let cal = cal.map_err(|e| calibration_error(py, &e, true))?;
+    let (rec, input) = read_held(py, &columns, &meta, &source, opts.method)?;
+    let cal = py
+        .detach(|| calibrate::calibrate(&rec, &opts))
+        .map_err(|e| calibration_error(py, &e, true))?;
     let t = Traceability::of_held(
         BUILD,
         &rec,
@@ -324,19 +317,37 @@ fn discrepancy_columns(
     command: Vec<String>,
 ) -> PyResult<String> {
     let opts = discrepancy_options(options)?;
-    let held = hold(&columns)?;
-    let cols = as_columns(&columns, &held)?;
-    let meta_refs: Vec<(&str, &str)> = meta.iter().map(|(k, v)| (k.as_str(), v.as_str())).collect();
-    let rec = recording::read_columns(&cols, &meta_refs, &source, None)
-        .map_err(|e| recording_error(py, &e))?;
+    let (rec, input) = read_held(py, &columns, &meta, &source, None)?;
     let t = Traceability::of_held(
         BUILD,
         &rec,
-        trace::input_of_columns(&source, &cols),
+        input,
         (opts.g_loc, None),
         ("g_loc=", "u_g_loc="),
     );
     discrepancy_of(py, &rec, &opts, t, command)
+}
+
+/// The recording held in `columns` (with `meta`, named `source`, read as `method` if
+/// given), read with the file reader's checks; and the columns as the traceability block's
+/// input.
+fn read_held(
+    py: Python<'_>,
+    columns: &[(String, Bound<'_, PyAny>)],
+    meta: &[(String, String)],
+    source: &str,
+    method: Option<Method>,
+) -> PyResult<(Recording, trace::Input)> {
+    let held = hold(columns)?;
+    let cols = as_columns(columns, &held)?;
+    let meta: Vec<(&str, &str)> = meta.iter().map(|(k, v)| (k.as_str(), v.as_str())).collect();
+    let (rec, input) = py.detach(|| {
+        (
+            recording::read_columns(&cols, &meta, source, method),
+            trace::input_of_columns(source, &cols),
+        )
+    });
+    Ok((rec.map_err(|e| recording_error(py, &e))?, input))
 }
 
 /// Columns handed over, borrowed as the reader takes them.
@@ -402,15 +413,11 @@ fn apply_columns<'py>(
     };
     let loaded = apply::load_text(&calibration, &cal_name, rate_hz, frame)
         .map_err(|e| CalibrationError::new_err(e.to_string()))?;
-    let held = hold(&columns)?;
-    let cols = as_columns(&columns, &held)?;
-    let meta_refs: Vec<(&str, &str)> = meta.iter().map(|(k, v)| (k.as_str(), v.as_str())).collect();
-    let rec = recording::read_columns(&cols, &meta_refs, &source, None)
-        .map_err(|e| recording_error(py, &e))?;
+    let (rec, input) = read_held(py, &columns, &meta, &source, None)?;
     let mut t = Traceability::new(BUILD, &[]).map_err(|e| PyValueError::new_err(e.to_string()))?;
     t.inputs = vec![
         trace::input_of_bytes(&cal_name, calibration.as_bytes()),
-        trace::input_of_columns(&source, &cols),
+        input,
     ];
     t.command_line = command;
     let provenance = t.as_metadata(&["calibration", "recording"]);
@@ -462,6 +469,32 @@ fn simulate<'py>(
         .detach(|| sim.write(Vec::new()))
         .map_err(|e| PyValueError::new_err(format!("{name}: {e}")))?;
     from_text(py, &bytes, name)
+}
+
+/// Write the recording held in `columns` (with `meta`, named `source`) to `path` as a
+/// recording CSV, checked as the reader checks it, whole or not at all.
+#[pyfunction]
+fn write_columns(
+    py: Python<'_>,
+    columns: Vec<(String, Bound<'_, PyAny>)>,
+    meta: Vec<(String, String)>,
+    source: String,
+    path: PathBuf,
+) -> PyResult<()> {
+    let (rec, _) = read_held(py, &columns, &meta, &source, None)?;
+    py.detach(|| {
+        rotacal_engine::atomic::write_with(&path, |w| {
+            recording::write_recording(&rec, w).map(|_| ())
+        })
+    })
+    .map_err(|e: std::io::Error| {
+        let message = format!("{}: {e}", path.display());
+        // What the writer refuses to write is the data's fault, not the disk's.
+        match e.kind() {
+            std::io::ErrorKind::InvalidInput => PyValueError::new_err(message),
+            _ => pyo3::exceptions::PyOSError::new_err(message),
+        }
+    })
 }
 
 /// The recording file at `path`, checked, as columns ((name, values): float64 arrays or
@@ -663,6 +696,7 @@ fn _rotacal(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(read_recording, m)?)?;
     m.add_function(wrap_pyfunction!(apply_columns, m)?)?;
     m.add_function(wrap_pyfunction!(simulate, m)?)?;
+    m.add_function(wrap_pyfunction!(write_columns, m)?)?;
     m.add_function(wrap_pyfunction!(discrepancy_path, m)?)?;
     m.add_function(wrap_pyfunction!(discrepancy_columns, m)?)?;
     Ok(())

@@ -83,3 +83,35 @@ def test_discrepancy_is_the_command_line_s(sessions, cli, tmp_path):
         rotacal.discrepancy(str(puzzle), **{"beta": 1})
     with pytest.raises(ValueError, match="alpha 2"):
         rotacal.discrepancy(str(puzzle), alpha=2)
+
+
+def test_write_recording_writes_what_rotacal_reads_back(sessions, cli, tmp_path):
+    # A file rotacal wrote comes back byte for byte through a DataFrame.
+    for name in ["demo", "imucal"]:
+        df = rotacal.read_recording(sessions[name])
+        rotacal.write_recording(df, tmp_path / f"{name}.csv")
+        assert (tmp_path / f"{name}.csv").read_bytes() == sessions[name].read_bytes(), name
+    # A DataFrame of one's own, with its metadata given: the command line calibrates the
+    # file as the package calibrates the DataFrame.
+    df = rotacal.read_recording(sessions["imutk"])
+    mine = df[["t_s", "u", "v", "w"]].rename(columns={"u": "ax", "v": "ay", "w": "az"})
+    rotacal.write_recording(mine, tmp_path / "mine.csv", columns={"u": "ax", "v": "ay", "w": "az"},
+                            method="free", g_loc=9.81744, units="counts")
+    text = (tmp_path / "mine.csv").read_text()
+    assert text.startswith("# rotacal recording v1\n# method=free\n# g_loc=9.81744\n# units=counts\n")
+    cli("calibrate", tmp_path / "mine.csv", "--json", tmp_path / "mine.json")
+    import json
+    from conftest import same, without
+
+    theirs = json.loads((tmp_path / "mine.json").read_text())
+    ours = rotacal.calibrate(mine, columns={"u": "ax", "v": "ay", "w": "az"},
+                             metadata={"method": "free", "g_loc": 9.81744, "units": "counts"})
+    assert same(without(ours.as_dict(), {"traceability", "first_line"}),
+                without(theirs, {"traceability", "first_line"}))
+    # Bad data: nothing written, the place named.
+    mine.loc[7, "ax"] = float("nan")
+    with pytest.raises(rotacal.RecordingError) as e:
+        rotacal.write_recording(mine, tmp_path / "bad.csv", columns={"u": "ax", "v": "ay", "w": "az"},
+                                method="free", g_loc=9.81744)
+    assert (e.value.row, e.value.column) == (7, "u")
+    assert not (tmp_path / "bad.csv").exists()
