@@ -4,8 +4,8 @@
 use std::fmt::Write as _;
 use std::path::PathBuf;
 
-use anyhow::Context;
-use rotacal::allan::{self, Fit, Point, Scale, TermKind};
+use rotacal::allan::analysis::AllanJson as Out;
+use rotacal::allan::{Fit, TermKind};
 
 /// `rotacal allan` arguments.
 #[derive(clap::Args)]
@@ -27,38 +27,6 @@ pub struct Args {
     pub to: Option<f64>,
 }
 
-/// One channel's results.
-#[derive(serde::Serialize)]
-struct ChannelOut {
-    channel: &'static str,
-    mean: f64,
-    points: Vec<Point>,
-    terms: Option<Fit>,
-    /// √h0: the one-sided noise density (= √2·N), units/√Hz.
-    noise_density_one_sided: Option<f64>,
-    terms_error: Option<String>,
-}
-
-/// One record's results.
-#[derive(serde::Serialize)]
-struct GroupOut {
-    name: String,
-    rate_hz: f64,
-    samples: usize,
-    t_first_s: Option<f64>,
-    t_last_s: Option<f64>,
-    channels: Vec<ChannelOut>,
-}
-
-#[derive(serde::Serialize)]
-struct Out {
-    file: String,
-    method: rotacal::recording::Method,
-    #[serde(flatten)]
-    scale: Scale,
-    groups: Vec<GroupOut>,
-}
-
 /// Run it.
 pub fn run(a: Args) -> anyhow::Result<()> {
     let name = a.file.display().to_string();
@@ -68,53 +36,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         }
     }
     let rec = rotacal::recording::read(&a.file)?;
-    let stills = allan::series_of(&rec, a.from, a.to).with_context(|| name.clone())?;
-    if stills.is_empty() {
-        anyhow::bail!("{name}: no samples (in the --from/--to window)");
-    }
-    let scale = allan::to_micro_g(rec.meta.units.as_deref());
-    let factor = scale.micro_g_per_unit.unwrap_or(1.0);
-    let mut groups = Vec::with_capacity(stills.len());
-    for s in &stills {
-        let mut channels = Vec::with_capacity(3);
-        for ch in &s.channels {
-            let y: Vec<f64> = ch.y.iter().map(|v| v * factor).collect();
-            let points = allan::oadev(&y, s.rate_hz, None, true)
-                .with_context(|| format!("{name}: {}, channel {}", s.name, ch.name))?;
-            let (terms, terms_error) = match allan::fit_terms(&points, y.len(), s.rate_hz) {
-                Ok(f) => (Some(f), None),
-                Err(e) => (None, Some(e.to_string())),
-            };
-            let noise_density_one_sided = terms.as_ref().and_then(|f| {
-                f.terms
-                    .iter()
-                    .find(|t| t.kind == TermKind::White)
-                    .map(|t| t.h.sqrt())
-            });
-            channels.push(ChannelOut {
-                channel: ch.name,
-                mean: y.iter().sum::<f64>() / y.len() as f64,
-                points,
-                terms,
-                noise_density_one_sided,
-                terms_error,
-            });
-        }
-        groups.push(GroupOut {
-            name: s.name.clone(),
-            rate_hz: s.rate_hz,
-            samples: s.t_s.len(),
-            t_first_s: s.t_s.first().copied(),
-            t_last_s: s.t_s.last().copied(),
-            channels,
-        });
-    }
-    let out = Out {
-        file: name.clone(),
-        method: rec.method,
-        scale,
-        groups,
-    };
+    let out = rotacal::allan::analysis::analyse(&rec, &name, a.from, a.to)?;
     rotacal::output::emit(&render(&out))?;
     if let Some(path) = &a.json {
         let trace =

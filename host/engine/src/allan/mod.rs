@@ -11,6 +11,7 @@
 //! - [`powerlaw`]: the terms' structure functions, the exact expected Allan variance from
 //!   them, and an exact flicker generator (the simulator's too).
 
+pub mod analysis;
 mod ci;
 pub mod powerlaw;
 mod series;
