@@ -12,7 +12,9 @@ command line's: the same engine, in Rust (docs/python.md).
 
 from ._calibration import Calibration, Quantity
 from ._data import (
+    Allan,
     Discrepancy,
+    allan,
     calibrate,
     discrepancy,
     read_recording,
@@ -29,6 +31,7 @@ from ._rotacal import (
 )
 
 __all__ = [
+    "Allan",
     "Calibration",
     "CalibrationError",
     "Discrepancy",
@@ -38,6 +41,7 @@ __all__ = [
     "RecordingError",
     "__commit__",
     "__version__",
+    "allan",
     "calibrate",
     "discrepancy",
     "read_imucal",

@@ -273,6 +273,15 @@ class Calibration:
 
         return apply(self, data, frame, rate_hz, columns, metadata)
 
+    def noise(self, rate_hz: Optional[float] = None):
+        """The noise model of each record (condition and channel) the calibration fitted,
+        as a pandas DataFrame: its model, sd, the AR coefficients, lag-1 autocorrelation,
+        variance factor, n, effective n and degrees of freedom (docs/uncertainty.md,
+        "The noise model"; the JSON's ``noise``)."""
+        import pandas as pd
+
+        return pd.DataFrame(self._entry(rate_hz).get("noise") or [])
+
     def as_dict(self) -> dict:
         """The whole calibration JSON as Python objects."""
         return json.loads(self._text)

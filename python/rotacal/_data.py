@@ -359,3 +359,79 @@ def write_recording(data: Any, path: Union[str, "os.PathLike[str]"],
     except _rotacal.RecordingError as e:
         _label_row(e, data)
         raise
+
+
+class Allan:
+    """The overlapping Allan deviation of each still record and channel of a recording,
+    with 1σ intervals and the fitted IEEE noise terms N, B, K: what ``rotacal allan
+    --json`` writes (docs/allan.md, docs/formats.md "Allan JSON")."""
+
+    def __init__(self, text: str):
+        import json
+
+        self._text = text
+        self._data = json.loads(text)
+        self.units: str = self._data.get("units", "")
+        self.traceability: dict = self._data.get("traceability", {})
+
+    def to_json(self) -> str:
+        """The Allan JSON, as the command line writes it."""
+        return self._text
+
+    def as_dict(self) -> dict:
+        """The analysis as Python objects."""
+        import json
+
+        return json.loads(self._text)
+
+    def points(self):
+        """Every point as a pandas DataFrame: record, channel, tau_s, m, n, adev and the 1σ
+        interval's bounds (``lo``, ``hi``; NaN where there is none), in ``units``."""
+        import pandas as pd
+
+        rows = []
+        for g in self._data["groups"]:
+            for c in g["channels"]:
+                for p in c["points"]:
+                    iv = p.get("interval") or {}
+                    rows.append({
+                        "record": g["name"], "channel": c["channel"], "tau_s": p["tau_s"],
+                        "m": p["m"], "n": p["n"], "adev": p["adev"],
+                        "lo": iv.get("lo", np.nan), "hi": iv.get("hi", np.nan),
+                    })
+        return pd.DataFrame(rows)
+
+    def __repr__(self) -> str:
+        return f"<rotacal.Allan {len(self._data['groups'])} records, units {self.units}>"
+
+
+def allan(data: Data, from_s: Optional[float] = None, to_s: Optional[float] = None,
+          columns: Optional[Mapping[str, str]] = None,
+          metadata: Optional[Mapping[str, Any]] = None) -> Allan:
+    """The Allan deviation of each still record of a recording (``rotacal allan``;
+    docs/allan.md): a path, a DataFrame or arrays, as for :func:`calibrate`.
+
+    Parameters
+    ----------
+    from_s, to_s
+        Use only samples at ``from_s ≤ t_s ≤ to_s`` (device time).
+
+    Raises
+    ------
+    RecordingError
+        The data cannot be read.
+    ValueError
+        A record cannot be analysed (a gap, too few samples): the message says which.
+    """
+    command = _command("allan", data, {"from_s": from_s, "to_s": to_s})
+    if isinstance(data, (str, os.PathLike)):
+        if columns is not None or metadata is not None:
+            raise TypeError("columns= and metadata= are for DataFrames and arrays, not files")
+        return Allan(_rotacal.allan(os.fspath(data), [], [], "", from_s, to_s, command))
+    pairs, meta, source = _table(data, columns, metadata)
+    try:
+        text = _rotacal.allan(None, pairs, list(meta.items()), source, from_s, to_s, command)
+    except _rotacal.RecordingError as e:
+        _label_row(e, data)
+        raise
+    return Allan(text)

@@ -328,6 +328,49 @@ fn discrepancy_columns(
     discrepancy_of(py, &rec, &opts, t, command)
 }
 
+/// `rotacal allan FILE --json` of a recording: from a file at `path`, or held in
+/// `columns` (with `meta`, named `source`); samples at `from_s ≤ t_s ≤ to_s`.
+#[pyfunction]
+#[pyo3(signature = (path, columns, meta, source, from_s, to_s, command))]
+#[allow(clippy::too_many_arguments)]
+fn allan(
+    py: Python<'_>,
+    path: Option<PathBuf>,
+    columns: Vec<(String, Bound<'_, PyAny>)>,
+    meta: Vec<(String, String)>,
+    source: String,
+    from_s: Option<f64>,
+    to_s: Option<f64>,
+    command: Vec<String>,
+) -> PyResult<String> {
+    if let (Some(f), Some(t)) = (from_s, to_s) {
+        if f > t {
+            return Err(PyValueError::new_err(format!(
+                "from_s {f} is after to_s {t}"
+            )));
+        }
+    }
+    let (rec, t, name) = match path {
+        Some(p) => {
+            let rec = py
+                .detach(|| recording::read(&p))
+                .map_err(|e| recording_error(py, &e))?;
+            let t = Traceability::of_recording(BUILD, &p, None, None, None)
+                .map_err(|e| PyValueError::new_err(e.to_string()))?;
+            (rec, t, p.display().to_string())
+        }
+        None => {
+            let (rec, input) = read_held(py, &columns, &meta, &source, None)?;
+            let t = Traceability::of_held(BUILD, &rec, input, (None, None), ("g_loc=", "u_g_loc="));
+            (rec, t, source)
+        }
+    };
+    let out = py
+        .detach(|| rotacal_engine::allan::analysis::analyse(&rec, &name, from_s, to_s))
+        .map_err(|e| PyValueError::new_err(e.to_string()))?;
+    with_trace(&out, t, command)
+}
+
 /// The recording held in `columns` (with `meta`, named `source`, read as `method` if
 /// given), read with the file reader's checks; and the columns as the traceability block's
 /// input.
@@ -697,6 +740,7 @@ fn _rotacal(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(apply_columns, m)?)?;
     m.add_function(wrap_pyfunction!(simulate, m)?)?;
     m.add_function(wrap_pyfunction!(write_columns, m)?)?;
+    m.add_function(wrap_pyfunction!(allan, m)?)?;
     m.add_function(wrap_pyfunction!(discrepancy_path, m)?)?;
     m.add_function(wrap_pyfunction!(discrepancy_columns, m)?)?;
     Ok(())

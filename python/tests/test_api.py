@@ -115,3 +115,30 @@ def test_write_recording_writes_what_rotacal_reads_back(sessions, cli, tmp_path)
                                 method="free", g_loc=9.81744)
     assert (e.value.row, e.value.column) == (7, "u")
     assert not (tmp_path / "bad.csv").exists()
+
+
+def test_allan_is_the_command_line_s(sessions, cli, tmp_path):
+    import json
+    from conftest import same, without
+
+    path = sessions["imutk"]
+    cli("allan", path, "--from", "0", "--to", "60", "--json", tmp_path / "a.json")
+    theirs = json.loads((tmp_path / "a.json").read_text())
+    ours = rotacal.allan(str(path), from_s=0, to_s=60)
+    assert same(without(ours.as_dict(), {"traceability"}), without(theirs, {"traceability"}))
+    held = rotacal.allan(rotacal.read_recording(path), from_s=0, to_s=60).as_dict()
+    assert held["file"] == "the DataFrame"
+    assert same(without(held, {"traceability", "file"}), without(theirs, {"traceability", "file"}))
+    pts = ours.points()
+    assert set(pts["channel"]) == {"u", "v", "w"} and (pts["adev"] > 0).all()
+    assert ((pts["lo"] <= pts["adev"]) | pts["lo"].isna()).all()
+    with pytest.raises(ValueError, match="from_s 9 is after to_s 3"):
+        rotacal.allan(str(path), from_s=9, to_s=3)
+
+
+def test_the_noise_model_of_each_record(sessions):
+    cal = rotacal.calibrate(str(sessions["demo"]))
+    noise = cal.noise()
+    assert len(noise) == 9 and set(noise["condition"]) == {"x", "y", "z"}
+    row = cal.as_dict()["by_rate"][0]["noise"][4]
+    assert noise.iloc[4]["sd"] == row["sd"] and noise.iloc[4]["dof"] == row["dof"]
