@@ -47,8 +47,32 @@ def read_recording(path: Union[str, "os.PathLike[str]"]):
     return df
 
 
+def _letters(values: Any) -> Optional[np.ndarray]:
+    """A column of one-letter texts (a condition) as their ASCII bytes (uint8), without
+    a Python object per row; ``None`` when it holds anything else (which is then handed
+    over as text, for the engine to name the row)."""
+    try:
+        import pandas as pd
+    except ImportError:
+        return None
+    try:
+        codes, uniques = pd.factorize(np.asarray(values, dtype=object))
+    except TypeError:
+        return None
+    if (codes < 0).any() or not all(isinstance(u, str) and len(u) == 1 and u.isascii()
+                                     for u in uniques):
+        return None
+    table = np.frombuffer("".join(uniques).encode("ascii"), dtype=np.uint8)
+    return np.ascontiguousarray(table[codes])
+
+
 def _column_values(name: str, values: Any) -> Any:
-    """A column as the extension takes it: float64 contiguous, or a list of str."""
+    """A column as the extension takes it: float64 or (a condition's letters) uint8,
+    contiguous, or a list of str."""
+    if name == "condition":
+        letters = _letters(values)
+        if letters is not None:
+            return letters
     if name in _TEXT:
         return ["" if v is None else str(v) for v in np.asarray(values, dtype=object).tolist()]
     arr = np.asarray(values)

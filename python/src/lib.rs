@@ -72,9 +72,11 @@ fn calibration_error(py: Python<'_>, e: &calibrate::CalibrateError, held: bool) 
     }
 }
 
-/// A column handed over: a contiguous float64 array, borrowed, or texts.
+/// A column handed over: a contiguous float64 array or one of single bytes (a condition's
+/// letters), borrowed, or texts.
 enum Held<'py> {
     Numbers(PyReadonlyArray1<'py, f64>),
+    Letters(PyReadonlyArray1<'py, u8>),
     Texts(Vec<String>),
 }
 
@@ -88,12 +90,20 @@ impl<'py> Held<'py> {
             }
             return Ok(Held::Numbers(a));
         }
+        if let Ok(a) = values.extract::<PyReadonlyArray1<'py, u8>>() {
+            if !a.is_c_contiguous() {
+                return Err(PyValueError::new_err(format!(
+                    "column {name}: the array is not contiguous (numpy.ascontiguousarray)"
+                )));
+            }
+            return Ok(Held::Letters(a));
+        }
         values
             .extract::<Vec<String>>()
             .map(Held::Texts)
             .map_err(|_| {
                 PyTypeError::new_err(format!(
-                    "column {name}: a 1-D float64 numpy array or a list of str is needed"
+                    "column {name}: a 1-D float64 or uint8 numpy array or a list of str is needed"
                 ))
             })
     }
@@ -101,6 +111,7 @@ impl<'py> Held<'py> {
     fn values(&self) -> PyResult<Values<'_>> {
         Ok(match self {
             Held::Numbers(a) => Values::Numbers(a.as_slice()?),
+            Held::Letters(a) => Values::Letters(a.as_slice()?),
             Held::Texts(t) => Values::Texts(t),
         })
     }
@@ -228,17 +239,35 @@ fn calibrate_columns(
     command: Vec<String>,
 ) -> PyResult<String> {
     let opts = self::options(py, options)?;
-    let (rec, input) = read_held(py, &columns, &meta, &source, opts.method)?;
-    let cal = py
-        .detach(|| calibrate::calibrate(&rec, &opts))
-        .map_err(|e| calibration_error(py, &e, true))?;
-    let t = Traceability::of_held(
+    let held = hold(&columns)?;
+    let cols = as_columns(&columns, &held)?;
+    let meta: Vec<(&str, &str)> = meta.iter().map(|(k, v)| (k.as_str(), v.as_str())).collect();
+    // The command line's engine for a file, on the columns where they are.
+    // The columns' digest on a thread of its own, beside the calibration's.
+    let (cal, input) = py.detach(|| {
+        std::thread::scope(|scope| {
+            let digest = scope.spawn(|| trace::input_of_columns(&source, &cols));
+            let cal = calibrate::stream::calibrate_columns(&cols, &meta, &source, &opts);
+            let input = digest
+                .join()
+                .map_err(|_| PyValueError::new_err("the columns' digest failed"));
+            (cal, input)
+        })
+    });
+    let input = input?;
+    let cal = cal.map_err(|e| match e {
+        calibrate::stream::FileError::Read(e) => recording_error(py, &e),
+        calibrate::stream::FileError::Calibrate(e) => calibration_error(py, &e, true),
+    })?;
+    let t = Traceability::of_columns(
         BUILD,
-        &rec,
+        &cols,
+        &meta,
         input,
         (opts.g_loc, opts.inputs.u_g_loc),
         ("g_loc=", "u_g_loc="),
-    );
+    )
+    .map_err(|e| PyValueError::new_err(e.to_string()))?;
     with_trace(&cal, t, command)
 }
 

@@ -133,6 +133,9 @@ pub fn input_of_columns(path: &str, columns: &[recording::Column<'_>]) -> Input 
                 take(v.as_bytes());
                 take(&[0]);
             }),
+            // As texts of one letter each, so that the digest does not depend on how the
+            // column was handed over.
+            recording::Values::Letters(x) => x.iter().for_each(|v| take(&[*v, 0])),
         }
     }
     let sha256 = hash.finalize().iter().map(|b| format!("{b:02x}")).collect();
@@ -261,6 +264,44 @@ impl Traceability {
             names,
         );
         t
+    }
+
+    /// For outputs made from columns held in memory and not kept as a recording (the
+    /// Python package's DataFrames, calibrated in parts): the facts from their metadata
+    /// `meta` (`# key=value` pairs) and their `temp_c` column, `input` their digest.
+    pub fn of_columns(
+        build: Build,
+        columns: &[recording::Column<'_>],
+        meta: &[(&str, &str)],
+        input: Input,
+        given: (Option<f64>, Option<f64>),
+        names: (&str, &str),
+    ) -> Result<Self, TraceError> {
+        let text: String = meta.iter().map(|(k, v)| format!("# {k}={v}\n")).collect();
+        let meta = recording::read_preamble(&text, &input.path, 0)?;
+        let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+        for c in columns.iter().filter(|c| c.name == "temp_c") {
+            let mut take = |x: f64| (lo, hi) = (lo.min(x), hi.max(x));
+            match c.values {
+                recording::Values::Numbers(x) => x.iter().for_each(|x| take(*x)),
+                recording::Values::Texts(t) => t
+                    .iter()
+                    .filter_map(|x| x.trim().parse::<f64>().ok())
+                    .for_each(take),
+                recording::Values::Letters(_) => {}
+            }
+        }
+        let mut t = Traceability {
+            inputs: vec![input],
+            ..Traceability::empty(build)
+        };
+        t.facts(
+            &meta,
+            (lo <= hi).then_some(Range { min: lo, max: hi }),
+            given,
+            names,
+        );
+        Ok(t)
     }
 
     /// The block without inputs or facts.

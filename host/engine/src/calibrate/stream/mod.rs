@@ -72,6 +72,57 @@ pub fn calibrate_file(path: &Path, opts: &Options) -> Result<CalibrationJson, Fi
     calibrate_file_as(path, opts, Mode::default())
 }
 
+/// Calibrate a recording held as columns in memory (the Python package's DataFrames) as
+/// [`calibrate_file`] calibrates a file: a rotation recording read in two parts of rows,
+/// on two threads, where the columns are (no copy), groups of at most [`HOLD_ROWS`] rows
+/// from their rows and longer ones from sums; anything else, and columns with a problem
+/// (which their reader then names), whole, as [`super::calibrate`] does. `meta` is the `# key=value` metadata; `source` names the columns in messages.
+pub fn calibrate_columns(
+    columns: &[recording::Column<'_>],
+    meta: &[(&str, &str)],
+    source: &str,
+    opts: &Options,
+) -> Result<CalibrationJson, FileError> {
+    let whole = || -> Result<CalibrationJson, FileError> {
+        let rec = recording::read_columns(columns, meta, source, opts.method)?;
+        Ok(super::calibrate(&rec, opts)?)
+    };
+    if matches!(opts.method, Some(Method::Static | Method::Free)) {
+        return whole();
+    }
+    let Some(parts) = Parts::of_columns(columns, meta, source, opts.method)? else {
+        return whole();
+    };
+    if parts.method() != Method::Rotation || parts.segmented() {
+        return whole();
+    }
+    let rec = Recording {
+        source: source.to_string(),
+        meta: parts.meta().clone(),
+        method: parts.method(),
+        groups: Vec::new(),
+        oriented: None,
+        series: None,
+    };
+    let ranges = parts.split(2)?;
+    // A row with a problem: the columns read whole, whose reader names it.
+    let Some(groups) = first_pass_parts(&parts, &ranges, opts, HOLD_ROWS)? else {
+        return whole();
+    };
+    if groups.is_empty() {
+        return whole();
+    }
+    Engine {
+        path: Path::new(source),
+        rec: &rec,
+        opts,
+        groups,
+        parts: Some((parts, ranges)),
+        one_pass: true,
+    }
+    .run()
+}
+
 /// How the streaming engine treats a file's groups: what [`calibrate_file`] does, and
 /// what the tests compare it with.
 #[derive(Clone, Copy, Debug)]
@@ -177,7 +228,7 @@ struct Engine<'a> {
     opts: &'a Options,
     groups: Vec<GroupState>,
     /// The file in parts, when pass 1 read it so.
-    parts: Option<(Parts, Vec<(u64, u64)>)>,
+    parts: Option<(Parts<'a>, Vec<(u64, u64)>)>,
     /// Whether the pilots' sums may stand in for the residual pass.
     one_pass: bool,
 }

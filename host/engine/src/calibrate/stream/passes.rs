@@ -81,6 +81,15 @@ impl Engine<'_> {
                 check(&total)?;
                 return Ok(joined.unwrap_or_else(fresh));
             }
+            if parts.in_memory() {
+                // Columns were checked whole when opened: there is no file to read again.
+                return Err(err(
+                    self.rec,
+                    None,
+                    CalibrateErrorKind::Internal("a row of the columns failed in a later pass"),
+                )
+                .into());
+            }
         }
         let mut rows: Vec<usize> = vec![0; n];
         let mut state = fresh();

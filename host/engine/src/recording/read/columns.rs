@@ -3,10 +3,10 @@
 //! (no text between), and each problem named by its column and row.
 
 use super::csv::Collected;
-use super::head::Parser;
+use super::head::{ColumnIndex, Parser};
 use super::row::{parse_row, Fields};
 use super::{shrink, GroupSink, Parse, Router};
-use crate::recording::{Group, Method, Recording, RecordingError, RecordingErrorKind};
+use crate::recording::{Group, Metadata, Method, Recording, RecordingError, RecordingErrorKind};
 
 /// One column's values, a value per row.
 #[derive(Clone, Copy, Debug)]
@@ -16,6 +16,8 @@ pub enum Values<'a> {
     /// Text (a condition, a pose name, `conv_gaps`; numbers written as text are read as a
     /// file's are).
     Texts(&'a [String]),
+    /// One byte of text per row (a condition's letter, as numpy's `S1` holds it).
+    Letters(&'a [u8]),
 }
 
 impl Values<'_> {
@@ -23,6 +25,7 @@ impl Values<'_> {
         match self {
             Values::Numbers(x) => x.len(),
             Values::Texts(x) => x.len(),
+            Values::Letters(x) => x.len(),
         }
     }
 }
@@ -37,15 +40,16 @@ pub struct Column<'a> {
 }
 
 /// Row `row` of `columns`, as the row reader takes a record's fields.
-struct RowOf<'a> {
-    columns: &'a [Column<'a>],
-    row: usize,
+pub(super) struct RowOf<'a> {
+    pub(super) columns: &'a [Column<'a>],
+    pub(super) row: usize,
 }
 
 impl Fields for RowOf<'_> {
     fn raw(&self, i: usize) -> Option<&[u8]> {
         match self.columns.get(i)?.values {
             Values::Texts(t) => t.get(self.row).map(String::as_bytes),
+            Values::Letters(x) => x.get(self.row).map(std::slice::from_ref),
             Values::Numbers(_) => None,
         }
     }
@@ -53,9 +57,79 @@ impl Fields for RowOf<'_> {
     fn number(&self, i: usize) -> Option<f64> {
         match self.columns.get(i)?.values {
             Values::Numbers(x) => x.get(self.row).copied(),
-            Values::Texts(_) => None,
+            Values::Texts(_) | Values::Letters(_) => None,
         }
     }
+}
+
+/// The columns' metadata, method and header, each checked as a file's, and their length.
+fn head(
+    columns: &[Column<'_>],
+    meta: &[(&str, &str)],
+    parser: &mut Parser<'_>,
+) -> Result<(Metadata, Method, ColumnIndex, usize), RecordingError> {
+    let err = |kind| RecordingError {
+        source_name: parser.source.to_string(),
+        line: None,
+        row: None,
+        kind,
+    };
+    // A file's place is its line; here there are only rows.
+    let no_line = |mut e: RecordingError| {
+        e.line = None;
+        e
+    };
+    let n = columns.first().map_or(0, |c| c.values.len());
+    for c in columns {
+        if c.values.len() != n {
+            return Err(err(RecordingErrorKind::ColumnLength {
+                column: c.name.to_string(),
+                expected: n,
+                got: c.values.len(),
+            }));
+        }
+    }
+    // The metadata through the preamble's reader, as `# key=value` lines.
+    let mut preamble = String::new();
+    for (key, value) in meta {
+        if [key, value].iter().any(|s| s.contains(['\n', '\r'])) {
+            return Err(err(RecordingErrorKind::MetadataLineBreak {
+                key: key.to_string(),
+            }));
+        }
+        preamble.push_str(&format!("# {key}={value}\n"));
+    }
+    let meta = parser.preamble(&mut preamble.as_bytes()).map_err(no_line)?;
+    let header = ::csv::ByteRecord::from(columns.iter().map(|c| c.name).collect::<Vec<_>>());
+    let (cols, method) = parser.header(&header, 0, &meta).map_err(no_line)?;
+    Ok((meta, method, cols, n))
+}
+
+/// Every row of `columns` through the reader's checks, into `sink` (a file with
+/// conditions) or `rows` (poses, a series); the error at the row that fails.
+fn each_row<S: GroupSink>(
+    columns: &[Column<'_>],
+    cols: &ColumnIndex,
+    n: usize,
+    router: &mut Router,
+    rows: &mut Collected,
+    sink: &mut S,
+    source: &str,
+) -> Result<(), RecordingError> {
+    for row in 0..n {
+        let at = |kind| RecordingError {
+            source_name: source.to_string(),
+            line: None,
+            row: Some(row as u64),
+            kind,
+        };
+        let fields = RowOf { columns, row };
+        let parsed = parse_row(&fields, cols, Parse::All).map_err(at)?;
+        if !rows.take(&parsed, row as u64).map_err(at)? {
+            router.route(&parsed, row as u64, cols, sink).map_err(at)?;
+        }
+    }
+    Ok(())
 }
 
 /// The recording held in `columns` with the metadata `meta` (`key`, `value`: a file's
@@ -67,71 +141,57 @@ pub fn read_columns(
     source: &str,
     method: Option<Method>,
 ) -> Result<Recording, RecordingError> {
-    let err = |row: Option<u64>, kind| RecordingError {
-        source_name: source.to_string(),
-        line: None,
-        row,
-        kind,
-    };
-    // A file's place is its line; here there are only rows.
-    let no_line = |mut e: RecordingError| {
-        e.line = None;
-        e
-    };
-    let n = columns.first().map_or(0, |c| c.values.len());
-    for c in columns {
-        if c.values.len() != n {
-            return Err(err(
-                None,
-                RecordingErrorKind::ColumnLength {
-                    column: c.name.to_string(),
-                    expected: n,
-                    got: c.values.len(),
-                },
-            ));
-        }
-    }
-    // The metadata through the preamble's reader, as `# key=value` lines.
-    let mut preamble = String::new();
-    for (key, value) in meta {
-        if [key, value].iter().any(|s| s.contains(['\n', '\r'])) {
-            return Err(err(
-                None,
-                RecordingErrorKind::MetadataLineBreak {
-                    key: key.to_string(),
-                },
-            ));
-        }
-        preamble.push_str(&format!("# {key}={value}\n"));
-    }
     let mut parser = Parser {
         source,
         complete: true,
         line_offset: 0,
         method,
     };
-    let meta = parser.preamble(&mut preamble.as_bytes()).map_err(no_line)?;
-    let header = ::csv::ByteRecord::from(columns.iter().map(|c| c.name).collect::<Vec<_>>());
-    let (cols, method) = parser.header(&header, 0, &meta).map_err(no_line)?;
+    let (meta, method, cols, n) = head(columns, meta, &mut parser)?;
     let free = cols.condition.is_none() && cols.gravity.is_none();
     let mut groups: Vec<Group> = Vec::new();
     groups.start(&meta, method, &cols);
     let mut router = Router::new(method);
     let mut rows = Collected::new(&cols, free);
-    for row in 0..n {
-        let at = |kind| err(Some(row as u64), kind);
-        let fields = RowOf { columns, row };
-        let parsed = parse_row(&fields, &cols, Parse::All).map_err(at)?;
-        if !rows.take(&parsed, row as u64).map_err(at)? {
-            router
-                .route(&parsed, row as u64, &cols, &mut groups)
-                .map_err(at)?;
-        }
-    }
+    each_row(
+        columns,
+        &cols,
+        n,
+        &mut router,
+        &mut rows,
+        &mut groups,
+        source,
+    )?;
     let mut rec = parser
         .finish(meta, method, rows, &router)
-        .map_err(no_line)?;
+        .map_err(|mut e| {
+            e.line = None;
+            e
+        })?;
     shrink(&mut groups);
     rec.groups = groups;
     Ok(rec)
+}
+
+/// The metadata, method, header and length of columns with conditions, checked as a
+/// file's head is, for reading in parts (whose rows the reader checks as it goes); `None`
+/// for poses or a series (read them with [`read_columns`]).
+#[allow(clippy::type_complexity)]
+pub(super) fn columns_head(
+    columns: &[Column<'_>],
+    meta: &[(&str, &str)],
+    source: &str,
+    method: Option<Method>,
+) -> Result<Option<(Metadata, Method, ColumnIndex, usize)>, RecordingError> {
+    let mut parser = Parser {
+        source,
+        complete: true,
+        line_offset: 0,
+        method,
+    };
+    let (meta, method, cols, n) = head(columns, meta, &mut parser)?;
+    if cols.condition.is_none() || cols.gravity.is_some() {
+        return Ok(None);
+    }
+    Ok(Some((meta, method, cols, n)))
 }

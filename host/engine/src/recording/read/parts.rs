@@ -5,25 +5,38 @@ use std::path::Path;
 
 use rotacal_shared::{Aperture, Condition};
 
+use super::columns::Column;
 use super::fast::fast_rows;
 use super::head::{ColumnIndex, Parser};
 use super::{open, Parse};
 use crate::recording::{Metadata, Method, RecordingError, RecordingErrorKind};
 
-/// A file with conditions read in parts, each a range of whole lines that a thread of
-/// its own can read (the streaming calibration, on every core). Only files the fast
-/// reader takes (no quotes) are read this way; the rows of a part come without the
-/// checks that span rows (the caller makes them across parts, or reads the file with
-/// [`scan`] to have the reader name a problem).
-pub struct Parts {
-    path: std::path::PathBuf,
+/// A recording with conditions read in parts, each on a thread of its own (the streaming
+/// calibration, on every core): a file in ranges of whole lines, or columns held in memory
+/// (the Python package's DataFrames) in ranges of rows. Only files the fast reader takes
+/// (no quotes) are read this way; the rows of a part come without the checks that span
+/// rows (the caller makes them across parts, or reads the file with [`scan`] to have the
+/// reader name a problem). Columns are checked whole when they are opened.
+pub struct Parts<'a> {
     meta: Metadata,
     method: Method,
     cols: ColumnIndex,
-    /// Byte offset and line number of the line after the header; the file's length.
-    offset: u64,
-    line: u64,
-    len: u64,
+    src: Source<'a>,
+}
+
+/// Where a [`Parts`]' rows are.
+enum Source<'a> {
+    File {
+        path: std::path::PathBuf,
+        /// Byte offset and line number of the line after the header; the file's length.
+        offset: u64,
+        line: u64,
+        len: u64,
+    },
+    Columns {
+        columns: &'a [Column<'a>],
+        rows: usize,
+    },
 }
 
 /// A row of a part.
@@ -41,11 +54,11 @@ pub struct PartRow {
     pub conv_gaps: Option<Aperture>,
 }
 
-impl Parts {
+impl Parts<'static> {
     /// The file at `path` for reading in parts: its preamble and header read and checked
     /// (an error as [`read_as`] gives it), or `None` when it is not a file with
     /// conditions or its header needs the csv reader.
-    pub fn open(path: &Path, method: Option<Method>) -> Result<Option<Parts>, RecordingError> {
+    pub fn open(path: &Path, method: Option<Method>) -> Result<Option<Self>, RecordingError> {
         let source = path.display().to_string();
         let mut parser = Parser {
             source: &source,
@@ -65,13 +78,41 @@ impl Parts {
             return Ok(None);
         }
         Ok(Some(Parts {
-            path: path.to_path_buf(),
             meta: head.meta,
             method: head.method,
             cols: head.cols,
-            offset: head.offset,
-            line: head.line,
-            len,
+            src: Source::File {
+                path: path.to_path_buf(),
+                offset: head.offset,
+                line: head.line,
+                len,
+            },
+        }))
+    }
+}
+
+impl<'a> Parts<'a> {
+    /// Columns held in memory for reading in parts, their metadata and header checked as
+    /// [`super::read_columns`] checks them (an error as it gives it), or `None` when they
+    /// are not a recording with conditions (poses, a free series). Their rows are checked
+    /// as the parts are read, as a file's are (a part that meets a problem stops, and
+    /// [`super::read_columns`] names it). A part's lines are its rows, counted from 0.
+    pub fn of_columns(
+        columns: &'a [Column<'a>],
+        meta: &[(&str, &str)],
+        source: &str,
+        method: Option<Method>,
+    ) -> Result<Option<Self>, RecordingError> {
+        let Some((meta, method, cols, rows)) =
+            super::columns::columns_head(columns, meta, source, method)?
+        else {
+            return Ok(None);
+        };
+        Ok(Some(Parts {
+            meta,
+            method,
+            cols,
+            src: Source::Columns { columns, rows },
         }))
     }
 
@@ -91,27 +132,46 @@ impl Parts {
         self.cols.boot.is_some()
     }
 
-    /// The header's line number: the first part's lines follow it.
+    /// The header's line number: the first part's lines follow it (0 for columns, whose
+    /// parts count rows from 0).
     pub fn header_line(&self) -> u64 {
-        self.line
+        match &self.src {
+            Source::File { line, .. } => *line,
+            Source::Columns { .. } => 0,
+        }
     }
 
-    /// The data cut into `n` byte ranges of about equal size, each from a line's start.
+    /// Whether the rows are columns held in memory (no file to read again).
+    pub fn in_memory(&self) -> bool {
+        matches!(self.src, Source::Columns { .. })
+    }
+
+    /// The data cut into `n` ranges of about equal size: of bytes, each from a line's
+    /// start, for a file; of rows for columns.
     pub fn split(&self, n: usize) -> Result<Vec<(u64, u64)>, RecordingError> {
+        let (path, offset, len) = match &self.src {
+            Source::File {
+                path, offset, len, ..
+            } => (path, *offset, *len),
+            Source::Columns { rows, .. } => {
+                let (rows, n) = (*rows as u64, n.max(1) as u64);
+                return Ok((0..n).map(|i| (rows * i / n, rows * (i + 1) / n)).collect());
+            }
+        };
         let io = |e: io::Error| RecordingError {
-            source_name: self.path.display().to_string(),
+            source_name: path.display().to_string(),
             line: None,
             row: None,
             kind: RecordingErrorKind::Io(e),
         };
-        let mut cuts = vec![self.offset];
-        let mut f = open(&self.path)?;
-        let span = self.len.saturating_sub(self.offset);
+        let mut cuts = vec![offset];
+        let mut f = open(path)?;
+        let span = len.saturating_sub(offset);
         for i in 1..n.max(1) {
-            let at = self.offset + span * i as u64 / n as u64;
+            let at = offset + span * i as u64 / n as u64;
             std::io::Seek::seek(&mut f, io::SeekFrom::Start(at)).map_err(io)?;
             let mut buf = vec![0u8; 1 << 16];
-            let mut cut = self.len;
+            let mut cut = len;
             let mut read = 0u64;
             loop {
                 let k = f.read(&mut buf).map_err(io)?;
@@ -124,10 +184,10 @@ impl Parts {
                 }
                 read += k as u64;
             }
-            let last = cuts.last().copied().unwrap_or(self.offset);
+            let last = cuts.last().copied().unwrap_or(offset);
             cuts.push(cut.max(last));
         }
-        cuts.push(self.len);
+        cuts.push(len);
         Ok(cuts
             .windows(2)
             .filter_map(|w| Some((*w.first()?, *w.get(1)?)))
@@ -144,13 +204,40 @@ impl Parts {
         parse: Parse,
         mut each: impl FnMut(u64, PartRow) -> bool,
     ) -> Result<Option<u64>, RecordingError> {
+        let path = match &self.src {
+            Source::File { path, .. } => path,
+            Source::Columns { columns, .. } => {
+                // A row that fails stops the part (`None`): the caller reads the columns
+                // whole, and that reader names the problem.
+                for row in range.0..range.1 {
+                    let fields = super::columns::RowOf {
+                        columns,
+                        row: row as usize,
+                    };
+                    let Ok(r) = super::row::parse_row(&fields, &self.cols, parse) else {
+                        return Ok(None);
+                    };
+                    let part = PartRow {
+                        condition: r.condition,
+                        rate_hz: r.rate_hz,
+                        t_s: r.t_s,
+                        y: [r.u, r.v, r.w],
+                        conv_gaps: r.conv_gaps,
+                    };
+                    if !each(row - range.0, part) {
+                        return Ok(None);
+                    }
+                }
+                return Ok(Some(range.1 - range.0));
+            }
+        };
         let io = |e: io::Error| RecordingError {
-            source_name: self.path.display().to_string(),
+            source_name: path.display().to_string(),
             line: None,
             row: None,
             kind: RecordingErrorKind::Io(e),
         };
-        let mut f = open(&self.path)?;
+        let mut f = open(path)?;
         std::io::Seek::seek(&mut f, io::SeekFrom::Start(range.0)).map_err(io)?;
         let mut part = f.take(range.1.saturating_sub(range.0));
         fast_rows(&mut part, &self.cols, parse, 0, |line, row| {
