@@ -48,22 +48,34 @@ def read_recording(path: Union[str, "os.PathLike[str]"]):
 
 
 def _letters(values: Any) -> Optional[np.ndarray]:
-    """A column of one-letter texts (a condition) as their ASCII bytes (uint8), without
-    a Python object per row; ``None`` when it holds anything else (which is then handed
-    over as text, for the engine to name the row)."""
+    """A column of one-letter texts (a condition) as their ASCII bytes (uint8), read in
+    chunks so that no Python object per row and no copy of the whole column is made;
+    ``None`` when it holds anything else (which is then handed over as text, for the engine
+    to name the row)."""
     try:
         import pandas as pd
     except ImportError:
         return None
-    try:
-        codes, uniques = pd.factorize(np.asarray(values, dtype=object))
-    except TypeError:
-        return None
-    if (codes < 0).any() or not all(isinstance(u, str) and len(u) == 1 and u.isascii()
-                                     for u in uniques):
-        return None
-    table = np.frombuffer("".join(uniques).encode("ascii"), dtype=np.uint8)
-    return np.ascontiguousarray(table[codes])
+    n = len(values)
+    out = np.empty(n, dtype=np.uint8)
+    chunk = 1 << 16
+    table = {}
+    for start in range(0, n, chunk):
+        part = values[start:start + chunk]
+        part = part.to_numpy() if hasattr(part, "to_numpy") else part
+        try:
+            codes, uniques = pd.factorize(np.asarray(part, dtype=object))
+        except TypeError:
+            return None
+        if (codes < 0).any():
+            return None
+        for u in uniques:
+            if not (isinstance(u, str) and len(u) == 1 and u.isascii()):
+                return None
+            table.setdefault(u, ord(u))
+        lut = np.array([table[u] for u in uniques], dtype=np.uint8)
+        out[start:start + len(codes)] = lut[codes]
+    return out
 
 
 def _column_values(name: str, values: Any) -> Any:
@@ -122,7 +134,9 @@ def _table(data: Any, columns: Optional[Mapping[str, str]], metadata: Optional[M
     pairs = []
     for name in names:
         ours = rename.get(name, name)
-        pairs.append((ours, _column_values(ours, _series(get(name)))))
+        col = get(name)
+        # A condition column is read in chunks, where it is (_letters): not as one copy.
+        pairs.append((ours, _column_values(ours, col if ours == "condition" else _series(col))))
     return pairs, meta, source
 
 
