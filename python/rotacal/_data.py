@@ -61,7 +61,9 @@ def _letters(values: Any) -> Optional[np.ndarray]:
     chunk = 1 << 16
     table = {}
     for start in range(0, n, chunk):
-        part = values[start:start + chunk]
+        # By position: a pandas Series' own index may be anything.
+        rows = getattr(values, "iloc", values)
+        part = rows[start:start + chunk]
         part = part.to_numpy() if hasattr(part, "to_numpy") else part
         try:
             codes, uniques = pd.factorize(np.asarray(part, dtype=object))
