@@ -94,3 +94,26 @@ def test_a_polars_dataframe_calibrates_as_pandas_does(sessions):
     with pytest.raises(rotacal.RecordingError) as e:
         rotacal.calibrate(bad, metadata=pdf.attrs["rotacal"])
     assert (e.value.row, e.value.column) == (5, "u")
+
+
+def test_the_columns_digest_is_the_documented_one(sessions):
+    # docs/formats.md: each name's UTF-8 and a 0 byte; each number's 8 little-endian bytes;
+    # each text's UTF-8 and a 0 byte; columns in order.
+    import hashlib
+
+    import numpy as np
+
+    df = rotacal.read_recording(sessions["demo"])
+    h, n = hashlib.sha256(), 0
+    for name in df.columns:
+        parts = [name.encode() + b"\0"]
+        col = df[name]
+        if col.dtype.kind == "f":
+            parts.append(np.ascontiguousarray(col.to_numpy(), dtype="<f8").tobytes())
+        else:
+            parts.append(b"".join(str(v).encode() + b"\0" for v in col))
+        for p in parts:
+            h.update(p)
+            n += len(p)
+    t = rotacal.calibrate(df).traceability["inputs"][0]
+    assert (t["sha256"], t["bytes"]) == (h.hexdigest(), n)

@@ -120,9 +120,15 @@ pub struct Gravity {
 pub fn input_of_columns(path: &str, columns: &[recording::Column<'_>]) -> Input {
     let mut hash = Sha256::new();
     let mut bytes = 0u64;
+    // The bytes go to the hash in blocks: one update per value costs more than the hash.
+    let mut block: Vec<u8> = Vec::with_capacity(1 << 16);
     let mut take = |b: &[u8]| {
-        hash.update(b);
+        block.extend_from_slice(b);
         bytes += b.len() as u64;
+        if block.len() >= 1 << 16 {
+            hash.update(&block);
+            block.clear();
+        }
     };
     for c in columns {
         take(c.name.as_bytes());
@@ -138,6 +144,7 @@ pub fn input_of_columns(path: &str, columns: &[recording::Column<'_>]) -> Input 
             recording::Values::Letters(x) => x.iter().for_each(|v| take(&[*v, 0])),
         }
     }
+    hash.update(&block);
     let sha256 = hash.finalize().iter().map(|b| format!("{b:02x}")).collect();
     Input {
         path: path.to_string(),
