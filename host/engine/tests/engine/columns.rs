@@ -295,3 +295,99 @@ fn a_recording_is_written_back_as_it_was_read() {
         assert_eq!(strip(back), strip(rec));
     }
 }
+
+/// Numbers of two calibration JSONs: equal (`tol` 0) or within `tol` relative, all but
+/// the places (`first_line`, a file's line and a column's row).
+fn agree(a: &serde_json::Value, b: &serde_json::Value, tol: f64, at: &str) {
+    use serde_json::Value as V;
+    match (a, b) {
+        (V::Object(x), V::Object(y)) => {
+            let keys: Vec<_> = x.keys().filter(|k| *k != "first_line").collect();
+            assert_eq!(
+                keys,
+                y.keys().filter(|k| *k != "first_line").collect::<Vec<_>>(),
+                "{at}"
+            );
+            for k in keys {
+                agree(&x[k], &y[k], tol, &format!("{at}/{k}"));
+            }
+        }
+        (V::Array(x), V::Array(y)) => {
+            assert_eq!(x.len(), y.len(), "{at}");
+            for (i, (p, q)) in x.iter().zip(y).enumerate() {
+                agree(p, q, tol, &format!("{at}[{i}]"));
+            }
+        }
+        (V::Number(p), V::Number(q)) if tol > 0.0 => {
+            // A value to its bound, an uncertainty (u, U, k) to U's.
+            let tol = if at.ends_with("/value") { 1e-10 } else { tol };
+            let (p, q) = (p.as_f64().unwrap(), q.as_f64().unwrap());
+            assert!(
+                (p - q).abs() <= tol * p.abs().max(q.abs()),
+                "{at}: {p} vs {q}"
+            );
+        }
+        _ => assert_eq!(a, b, "{at}"),
+    }
+}
+
+/// `stream::calibrate_columns` (the Python package's DataFrames) calibrates as
+/// `calibrate_file` does the same recording's file: bit for bit where each group is fitted
+/// from its rows (four rates, 4200 rows a condition); where a group is summed in two parts
+/// (over 65 536 rows), which the file cuts at a byte and the columns at a row, the
+/// properties within the streaming engine's bounds (docs/streaming.md: values 10⁻¹⁰, U
+/// 10⁻⁸ relative).
+#[test]
+fn columns_calibrate_as_their_file() {
+    use rotacal_engine::calibrate::{stream, Options};
+    for (preset, rows, tol) in [
+        ("paper-multirate", None, 0.0),
+        ("paper-10mhz", Some(80_000), 1e-8),
+    ] {
+        let mut cfg = Config::preset(preset).unwrap();
+        if let Some(n) = rows {
+            cfg.table.duration_s = None;
+            cfg.table.samples_per_condition = Some(n);
+        }
+        let path = temp(&format!("cal-{preset}.csv"));
+        Simulation::new(cfg).unwrap().write_file(&path).unwrap();
+        let opts = Options::default();
+        let file = stream::calibrate_file(&path, &opts).unwrap();
+        let (meta, cols) = columns_of(&std::fs::read_to_string(&path).unwrap());
+        std::fs::remove_file(&path).ok();
+        let columns: Vec<Column<'_>> = cols
+            .iter()
+            .map(|(name, h)| Column {
+                name,
+                values: match h {
+                    Held::Numbers(x) => Values::Numbers(x),
+                    Held::Texts(t) => Values::Texts(t),
+                },
+            })
+            .collect();
+        let meta: Vec<(&str, &str)> = meta.iter().map(|(k, v)| (k.as_str(), v.as_str())).collect();
+        let held = stream::calibrate_columns(&columns, &meta, "the DataFrame", &opts).unwrap();
+        let (a, b) = (
+            serde_json::to_value(&held).unwrap(),
+            serde_json::to_value(&file).unwrap(),
+        );
+        let (x, y) = (
+            a["by_rate"].as_array().unwrap(),
+            b["by_rate"].as_array().unwrap(),
+        );
+        assert!(!x.is_empty() && x.len() == y.len());
+        if tol == 0.0 {
+            agree(&a, &b, tol, preset);
+        } else {
+            // The properties: the values and their uncertainties.
+            for (i, (p, q)) in x.iter().zip(y).enumerate() {
+                agree(
+                    &p["intrinsic"],
+                    &q["intrinsic"],
+                    tol,
+                    &format!("{preset}[{i}]"),
+                );
+            }
+        }
+    }
+}
