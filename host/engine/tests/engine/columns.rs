@@ -52,11 +52,12 @@ fn columns_of(text: &str) -> (Meta, Cols) {
     (meta, cols)
 }
 
-fn read_held(
-    meta: &[(String, String)],
-    cols: &[(String, Held)],
-) -> Result<Recording, RecordingError> {
-    let columns: Vec<Column<'_>> = cols
+/// The engine's view of held columns and metadata.
+fn borrowed<'a>(
+    meta: &'a [(String, String)],
+    cols: &'a [(String, Held)],
+) -> (Vec<(&'a str, &'a str)>, Vec<Column<'a>>) {
+    let columns = cols
         .iter()
         .map(|(name, h)| Column {
             name,
@@ -66,7 +67,15 @@ fn read_held(
             },
         })
         .collect();
-    let meta: Vec<(&str, &str)> = meta.iter().map(|(k, v)| (k.as_str(), v.as_str())).collect();
+    let meta = meta.iter().map(|(k, v)| (k.as_str(), v.as_str())).collect();
+    (meta, columns)
+}
+
+fn read_held(
+    meta: &[(String, String)],
+    cols: &[(String, Held)],
+) -> Result<Recording, RecordingError> {
+    let (meta, columns) = borrowed(meta, cols);
     read_columns(&columns, &meta, "the DataFrame", None)
 }
 
@@ -355,17 +364,7 @@ fn columns_calibrate_as_their_file() {
         let file = stream::calibrate_file(&path, &opts).unwrap();
         let (meta, cols) = columns_of(&std::fs::read_to_string(&path).unwrap());
         std::fs::remove_file(&path).ok();
-        let columns: Vec<Column<'_>> = cols
-            .iter()
-            .map(|(name, h)| Column {
-                name,
-                values: match h {
-                    Held::Numbers(x) => Values::Numbers(x),
-                    Held::Texts(t) => Values::Texts(t),
-                },
-            })
-            .collect();
-        let meta: Vec<(&str, &str)> = meta.iter().map(|(k, v)| (k.as_str(), v.as_str())).collect();
+        let (meta, columns) = borrowed(&meta, &cols);
         let held = stream::calibrate_columns(&columns, &meta, "the DataFrame", &opts).unwrap();
         let (a, b) = (
             serde_json::to_value(&held).unwrap(),
