@@ -241,7 +241,7 @@ fn calibrate_columns(
     let opts = self::options(py, options)?;
     let held = hold(&columns)?;
     let cols = as_columns(&columns, &held)?;
-    let meta: Vec<(&str, &str)> = meta.iter().map(|(k, v)| (k.as_str(), v.as_str())).collect();
+    let meta = str_pairs(&meta);
     // The command line's engine for a file, on the columns where they are.
     // The columns' digest on a thread of its own, beside the calibration's.
     let (cal, input) = py.detach(|| {
@@ -412,7 +412,7 @@ fn read_held(
 ) -> PyResult<(Recording, trace::Input)> {
     let held = hold(columns)?;
     let cols = as_columns(columns, &held)?;
-    let meta: Vec<(&str, &str)> = meta.iter().map(|(k, v)| (k.as_str(), v.as_str())).collect();
+    let meta = str_pairs(meta);
     let (rec, input) = py.detach(|| {
         (
             recording::read_columns(&cols, &meta, source, method),
@@ -420,6 +420,11 @@ fn read_held(
         )
     });
     Ok((rec.map_err(|e| recording_error(py, &e))?, input))
+}
+
+/// Metadata as the reader takes it.
+fn str_pairs(meta: &[(String, String)]) -> Vec<(&str, &str)> {
+    meta.iter().map(|(k, v)| (k.as_str(), v.as_str())).collect()
 }
 
 /// Columns handed over, borrowed as the reader takes them.

@@ -209,7 +209,7 @@ impl Traceability {
         g_loc: Option<f64>,
         u_g_loc: Option<f64>,
     ) -> Result<Self, TraceError> {
-        let mut t = Traceability::new(build, &[path]).map_err(io_at(path))?;
+        let input = input(path).map_err(io_at(path))?;
         let given = (g_loc, u_g_loc);
         let names = ("--g-loc", "--u-g-loc");
         let mut meta = None;
@@ -225,12 +225,12 @@ impl Traceability {
             // Poses and free series are not scanned (scan stops at their header): read
             // whole, their facts are a held recording's.
             let rec = recording::read_as(path, method)?;
-            let input = t.inputs.pop().ok_or_else(|| TraceError::Io {
-                path: path.display().to_string(),
-                source: std::io::Error::other("no input"),
-            })?;
             return Ok(Traceability::of_held(build, &rec, input, given, names));
         }
+        let mut t = Traceability {
+            inputs: vec![input],
+            ..Traceability::empty(build)
+        };
         t.facts(
             &meta.unwrap_or_default(),
             (lo <= hi).then_some(Range { min: lo, max: hi }),

@@ -437,23 +437,21 @@ impl PoseFit {
     /// half the offsets' reported u (issue 34).
     pub fn cov_weighed(&self) -> Cov12 {
         let w = self.weighing();
-        let scale: [f64; 12] = std::array::from_fn(|i| {
-            let c = self.cov[(i, i)];
+        // Each element's variance as reported, where it and the fit's are positive.
+        let reported: [Option<f64>; 12] = std::array::from_fn(|i| {
             let v = w.total(|p| p.theta[(i, i)]).0;
-            if c > 0.0 && v > 0.0 {
-                (v / c).sqrt()
-            } else {
-                1.0
-            }
+            (self.cov[(i, i)] > 0.0 && v > 0.0).then_some(v)
+        });
+        let scale = std::array::from_fn::<f64, 12, _>(|i| {
+            reported[i].map_or(1.0, |v| (v / self.cov[(i, i)]).sqrt())
         });
         let d = Cov12::from_diagonal(&nalgebra::SVector::<f64, 12>::from(scale));
         let mut c = d * self.cov * d;
         // The variances themselves, not their rescaled rounding: u(O) is then the
         // offsets' reported u to the last bit.
-        for i in 0..12 {
-            let v = w.total(|p| p.theta[(i, i)]).0;
-            if self.cov[(i, i)] > 0.0 && v > 0.0 {
-                c[(i, i)] = v;
+        for (i, v) in reported.iter().enumerate() {
+            if let Some(v) = v {
+                c[(i, i)] = *v;
             }
         }
         c

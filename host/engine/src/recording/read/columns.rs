@@ -63,21 +63,39 @@ impl Fields for RowOf<'_> {
 }
 
 /// The columns' metadata, method and header, each checked as a file's, and their length.
-fn head(
+/// A file's place is its line; columns have only rows.
+fn no_line(mut e: RecordingError) -> RecordingError {
+    e.line = None;
+    e
+}
+
+/// Columns' head, checked as a file's: the parser that read it (for the checks at the
+/// end), the metadata, the method, the header and the number of rows.
+struct Head<'s> {
+    parser: Parser<'s>,
+    meta: Metadata,
+    method: Method,
+    cols: ColumnIndex,
+    rows: usize,
+}
+
+fn head<'s>(
     columns: &[Column<'_>],
     meta: &[(&str, &str)],
-    parser: &mut Parser<'_>,
-) -> Result<(Metadata, Method, ColumnIndex, usize), RecordingError> {
+    source: &'s str,
+    method: Option<Method>,
+) -> Result<Head<'s>, RecordingError> {
+    let mut parser = Parser {
+        source,
+        complete: true,
+        line_offset: 0,
+        method,
+    };
     let err = |kind| RecordingError {
-        source_name: parser.source.to_string(),
+        source_name: source.to_string(),
         line: None,
         row: None,
         kind,
-    };
-    // A file's place is its line; here there are only rows.
-    let no_line = |mut e: RecordingError| {
-        e.line = None;
-        e
     };
     let n = columns.first().map_or(0, |c| c.values.len());
     for c in columns {
@@ -102,7 +120,13 @@ fn head(
     let meta = parser.preamble(&mut preamble.as_bytes()).map_err(no_line)?;
     let header = ::csv::ByteRecord::from(columns.iter().map(|c| c.name).collect::<Vec<_>>());
     let (cols, method) = parser.header(&header, 0, &meta).map_err(no_line)?;
-    Ok((meta, method, cols, n))
+    Ok(Head {
+        parser,
+        meta,
+        method,
+        cols,
+        rows: n,
+    })
 }
 
 /// Every row of `columns` through the reader's checks, into `sink` (a file with
@@ -141,13 +165,13 @@ pub fn read_columns(
     source: &str,
     method: Option<Method>,
 ) -> Result<Recording, RecordingError> {
-    let mut parser = Parser {
-        source,
-        complete: true,
-        line_offset: 0,
+    let Head {
+        parser,
+        meta,
         method,
-    };
-    let (meta, method, cols, n) = head(columns, meta, &mut parser)?;
+        cols,
+        rows: n,
+    } = head(columns, meta, source, method)?;
     let free = cols.condition.is_none() && cols.gravity.is_none();
     let mut groups: Vec<Group> = Vec::new();
     groups.start(&meta, method, &cols);
@@ -164,10 +188,7 @@ pub fn read_columns(
     )?;
     let mut rec = parser
         .finish(meta, method, rows, &router)
-        .map_err(|mut e| {
-            e.line = None;
-            e
-        })?;
+        .map_err(no_line)?;
     shrink(&mut groups);
     rec.groups = groups;
     Ok(rec)
@@ -183,15 +204,15 @@ pub(super) fn columns_head(
     source: &str,
     method: Option<Method>,
 ) -> Result<Option<(Metadata, Method, ColumnIndex, usize)>, RecordingError> {
-    let mut parser = Parser {
-        source,
-        complete: true,
-        line_offset: 0,
+    let Head {
+        meta,
         method,
-    };
-    let (meta, method, cols, n) = head(columns, meta, &mut parser)?;
+        cols,
+        rows,
+        ..
+    } = head(columns, meta, source, method)?;
     if cols.condition.is_none() || cols.gravity.is_some() {
         return Ok(None);
     }
-    Ok(Some((meta, method, cols, n)))
+    Ok(Some((meta, method, cols, rows)))
 }
