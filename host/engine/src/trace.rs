@@ -114,36 +114,62 @@ pub struct Gravity {
     pub std_unc_source: String,
 }
 
+/// A SHA-256 fed in pieces: small ones gathered into blocks (one update per value costs
+/// more than the hash), large ones hashed where they are.
+#[derive(Default)]
+struct Hashing {
+    hash: Sha256,
+    block: Vec<u8>,
+    bytes: u64,
+}
+
+impl Hashing {
+    fn take(&mut self, b: &[u8]) {
+        self.block.extend_from_slice(b);
+        self.bytes += b.len() as u64;
+        if self.block.len() >= 1 << 16 {
+            self.hash.update(&self.block);
+            self.block.clear();
+        }
+    }
+
+    /// `b` after what waits, without a copy.
+    fn whole(&mut self, b: &[u8]) {
+        self.hash.update(&self.block);
+        self.block.clear();
+        self.hash.update(b);
+        self.bytes += b.len() as u64;
+    }
+}
+
 /// Columns held in memory, described as `path` (what they came from): SHA-256 of their
 /// names and values in order (each name's UTF-8 and a 0 byte; each number's 8
 /// little-endian bytes; each text's UTF-8 and a 0 byte), `bytes` the length digested.
 pub fn input_of_columns(path: &str, columns: &[recording::Column<'_>]) -> Input {
-    let mut hash = Sha256::new();
-    let mut bytes = 0u64;
-    // The bytes go to the hash in blocks: one update per value costs more than the hash.
-    let mut block: Vec<u8> = Vec::with_capacity(1 << 16);
-    let mut take = |b: &[u8]| {
-        block.extend_from_slice(b);
-        bytes += b.len() as u64;
-        if block.len() >= 1 << 16 {
-            hash.update(&block);
-            block.clear();
-        }
-    };
+    let mut d = Hashing::default();
     for c in columns {
-        take(c.name.as_bytes());
-        take(&[0]);
+        d.take(c.name.as_bytes());
+        d.take(&[0]);
         match c.values {
-            recording::Values::Numbers(x) => x.iter().for_each(|v| take(&v.to_le_bytes())),
+            // The numbers' own memory is their little-endian bytes: hashed where it is.
+            recording::Values::Numbers(x) if cfg!(target_endian = "little") => {
+                d.whole(bytemuck::cast_slice(x));
+            }
+            recording::Values::Numbers(x) => x.iter().for_each(|v| d.take(&v.to_le_bytes())),
             recording::Values::Texts(t) => t.iter().for_each(|v| {
-                take(v.as_bytes());
-                take(&[0]);
+                d.take(v.as_bytes());
+                d.take(&[0]);
             }),
             // As texts of one letter each, so that the digest does not depend on how the
             // column was handed over.
-            recording::Values::Letters(x) => x.iter().for_each(|v| take(&[*v, 0])),
+            recording::Values::Letters(x) => x.iter().for_each(|v| d.take(&[*v, 0])),
         }
     }
+    let Hashing {
+        mut hash,
+        block,
+        bytes,
+    } = d;
     hash.update(&block);
     let sha256 = hash.finalize().iter().map(|b| format!("{b:02x}")).collect();
     Input {

@@ -19,6 +19,7 @@
 //! lagged sums' own scatter, the residual pass runs as before.
 
 use super::CLOCK;
+use crate::fit::block::{self, Angles, Block, Vals, BLOCK, LANES};
 use crate::fit::moments::{
     self, pair_row, wide_d, wide_row, Moments, PairSums, PAIR, TREND, WIDE, WIDE_HARMONIC,
 };
@@ -143,6 +144,83 @@ impl Pilots {
     }
 }
 
+/// Add a row to a piece's sums `moments` and its `pilots`: a row of one conversion waits
+/// in `block` and goes in with a block's rows ([`settle`]); one of several goes in at once,
+/// after the rows waiting.
+#[inline]
+pub(super) fn feed(
+    moments: &mut Moments,
+    pilots: &mut Pilots,
+    block: &mut Block,
+    ap: &Aperture,
+    y: [f64; 3],
+) {
+    if ap.len() == 1 {
+        if block.push(ap.first().0, y) {
+            settle(moments, pilots, block);
+        }
+        return;
+    }
+    settle(moments, pilots, block);
+    let f = moments.add(ap, y);
+    pilots.add(ap.first().0, f.as_ref(), y, moments);
+}
+
+/// The rows waiting in `block` into the sums and the pilots: a full block's together,
+/// fewer one at a time. Before anything reads the sums.
+pub(super) fn settle(moments: &mut Moments, pilots: &mut Pilots, block: &mut Block) {
+    if block.is_full() {
+        // On the widest vectors there are: the sums are the same on any (fit::block).
+        pulp::Arch::new().dispatch(FullBlock {
+            moments,
+            pilot: &mut pilots.own,
+            block,
+        });
+    } else {
+        for (tick, y) in block.rows() {
+            let f = moments.add(&Aperture::point(Ticks(tick)), y);
+            pilots.add(tick, f.as_ref(), y, moments);
+        }
+    }
+    block.clear();
+}
+
+/// A full block into a piece's sums and pilot, compiled for each instruction set
+/// [`pulp`] dispatches to (everything it calls is inlined into it).
+struct FullBlock<'a> {
+    moments: &'a mut Moments,
+    pilot: &'a mut Pilot,
+    block: &'a Block,
+}
+
+impl pulp::WithSimd for FullBlock<'_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _simd: S) {
+        let angles = Angles::of(self.block, self.moments.step(), CLOCK);
+        self.moments.add_block(self.block, &angles);
+        self.pilot.add_block(self.block, &angles, self.moments);
+    }
+}
+
+impl Pilot {
+    /// [`Pilot::add`] of a full block of rows whose angles are `a`.
+    #[inline(always)]
+    fn add_block(&mut self, block: &Block, a: &Angles, moments: &Moments) {
+        match self {
+            Pilot::Running(run) => run.add_block(block, a),
+            Pilot::Gathering(rows) => {
+                rows.extend(block.rows());
+                if rows.len() >= PILOT_ROWS {
+                    self.start(moments);
+                }
+            }
+            Pilot::Off => {}
+        }
+    }
+}
+
 impl Pilot {
     /// The next row: its tick, its wide columns at the step the piece's sums are about
     /// (`None` for a row of several conversions) and its readings; `moments` holds the
@@ -179,17 +257,7 @@ impl Pilot {
         let Ok(beta) = moments::wide_betas(moments, &[None, None, None], step) else {
             return; // Off: the residual pass runs
         };
-        let mut run = Box::new(Run {
-            beta,
-            lagged: Default::default(),
-            head: Vec::with_capacity(LAGS),
-            tail: Vec::with_capacity(LAGS),
-            ticks: [f64::NAN; 2 * LAGS],
-            pos: 0,
-            lo: [f64::INFINITY; LAGS],
-            hi: [f64::NEG_INFINITY; LAGS],
-            n: 0,
-        });
+        let mut run = Run::new(beta);
         let hz = f64::from(CLOCK.hz());
         for (tick, y) in rows {
             let (s, c) = step.phase_at(Ticks(tick)).sin_cos::<f64>();
@@ -200,6 +268,21 @@ impl Pilot {
 }
 
 impl Run {
+    /// A pilot of coefficients `beta` (per channel), before its first row.
+    fn new(beta: [[f64; WIDE]; 3]) -> Box<Run> {
+        Box::new(Run {
+            beta,
+            lagged: Default::default(),
+            head: Vec::with_capacity(LAGS),
+            tail: Vec::with_capacity(LAGS),
+            ticks: [f64::NAN; 2 * LAGS],
+            pos: 0,
+            lo: [f64::INFINITY; LAGS],
+            hi: [f64::NEG_INFINITY; LAGS],
+            n: 0,
+        })
+    }
+
     #[inline]
     fn add(&mut self, tick: u64, f: &[f64; WIDE], y: [f64; 3]) {
         for ((acc, beta), yv) in self.lagged.iter_mut().zip(&self.beta).zip(y) {
@@ -232,6 +315,83 @@ impl Run {
             *slot = (tick, y);
         }
         self.n += 1;
+    }
+}
+
+impl Run {
+    /// [`Run::add`] of a full block of rows, whose angles at the piece's step are `a`:
+    /// the residuals from the pilot row by row as [`Run::add`] takes them (to the bit),
+    /// their lagged sums a block's dot products.
+    #[inline(always)]
+    fn add_block(&mut self, block: &Block, a: &Angles) {
+        // The wide columns, as `wide_row` orders them.
+        let one = [1.0; BLOCK];
+        let [_, c1, c2, c3, c4, ..] = &a.cos;
+        let [_, s1, s2, s3, s4, ..] = &a.sin;
+        let f: [&Vals; WIDE] = [s1, c1, &one, &a.u, s2, c2, s3, c3, s4, c4];
+        for ((acc, beta), y) in self.lagged.iter_mut().zip(&self.beta).zip(&block.y) {
+            // Each row's pilot summed over the columns in their order, rows side by side.
+            let mut pilot = [0.0; BLOCK];
+            for (col, b) in f.iter().zip(beta) {
+                for (p, x) in pilot.iter_mut().zip(col.iter()) {
+                    *p += x * b;
+                }
+            }
+            let mut r = [0.0; BLOCK];
+            for ((r, y), p) in r.iter_mut().zip(y).zip(&pilot) {
+                *r = y - p;
+            }
+            acc.add_block(&r);
+        }
+        // The spans of rows 1 … LAGS − 1 apart, the newest LAGS − 1 ticks (NaN before
+        // the piece began: a comparison with it is false) in front of the block's.
+        let mut ext = [f64::NAN; LAGS - 1 + BLOCK];
+        let newest = self.ticks.get(self.pos..self.pos + LAGS - 1).unwrap_or(&[]);
+        for (x, w) in ext.iter_mut().take(LAGS - 1).rev().zip(newest) {
+            *x = *w;
+        }
+        for (x, t) in ext.iter_mut().skip(LAGS - 1).zip(&block.tick) {
+            *x = *t as f64;
+        }
+        let now = ext.get(LAGS - 1..).unwrap_or(&[]);
+        for (k, (lo, hi)) in self.lo.iter_mut().zip(self.hi.iter_mut()).enumerate() {
+            let then = ext.get(LAGS - 1 - k..).unwrap_or(&[]);
+            // In lanes (a least and a greatest each), then across them: selects, which
+            // are one vector instruction each (f64::min and max add NaN's rules).
+            let (mut l, mut h) = ([*lo; LANES], [*hi; LANES]);
+            for (t, w) in block::lanes(now).zip(block::lanes(then)) {
+                for (((l, h), t), w) in l.iter_mut().zip(h.iter_mut()).zip(t).zip(w) {
+                    let d = t - w;
+                    *l = if d < *l { d } else { *l };
+                    *h = if d > *h { d } else { *h };
+                }
+            }
+            for (l, h) in l.into_iter().zip(h) {
+                *lo = if l < *lo { l } else { *lo };
+                *hi = if h > *hi { h } else { *hi };
+            }
+        }
+        self.pos = 0;
+        for (k, t) in ext.iter().rev().take(LAGS).enumerate() {
+            for slot in [k, k + LAGS] {
+                if let Some(w) = self.ticks.get_mut(slot) {
+                    *w = *t;
+                }
+            }
+        }
+        for (i, row) in block.rows().enumerate() {
+            if self.head.len() < LAGS {
+                self.head.push(row);
+            }
+            if self.tail.len() < LAGS {
+                self.tail.push(row);
+            } else if i + LAGS >= BLOCK {
+                if let Some(slot) = self.tail.get_mut((self.n + i) % LAGS) {
+                    *slot = row;
+                }
+            }
+        }
+        self.n += BLOCK;
     }
 }
 
@@ -524,8 +684,159 @@ pub(super) fn corrected(piece: &Piece, fit: &Fitted) -> Option<PieceSums> {
 }
 
 #[cfg(test)]
+#[allow(clippy::unwrap_used, clippy::indexing_slicing)]
 mod tests {
-    use super::{pair_row, shift, VecP};
+    use super::{pair_row, shift, FullBlock, Pilot, Pilots, Run, VecP, CLOCK, LAGS};
+    use crate::fit::block::{Angles, Block, BLOCK};
+    use crate::fit::moments::{wide_row, Moments, WIDE};
+    use rand::{Rng, SeedableRng};
+    use rotacal_shared::{Aperture, PhaseStep, Ticks};
+
+    /// Rows of one conversion at about 104 Hz (jittered by a few µs), at 0.25 Hz a sine
+    /// of 10⁴ counts and noise on each channel: ticks from the first row, readings.
+    fn rows(n: usize) -> Vec<(u64, [f64; 3])> {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+        (0..n)
+            .map(|i| {
+                let t = (i as f64 * 1e6 / 104.0).round() as u64 + rng.gen_range(0..5);
+                let a = std::f64::consts::TAU * 0.25 * t as f64 * 1e-6;
+                let y =
+                    [1e4 * a.sin(), 1e4 * a.cos(), 500.0].map(|m| m + rng.gen_range(-20.0..20.0));
+                (t, y)
+            })
+            .collect()
+    }
+
+    fn step() -> PhaseStep {
+        PhaseStep::from_hz(0.25, CLOCK).unwrap()
+    }
+
+    /// `rows` into sums and a pilot a block at a time, each full block summed by `full`
+    /// (on one instruction set), the rows left over one at a time.
+    fn in_blocks(rows: &[(u64, [f64; 3])], full: impl Fn(FullBlock)) -> (Moments, Pilots) {
+        let (mut m, mut p, mut b) = (
+            Moments::new(step(), CLOCK),
+            Pilots::new(true),
+            Block::default(),
+        );
+        for (t, y) in rows {
+            if b.push(*t, *y) {
+                full(FullBlock {
+                    moments: &mut m,
+                    pilot: &mut p.own,
+                    block: &b,
+                });
+                b.clear();
+            }
+        }
+        super::settle(&mut m, &mut p, &mut b);
+        (m, p)
+    }
+
+    fn running(p: &Pilots) -> &Run {
+        match &p.own {
+            Pilot::Running(run) => run,
+            _ => panic!("the pilot is not running"),
+        }
+    }
+
+    /// A block's sums do not depend on the vectors the processor has: the same bits from
+    /// the widest instruction set here and from scalar code.
+    #[test]
+    fn a_block_is_summed_the_same_on_every_instruction_set() {
+        let rows = rows(3 * 8192 + 100);
+        let (m, p) = in_blocks(&rows, |op| pulp::Arch::new().dispatch(op));
+        let (ms, ps) = in_blocks(&rows, |op| pulp::Simd::vectorize(pulp::Scalar::new(), op));
+        assert_eq!(format!("{m:?}"), format!("{ms:?}"));
+        let (a, b) = (running(&p), running(&ps));
+        assert_eq!(format!("{:?}", a.lagged), format!("{:?}", b.lagged));
+        assert_eq!(
+            (a.lo, a.hi, &a.head, &a.tail, a.n),
+            (b.lo, b.hi, &b.head, &b.tail, b.n)
+        );
+        #[cfg(target_arch = "x86_64")]
+        if let Some(v3) = pulp::x86::V3::try_new() {
+            let (m3, _) = in_blocks(&rows, |op| pulp::Simd::vectorize(v3, op));
+            assert_eq!(format!("{m:?}"), format!("{m3:?}"));
+        }
+    }
+
+    /// In blocks, the sums are those of the rows one at a time but for the order of the
+    /// additions: each within twice the bound of its rounding in order, 2·n·ε·Σ|terms|
+    /// (Σ|v_i v_j| ≤ √(Σv_i² Σv_j²)).
+    #[test]
+    fn blocks_sum_as_rows_do() {
+        let rows = rows(5 * BLOCK + 17);
+        let (blocks, _) = in_blocks(&rows, |op| pulp::Arch::new().dispatch(op));
+        let mut one = Moments::new(step(), CLOCK);
+        for (t, y) in &rows {
+            one.add(&Aperture::point(Ticks(*t)), *y);
+        }
+        let (a, b) = (blocks.pair_sums().unwrap(), one.pair_sums().unwrap());
+        let bound = 2.0 * rows.len() as f64 * f64::EPSILON;
+        let yy: [f64; 3] = [0, 1, 2].map(|c| rows.iter().map(|(_, y)| y[c] * y[c]).sum());
+        for i in 0..a.p.nrows() {
+            for j in 0..a.p.ncols() {
+                let scale = (b.p[(i, i)] * b.p[(j, j)]).sqrt();
+                assert!(
+                    (a.p[(i, j)] - b.p[(i, j)]).abs() <= bound * scale,
+                    "p[{i}][{j}]"
+                );
+            }
+            for (c, yy) in yy.iter().enumerate() {
+                let scale = (b.p[(i, i)] * yy).sqrt();
+                assert!(
+                    (a.y[(i, c)] - b.y[(i, c)]).abs() <= bound * scale,
+                    "y[{i}][{c}]"
+                );
+            }
+        }
+    }
+
+    /// A pilot's block of rows leaves what its rows one at a time leave: the same spans,
+    /// first and last rows (exactly) and lagged sums (within 2·n·ε·Σr², as above).
+    #[test]
+    fn a_pilot_takes_a_block_as_its_rows() {
+        let rows = rows(7 * BLOCK);
+        let beta = [[3.0, -2.0, 1.0, 1e-3, 0.5, 0.25, -0.125, 0.0, 1.0, -1.0]; 3]
+            .map(|b: [f64; WIDE]| b.map(|x| x * 1e4));
+        let (mut by_block, mut by_row) = (Run::new(beta), Run::new(beta));
+        for chunk in rows.chunks(BLOCK) {
+            let mut b = Block::default();
+            for (t, y) in chunk {
+                b.push(*t, *y);
+            }
+            by_block.add_block(&b, &Angles::of(&b, step(), CLOCK));
+        }
+        for (t, y) in &rows {
+            let (s, c) = step().phase_at(Ticks(*t)).sin_cos::<f64>();
+            by_row.add(
+                *t,
+                &wide_row(s.hi, c.hi, *t as f64 / f64::from(CLOCK.hz())),
+                *y,
+            );
+        }
+        let (a, b) = (&by_block, &by_row);
+        assert_eq!(
+            (a.lo, a.hi, &a.head, &a.tail, a.n),
+            (b.lo, b.hi, &b.head, &b.tail, b.n)
+        );
+        assert!(a
+            .lo
+            .iter()
+            .zip(&a.hi)
+            .skip(1)
+            .all(|(l, h)| l.is_finite() && h >= l));
+        let bound = 2.0 * rows.len() as f64 * f64::EPSILON;
+        for (x, y) in a.lagged.iter().zip(&b.lagged) {
+            let ((px, sx), (py, sy)) = (x.products(), y.products());
+            assert_eq!(x.counts(), y.counts());
+            for k in 0..LAGS {
+                assert!((px[k] - py[k]).abs() <= bound * py[0], "lag {k}");
+            }
+            assert!((sx - sy).abs() <= bound * (py[0] * rows.len() as f64).sqrt());
+        }
+    }
 
     /// V(t − τ) = Q(τ)·V(t): the shift is exact, the one approximation being the τ used.
     #[test]

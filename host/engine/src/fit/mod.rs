@@ -6,6 +6,7 @@
 //! [`segments`] (a condition recorded across restarts of the device's clock, joined).
 
 pub mod batch;
+pub mod block;
 pub mod harmonics;
 pub mod moments;
 pub mod noise;

@@ -13,6 +13,7 @@
 //! [`Moments::within`] says whether a step is near enough for that.
 
 use crate::fit::batch::BatchError;
+use crate::fit::block::{self, Angles, Block, Vals, BLOCK, LANES};
 use nalgebra::{DMatrix, Matrix3, SMatrix, SVector, Vector3};
 use rotacal_shared::{Aperture, PhaseStep, TickRate, Ticks};
 use std::f64::consts::TAU;
@@ -248,6 +249,88 @@ impl Harmonic {
     }
 }
 
+impl Harmonic {
+    /// [`Harmonic::add`] of a full block's rows, each sum a block's dot product
+    /// ([`block`]).
+    #[inline(always)]
+    fn add_block(&mut self, a: &Angles, y: &[Vals; 3]) {
+        let u = &a.u;
+        let mut pw = [[0.0; BLOCK]; 5];
+        let [p0, p1, p2, p3, p4] = &mut pw;
+        for (((((u, p0), p1), p2), p3), p4) in u
+            .iter()
+            .zip(p0.iter_mut())
+            .zip(p1.iter_mut())
+            .zip(p2.iter_mut())
+            .zip(p3.iter_mut())
+            .zip(p4.iter_mut())
+        {
+            (*p0, *p1, *p2, *p3, *p4) = (1.0, *u, u * u, u * u * u, u * u * u * u);
+        }
+        // The sums Harmonic::add keeps: harmonics 0 … 8 to u², 0 … 5 at u³, 0 … 2 at u⁴.
+        // Every sum's lanes first, then their folds (block::dot_lanes).
+        const KEPT: [usize; 5] = [9, 9, 9, 6, 3];
+        let mut lanes = [[[[0.0; LANES]; 9]; 2]; 5];
+        for ((p, [lc, ls]), m) in pw.iter().zip(lanes.iter_mut()).zip(KEPT) {
+            for ((lc, ls), (cm, sm)) in lc
+                .iter_mut()
+                .zip(ls.iter_mut())
+                .zip(a.cos.iter().zip(&a.sin))
+                .take(m)
+            {
+                *lc = block::dot_lanes(p, cm);
+                *ls = block::dot_lanes(p, sm);
+            }
+        }
+        for (([lc, ls], (cos, sin)), m) in lanes
+            .iter()
+            .zip(self.cos.iter_mut().zip(self.sin.iter_mut()))
+            .zip(KEPT)
+        {
+            for ((c, s), (lc, ls)) in cos
+                .iter_mut()
+                .zip(sin.iter_mut())
+                .zip(lc.iter().zip(ls))
+                .take(m)
+            {
+                *c += block::fold(*lc);
+                *s += block::fold(*ls);
+            }
+        }
+        let g = |k: usize| -> Option<&Vals> {
+            match k {
+                0 => a.cos.first(),
+                _ if k % 2 == 1 => a.sin.get(k.div_ceil(2)),
+                _ => a.cos.get(k / 2),
+            }
+        };
+        // With y: [p][g][channel], g as `Harmonic::y` orders them.
+        const WITH_Y: [usize; 3] = [9, 9, 3];
+        let mut lanes = [[[[0.0; LANES]; 3]; 9]; 3];
+        for ((p, rows), n) in pw.iter().zip(lanes.iter_mut()).zip(WITH_Y) {
+            for (k, acc) in rows.iter_mut().enumerate().take(n) {
+                let Some(gk) = g(k) else {
+                    continue;
+                };
+                let mut w = [0.0; BLOCK];
+                for ((w, p), gv) in w.iter_mut().zip(p).zip(gk) {
+                    *w = p * gv;
+                }
+                for (acc, yc) in acc.iter_mut().zip(y) {
+                    *acc = block::dot_lanes(&w, yc);
+                }
+            }
+        }
+        for ((rows, lanes), n) in self.y.iter_mut().zip(&lanes).zip(WITH_Y) {
+            for (acc, lanes) in rows.iter_mut().zip(lanes).take(n) {
+                for (a, l) in acc.iter_mut().zip(lanes) {
+                    *a += block::fold(*l);
+                }
+            }
+        }
+    }
+}
+
 /// Σ V Vᵀ, Σ V·y (a column per channel) and Σ V over a group's rows, with
 /// V = (f, u·f, u²·sin α, u²·cos α) and f the wide columns at the sums' step:
 /// [`Moments::pair_sums`].
@@ -403,6 +486,20 @@ impl Moments {
         self.rows += 1;
         self.t_max = self.t_max.max(t.0);
         f
+    }
+
+    /// [`Moments::add`] of a full block of rows of one conversion each, whose angles at
+    /// the sums' step are `angles`.
+    #[inline(always)]
+    pub fn add_block(&mut self, block: &Block, angles: &Angles) {
+        self.harm
+            .get_or_insert_with(Box::default)
+            .add_block(angles, &block.y);
+        for (a, y) in self.yy.iter_mut().zip(&block.y) {
+            *a += block::dot(y, y);
+        }
+        self.rows += block.len() as u64;
+        self.t_max = block.tick.iter().fold(self.t_max, |m, t| m.max(*t));
     }
 
     /// With every row a single conversion (else `None`): the sums over the rows of

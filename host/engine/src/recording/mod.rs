@@ -49,7 +49,7 @@ mod write;
 pub use error::{MetadataError, RecordingError, RecordingErrorKind, UnknownMethod};
 pub use read::{
     read, read_as, read_bytes, read_columns, read_from, read_in_progress, read_preamble, scan,
-    Column, Parse, PartRow, Parts, Scanned, Values,
+    Column, Parse, PartRow, Parts, Scanned, Stretch, Values,
 };
 pub use write::{write_recording, Writer};
 

@@ -2,18 +2,20 @@
 //! on one; each group held (at most the hold limit of rows) or summed.
 
 use super::BLOCK;
-use crate::calibrate::pilot::Pilots;
+use crate::calibrate::pilot::{self, Pilots};
 use crate::calibrate::{nominal_rate, Options, CLOCK};
+use crate::fit::block::Block;
 use crate::fit::moments::Moments;
 use crate::fit::noise::Rails;
 use crate::recording::{
-    self, Group, Method, Parse, PartRow, Parts, Recording, RecordingError, Scanned,
+    self, Group, Method, Parse, PartRow, Parts, Recording, RecordingError, Scanned, Stretch,
 };
 use rotacal_shared::{Aperture, Condition, PhaseStep};
 use std::path::Path;
 
 /// The rows of `parts` over `ranges`, each range on a thread of its own: `each` gives a
-/// state per range (from `fresh`) each row with its file line, and the states come back in
+/// state per range (from `fresh`) each row with its file line, `each_stretch` a stretch of
+/// one group's rows held as columns ([`Parts::stretches`]), and the states come back in
 /// file order; `None` when a range needs the csv reader (or `each` stopped it).
 pub(super) fn over_parts<T: Send>(
     parts: &Parts,
@@ -21,17 +23,22 @@ pub(super) fn over_parts<T: Send>(
     parse: Parse,
     fresh: impl Fn() -> T + Sync,
     each: impl Fn(&mut T, u64, PartRow) -> bool + Sync,
+    each_stretch: impl Fn(&mut T, u64, Stretch<'_>) -> bool + Sync,
 ) -> Result<Option<Vec<(T, u64)>>, RecordingError> {
     let results: Vec<Result<Option<(T, u64)>, RecordingError>> = std::thread::scope(|scope| {
         let handles: Vec<_> = ranges
             .iter()
             .map(|range| {
-                let (fresh, each) = (&fresh, &each);
+                let (fresh, each, each_stretch) = (&fresh, &each, &each_stretch);
                 scope.spawn(move || {
-                    let mut state = fresh();
-                    let lines =
-                        parts.rows(*range, parse, |line, row| each(&mut state, line, row))?;
-                    Ok(lines.map(|l| (state, l)))
+                    let state = std::cell::RefCell::new(fresh());
+                    let lines = parts.stretches(
+                        *range,
+                        parse,
+                        |line, row| each(&mut state.borrow_mut(), line, row),
+                        |line, st| each_stretch(&mut state.borrow_mut(), line, st),
+                    )?;
+                    Ok(lines.map(|l| (state.into_inner(), l)))
                 })
             })
             .collect();
@@ -98,19 +105,23 @@ pub(super) fn first_pass_parts(
 ) -> Result<Option<Vec<GroupState>>, RecordingError> {
     let meta = parts.meta();
     let scale = recording::tick_scale(meta, CLOCK);
-    let each = |st: &mut RangeGroups, line: u64, row: PartRow| -> bool {
-        let key = key_of(&row);
+    let group = |st: &mut RangeGroups, condition, rate_hz: Option<f64>, line| {
+        let key = (condition, rate_hz.map(f64::to_bits));
         let i = match find_group(&st.keys, &mut st.last, key) {
             Some(i) => i,
             None => {
                 st.keys.push(key);
-                let nominal = nominal_rate(row.rate_hz, opts, meta);
+                let nominal = nominal_rate(rate_hz, opts, meta);
                 st.groups
-                    .push(GroupState::new(row.condition, row.rate_hz, line, nominal));
+                    .push(GroupState::new(condition, rate_hz, line, nominal));
                 st.keys.len() - 1
             }
         };
         st.last = Some(i);
+        i
+    };
+    let each = |st: &mut RangeGroups, line: u64, row: PartRow| -> bool {
+        let i = group(st, row.condition, row.rate_hz, line);
         let Some(g) = st.groups.get_mut(i) else {
             return false;
         };
@@ -122,7 +133,30 @@ pub(super) fn first_pass_parts(
         g.add(row.t_s, row.y, row.conv_gaps, hold, scale);
         true
     };
-    let Some(states) = over_parts(parts, ranges, Parse::All, RangeGroups::default, each)? else {
+    let each_stretch = |st: &mut RangeGroups, line: u64, run: Stretch| -> bool {
+        let i = group(st, run.condition, run.rate_hz, line);
+        let Some(g) = st.groups.get_mut(i) else {
+            return false;
+        };
+        if let Some(t) = run.t_s {
+            // Time may not go backwards (the sequential reader says where).
+            let before = g.last_t.zip(t.first()).is_some_and(|(l, f)| *f < l);
+            if before || t.iter().zip(t.iter().skip(1)).any(|(a, b)| b < a) {
+                return false;
+            }
+        }
+        g.add_stretch(run.t_s, run.y, hold, scale);
+        true
+    };
+    let Some(states) = over_parts(
+        parts,
+        ranges,
+        Parse::All,
+        RangeGroups::default,
+        each,
+        each_stretch,
+    )?
+    else {
         return Ok(None);
     };
     // Join the ranges: a group's rows go on where the previous range left them.
@@ -131,6 +165,7 @@ pub(super) fn first_pass_parts(
     let mut line_base = parts.header_line();
     for (st, lines) in states {
         for (key, mut g) in st.keys.into_iter().zip(st.groups) {
+            g.settle();
             g.first_line += line_base;
             if let Some(k) = g.kept.as_mut() {
                 k.first_line = g.first_line;
@@ -226,6 +261,8 @@ pub(super) struct GroupState {
     /// The pilot of the rows this thread read, and once groups read in parts are joined,
     /// each part's (`pilot`).
     pub(super) pilots: Pilots,
+    /// Rows of one conversion waiting to be summed a block at a time ([`Self::settle`]).
+    block: Box<Block>,
 }
 
 /// Pass 1 on one thread (a file the parts reader hands back): the groups as the
@@ -326,12 +363,22 @@ impl GroupState {
             rails: [Rails::default(); 3],
             row_problem: None,
             pilots: Pilots::new(true),
+            block: Box::default(),
+        }
+    }
+
+    /// The rows waiting to be summed, summed: before the sums are read or joined.
+    pub(super) fn settle(&mut self) {
+        if let Some(m) = self.moments.as_mut() {
+            pilot::settle(m, &mut self.pilots, &mut self.block);
         }
     }
 
     /// Go on with the same group as read by another thread from where this one stopped
     /// (its rows' times from its own first row): false if its rows go back in time.
-    fn follow(&mut self, later: GroupState, hold: usize) -> bool {
+    fn follow(&mut self, mut later: GroupState, hold: usize) -> bool {
+        self.settle();
+        later.settle();
         let (Some(t0), Some(t1)) = (self.t0, later.t0) else {
             if self.t0.is_none() {
                 *self = later;
@@ -376,6 +423,34 @@ impl GroupState {
         true
     }
 
+    /// [`GroupState::add`] of each row of a stretch of rows of one conversion each (times
+    /// `t_s` if the recording has them, readings `y`): the same, a row at a time, without a
+    /// call per row.
+    fn add_stretch(&mut self, t_s: Option<&[f64]>, y: [&[f64]; 3], hold: usize, scale: f64) {
+        let [u, v, w] = y;
+        let n = u.len();
+        if let Some(k) = self.kept.as_mut() {
+            if self.rows + n <= hold {
+                k.t_s.extend_from_slice(t_s.unwrap_or(&[]));
+                k.u.extend_from_slice(u);
+                k.v.extend_from_slice(v);
+                k.w.extend_from_slice(w);
+            } else {
+                self.kept = None;
+            }
+        }
+        self.rows += n;
+        let Some(t_s) = t_s else {
+            return; // no t_s column: reported when the group is calibrated
+        };
+        for (((t, u), v), w) in t_s.iter().zip(u).zip(v).zip(w) {
+            if self.row_problem.is_some() {
+                return;
+            }
+            self.add_timed(*t, [*u, *v, *w], None, scale);
+        }
+    }
+
     fn add(
         &mut self,
         t_s: Option<f64>,
@@ -404,9 +479,16 @@ impl GroupState {
         let Some(t) = t_s else {
             return; // no t_s column: reported when the group is calibrated
         };
+        self.add_timed(t, y, conv.as_ref(), scale);
+    }
+
+    /// A row with a time `t` s (and its conversions `conv`, if the file has them) into
+    /// the sums and the rails, no problem having been met before it.
+    #[inline]
+    fn add_timed(&mut self, t: f64, y: [f64; 3], conv: Option<&Aperture>, scale: f64) {
         let t0 = *self.t0.get_or_insert(t);
         self.last_t = Some(t);
-        let ap = match recording::row_aperture(t, t0, conv.as_ref(), scale, CLOCK) {
+        let ap = match recording::row_aperture(t, t0, conv, scale, CLOCK) {
             Ok(ap) => ap,
             Err(m) => {
                 self.row_problem = Some(m);
@@ -415,8 +497,7 @@ impl GroupState {
         };
         self.span_ticks = self.span_ticks.max(ap.last().0);
         if let Some(m) = self.moments.as_mut() {
-            let f = m.add(&ap, y);
-            self.pilots.add(ap.first().0, f.as_ref(), y, m);
+            pilot::feed(m, &mut self.pilots, &mut self.block, &ap, y);
         }
         for (r, v) in self.rails.iter_mut().zip(y) {
             r.add(v);

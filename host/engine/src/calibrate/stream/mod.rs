@@ -205,6 +205,9 @@ fn calibrate_file_as(
             if first.method != Method::Rotation || first.segmented || first.groups.is_empty() {
                 return whole();
             }
+            for g in &mut first.groups {
+                g.settle();
+            }
             if let Some(meta) = first.meta.take() {
                 rec.meta = *meta;
             }

@@ -4,11 +4,12 @@
 use super::first::{find_group, key_of, over_parts, read_pass, Key};
 use super::fits::{on_rails, sine_pair, Prepared, Residuals};
 use super::{Engine, FileError, REACH_FIT};
-use crate::calibrate::pilot::Pilots;
+use crate::calibrate::pilot::{self, Pilots};
 use crate::calibrate::{err, CalibrateErrorKind, GroupError, CLOCK};
+use crate::fit::block::Block;
 use crate::fit::moments::{self, Moments};
 use crate::fit::noise::Rails;
-use crate::recording::{self, Parse, PartRow, Scanned};
+use crate::recording::{self, Parse, PartRow, Scanned, Stretch};
 use rotacal_shared::{Aperture, Channel, PhaseStep};
 
 impl Engine<'_> {
@@ -66,7 +67,20 @@ impl Engine<'_> {
                 feed(state, rows, gi, row.t_s, row.y, row.conv_gaps.as_ref());
                 true
             };
-            if let Some(states) = over_parts(parts, ranges, Parse::Fit, fresh_part, each_row)? {
+            let each_stretch =
+                |state: &mut (T, Vec<usize>, Option<usize>), line: u64, st: Stretch| {
+                    st.rows()
+                        .zip(line..)
+                        .all(|(row, line)| each_row(state, line, row))
+                };
+            if let Some(states) = over_parts(
+                parts,
+                ranges,
+                Parse::Fit,
+                fresh_part,
+                each_row,
+                each_stretch,
+            )? {
                 let mut total = vec![0usize; n];
                 let mut joined: Option<T> = None;
                 for ((state, rows, _), _) in states {
@@ -138,6 +152,7 @@ impl Engine<'_> {
                         all: m.clone(),
                         flagged: [m.clone(), m.clone(), m],
                         pilots: Pilots::new(self.one_pass && !on_rails(&p.rails)),
+                        block: Box::default(),
                     }
                 })
                 .collect()
@@ -147,8 +162,7 @@ impl Engine<'_> {
                 return;
             };
             if let (Some(c), Some(r)) = (sums.get_mut(k), rails.get(k)) {
-                let f = c.all.add(ap, y);
-                c.pilots.add(ap.first().0, f.as_ref(), y, &c.all);
+                pilot::feed(&mut c.all, &mut c.pilots, &mut c.block, ap, y);
                 for ((f, r), v) in c.flagged.iter_mut().zip(r).zip(y) {
                     if Rails::flags(*r, v) {
                         f.add(ap, y);
@@ -160,7 +174,9 @@ impl Engine<'_> {
         let join = |a: Vec<Correcting>, b: Vec<Correcting>| {
             a.into_iter()
                 .zip(b)
-                .map(|(mut a, b)| {
+                .map(|(mut a, mut b)| {
+                    a.settle();
+                    b.settle();
                     a.pilots.join(&a.all, b.pilots, &b.all, 0);
                     let [a0, a1, a2] = a.flagged;
                     let [b0, b1, b2] = b.flagged;
@@ -168,19 +184,22 @@ impl Engine<'_> {
                         all: a.all.merged(&b.all),
                         flagged: [a0.merged(&b0), a1.merged(&b1), a2.merged(&b2)],
                         pilots: a.pilots,
+                        block: a.block,
                     }
                 })
                 .collect()
         };
         let sums = self.pass(&wanted, fresh, each, join)?;
-        for (k, c) in which.iter().zip(sums) {
+        for (k, mut c) in which.iter().zip(sums) {
             let Some(p) = prepared.get_mut(*k) else {
                 continue;
             };
+            c.settle();
             let Correcting {
                 all,
                 flagged,
                 pilots,
+                ..
             } = c;
             p.pieces_fitted = pilots.into_pieces(&all);
             let all = all.dense();
@@ -292,4 +311,13 @@ struct Correcting {
     all: Moments,
     flagged: [Moments; 3],
     pilots: Pilots,
+    /// Rows waiting to be summed into `all` and `pilots` a block at a time.
+    block: Box<Block>,
+}
+
+impl Correcting {
+    /// The rows waiting, summed.
+    fn settle(&mut self) {
+        pilot::settle(&mut self.all, &mut self.pilots, &mut self.block);
+    }
 }

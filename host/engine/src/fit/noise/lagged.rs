@@ -2,6 +2,7 @@
 //! of a series: the streaming engine's autocovariances.
 
 use super::MAX_ORDER;
+use crate::fit::block::{self, Vals, BLOCK, LANES};
 
 /// The sample autocovariances of a series of residuals at lags 0 … [`MAX_ORDER`], gathered
 /// one residual at a time (as [`NoiseModel::estimate`] computes them from the whole
@@ -127,6 +128,58 @@ impl LaggedSums {
                 *a += l;
                 *b += x * k;
                 *c += k;
+            }
+        }
+    }
+
+    /// [`LaggedSums::add`] of a block of residuals, none flagged: each lag's products
+    /// a dot product over the block ([`crate::fit::block`]), with the window's newest
+    /// samples in front of it. Once a sample has been flagged, one at a time.
+    #[inline(always)]
+    pub fn add_block(&mut self, e: &Vals) {
+        if self.pairwise {
+            for x in e {
+                self.add(*x, false);
+            }
+            return;
+        }
+        // The newest LAGS − 1 samples (oldest first; 0 before the series began), then
+        // the block: ext[LAGS − 1 + i] is the block's sample i.
+        let mut ext = [0.0; LAGS - 1 + BLOCK];
+        let newest = self.win.get(self.pos..self.pos + LAGS - 1).unwrap_or(&[]);
+        for (x, w) in ext.iter_mut().take(LAGS - 1).rev().zip(newest) {
+            *x = *w;
+        }
+        for (x, v) in ext.iter_mut().skip(LAGS - 1).zip(e) {
+            *x = *v;
+        }
+        // Every lag's lanes first, then their folds (block::dot_lanes).
+        let mut lanes = [[0.0; LANES]; LAGS];
+        for (k, acc) in lanes.iter_mut().enumerate() {
+            let lagged = ext.get(LAGS - 1 - k..).unwrap_or(&[]);
+            *acc = block::dot_lanes(e, lagged);
+        }
+        for (p, acc) in self.prod.iter_mut().zip(lanes) {
+            *p += block::fold(acc);
+        }
+        self.sum += block::total(e);
+        for x in e {
+            if self.head.len() >= LAGS {
+                break;
+            }
+            self.head.push(*x);
+            self.head_ok.push(1.0);
+        }
+        self.n += BLOCK;
+        self.used += BLOCK;
+        // The window afresh: win[k] and win[k + LAGS] the sample k back from the newest.
+        self.pos = 0;
+        for (k, x) in ext.iter().rev().take(LAGS).enumerate() {
+            let used = if k < self.n { 1.0 } else { 0.0 };
+            for slot in [k, k + LAGS] {
+                if let (Some(w), Some(o)) = (self.win.get_mut(slot), self.ok.get_mut(slot)) {
+                    (*w, *o) = (*x, used);
+                }
             }
         }
     }
@@ -295,7 +348,7 @@ impl LaggedSums {
 #[cfg(test)]
 #[allow(clippy::indexing_slicing)]
 mod tests {
-    use super::{LaggedSums, LAGS};
+    use super::{LaggedSums, BLOCK, LAGS};
     use proptest::prelude::*;
 
     /// γ̂ₖ from its definition (as NoiseModel::estimate has it).
@@ -322,15 +375,34 @@ mod tests {
         s
     }
 
+    /// [`sums`], the first `lead` samples one at a time, then each block of [`BLOCK`]
+    /// without a flagged sample together (as the streaming calibration's blocks come).
+    fn sums_in_blocks(e: &[f64], flagged: &[bool], lead: usize) -> LaggedSums {
+        let mut s = LaggedSums::default();
+        let lead = lead.min(e.len());
+        for (x, f) in e[..lead].iter().zip(&flagged[..lead]) {
+            s.add(*x, *f);
+        }
+        for (block, flags) in e[lead..].chunks(BLOCK).zip(flagged[lead..].chunks(BLOCK)) {
+            match <&[f64; BLOCK]>::try_from(block) {
+                Ok(b) if !flags.contains(&true) => s.add_block(b),
+                _ => block.iter().zip(flags).for_each(|(x, f)| s.add(*x, *f)),
+            }
+        }
+        s
+    }
+
     proptest! {
         /// Whole, and read in two parts joined (as the streaming calibration reads a
         /// file), the sums give the definition's autocovariances: flagged samples or none,
-        /// the cut anywhere (within the first lags too).
+        /// the cut anywhere (within the first lags too); and so do they in blocks, which
+        /// change only the order of the additions, the blocks starting anywhere.
         #[test]
         fn lagged_sums_give_the_autocovariances(
             e in prop::collection::vec(-50.0f64..50.0, 40..2600),
             flag_every in prop_oneof![Just(0usize), 2usize..200],
             cut in 0.0f64..1.0,
+            lead in 0usize..100,
         ) {
             let n = e.len();
             let flagged: Vec<bool> =
@@ -354,8 +426,14 @@ mod tests {
             } else {
                 two.clone()
             };
+            let blocks = sums_in_blocks(&e, &flagged, lead);
+            prop_assert_eq!(blocks.counts(), sums(&e, &flagged).counts());
+            let blocks_two = sums_in_blocks(&e[..a], &flagged[..a], lead)
+                .followed_by(&sums_in_blocks(&e[a..], &flagged[a..], lead))
+                .autocovariances();
+            let blocks = blocks.autocovariances();
             let scale = want[0].abs().max(1e-300);
-            for got in [&whole, &two, &parts] {
+            for got in [&whole, &two, &parts, &blocks, &blocks_two] {
                 for (k, (g, w)) in got.iter().zip(&want).enumerate() {
                     prop_assert!((g - w).abs() <= 1e-12 * scale, "lag {k}: {g} against {w}");
                 }

@@ -15,7 +15,7 @@ mod parts;
 mod row;
 
 pub use columns::{read_columns, Column, Values};
-pub use parts::{PartRow, Parts};
+pub use parts::{PartRow, Parts, Stretch};
 
 use std::fs::File;
 use std::io::{BufReader, Read};

@@ -5,11 +5,11 @@ use std::path::Path;
 
 use rotacal_shared::{Aperture, Condition};
 
-use super::columns::Column;
+use super::columns::{Column, PlainColumns};
 use super::fast::fast_rows;
 use super::head::{ColumnIndex, Parser};
 use super::{open, Parse};
-use crate::recording::{Metadata, Method, RecordingError, RecordingErrorKind};
+use crate::recording::{Metadata, Method, RecordingError, RecordingErrorKind, Row};
 
 /// A recording with conditions read in parts, each on a thread of its own (the streaming
 /// calibration, on every core): a file in ranges of whole lines, or columns held in memory
@@ -52,6 +52,60 @@ pub struct PartRow {
     pub y: [f64; 3],
     /// Its `conv_gaps`, in the file's device ticks.
     pub conv_gaps: Option<Aperture>,
+}
+
+/// Rows of one group in a row, as the columns hold them: a stretch of a part of columns
+/// whose rows share their condition and `rate_hz` and are each plainly fine (what
+/// [`PartRow`] would say of each).
+#[derive(Clone, Copy, Debug)]
+pub struct Stretch<'a> {
+    pub condition: Condition,
+    pub rate_hz: Option<f64>,
+    pub t_s: Option<&'a [f64]>,
+    /// u, v, w.
+    pub y: [&'a [f64]; 3],
+}
+
+impl PartRow {
+    /// What a part needs of a row the field reader read.
+    pub(super) fn of(r: &Row<'_>) -> PartRow {
+        PartRow {
+            condition: r.condition,
+            rate_hz: r.rate_hz,
+            t_s: r.t_s,
+            y: [r.u, r.v, r.w],
+            conv_gaps: r.conv_gaps,
+        }
+    }
+}
+
+impl Stretch<'_> {
+    /// Its rows.
+    pub fn len(&self) -> usize {
+        let [u, ..] = self.y;
+        u.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// Its rows one at a time, as [`Parts::rows`] gives them.
+    pub fn rows(&self) -> impl Iterator<Item = PartRow> + '_ {
+        let [u, v, w] = self.y;
+        let t = self.t_s;
+        u.iter()
+            .zip(v)
+            .zip(w)
+            .enumerate()
+            .map(move |(i, ((u, v), w))| PartRow {
+                condition: self.condition,
+                rate_hz: self.rate_hz,
+                t_s: t.and_then(|t| t.get(i).copied()),
+                y: [*u, *v, *w],
+                conv_gaps: None,
+            })
+    }
 }
 
 impl Parts<'static> {
@@ -194,6 +248,47 @@ impl<'a> Parts<'a> {
             .collect())
     }
 
+    /// [`Parts::rows`], but columns' rows in stretches of one group each where they are
+    /// plainly fine (`each_stretch`, with the line of its first row): the same rows, without
+    /// a call per row. A file's rows, and rows of columns that are not plainly fine, go to
+    /// `each` one at a time.
+    pub fn stretches(
+        &self,
+        range: (u64, u64),
+        parse: Parse,
+        mut each: impl FnMut(u64, PartRow) -> bool,
+        mut each_stretch: impl FnMut(u64, Stretch<'_>) -> bool,
+    ) -> Result<Option<u64>, RecordingError> {
+        let Source::Columns { columns, .. } = &self.src else {
+            return self.rows(range, parse, each);
+        };
+        let Some(plain) = PlainColumns::of(columns, &self.cols, parse) else {
+            return self.rows(range, parse, each);
+        };
+        let (Ok(start), Ok(end)) = (usize::try_from(range.0), usize::try_from(range.1)) else {
+            return self.rows(range, parse, each);
+        };
+        let mut at = start;
+        while at < end {
+            let stop = plain.stretch_end(at, end).max(at + 1);
+            let line = (at - start) as u64;
+            if let Some(st) = plain.stretch(at, stop) {
+                if !each_stretch(line, st) {
+                    return Ok(None);
+                }
+            } else if self
+                .rows((at as u64, stop as u64), parse, |l, row| {
+                    each(line + l, row)
+                })?
+                .is_none()
+            {
+                return Ok(None);
+            }
+            at = stop;
+        }
+        Ok(Some(range.1 - range.0))
+    }
+
     /// The rows of byte range `range` (from [`Parts::split`]), each with its line number
     /// counted from the range's first line (1), to `each`, which returns false to stop.
     /// `None` when a line needs the csv reader (a quote, a wrong number of fields, a field
@@ -209,20 +304,21 @@ impl<'a> Parts<'a> {
             Source::Columns { columns, .. } => {
                 // A row that fails stops the part (`None`): the caller reads the columns
                 // whole, and that reader names the problem.
+                let plain = PlainColumns::of(columns, &self.cols, parse);
+                let by_field = |row: usize| {
+                    let fields = super::columns::RowOf { columns, row };
+                    super::row::parse_row(&fields, &self.cols, parse)
+                        .ok()
+                        .map(|r| PartRow::of(&r))
+                };
                 for row in range.0..range.1 {
-                    let fields = super::columns::RowOf {
-                        columns,
-                        row: row as usize,
-                    };
-                    let Ok(r) = super::row::parse_row(&fields, &self.cols, parse) else {
+                    let i = row as usize;
+                    let Some(part) = plain
+                        .as_ref()
+                        .and_then(|p| p.row(i))
+                        .or_else(|| by_field(i))
+                    else {
                         return Ok(None);
-                    };
-                    let part = PartRow {
-                        condition: r.condition,
-                        rate_hz: r.rate_hz,
-                        t_s: r.t_s,
-                        y: [r.u, r.v, r.w],
-                        conv_gaps: r.conv_gaps,
                     };
                     if !each(row - range.0, part) {
                         return Ok(None);
@@ -241,16 +337,7 @@ impl<'a> Parts<'a> {
         std::io::Seek::seek(&mut f, io::SeekFrom::Start(range.0)).map_err(io)?;
         let mut part = f.take(range.1.saturating_sub(range.0));
         fast_rows(&mut part, &self.cols, parse, 0, |line, row| {
-            each(
-                line,
-                PartRow {
-                    condition: row.condition,
-                    rate_hz: row.rate_hz,
-                    t_s: row.t_s,
-                    y: [row.u, row.v, row.w],
-                    conv_gaps: row.conv_gaps,
-                },
-            )
+            each(line, PartRow::of(row))
         })
         .map_err(io)
     }
