@@ -39,12 +39,8 @@ def read_recording(path: Union[str, "os.PathLike[str]"]):
     RecordingError
         The file cannot be read: ``line`` and ``column`` say where.
     """
-    import pandas as pd
-
     columns, meta, _method = _rotacal.read_recording(os.fspath(path))
-    df = pd.DataFrame({name: values for name, values in columns})
-    df.attrs["rotacal"] = dict(meta)
-    return df
+    return _frame(columns, meta)
 
 
 def _letters(values: Any) -> Optional[np.ndarray]:
@@ -56,6 +52,16 @@ def _letters(values: Any) -> Optional[np.ndarray]:
         import pandas as pd
     except ImportError:
         return None
+    if isinstance(getattr(values, "dtype", None), pd.CategoricalDtype):
+        # A pandas Categorical (read_recording's condition): a letter per category, looked
+        # up by the codes it holds, without a Python object per row.
+        cats = list(values.cat.categories)
+        if not all(isinstance(c, str) and len(c) == 1 and c.isascii() for c in cats):
+            return None
+        codes = values.cat.codes.to_numpy()
+        if (codes < 0).any():
+            return None  # a missing value: handed over as text, for the engine to name
+        return np.array([ord(c) for c in cats], dtype=np.uint8)[codes]
     n = len(values)
     out = np.empty(n, dtype=np.uint8)
     chunk = 1 << 16
@@ -236,11 +242,25 @@ def _label_row(e: Exception, data: Any) -> None:
             pass
 
 
+def _categorical(letters: Any) -> Any:
+    """A condition column handed back as its letters' bytes (uint8) as a pandas
+    Categorical: three letters a million times over, a byte a row and no Python object per
+    row (and :func:`calibrate` hands it back over as its codes)."""
+    import pandas as pd
+
+    if not (isinstance(letters, np.ndarray) and letters.dtype == np.uint8):
+        return letters
+    present = np.flatnonzero(np.bincount(letters, minlength=256))
+    lut = np.zeros(256, dtype=np.int8)
+    lut[present] = np.arange(len(present))
+    return pd.Categorical.from_codes(lut[letters], categories=[chr(c) for c in present])
+
+
 def _frame(pairs, meta, extra=None):
     """A DataFrame of (name, values) pairs, with the metadata in ``attrs["rotacal"]``."""
     import pandas as pd
 
-    df = pd.DataFrame({name: values for name, values in pairs})
+    df = pd.DataFrame({name: _categorical(v) if name == "condition" else v for name, v in pairs})
     df.attrs["rotacal"] = dict(meta)
     return df
 

@@ -688,11 +688,13 @@ fn columns_of<'py>(py: Python<'py>, rec: &Recording) -> PyResult<Vec<(String, Bo
     let g = &rec.groups;
     let all =
         |f: &dyn Fn(&recording::Group) -> Vec<f64>| -> Vec<f64> { g.iter().flat_map(f).collect() };
-    let condition: Vec<String> = g
+    // The condition as its letters' bytes, which the Python side makes a Categorical.
+    let condition: Vec<u8> = g
         .iter()
-        .flat_map(|x| std::iter::repeat_n(x.condition.letter().to_string(), x.len()))
+        .flat_map(|x| std::iter::repeat_n(x.condition.letter() as u8, x.len()))
         .collect();
-    out.texts("condition", &condition)?;
+    out.cols
+        .push(("condition".into(), condition.into_pyarray(py).into_any()));
     if g.iter().any(|x| x.rate_hz.is_some()) {
         out.numbers(
             "rate_hz",

@@ -53,10 +53,19 @@ def test_the_row_is_a_position_and_index_its_label(df):
 
 
 def test_an_unknown_condition_and_unequal_columns(df):
-    df.loc[3, "condition"] = "q"
-    with pytest.raises(rotacal.RecordingError) as e:
-        rotacal.calibrate(df)
-    assert (e.value.column, e.value.row) == ("condition", 3)
+    # read_recording's condition is a Categorical: a new letter is a new category. As
+    # text, the same letter is named at the same row.
+    as_category = df.copy()
+    as_category["condition"] = as_category["condition"].cat.add_categories("q")
+    as_category.loc[3, "condition"] = "q"
+    as_text = df.copy()
+    as_text["condition"] = as_text["condition"].astype(str)
+    as_text.loc[3, "condition"] = "q"
+    for bad in (as_category, as_text):
+        with pytest.raises(rotacal.RecordingError) as e:
+            rotacal.calibrate(bad)
+        assert (e.value.column, e.value.row) == ("condition", 3)
+        assert "unknown condition 'q'" in str(e.value)
     with pytest.raises(rotacal.RecordingError) as e:
         rotacal.calibrate({"condition": ["x"] * 3, "t_s": np.arange(3.0), "u": np.zeros(3),
                            "v": np.zeros(3), "w": np.zeros(2)}, g_loc=9.81, rate_hz=0.1)

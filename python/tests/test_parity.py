@@ -41,6 +41,24 @@ def test_a_dataframe_calibrates_as_its_file(name, sessions, cli, tmp_path):
     assert t["temperature_c"] == cli_json["traceability"]["temperature_c"]
 
 
+def test_a_condition_as_category_as_text_or_as_polars_is_the_same(sessions):
+    # read_recording gives the condition as a pandas Categorical; as text (pandas' str,
+    # numpy's objects) or a polars column it calibrates the same, digest and all.
+    import polars as pl
+
+    df = rotacal.read_recording(sessions["demo"])
+    assert str(df["condition"].dtype) == "category"
+    want = without(rotacal.calibrate(df).as_dict(), {"date_utc", "command_line"})
+    as_text = df.astype({"condition": str})
+    as_objects = df.assign(condition=df["condition"].to_numpy(dtype=object))
+    as_polars = pl.DataFrame(
+        {c: as_text[c].tolist() if c == "condition" else df[c].to_numpy() for c in df.columns}
+    )
+    for other in (as_text, as_objects, as_polars):
+        got = rotacal.calibrate(other, metadata=df.attrs["rotacal"])
+        assert same(without(got.as_dict(), {"date_utc", "command_line"}), want)
+
+
 def test_the_columns_digest_follows_the_data(sessions):
     df = rotacal.read_recording(sessions["imutk"])
     a = rotacal.calibrate(df).traceability["inputs"][0]["sha256"]
