@@ -2,8 +2,9 @@
 """Issue 35's speed and memory measurement (scripts/bench-python): rotacal.calibrate on a
 DataFrame already in memory against numpy's lstsq of the same three-parameter fits on the
 same arrays (the anchor's fit alone: sin, cos and 1 at the nominal rate per condition, for
-u, v, w together), paired run by run; and the peak memory calibrate's first call adds
-over the DataFrame (VmHWM after resetting it through /proc/self/clear_refs).
+u, v, w together), paired run by run, each first in every other pair; and the peak memory
+calibrate's first call adds over the DataFrame (VmHWM after resetting it through
+/proc/self/clear_refs).
 Usage: python_vs_lstsq.py RECORDING.csv RUNS OUT.json"""
 import gc
 import json
@@ -44,13 +45,21 @@ before = status("VmRSS:")
 cal = rotacal.calibrate(df)
 added = status("VmHWM:") - before
 pairs = []
-for _ in range(runs):
+for i in range(runs):
+    # Each goes first in every other pair: what one leaves behind (numpy's BLAS threads
+    # spinning, caches) falls on both alike.
     t0 = time.perf_counter()
-    anchor()
+    if i % 2 == 0:
+        anchor()
+    else:
+        rotacal.calibrate(df)
     t1 = time.perf_counter()
-    rotacal.calibrate(df)
+    if i % 2 == 0:
+        rotacal.calibrate(df)
+    else:
+        anchor()
     t2 = time.perf_counter()
-    pairs.append((t1 - t0, t2 - t1))
+    pairs.append((t1 - t0, t2 - t1) if i % 2 == 0 else (t2 - t1, t1 - t0))
 a = [p[0] for p in pairs]
 r = [p[1] for p in pairs]
 result = {
