@@ -4,7 +4,7 @@ DataFrame already in memory against numpy's lstsq of the same three-parameter fi
 same arrays (the anchor's fit alone: sin, cos and 1 at the nominal rate per condition, for
 u, v, w together), paired run by run, each first in every other pair; and the peak memory
 calibrate's first call adds over the DataFrame (VmHWM after resetting it through
-/proc/self/clear_refs).
+/proc/self/clear_refs); then calibrate on the same file as pandas.read_csv gives it.
 Usage: python_vs_lstsq.py RECORDING.csv RUNS OUT.json"""
 import gc
 import json
@@ -13,6 +13,7 @@ import sys
 import time
 
 import numpy as np
+import pandas as pd
 
 import rotacal
 
@@ -62,6 +63,16 @@ for i in range(runs):
     pairs.append((t1 - t0, t2 - t1) if i % 2 == 0 else (t2 - t1, t1 - t0))
 a = [p[0] for p in pairs]
 r = [p[1] for p in pairs]
+# The same session as pandas' own reader gives it (the condition as pandas' str, seq as
+# integers): a user's DataFrame rather than read_recording's, timed alone.
+csv = pd.read_csv(path, comment="#")
+meta = df.attrs["rotacal"]
+rotacal.calibrate(csv, metadata=meta)
+csv_times = []
+for _ in range(runs):
+    t0 = time.perf_counter()
+    rotacal.calibrate(csv, metadata=meta)
+    csv_times.append(time.perf_counter() - t0)
 result = {
     "what": "rotacal.calibrate(DataFrame) against numpy lstsq of the same fits, paired",
     "rows": len(df),
@@ -73,6 +84,9 @@ result = {
     "rotacal_s_median": statistics.median(r),
     "rotacal_s_all": r,
     "ratio_lstsq_over_rotacal": statistics.median(a) / statistics.median(r),
+    "read_csv_rotacal_s_median": statistics.median(csv_times),
+    "read_csv_rotacal_s_all": csv_times,
+    "read_csv_ratio_lstsq_over_rotacal": statistics.median(a) / statistics.median(csv_times),
     "peak_added_bytes": added,
     "goals": {"ratio_at_least": 1.0, "peak_added_bytes_at_most": 20 * 2**20},
     "goals_met": {

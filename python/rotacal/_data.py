@@ -86,10 +86,31 @@ def _letters(values: Any) -> Optional[np.ndarray]:
     return out
 
 
+def _objects(values: Any) -> Optional[np.ndarray]:
+    """A column of texts that numpy already holds as Python objects (pandas' ``str``
+    kept in Python, ``object`` columns, numpy object arrays), as that array, without a
+    copy; ``None`` for anything else. The extension reads each distinct object's letter
+    once (a condition column holds a few objects over and over), or the texts."""
+    if isinstance(values, np.ndarray):
+        return values if values.dtype == object and values.ndim == 1 else None
+    try:
+        import pandas as pd
+    except ImportError:
+        return None
+    if not isinstance(values, pd.Series):
+        return None
+    if isinstance(values.array, pd.arrays.StringArray) or values.dtype == object:
+        return values.to_numpy(dtype=object)
+    return None
+
+
 def _column_values(name: str, values: Any) -> Any:
     """A column as the extension takes it: float64 or (a condition's letters) uint8,
-    contiguous, or a list of str."""
+    contiguous; a condition's Python texts as numpy holds them; or a list of str."""
     if name == "condition":
+        objects = _objects(values)
+        if objects is not None:
+            return objects
         letters = _letters(values)
         if letters is not None:
             return letters

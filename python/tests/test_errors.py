@@ -66,6 +66,20 @@ def test_an_unknown_condition_and_unequal_columns(df):
             rotacal.calibrate(bad)
         assert (e.value.column, e.value.row) == ("condition", 3)
         assert "unknown condition 'q'" in str(e.value)
+    # Python objects: a missing one (pandas' NaN, numpy's None) and a text of two letters,
+    # each named at its row.
+    columns = {c: df[c].to_numpy() for c in ("t_s", "u", "v", "w")}
+    for row, value, shown in ((5, None, "'nan'"), (7, "xx", "'xx'")):
+        as_objects = df.assign(condition=df["condition"].to_numpy(dtype=object))
+        as_objects.loc[row, "condition"] = value
+        objects = df["condition"].to_numpy(dtype=object)
+        objects[row] = value
+        arrays = dict(columns, condition=objects)
+        for bad, named in ((as_objects, shown), (arrays, "''" if value is None else shown)):
+            with pytest.raises(rotacal.RecordingError) as e:
+                rotacal.calibrate(bad, metadata=df.attrs["rotacal"])
+            assert (e.value.column, e.value.row) == ("condition", row)
+            assert f"unknown condition {named}" in str(e.value)
     with pytest.raises(rotacal.RecordingError) as e:
         rotacal.calibrate({"condition": ["x"] * 3, "t_s": np.arange(3.0), "u": np.zeros(3),
                            "v": np.zeros(3), "w": np.zeros(2)}, g_loc=9.81, rate_hz=0.1)

@@ -43,7 +43,9 @@ def test_a_dataframe_calibrates_as_its_file(name, sessions, cli, tmp_path):
 
 def test_a_condition_as_category_as_text_or_as_polars_is_the_same(sessions):
     # read_recording gives the condition as a pandas Categorical; as text (pandas' str,
-    # numpy's objects) or a polars column it calibrates the same, digest and all.
+    # numpy's objects, pandas.read_csv's) or a polars column it calibrates the same, digest
+    # and all.
+    import pandas as pd
     import polars as pl
 
     df = rotacal.read_recording(sessions["demo"])
@@ -54,7 +56,9 @@ def test_a_condition_as_category_as_text_or_as_polars_is_the_same(sessions):
     as_polars = pl.DataFrame(
         {c: as_text[c].tolist() if c == "condition" else df[c].to_numpy() for c in df.columns}
     )
-    for other in (as_text, as_objects, as_polars):
+    # pandas' own reader: one str object for every "x" (each distinct object read once).
+    as_csv = pd.read_csv(sessions["demo"], comment="#")[list(df.columns)]
+    for other in (as_text, as_objects, as_polars, as_csv):
         got = rotacal.calibrate(other, metadata=df.attrs["rotacal"])
         assert same(without(got.as_dict(), {"date_utc", "command_line"}), want)
 
