@@ -152,9 +152,12 @@ impl<'py> Held<'py> {
         if let Ok(a) = values.extract::<PyReadonlyArray1<'py, Py<PyAny>>>() {
             let py = values.py();
             let objects = a.as_slice()?;
-            return Ok(match letters_of_objects(py, objects) {
-                Some(l) if name == "condition" => Held::OwnLetters(l),
-                _ => Held::Texts(texts_of_objects(objects, py)?),
+            let letters = (name == "condition")
+                .then(|| letters_of_objects(py, objects))
+                .flatten();
+            return Ok(match letters {
+                Some(l) => Held::OwnLetters(l),
+                None => Held::Texts(texts_of_objects(objects, py)?),
             });
         }
         values
