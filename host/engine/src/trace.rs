@@ -21,24 +21,25 @@ pub struct Build {
     pub commit: &'static str,
 }
 
-/// Why a traceability block could not be made.
+/// Why a traceability block could not be made. The message says the file and why, once:
+/// the cause is part of it, not a source that a chain of causes would print again.
 #[derive(Debug, thiserror::Error)]
 pub enum TraceError {
     /// A file could not be read or written.
-    #[error("{path}: {source}")]
+    #[error("{path}: {error}")]
     Io {
         /// The file.
         path: String,
         /// Why.
-        source: std::io::Error,
+        error: std::io::Error,
     },
     /// A calibration JSON that is not JSON.
-    #[error("{path}: {source}")]
+    #[error("{path}: {error}")]
     Json {
         /// The file.
         path: String,
         /// Why.
-        source: serde_json::Error,
+        error: serde_json::Error,
     },
     /// The recording could not be read.
     #[error(transparent)]
@@ -46,9 +47,9 @@ pub enum TraceError {
 }
 
 fn io_at(path: &Path) -> impl Fn(std::io::Error) -> TraceError + '_ {
-    move |source| TraceError::Io {
+    move |error| TraceError::Io {
         path: path.display().to_string(),
-        source,
+        error,
     }
 }
 
@@ -194,14 +195,14 @@ pub fn input_of_bytes(path: &str, bytes: &[u8]) -> Input {
 }
 
 /// The file at `path`: its size and SHA-256.
-pub fn input(path: &Path) -> std::io::Result<Input> {
-    let at = |e: std::io::Error| std::io::Error::new(e.kind(), format!("{}: {e}", path.display()));
-    let mut f = std::fs::File::open(path).map_err(at)?;
+pub fn input(path: &Path) -> Result<Input, TraceError> {
+    let at = io_at(path);
+    let mut f = std::fs::File::open(path).map_err(&at)?;
     let mut hash = Sha256::new();
     let mut buf = vec![0u8; 1 << 16];
     let mut bytes = 0u64;
     loop {
-        let n = f.read(&mut buf).map_err(at)?;
+        let n = f.read(&mut buf).map_err(&at)?;
         if n == 0 {
             break;
         }
@@ -219,7 +220,7 @@ pub fn input(path: &Path) -> std::io::Result<Input> {
 impl Traceability {
     /// For outputs of `build` made from `inputs` (files of any kind), without a
     /// recording's facts.
-    pub fn new(build: Build, inputs: &[&Path]) -> std::io::Result<Self> {
+    pub fn new(build: Build, inputs: &[&Path]) -> Result<Self, TraceError> {
         Ok(Traceability {
             inputs: inputs.iter().map(|p| input(p)).collect::<Result<_, _>>()?,
             ..Traceability::empty(build)
@@ -235,7 +236,7 @@ impl Traceability {
         g_loc: Option<f64>,
         u_g_loc: Option<f64>,
     ) -> Result<Self, TraceError> {
-        let input = input(path).map_err(io_at(path))?;
+        let input = input(path)?;
         let given = (g_loc, u_g_loc);
         let names = ("--g-loc", "--u-g-loc");
         let mut meta = None;
@@ -385,12 +386,12 @@ impl Traceability {
     /// For outputs made from the calibration JSON at `path`: its facts of the device,
     /// temperature and gravity, and its own block.
     pub fn of_calibration(build: Build, path: &Path) -> Result<Self, TraceError> {
-        let mut t = Traceability::new(build, &[path]).map_err(io_at(path))?;
+        let mut t = Traceability::new(build, &[path])?;
         let text = std::fs::read_to_string(path).map_err(io_at(path))?;
         let json: serde_json::Value =
-            serde_json::from_str(&text).map_err(|source| TraceError::Json {
+            serde_json::from_str(&text).map_err(|error| TraceError::Json {
                 path: path.display().to_string(),
-                source,
+                error,
             })?;
         if let Some(c) = json.get("traceability") {
             let s = |k: &str| c.get(k).and_then(|v| v.as_str()).map(String::from);

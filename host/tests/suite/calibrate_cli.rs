@@ -237,4 +237,26 @@ fn bad_input_names_file_and_line() {
         !ok && stderr.contains("/nonexistent/file.csv") && !stderr.contains("panicked"),
         "{stderr}"
     );
+    // An input that cannot be read is named once, with its cause once (the traceability
+    // block's digest reads it first for `apply`).
+    let out = tmp("applied-nothing.csv");
+    let (ok, _, stderr) = run(&[
+        "apply",
+        "/nonexistent/cal.json",
+        rec.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    let cause = std::io::Error::from(std::io::ErrorKind::NotFound).to_string();
+    assert!(!ok, "{stderr}");
+    assert_eq!(
+        stderr.matches("/nonexistent/cal.json").count(),
+        1,
+        "{stderr}"
+    );
+    assert_eq!(
+        stderr.matches("No such file").count(),
+        1,
+        "{stderr} ({cause})"
+    );
 }
