@@ -306,18 +306,11 @@ fn calibrate_columns(
     let cols = as_columns(&columns, &held)?;
     let meta = str_pairs(&meta);
     // The command line's engine for a file, on the columns where they are.
-    // The columns' digest on a thread of its own, beside the calibration's.
     let (cal, input) = py.detach(|| {
-        std::thread::scope(|scope| {
-            let digest = scope.spawn(|| trace::input_of_columns(&source, &cols));
-            let cal = calibrate::stream::calibrate_columns(&cols, &meta, &source, &opts);
-            let input = digest
-                .join()
-                .map_err(|_| PyValueError::new_err("the columns' digest failed"));
-            (cal, input)
+        beside_digest(&source, &cols, || {
+            calibrate::stream::calibrate_columns(&cols, &meta, &source, &opts)
         })
-    });
-    let input = input?;
+    })?;
     let cal = cal.map_err(|e| match e {
         calibrate::stream::FileError::Read(e) => recording_error(py, &e),
         calibrate::stream::FileError::Calibrate(e) => calibration_error(py, &e, true),
@@ -409,7 +402,7 @@ fn discrepancy_columns(
     command: Vec<String>,
 ) -> PyResult<String> {
     let opts = discrepancy_options(options)?;
-    let (rec, input) = read_held(py, &columns, &meta, &source, None)?;
+    let (rec, input) = read_held(py, &columns, &meta, &source)?;
     let t = Traceability::of_held(
         BUILD,
         &rec,
@@ -452,7 +445,7 @@ fn allan(
             (rec, t, p.display().to_string())
         }
         None => {
-            let (rec, input) = read_held(py, &columns, &meta, &source, None)?;
+            let (rec, input) = read_held(py, &columns, &meta, &source)?;
             let t = Traceability::of_held(BUILD, &rec, input, (None, None), ("g_loc=", "u_g_loc="));
             (rec, t, source)
         }
@@ -463,26 +456,41 @@ fn allan(
     with_trace(&out, t, command)
 }
 
-/// The recording held in `columns` (with `meta`, named `source`, read as `method` if
-/// given), read with the file reader's checks; and the columns as the traceability block's
-/// input.
+/// The recording held in `columns` (with `meta`, named `source`), read with the file
+/// reader's checks; and beside the reading, the columns' digest as the traceability
+/// block's input.
 fn read_held(
     py: Python<'_>,
     columns: &[(String, Bound<'_, PyAny>)],
     meta: &[(String, String)],
     source: &str,
-    method: Option<Method>,
 ) -> PyResult<(Recording, trace::Input)> {
     let held = hold(columns)?;
     let cols = as_columns(columns, &held)?;
     let meta = str_pairs(meta);
     let (rec, input) = py.detach(|| {
-        (
-            recording::read_columns(&cols, &meta, source, method),
-            trace::input_of_columns(source, &cols),
-        )
-    });
+        beside_digest(source, &cols, || {
+            recording::read_columns(&cols, &meta, source, None)
+        })
+    })?;
     Ok((rec.map_err(|e| recording_error(py, &e))?, input))
+}
+
+/// `work` on this thread, and beside it on a thread of its own the digest of `cols` (named
+/// `source`) that the traceability block takes as its input.
+fn beside_digest<T>(
+    source: &str,
+    cols: &[Column<'_>],
+    work: impl FnOnce() -> T,
+) -> PyResult<(T, trace::Input)> {
+    std::thread::scope(|scope| {
+        let digest = scope.spawn(|| trace::input_of_columns(source, cols));
+        let out = work();
+        let input = digest
+            .join()
+            .map_err(|_| PyValueError::new_err("the columns' digest failed"))?;
+        Ok((out, input))
+    })
 }
 
 /// Metadata as the reader takes it.
@@ -553,7 +561,7 @@ fn apply_columns<'py>(
     };
     let loaded = apply::load_text(&calibration, &cal_name, rate_hz, frame)
         .map_err(|e| CalibrationError::new_err(e.to_string()))?;
-    let (rec, input) = read_held(py, &columns, &meta, &source, None)?;
+    let (rec, input) = read_held(py, &columns, &meta, &source)?;
     let mut t = Traceability::new(BUILD, &[]).map_err(|e| PyValueError::new_err(e.to_string()))?;
     t.inputs = vec![
         trace::input_of_bytes(&cal_name, calibration.as_bytes()),
@@ -621,7 +629,13 @@ fn write_columns(
     source: String,
     path: PathBuf,
 ) -> PyResult<()> {
-    let (rec, _) = read_held(py, &columns, &meta, &source, None)?;
+    // Read with the reader's checks; no digest: the file written has its own.
+    let held = hold(&columns)?;
+    let cols = as_columns(&columns, &held)?;
+    let meta = str_pairs(&meta);
+    let rec = py
+        .detach(|| recording::read_columns(&cols, &meta, &source, None))
+        .map_err(|e| recording_error(py, &e))?;
     py.detach(|| {
         rotacal_engine::atomic::write_with(&path, |w| {
             recording::write_recording(&rec, w).map(|_| ())

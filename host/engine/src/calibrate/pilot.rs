@@ -23,7 +23,7 @@ use crate::fit::block::{self, Angles, Block, Vals, BLOCK, LANES};
 use crate::fit::moments::{
     self, pair_row, wide_d, wide_row, Moments, PairSums, PAIR, TREND, WIDE, WIDE_HARMONIC,
 };
-use crate::fit::noise::{LaggedSums, LAGS};
+use crate::fit::noise::{behind, LaggedSums, LAGS};
 use nalgebra::Matrix2;
 use nalgebra::{SMatrix, SVector};
 use rotacal_shared::{Aperture, Channel, PhaseStep, Ticks};
@@ -345,14 +345,7 @@ impl Run {
         }
         // The spans of rows 1 … LAGS − 1 apart, the newest LAGS − 1 ticks (NaN before
         // the piece began: a comparison with it is false) in front of the block's.
-        let mut ext = [f64::NAN; LAGS - 1 + BLOCK];
-        let newest = self.ticks.get(self.pos..self.pos + LAGS - 1).unwrap_or(&[]);
-        for (x, w) in ext.iter_mut().take(LAGS - 1).rev().zip(newest) {
-            *x = *w;
-        }
-        for (x, t) in ext.iter_mut().skip(LAGS - 1).zip(&block.tick) {
-            *x = *t as f64;
-        }
+        let ext = behind(&self.ticks, self.pos, block.tick.iter().map(|t| *t as f64));
         let now = ext.get(LAGS - 1..).unwrap_or(&[]);
         for (k, (lo, hi)) in self.lo.iter_mut().zip(self.hi.iter_mut()).enumerate() {
             let then = ext.get(LAGS - 1 - k..).unwrap_or(&[]);

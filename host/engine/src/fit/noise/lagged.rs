@@ -43,6 +43,30 @@ pub struct LaggedSums {
 /// Lags 0 … [`MAX_ORDER`].
 pub const LAGS: usize = MAX_ORDER + 1;
 
+/// A block's values with the LAGS − 1 before it in front: `ext[LAGS − 1 + i]` is the
+/// block's value i, `ext[LAGS − 2 − k]` the value k + 1 back.
+pub(crate) type Behind = [f64; LAGS - 1 + BLOCK];
+
+/// [`Behind`] of `block`, the values before it from a window stored twice over as
+/// [`LaggedSums`] keeps its residuals (`window[pos + k]` the value k back from the newest):
+/// the lagged sums' residuals, the pilots' ticks.
+#[inline(always)]
+pub(crate) fn behind(
+    window: &[f64; 2 * LAGS],
+    pos: usize,
+    block: impl IntoIterator<Item = f64>,
+) -> Behind {
+    let mut ext = [0.0; LAGS - 1 + BLOCK];
+    let newest = window.get(pos..pos + LAGS - 1).unwrap_or(&[]);
+    for (x, w) in ext.iter_mut().take(LAGS - 1).rev().zip(newest) {
+        *x = *w;
+    }
+    for (x, v) in ext.iter_mut().skip(LAGS - 1).zip(block) {
+        *x = v;
+    }
+    ext
+}
+
 // LaggedSums::add takes the lags after 0 in pairs.
 const _: () = assert!(MAX_ORDER % 2 == 0, "the lags after 0 go in pairs");
 
@@ -143,16 +167,8 @@ impl LaggedSums {
             }
             return;
         }
-        // The newest LAGS − 1 samples (oldest first; 0 before the series began), then
-        // the block: ext[LAGS − 1 + i] is the block's sample i.
-        let mut ext = [0.0; LAGS - 1 + BLOCK];
-        let newest = self.win.get(self.pos..self.pos + LAGS - 1).unwrap_or(&[]);
-        for (x, w) in ext.iter_mut().take(LAGS - 1).rev().zip(newest) {
-            *x = *w;
-        }
-        for (x, v) in ext.iter_mut().skip(LAGS - 1).zip(e) {
-            *x = *v;
-        }
+        // The newest LAGS − 1 samples (0 before the series began), then the block.
+        let ext = behind(&self.win, self.pos, e.iter().copied());
         // Every lag's lanes first, then their folds (block::dot_lanes).
         let mut lanes = [[0.0; LANES]; LAGS];
         for (k, acc) in lanes.iter_mut().enumerate() {
@@ -172,7 +188,7 @@ impl LaggedSums {
         }
         self.n += BLOCK;
         self.used += BLOCK;
-        // The window afresh: win[k] and win[k + LAGS] the sample k back from the newest.
+        // The window afresh, from its newest sample; those before the series began unused.
         self.pos = 0;
         for (k, x) in ext.iter().rev().take(LAGS).enumerate() {
             let used = if k < self.n { 1.0 } else { 0.0 };

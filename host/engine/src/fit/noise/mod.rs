@@ -29,6 +29,7 @@ mod regression;
 mod slow;
 mod streamed;
 
+pub(crate) use lagged::behind;
 pub use lagged::{LaggedSums, LAGS};
 pub use model_check::{ModelCheck, PeriodScatter, Verdict, ALPHA as MODEL_CHECK_ALPHA};
 pub use rails::{clipped, Rails};

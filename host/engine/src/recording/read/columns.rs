@@ -280,12 +280,12 @@ impl<'a> PlainColumns<'a> {
     }
 
     /// The end of the stretch of rows from `start` (before `end`) that share row
-    /// `start`'s condition letter and `rate_hz`.
-    pub(super) fn stretch_end(&self, start: usize, end: usize) -> usize {
+    /// `start`'s condition letter and `rate_hz` (at least `start + 1`).
+    fn stretch_end(&self, start: usize, end: usize) -> usize {
         let (Some(letter), Some(cond)) =
             (self.condition.get(start), self.condition.get(start..end))
         else {
-            return start;
+            return start + 1;
         };
         let same = |r: &[f64]| -> Option<usize> {
             let first = r.get(start)?.to_bits();
@@ -298,14 +298,23 @@ impl<'a> PlainColumns<'a> {
         };
         let by_letter = cond.iter().position(|c| c != letter).unwrap_or(cond.len());
         let by_rate = self.rate_hz.and_then(same).unwrap_or(by_letter);
-        start + by_letter.min(by_rate)
+        (start + by_letter.min(by_rate)).max(start + 1)
     }
 
-    /// Rows `start..end` as one stretch of a group, when every row of it is plainly fine
-    /// ([`PlainColumns::row`]'s checks, made column by column); `None` otherwise.
-    pub(super) fn stretch(&self, start: usize, end: usize) -> Option<Stretch<'a>> {
+    /// The stretch of one group's rows from `start` (before `end`): where it stops, and
+    /// its rows when every one of them is plainly fine, checked column by column as
+    /// [`parse_row`] checks each field (a condition letter, finite numbers, a whole `seq`,
+    /// a positive `rate_hz`); `None` for anything else, which [`parse_row`] then reads or
+    /// names.
+    pub(super) fn stretch(&self, start: usize, end: usize) -> (usize, Option<Stretch<'a>>) {
+        let stop = self.stretch_end(start, end);
+        (stop, self.checked(start, stop))
+    }
+
+    /// Rows `start..stop` of one condition and rate as a stretch, if each is plainly fine.
+    fn checked(&self, start: usize, stop: usize) -> Option<Stretch<'a>> {
         let condition = Condition::from_letter(char::from(*self.condition.get(start)?))?;
-        let part = |c: &'a [f64]| c.get(start..end);
+        let part = |c: &'a [f64]| c.get(start..stop);
         // Folds, not `all`, which stops at the first and so is not vectorised.
         let all_finite = |x: &[f64]| x.iter().fold(true, |ok, v| ok & v.is_finite());
         let finite = |c: Option<&'a [f64]>| -> Option<Option<&'a [f64]>> {
@@ -322,6 +331,7 @@ impl<'a> PlainColumns<'a> {
             return None;
         }
         let t_s = finite(self.t_s)?;
+        // One rate for the stretch (stretch_end).
         let rate_hz = match finite(self.rate_hz)? {
             Some(r) => {
                 let first = *r.first()?;
@@ -331,6 +341,7 @@ impl<'a> PlainColumns<'a> {
         };
         finite(self.angle_deg)?;
         finite(self.temp_c)?;
+        // As the integer reader takes a number: whole, from 0 to below 2⁶⁴.
         if let Some(seq) = finite(self.seq)? {
             if !seq
                 .iter()
@@ -347,42 +358,9 @@ impl<'a> PlainColumns<'a> {
         })
     }
 
-    /// Row `i`, when every field of it is plainly fine: a condition letter, finite
-    /// numbers, a whole `seq` and a positive `rate_hz` ([`parse_row`]'s checks of them).
-    /// `None` for anything else, which [`parse_row`] then reads or names.
-    #[inline]
+    /// Row `i`, when it is plainly fine: a stretch of one row.
     pub(super) fn row(&self, i: usize) -> Option<PartRow> {
-        let condition = Condition::from_letter(char::from(*self.condition.get(i)?))?;
-        let at = |c: Option<&[f64]>| -> Option<Option<f64>> {
-            match c {
-                Some(c) => c.get(i).copied().filter(|x| x.is_finite()).map(Some),
-                None => Some(None),
-            }
-        };
-        let y = [*self.u.get(i)?, *self.v.get(i)?, *self.w.get(i)?];
-        if !y.iter().all(|x| x.is_finite()) {
-            return None;
-        }
-        let t_s = at(self.t_s)?;
-        let rate_hz = at(self.rate_hz)?;
-        if rate_hz.is_some_and(|r| r <= 0.0) {
-            return None;
-        }
-        at(self.angle_deg)?;
-        at(self.temp_c)?;
-        // As the integer reader takes a number: whole, from 0 to below 2⁶⁴.
-        if let Some(s) = at(self.seq)? {
-            if !(s >= 0.0 && s.fract() == 0.0 && s < u64::MAX as f64) {
-                return None;
-            }
-        }
-        Some(PartRow {
-            condition,
-            rate_hz,
-            t_s,
-            y,
-            conv_gaps: None,
-        })
+        self.checked(i, i + 1)?.rows().next()
     }
 }
 
@@ -457,9 +435,9 @@ mod tests {
                 if let Some(row) = plain.row(i) {
                     prop_assert_eq!(Some(row), by_field(&columns, &cols, parse, i), "row {}", i);
                 }
-                let end = plain.stretch_end(i, n);
+                let (end, st) = plain.stretch(i, n);
                 prop_assert!(end > i);
-                if let Some(st) = plain.stretch(i, end) {
+                if let Some(st) = st {
                     let mine: Vec<_> = st.rows().collect();
                     let theirs: Vec<_> = (i..end).map(|j| by_field(&columns, &cols, parse, j)).collect();
                     prop_assert_eq!(mine.into_iter().map(Some).collect::<Vec<_>>(), theirs);

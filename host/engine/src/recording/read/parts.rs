@@ -270,9 +270,9 @@ impl<'a> Parts<'a> {
         };
         let mut at = start;
         while at < end {
-            let stop = plain.stretch_end(at, end).max(at + 1);
+            let (stop, stretch) = plain.stretch(at, end);
             let line = (at - start) as u64;
-            if let Some(st) = plain.stretch(at, stop) {
+            if let Some(st) = stretch {
                 if !each_stretch(line, st) {
                     return Ok(None);
                 }
